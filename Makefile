@@ -1,0 +1,46 @@
+# kdray: every target does its own set-up (a virtual environment from pyproject.toml).
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-$(shell cksum pyproject.toml | cut -d' ' -f1)
+SCENE ?= scenes/cornell.obj
+OUT ?= out
+
+.PHONY: install render test test-long bench bench-build bench-trace golden clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	rm -f $(VENV)/.installed-*
+	touch $@
+
+# Render the default scene: out/cornell.exr and a PNG preview.
+render: $(STAMP)
+	mkdir -p $(OUT)
+	$(BIN)/kdray render $(SCENE) -o $(OUT)/cornell.exr --preview $(OUT)/cornell.png
+
+# The test suite (about 10 minutes at most on 2 cores); long checks are `make test-long`.
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not slow"
+
+test-long: $(STAMP)
+	$(BIN)/python -m pytest -q -m slow
+
+bench-build: $(STAMP)
+	$(BIN)/python bench/bench_build.py
+
+bench-trace: $(STAMP)
+	$(BIN)/python -m pip install -q -e '.[bench]'
+	$(BIN)/python bench/bench_trace.py
+
+bench: bench-build bench-trace
+
+# Regenerate the golden images on purpose (review the diff before committing).
+golden: $(STAMP)
+	$(BIN)/python tests/make_golden.py
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache build *.egg-info

@@ -1,0 +1,38 @@
+"""Errors raised by kdray. Library code raises these; only `kdray.cli` turns them
+into one-line messages."""
+
+
+class KdrayError(Exception):
+    """Base class of every error kdray raises on purpose."""
+
+
+class MeshError(KdrayError):
+    """A mesh file or mesh arrays that cannot be used (missing, unreadable, no triangles)."""
+
+
+class TreeFileError(KdrayError):
+    """A tree file that is truncated, corrupt, of another version or out of range."""
+
+
+class TreeError(KdrayError):
+    """A tree whose arrays break a structural invariant (see `KdTree.validate`)."""
+
+
+class DeviceError(KdrayError):
+    """No OpenCL platform or device, or a device too small for the work."""
+
+
+class KernelBuildError(DeviceError):
+    """An OpenCL program failed to build; `log` holds the compiler's build log."""
+
+    def __init__(self, message, log=""):
+        super().__init__(message)
+        self.log = log
+
+
+class CameraError(KdrayError):
+    """A camera that cannot be built (bad field of view, eye equal to target, ...)."""
+
+
+class OutputError(KdrayError):
+    """An image or tree file that cannot be written."""

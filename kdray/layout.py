@@ -1,0 +1,221 @@
+"""The k-d tree's binary layout and its file format: the single source of truth.
+
+`kernels/layout.h` mirrors the node encoding below; `tests/test_layout.py` checks
+that they agree on a device.
+
+Node (8 bytes, pbrt-style, depth-first order)::
+
+    word 0  uint32 flags    bits 0-1: split_axis (0, 1, 2) or 3 = leaf
+                            bits 2-31: interior: above_child (node index)
+                                       leaf: n_prims (triangles in the leaf)
+    word 1  interior: float32 split (the plane's coordinate, relative to `origin`)
+            leaf:     uint32 leaf_offset (first index into `leaf_tris`)
+
+The below child of interior node i is i + 1; its above child is `above_child > i`.
+A leaf lists `leaf_tris[leaf_offset : leaf_offset + n_prims]`, indices into the
+tree's triangle array, whose `tri_ids` map back to the input's triangle order.
+
+Tree file, version 1 (all little-endian)::
+
+    offset  size  field
+    0       8     magic b"KDRAYTRE"
+    8       4     u32 format version (1)
+    12      4     u32 header size (128)
+    16      4     u32 n_nodes
+    20      4     u32 n_leaf_refs          (length of leaf_tris)
+    24      4     u32 n_tris               (triangles stored in the tree)
+    28      4     u32 n_input_tris         (triangles in the input; tri_ids < this)
+    32      4     u32 depth                (deepest leaf; root is depth 0)
+    36      4     u32 max_depth            (build parameter, resolved)
+    40      4     u32 leaf_size            (build parameter)
+    44      4     u32 reserved, 0
+    48      8     f64 K_T
+    56      8     f64 K_I
+    64      8     f64 empty_bonus
+    72      24    f64[3] origin            (world position the float32 data is relative to)
+    96      24    f32[6] bounds            (scene box, min xyz then max xyz, relative)
+    120     8     reserved, 0
+    128     8 n_nodes       nodes          (u32 flags, u32 split/leaf_offset)
+            4 n_leaf_refs   leaf_tris      (u32)
+            36 n_tris       triangles      (f32 v0 xyz, v1 xyz, v2 xyz, relative)
+            4 n_tris        tri_ids        (u32)
+    end-16  16    checksum: BLAKE2b (16-byte digest) of every byte before it
+
+The version changes only when this layout does.
+"""
+import hashlib
+import os
+import struct
+
+import numpy as np
+
+from .errors import TreeFileError
+
+LEAF = 3
+"""`split_axis` value that marks a leaf."""
+
+MAX_NODES = 1 << 30
+"""Upper bound of node indices and leaf sizes (30 bits of `flags`)."""
+
+MAX_DEPTH_LIMIT = 64
+"""No tree is deeper than this; kernels size their stacks and loops from it."""
+
+MAGIC = b"KDRAYTRE"
+VERSION = 1
+HEADER = struct.Struct("<8s10I 3d 3d 6f 8x")
+HEADER_SIZE = 128
+CHECKSUM_SIZE = 16
+assert HEADER.size == HEADER_SIZE
+
+NODE_DTYPE = np.dtype("<u4")
+"""Nodes are a (n_nodes, 2) array of this dtype."""
+
+
+# -- node encoding ------------------------------------------------------------
+
+def make_interior(split_axis, split, above_child):
+    """Encode interior nodes.
+
+    split_axis : (k,) int in {0, 1, 2};  split : (k,) float32;  above_child : (k,) int
+    Returns (k, 2) uint32.
+    """
+    split_axis = np.asarray(split_axis, dtype=np.uint32)
+    above_child = np.asarray(above_child, dtype=np.uint32)
+    out = np.empty(split_axis.shape + (2,), dtype=np.uint32)
+    out[..., 0] = split_axis | (above_child << np.uint32(2))
+    out[..., 1] = np.asarray(split, dtype=np.float32).view(np.uint32)
+    return out
+
+
+def make_leaf(n_prims, leaf_offset):
+    """Encode leaves. n_prims, leaf_offset : (k,) int. Returns (k, 2) uint32."""
+    n_prims = np.asarray(n_prims, dtype=np.uint32)
+    out = np.empty(n_prims.shape + (2,), dtype=np.uint32)
+    out[..., 0] = np.uint32(LEAF) | (n_prims << np.uint32(2))
+    out[..., 1] = np.asarray(leaf_offset, dtype=np.uint32)
+    return out
+
+
+def split_axis(nodes):
+    """(n,) uint32: 0, 1, 2 for interior nodes, LEAF (3) for leaves."""
+    return nodes[..., 0] & np.uint32(3)
+
+
+def is_leaf(nodes):
+    """(n,) bool."""
+    return split_axis(nodes) == LEAF
+
+
+def above_child(nodes):
+    """(n,) uint32; meaningful for interior nodes only."""
+    return nodes[..., 0] >> np.uint32(2)
+
+
+n_prims = above_child
+"""(n,) uint32 triangle count; meaningful for leaves only (same bits as above_child)."""
+
+
+def split(nodes):
+    """(n,) float32 split position; meaningful for interior nodes only."""
+    return np.ascontiguousarray(nodes[..., 1]).view(np.float32)
+
+
+def leaf_offset(nodes):
+    """(n,) uint32 first index into leaf_tris; meaningful for leaves only."""
+    return nodes[..., 1]
+
+
+# -- file format ----------------------------------------------------------------
+
+def file_size(n_nodes, n_leaf_refs, n_tris):
+    """Exact byte size of a version-1 file with these counts."""
+    return HEADER_SIZE + 8 * n_nodes + 4 * n_leaf_refs + 40 * n_tris + CHECKSUM_SIZE
+
+
+def encode(tree):
+    """KdTree -> bytes of a version-1 tree file (deterministic)."""
+    p = tree.params
+    header = HEADER.pack(
+        MAGIC, VERSION, HEADER_SIZE,
+        len(tree.nodes), len(tree.leaf_tris), len(tree.triangles), tree.n_input_tris,
+        tree.depth, p.max_depth, p.leaf_size, 0,
+        p.K_T, p.K_I, p.empty_bonus,
+        *np.asarray(tree.origin, dtype="<f8").tolist(),
+        *np.asarray(tree.bounds, dtype="<f4").reshape(6).tolist(),
+    )
+    body = b"".join([
+        header,
+        np.ascontiguousarray(tree.nodes, dtype="<u4").tobytes(),
+        np.ascontiguousarray(tree.leaf_tris, dtype="<u4").tobytes(),
+        np.ascontiguousarray(tree.triangles, dtype="<f4").tobytes(),
+        np.ascontiguousarray(tree.tri_ids, dtype="<u4").tobytes(),
+    ])
+    return body + hashlib.blake2b(body, digest_size=CHECKSUM_SIZE).digest()
+
+
+def decode(data, name="tree file"):
+    """bytes -> dict of the KdTree's fields, or TreeFileError.
+
+    Every count is checked against the byte size before any array is made, so a
+    hostile header cannot make us allocate; the checksum is checked before the
+    arrays are trusted. Structural checks are `KdTree.validate()`'s job.
+    """
+    data = memoryview(data)
+    if len(data) < HEADER_SIZE + CHECKSUM_SIZE:
+        raise TreeFileError(f"{name}: truncated ({len(data)} bytes; a tree file has at least "
+                            f"{HEADER_SIZE + CHECKSUM_SIZE})")
+    (magic, version, header_size, n_nodes, n_leaf_refs, n_tris, n_input_tris, depth,
+     max_depth, leaf_size, _reserved, K_T, K_I, empty_bonus,
+     ox, oy, oz, *bounds) = HEADER.unpack_from(data, 0)
+    if magic != MAGIC:
+        raise TreeFileError(f"{name}: not a kdray tree file (bad magic {bytes(magic)!r})")
+    if version != VERSION:
+        raise TreeFileError(f"{name}: tree file format version {version}; this kdray reads "
+                            f"version {VERSION} (rebuild it with `kdray build`)")
+    if header_size != HEADER_SIZE:
+        raise TreeFileError(f"{name}: header size {header_size}, expected {HEADER_SIZE}")
+    expected = file_size(n_nodes, n_leaf_refs, n_tris)
+    if len(data) != expected:
+        raise TreeFileError(f"{name}: {len(data)} bytes, but its counts need {expected} "
+                            f"(truncated or corrupt)")
+    body = data[: expected - CHECKSUM_SIZE]
+    digest = hashlib.blake2b(body, digest_size=CHECKSUM_SIZE).digest()
+    if digest != bytes(data[expected - CHECKSUM_SIZE:]):
+        raise TreeFileError(f"{name}: checksum mismatch (the file is corrupt)")
+    off = HEADER_SIZE
+
+    def take(dtype, count, shape):
+        nonlocal off
+        arr = np.frombuffer(data, dtype=dtype, count=count, offset=off).reshape(shape).copy()
+        off += arr.nbytes
+        return arr
+
+    nodes = take("<u4", 2 * n_nodes, (n_nodes, 2))
+    leaf_tris = take("<u4", n_leaf_refs, (n_leaf_refs,))
+    triangles = take("<f4", 9 * n_tris, (n_tris, 3, 3))
+    tri_ids = take("<u4", n_tris, (n_tris,))
+    return dict(
+        nodes=nodes, leaf_tris=leaf_tris, triangles=triangles, tri_ids=tri_ids,
+        origin=np.array([ox, oy, oz], dtype=np.float64),
+        bounds=np.array(bounds, dtype=np.float32).reshape(2, 3),
+        n_input_tris=int(n_input_tris), depth=int(depth),
+        params=dict(K_T=K_T, K_I=K_I, empty_bonus=empty_bonus,
+                    max_depth=int(max_depth), leaf_size=int(leaf_size)),
+    )
+
+
+def write_atomic(path, data):
+    """Write bytes to `path` through a temporary file in the same folder and a
+    rename, so a crash or Ctrl-C never leaves a half-written file."""
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)

@@ -1,0 +1,220 @@
+"""Float64 numpy oracles for every kernel and tree test.
+
+- `brute_force(triangles, origins, directions)`: every ray against every triangle.
+- `traverse(tree, origins, directions)`: the same hits found through a KdTree's
+  leaves (a breadth-first, closed-interval traversal: every leaf whose closed box the
+  ray's segment touches), so a tree that misses a triangle somewhere shows up.
+
+Both use the watertight test of Woop, Benthin & Wald 2013 in float64, the rule the
+kernels follow: a hit needs t_min < t < t_max (t > 0 strictly by default), a ray in
+the triangle's plane (det = 0) misses, zero-area triangles never hit, and of hits at
+equal t the lowest triangle index wins. t is in units of |direction|.
+"""
+import dataclasses
+
+import numpy as np
+
+MISS = np.uint32(0xFFFFFFFF)
+
+
+@dataclasses.dataclass
+class Hits:
+    """Nearest hits of N rays.
+
+    t : (N,) float64, +inf on a miss;  prim : (N,) int64, -1 on a miss;
+    u, v : (N,) float64 barycentrics, P = (1-u-v) v0 + u v1 + v v2 (0 on a miss).
+    """
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+    @property
+    def hit(self):
+        return self.prim >= 0
+
+    @classmethod
+    def misses(cls, n):
+        return cls(np.full(n, np.inf), np.full(n, -1, dtype=np.int64), np.zeros(n), np.zeros(n))
+
+
+def _as_rays(origins, directions):
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    if o.shape != d.shape:
+        raise ValueError(f"origins {o.shape} and directions {d.shape} differ in shape")
+    return o, d
+
+
+def intersect(tri, o, d, t_min, t_max):
+    """Watertight ray/triangle test, pairwise, float64.
+
+    tri : (k, 3, 3);  o, d : (k, 3);  t_min, t_max : scalars or (k,).
+    Returns (hit (k,) bool, t, u, v (k,) float64).
+    """
+    k = len(tri)
+    rows = np.arange(k)
+    kz = np.argmax(np.abs(d), axis=1)
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    flip = d[rows, kz] < 0                      # keep the winding: swap kx and ky
+    kx, ky = np.where(flip, ky, kx), np.where(flip, kx, ky)
+    dz = d[rows, kz]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        sx = d[rows, kx] / dz
+        sy = d[rows, ky] / dz
+        sz = 1.0 / dz
+        rel = tri - o[:, None, :]               # (k, 3 vertices, 3)
+        px = rel[rows, :, kx]                   # (k, 3): vertex coordinates per axis
+        py = rel[rows, :, ky]
+        pz = rel[rows, :, kz]
+        ax = px[:, 0] - sx * pz[:, 0]
+        ay = py[:, 0] - sy * pz[:, 0]
+        bx = px[:, 1] - sx * pz[:, 1]
+        by = py[:, 1] - sy * pz[:, 1]
+        cx = px[:, 2] - sx * pz[:, 2]
+        cy = py[:, 2] - sy * pz[:, 2]
+        U = cx * by - cy * bx
+        V = ax * cy - ay * cx
+        W = bx * ay - by * ax
+        det = U + V + W
+        inside = ~(((U < 0) | (V < 0) | (W < 0)) & ((U > 0) | (V > 0) | (W > 0)))
+        T = U * (sz * pz[:, 0]) + V * (sz * pz[:, 1]) + W * (sz * pz[:, 2])
+        t = T / det
+        hit = inside & (det != 0) & (t > t_min) & (t < t_max) & np.isfinite(t)
+        u = np.where(hit, V / det, 0.0)
+        v = np.where(hit, W / det, 0.0)
+    return hit, np.where(hit, t, np.inf), u, v
+
+
+def _nearest(n, ray, prim, t, u, v):
+    """Reduce candidate hits to the nearest per ray (ties: lowest prim)."""
+    out = Hits.misses(n)
+    if len(ray) == 0:
+        return out
+    order = np.lexsort((prim, t, ray))
+    ray, prim, t, u, v = ray[order], prim[order], t[order], u[order], v[order]
+    first = np.ones(len(ray), dtype=bool)
+    first[1:] = ray[1:] != ray[:-1]
+    r = ray[first]
+    out.t[r], out.prim[r], out.u[r], out.v[r] = t[first], prim[first], u[first], v[first]
+    return out
+
+
+def _slab(lo, hi, o, d, t_min, t_max):
+    """Closed ray/box interval, NaN-safe for zero direction components.
+
+    lo, hi, o, d : (k, 3). Returns (t0, t1) (k,); empty where t0 > t1."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        ta = (lo - o) * inv
+        tb = (hi - o) * inv
+    near = np.minimum(ta, tb)
+    far = np.maximum(ta, tb)
+    zero = d == 0
+    inside = (o >= lo) & (o <= hi)
+    near = np.where(zero, np.where(inside, -np.inf, np.inf), near)
+    far = np.where(zero, np.where(inside, np.inf, -np.inf), far)
+    t0 = np.maximum(near.max(axis=1), t_min)
+    t1 = np.minimum(far.min(axis=1), t_max)
+    return t0, t1
+
+
+def brute_force(triangles, origins, directions, t_min=0.0, t_max=np.inf, chunk=1 << 21):
+    """Nearest hit of every ray against every triangle, float64.
+
+    triangles : (m, 3, 3) float-like;  origins, directions : (N, 3) float-like.
+    Returns Hits with prim = row index into `triangles`.
+    A conservative (slightly inflated) box test prunes pairs before the exact test.
+    """
+    tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+    o, d = _as_rays(origins, directions)
+    n, m = len(o), len(tri)
+    if n == 0 or m == 0:
+        return Hits.misses(n)
+    lo = tri.min(axis=1)
+    hi = tri.max(axis=1)
+    pad = 1e-9 * (np.abs(lo) + np.abs(hi)) + 1e-300
+    lo, hi = lo - pad, hi + pad
+    rays_per = max(1, chunk // m)
+    found = []
+    for start in range(0, n, rays_per):
+        r = np.arange(start, min(n, start + rays_per))
+        rr = np.repeat(r, m)
+        tt = np.tile(np.arange(m), len(r))
+        t0, t1 = _slab(lo[tt], hi[tt], o[rr], d[rr], -np.inf, np.inf)
+        keep = (t0 <= t1) & (t1 >= t_min)
+        rr, tt = rr[keep], tt[keep]
+        hit, t, u, v = intersect(tri[tt], o[rr], d[rr], t_min, t_max)
+        found.append((rr[hit], tt[hit], t[hit], u[hit], v[hit]))
+    ray, prim, t, u, v = (np.concatenate(x) for x in zip(*found))
+    return _nearest(n, ray, prim, t, u, v)
+
+
+def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096):
+    """Nearest hits through the tree's leaves, float64 on the tree's float32 data.
+
+    tree : KdTree;  origins, directions : (N, 3) world coordinates (float64).
+    Returns Hits with prim = input triangle id (tree.tri_ids), -1 on a miss.
+    """
+    from . import layout
+
+    o, d = _as_rays(origins, directions)
+    o = o - tree.origin
+    n = len(o)
+    out = Hits.misses(n)
+    tri = tree.triangles.astype(np.float64)
+    axis_all = layout.split_axis(tree.nodes).astype(np.int64)
+    split_all = layout.split(tree.nodes).astype(np.float64)
+    above_all = layout.above_child(tree.nodes).astype(np.int64)
+    count_all = layout.n_prims(tree.nodes).astype(np.int64)
+    first_all = layout.leaf_offset(tree.nodes).astype(np.int64)
+    bounds = tree.bounds.astype(np.float64)
+    for start in range(0, n, chunk):
+        r = np.arange(start, min(n, start + chunk))
+        t0, t1 = _slab(np.broadcast_to(bounds[0], (len(r), 3)), np.broadcast_to(bounds[1], (len(r), 3)),
+                       o[r], d[r], t_min, t_max)
+        live = t0 <= t1
+        ray, node, lo, hi = r[live], np.zeros(live.sum(), dtype=np.int64), t0[live], t1[live]
+        leaf_ray, leaf_node = [], []
+        while len(ray):
+            ax = axis_all[node]
+            at_leaf = ax == layout.LEAF
+            leaf_ray.append(ray[at_leaf])
+            leaf_node.append(node[at_leaf])
+            keep = ~at_leaf
+            ray, node, lo, hi, ax = ray[keep], node[keep], lo[keep], hi[keep], ax[keep]
+            ok = o[ray, ax]
+            dk = d[ray, ax]
+            s = split_all[node]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ts = (s - ok) / dk
+            # below side is {t : ok + t dk <= s}; above side is {t : ok + t dk >= s}
+            b_lo = np.where(dk < 0, np.maximum(lo, ts), lo)
+            b_hi = np.where(dk > 0, np.minimum(hi, ts), hi)
+            a_lo = np.where(dk > 0, np.maximum(lo, ts), lo)
+            a_hi = np.where(dk < 0, np.minimum(hi, ts), hi)
+            flat = dk == 0
+            go_b = np.where(flat, ok <= s, b_lo <= b_hi)
+            go_a = np.where(flat, ok >= s, a_lo <= a_hi)
+            b_lo, b_hi = np.where(flat, lo, b_lo), np.where(flat, hi, b_hi)
+            a_lo, a_hi = np.where(flat, lo, a_lo), np.where(flat, hi, a_hi)
+            ray = np.concatenate([ray[go_b], ray[go_a]])
+            node = np.concatenate([node[go_b] + 1, above_all[node[go_a]]])
+            lo = np.concatenate([b_lo[go_b], a_lo[go_a]])
+            hi = np.concatenate([b_hi[go_b], a_hi[go_a]])
+        lr = np.concatenate(leaf_ray)
+        ln = np.concatenate(leaf_node)
+        cnt = count_all[ln]
+        pr = np.repeat(lr, cnt)
+        pos = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(first_all[ln], cnt)
+        pt = tree.leaf_tris[pos].astype(np.int64)
+        if len(pr):
+            pair = np.unique(pr * len(tri) + pt)      # a triangle in several leaves: test once
+            pr, pt = pair // len(tri), pair % len(tri)
+        hit, t, u, v = intersect(tri[pt], o[pr], d[pr], t_min, t_max)
+        ids = tree.tri_ids[pt[hit]].astype(np.int64)
+        part = _nearest(n, pr[hit], ids, t[hit], u[hit], v[hit])
+        sel = r[part.hit[r]]
+        out.t[sel], out.prim[sel], out.u[sel], out.v[sel] = part.t[sel], part.prim[sel], part.u[sel], part.v[sel]
+    return out

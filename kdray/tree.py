@@ -1,0 +1,304 @@
+"""KdTree: the built tree's arrays, its invariants (`validate`), statistics and file I/O.
+
+Arrays (see `kdray.layout` for the node encoding)::
+
+    nodes      : (n_nodes, 2) uint32      depth-first; below child of i is i + 1
+    leaf_tris  : (n_leaf_refs,) uint32    indices into `triangles`
+    triangles  : (n_tris, 3, 3) float32   vertices relative to `origin`
+    tri_ids    : (n_tris,) uint32         index of each triangle in the input
+    origin     : (3,) float64             world position the float32 data is relative to
+    bounds     : (2, 3) float32           scene box (min, max), relative to `origin`
+"""
+import dataclasses
+import math
+import os
+
+import numpy as np
+
+from . import layout
+from .errors import TreeError, TreeFileError
+
+
+@dataclasses.dataclass(frozen=True)
+class BuildParams:
+    """The SAH builder's parameters (Wald & Havran 2006; names as in the kernels)."""
+
+    K_T: float = 15.0
+    """Cost of one traversal step (W&H Table 1)."""
+    K_I: float = 20.0
+    """Cost of one ray/triangle test (W&H Table 1)."""
+    empty_bonus: float = 0.8
+    """lambda: the SAH cost of a split with an empty side is multiplied by this (1 = off)."""
+    max_depth: int = 0
+    """Deepest leaf allowed; 0 = round(8 + 1.3 log2 n) (pbrt), capped at 64."""
+    leaf_size: int = 1
+    """Nodes with at most this many triangles become leaves without a split search."""
+
+    def resolved(self, n_tris):
+        """A copy with `max_depth` resolved for `n_tris` triangles."""
+        depth = self.max_depth
+        if depth <= 0:
+            depth = round(8 + 1.3 * math.log2(max(n_tris, 1)))
+        return dataclasses.replace(self, max_depth=int(min(depth, layout.MAX_DEPTH_LIMIT)))
+
+
+@dataclasses.dataclass(eq=False)
+class KdTree:
+    nodes: np.ndarray
+    leaf_tris: np.ndarray
+    triangles: np.ndarray
+    tri_ids: np.ndarray
+    origin: np.ndarray
+    bounds: np.ndarray
+    n_input_tris: int
+    depth: int
+    params: BuildParams
+
+    def __eq__(self, other):
+        if not isinstance(other, KdTree):
+            return NotImplemented
+        arrays = ("nodes", "leaf_tris", "triangles", "tri_ids", "origin", "bounds")
+        return (all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
+                and self.n_input_tris == other.n_input_tris and self.depth == other.depth
+                and self.params == other.params)
+
+    # -- files -------------------------------------------------------------------
+
+    def to_bytes(self):
+        return layout.encode(self)
+
+    @classmethod
+    def from_bytes(cls, data, name="tree file"):
+        """Decode and validate; raises TreeFileError for any bad input."""
+        fields = layout.decode(data, name)
+        fields["params"] = BuildParams(**fields["params"])
+        tree = cls(**fields)
+        try:
+            tree.validate(coverage_samples=0)
+        except TreeError as e:
+            raise TreeFileError(f"{name}: {e}") from None
+        return tree
+
+    def save(self, path):
+        """Write the tree file atomically (temporary file + rename)."""
+        layout.write_atomic(path, self.to_bytes())
+
+    @classmethod
+    def load(cls, path):
+        """Read a tree file. The header's counts are checked against the file's size
+        before the body is read."""
+        path = os.fspath(path)
+        try:
+            size = os.path.getsize(path)
+            with open(path, "rb") as f:
+                head = f.read(layout.HEADER_SIZE)
+                if len(head) == layout.HEADER_SIZE and head[:8] == layout.MAGIC:
+                    counts = layout.HEADER.unpack(head)[3:6]
+                    if size != layout.file_size(*counts):
+                        raise TreeFileError(
+                            f"{path}: {size} bytes, but its counts need "
+                            f"{layout.file_size(*counts)} (truncated or corrupt)")
+                data = head + f.read()
+        except OSError as e:
+            raise TreeFileError(f"{path}: cannot read ({e.strerror or e})") from None
+        return cls.from_bytes(data, name=path)
+
+    # -- structure ---------------------------------------------------------------
+
+    def _topology(self):
+        """Parent links and depths of every node, checking that the nodes form one tree.
+
+        Returns (depth (n,) int32, parent (n,) int64, is_above (n,) bool). Raises TreeError.
+        """
+        nodes = self.nodes
+        n = len(nodes)
+        leaf = layout.is_leaf(nodes)
+        inner = np.flatnonzero(~leaf)
+        above = layout.above_child(nodes)[inner].astype(np.int64)
+        if np.any(above <= inner + 1) or np.any(above >= n) or np.any(inner + 1 >= n):
+            raise TreeError("an interior node's child index is out of range")
+        children = np.concatenate([inner + 1, above])
+        if len(children) != n - 1 or np.any(np.bincount(children, minlength=n)[1:] != 1):
+            raise TreeError("the nodes do not form a single tree (a node has no parent or two)")
+        parent = np.full(n, -1, dtype=np.int64)
+        parent[inner + 1] = inner
+        parent[above] = inner
+        is_above = np.zeros(n, dtype=bool)
+        is_above[above] = True
+        # children have larger indices than parents, so one ordered pass sets depths;
+        # do it level by level, vectorized.
+        depth = np.full(n, -1, dtype=np.int32)
+        depth[0] = 0
+        frontier = np.array([0])
+        level = 0
+        while len(frontier):
+            level += 1
+            if level > layout.MAX_DEPTH_LIMIT + 1:
+                raise TreeError(f"tree deeper than {layout.MAX_DEPTH_LIMIT}")
+            f_inner = frontier[~leaf[frontier]]
+            frontier = np.concatenate([f_inner + 1, layout.above_child(nodes)[f_inner].astype(np.int64)])
+            depth[frontier] = level
+        return depth, parent, is_above
+
+    def node_boxes(self):
+        """(n_nodes, 2, 3) float32 box of every node, relative to `origin`."""
+        depth, parent, is_above = self._topology()
+        n = len(self.nodes)
+        boxes = np.empty((n, 2, 3), dtype=np.float32)
+        boxes[0] = self.bounds
+        axis = layout.split_axis(self.nodes).astype(np.int64)
+        split = layout.split(self.nodes)
+        order = np.argsort(depth, kind="stable")
+        levels = np.split(order, np.flatnonzero(np.diff(depth[order])) + 1)
+        for nodes_at in levels[1:]:
+            p = parent[nodes_at]
+            boxes[nodes_at] = boxes[p]
+            side = np.where(is_above[nodes_at], 0, 1)       # above child: raise min
+            boxes[nodes_at, side, axis[p]] = split[p]
+        return boxes
+
+    def validate(self, coverage_samples=4, seed=0):
+        """Check the structural invariants; raise TreeError naming the first broken one.
+
+        - array shapes and dtypes; indices in range (children, leaf ranges, leaf
+          triangle indices, tri_ids < n_input_tris); finite splits and triangles;
+        - the nodes form one tree with depth-first below children, no deeper than
+          `params.max_depth` and exactly `depth` deep;
+        - split planes lie inside their node's box;
+        - coverage: points sampled on every triangle (vertices, edge midpoints,
+          centroid and `coverage_samples` random points, clipped to the scene box)
+          lie in a leaf that lists the triangle.
+        """
+        t = self
+        if t.nodes.ndim != 2 or t.nodes.shape[1] != 2 or t.nodes.dtype != np.uint32 or len(t.nodes) < 1:
+            raise TreeError("nodes must be a non-empty (n, 2) uint32 array")
+        if t.leaf_tris.ndim != 1 or t.leaf_tris.dtype != np.uint32:
+            raise TreeError("leaf_tris must be a (k,) uint32 array")
+        if t.triangles.ndim != 3 or t.triangles.shape[1:] != (3, 3) or t.triangles.dtype != np.float32:
+            raise TreeError("triangles must be an (m, 3, 3) float32 array")
+        if t.tri_ids.shape != (len(t.triangles),) or t.tri_ids.dtype != np.uint32:
+            raise TreeError("tri_ids must be an (m,) uint32 array matching triangles")
+        if len(t.nodes) >= layout.MAX_NODES or len(t.triangles) >= layout.MAX_NODES:
+            raise TreeError("too many nodes or triangles for the node encoding")
+        if t.origin.shape != (3,) or not np.all(np.isfinite(t.origin)):
+            raise TreeError("origin must be 3 finite float64 values")
+        if t.bounds.shape != (2, 3) or not np.all(np.isfinite(t.bounds)) or np.any(t.bounds[0] > t.bounds[1]):
+            raise TreeError("bounds must be a finite (2, 3) box with min <= max")
+        if not np.all(np.isfinite(t.triangles)):
+            raise TreeError("a triangle has a non-finite coordinate")
+        if len(t.tri_ids) and int(t.tri_ids.max()) >= t.n_input_tris:
+            raise TreeError("a triangle id is out of range of the input's triangles")
+        if len(t.leaf_tris) and int(t.leaf_tris.max()) >= len(t.triangles):
+            raise TreeError("a leaf refers to a triangle out of range")
+        p = t.params
+        if not (p.K_T > 0 and p.K_I > 0 and 0 < p.empty_bonus <= 1 and 1 <= p.max_depth <= layout.MAX_DEPTH_LIMIT):
+            raise TreeError("build parameters out of range")
+        leaf = layout.is_leaf(t.nodes)
+        ends = layout.leaf_offset(t.nodes[leaf]).astype(np.int64) + layout.n_prims(t.nodes[leaf])
+        if len(ends) and int(ends.max()) > len(t.leaf_tris):
+            raise TreeError("a leaf's triangle range runs past leaf_tris")
+        if not np.all(np.isfinite(layout.split(t.nodes[~leaf]))):
+            raise TreeError("a split position is not finite")
+        depth, _, _ = self._topology()
+        leaf_depth = int(depth[leaf].max())
+        if leaf_depth != t.depth:
+            raise TreeError(f"tree depth is {leaf_depth} but the header says {t.depth}")
+        if t.depth > p.max_depth:
+            raise TreeError(f"tree depth {t.depth} exceeds max_depth {p.max_depth}")
+        boxes = self.node_boxes()
+        inner = np.flatnonzero(~leaf)
+        ax = layout.split_axis(t.nodes[inner]).astype(np.int64)
+        s = layout.split(t.nodes[inner])
+        if np.any(s < boxes[inner, 0, ax]) or np.any(s > boxes[inner, 1, ax]):
+            raise TreeError("a split plane lies outside its node's box")
+        if np.any(t.triangles.min(axis=1) < t.bounds[0]) or np.any(t.triangles.max(axis=1) > t.bounds[1]):
+            raise TreeError("a triangle lies outside the scene bounds")
+        if coverage_samples is not None and coverage_samples >= 0 and len(t.triangles):
+            self._check_coverage(coverage_samples, seed)
+
+    def _check_coverage(self, n_random, seed):
+        tri = self.triangles.astype(np.float64)
+        m = len(tri)
+        rng = np.random.default_rng(seed)
+        fixed = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [.5, .5, 0], [0, .5, .5],
+                          [.5, 0, .5], [1 / 3, 1 / 3, 1 / 3]])
+        w = rng.random((m, n_random, 3)) ** 2
+        w /= w.sum(axis=2, keepdims=True)
+        weights = np.concatenate([np.broadcast_to(fixed, (m, 7, 3)), w], axis=1)
+        pts = np.einsum("mkj,mjc->mkc", weights, tri).reshape(-1, 3)
+        pts = np.clip(pts, self.bounds[0], self.bounds[1])
+        owner = np.repeat(np.arange(m), weights.shape[1])
+        leaves = point_leaves(self.nodes, pts)
+        pt_idx, leaf_idx = leaves
+        # (leaf node, triangle) pairs that the tree lists
+        is_leaf = layout.is_leaf(self.nodes)
+        leaf_nodes = np.flatnonzero(is_leaf)
+        counts = layout.n_prims(self.nodes[leaf_nodes]).astype(np.int64)
+        starts = layout.leaf_offset(self.nodes[leaf_nodes]).astype(np.int64)
+        ref_node = np.repeat(leaf_nodes, counts)
+        ref_pos = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(starts, counts)
+        listed = np.unique(ref_node * m + self.leaf_tris[ref_pos].astype(np.int64))
+        ok = np.isin(leaf_idx.astype(np.int64) * m + owner[pt_idx], listed)
+        covered = np.zeros(len(pts), dtype=bool)
+        covered[pt_idx[ok]] = True
+        if not covered.all():
+            bad = owner[np.flatnonzero(~covered)[0]]
+            raise TreeError(f"triangle {bad} (input id {self.tri_ids[bad]}) is not listed in a "
+                            f"leaf that contains part of it")
+
+    # -- statistics ----------------------------------------------------------------
+
+    def stats(self):
+        """Dict of tree statistics: nodes, leaves, empty leaves, max and mean leaf depth,
+        references per triangle, SAH cost (in units of K_I-weighted tests) and bytes."""
+        leaf = layout.is_leaf(self.nodes)
+        depth, _, _ = self._topology()
+        boxes = self.node_boxes().astype(np.float64)
+        ext = boxes[:, 1] - boxes[:, 0]
+        area = 2 * (ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0])
+        root_area = area[0] if area[0] > 0 else 1.0
+        n_in_leaf = layout.n_prims(self.nodes[leaf]).astype(np.float64)
+        p = self.params
+        sah = (p.K_T * area[~leaf].sum() + p.K_I * (area[leaf] * n_in_leaf).sum()) / root_area
+        n_tris = len(self.triangles)
+        return {
+            "triangles": n_tris,
+            "input_triangles": self.n_input_tris,
+            "nodes": len(self.nodes),
+            "leaves": int(leaf.sum()),
+            "empty_leaves": int((n_in_leaf == 0).sum()),
+            "max_leaf_depth": int(depth[leaf].max()),
+            "mean_leaf_depth": float(depth[leaf].mean()),
+            "refs_per_triangle": float(len(self.leaf_tris) / max(n_tris, 1)),
+            "mean_leaf_size": float(n_in_leaf[n_in_leaf > 0].mean()) if np.any(n_in_leaf > 0) else 0.0,
+            "sah_cost": float(sah),
+            "bytes": int(self.nodes.nbytes + self.leaf_tris.nbytes + self.triangles.nbytes + self.tri_ids.nbytes),
+        }
+
+
+def point_leaves(nodes, points):
+    """Locate points in the tree; a point on a split plane goes to both sides.
+
+    nodes : (n, 2) uint32;  points : (k, 3) float64 relative to the origin.
+    Returns (point_index, leaf_node) : two (j,) int64 arrays, every pair of a point
+    and a leaf whose closed box holds it.
+    """
+    pi = np.arange(len(points))
+    node = np.zeros(len(points), dtype=np.int64)
+    out_p, out_n = [], []
+    axis_all = layout.split_axis(nodes).astype(np.int64)
+    split_all = layout.split(nodes).astype(np.float64)
+    above_all = layout.above_child(nodes).astype(np.int64)
+    while len(pi):
+        ax = axis_all[node]
+        at_leaf = ax == layout.LEAF
+        out_p.append(pi[at_leaf])
+        out_n.append(node[at_leaf])
+        pi, node, ax = pi[~at_leaf], node[~at_leaf], ax[~at_leaf]
+        c = points[pi, ax]
+        s = split_all[node]
+        go_below = c <= s
+        go_above = c >= s
+        pi = np.concatenate([pi[go_below], pi[go_above]])
+        node = np.concatenate([node[go_below] + 1, above_all[node[go_above]]])
+    return np.concatenate(out_p), np.concatenate(out_n)

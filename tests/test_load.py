@@ -1,0 +1,76 @@
+"""Loading meshes: formats, triangulation, scenes, and clear errors."""
+import numpy as np
+import pytest
+
+import kdray.load as kl
+from kdray.errors import MeshError
+from kdray.mesh import Mesh
+from conftest import shared_mesh
+
+
+@pytest.mark.parametrize("name, n_tris", [("stanford-bunny.obj", 69451), ("fandisk.obj", 12946),
+                                          ("teapot.obj", 6320), ("spot.obj", 5856)])
+def test_shared_meshes(name, n_tris):
+    m = kl.load(shared_mesh(name))
+    assert m.faces.shape == (n_tris, 3) and m.vertices.dtype == np.float64
+    assert m.faces.min() >= 0 and m.faces.max() < len(m.vertices)
+
+
+def test_quads_and_polygons_are_triangulated(tmp_path):
+    p = tmp_path / "q.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nv 1.5 2 0\n"
+                 "f 1 2 3 4\nf 2 5 6 7 3\nusemtl nothing\n")
+    m = kl.load(p)
+    assert len(m.faces) == 2 + 3
+    assert np.isclose(np.linalg.norm(np.cross(m.triangles[:, 1] - m.triangles[:, 0],
+                                              m.triangles[:, 2] - m.triangles[:, 0]), axis=1).sum() / 2,
+                      1 + 1 + 0.5)
+
+
+def test_ply_and_stl(tmp_path):
+    import trimesh
+    box = trimesh.creation.box()
+    for ext in ("ply", "stl", "off"):
+        p = tmp_path / f"box.{ext}"
+        box.export(p)
+        assert len(kl.load(p).faces) == 12
+
+
+def test_scene_transforms_are_applied(tmp_path):
+    import trimesh
+    a = trimesh.creation.box()
+    scene = trimesh.Scene()
+    scene.add_geometry(a, node_name="a")
+    scene.add_geometry(a, node_name="b", transform=trimesh.transformations.translation_matrix([10, 0, 0]))
+    p = tmp_path / "s.glb"
+    scene.export(p)
+    m = kl.load(p)
+    assert len(m.faces) == 24
+    assert m.bounds[1][0] == pytest.approx(10.5)
+
+
+@pytest.mark.parametrize("content, ext, message", [
+    (None, "obj", "no such file"),
+    ("", "obj", "empty"),
+    ("hello", "qqq", "unknown mesh format"),
+    ("v 0 0 0\nv 1 0 0\n", "obj", "no triangles"),
+    ("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+     "end_header\n0 0 0\n1 1 1\n", "ply", "no triangles"),
+    ("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n", "obj", "not finite"),
+    ("v 0 0 0\nv 1 0 0\nv inf 1 0\nf 1 2 3\n", "obj", "not finite"),
+])
+def test_bad_files(tmp_path, content, ext, message):
+    p = tmp_path / f"m.{ext}"
+    if content is not None:
+        p.write_text(content)
+    with pytest.raises(MeshError, match=message):
+        kl.load(p)
+
+
+def test_mesh_arrays_are_checked():
+    with pytest.raises(MeshError, match="out of range"):
+        Mesh.from_arrays(np.zeros((3, 3)), [[0, 1, 3]])
+    with pytest.raises(MeshError, match="no triangles"):
+        Mesh.from_arrays(np.zeros((3, 3)), np.zeros((0, 3), int))
+    with pytest.raises(MeshError, match=r"\(m, 3\)"):
+        Mesh.from_arrays(np.zeros((4, 3)), [[0, 1, 2, 3]])

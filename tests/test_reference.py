@@ -1,0 +1,67 @@
+"""The float64 oracles against each other and against hand-computed hits."""
+import numpy as np
+import pytest
+
+from kdray import reference as ref
+from small_trees import single_leaf_tree, two_leaf_tree
+
+
+def test_hand_computed_hit():
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], dtype=float)
+    h = ref.brute_force(tri, [[0.25, 0.5, 2.0]], [[0, 0, -4.0]])
+    assert h.prim[0] == 0 and h.t[0] == pytest.approx(0.5)
+    assert (h.u[0], h.v[0]) == pytest.approx((0.25, 0.5))     # P = (1-u-v) v0 + u v1 + v v2
+
+
+def test_t_strictly_positive_and_edge_on():
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], dtype=float)
+    on_surface = ref.brute_force(tri, [[0.2, 0.2, 0.0]], [[0, 0, -1.0]])
+    assert not on_surface.hit[0]                                # t = 0 is not a hit
+    edge_on = ref.brute_force(tri, [[-1, 0.2, 0.0]], [[1, 0, 0.0]])
+    assert not edge_on.hit[0]                                   # ray in the triangle's plane
+    behind = ref.brute_force(tri, [[0.2, 0.2, 1.0]], [[0, 0, 1.0]])
+    assert not behind.hit[0]
+
+
+def test_watertight_shared_edge_and_vertex():
+    # a square of two triangles; rays exactly through the diagonal and the shared vertices
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]]], dtype=float)
+    s = np.linspace(0, 1, 41)
+    o = np.stack([s, s, np.full_like(s, 3.0)], axis=1)
+    h = ref.brute_force(tri, o, np.tile([0, 0, -1.0], (len(s), 1)))
+    assert h.hit.all()
+    assert np.all(h.prim[h.hit] == 0)                           # ties: lowest index wins
+
+
+def test_traverse_equals_brute_force_on_hand_trees():
+    rng = np.random.default_rng(7)
+    tree = two_leaf_tree()
+    tri_world = tree.triangles.astype(np.float64) + tree.origin
+    o = tree.origin + rng.uniform(-3, 3, (1001, 3))
+    d = rng.normal(size=(1001, 3))
+    aim = tree.origin + rng.uniform(tree.bounds[0], tree.bounds[1], (1001, 3))
+    d[200:] = aim[200:] - o[200:]                               # most rays aimed into the box
+    d[:100, :2] = 0.0                                           # axis-parallel rays
+    d[100:200, 0] = -0.0
+    a = ref.traverse(tree, o, d)
+    b = ref.brute_force(tri_world, o, d)
+    assert a.hit.sum() > 100
+    assert np.array_equal(a.prim, np.where(b.hit, tree.tri_ids.astype(np.int64)[np.maximum(b.prim, 0)], -1))
+    np.testing.assert_allclose(a.t[a.hit], b.t[b.hit], rtol=1e-9)
+
+
+def test_traverse_single_leaf_far_from_origin():
+    rng = np.random.default_rng(8)
+    tris = rng.random((200, 3, 3)) + 1e5
+    tree = single_leaf_tree(tris, origin=(1e5 + .5,) * 3)
+    o = 1e5 + rng.uniform(-1, 2, (513, 3))
+    d = 1e5 + rng.random((513, 3)) - o                          # aimed into the cluster
+    a = ref.traverse(tree, o, d)
+    b = ref.brute_force(tree.triangles.astype(np.float64), o - tree.origin, d)
+    assert a.hit.sum() > 200
+    assert np.array_equal(a.prim, b.prim)
+
+
+def test_empty_inputs():
+    tri = np.zeros((1, 3, 3))
+    assert len(ref.brute_force(tri, np.zeros((0, 3)), np.zeros((0, 3))).t) == 0
