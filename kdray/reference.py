@@ -151,10 +151,14 @@ def brute_force(triangles, origins, directions, t_min=0.0, t_max=np.inf, chunk=1
     return _nearest(n, ray, prim, t, u, v)
 
 
-def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096):
-    """Nearest hits through the tree's leaves, float64 on the tree's float32 data.
+def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096, triangles64=None):
+    """Nearest hits through the tree's leaves, in float64.
 
     tree : KdTree;  origins, directions : (N, 3) world coordinates (float64).
+    triangles64 : optional (n_input_tris, 3, 3) float64 world-space input triangles.
+        Without it the leaves' triangles are the tree's float32 data (exactly what the
+        kernels see); with it they are the input's float64 geometry and the tree only
+        chooses the candidates (an accuracy reference for benchmarks).
     Returns Hits with prim = input triangle id (tree.tri_ids), -1 on a miss.
     """
     from . import layout
@@ -163,7 +167,10 @@ def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096):
     o = o - tree.origin
     n = len(o)
     out = Hits.misses(n)
-    tri = tree.triangles.astype(np.float64)
+    if triangles64 is None:
+        tri = tree.triangles.astype(np.float64)
+    else:
+        tri = np.asarray(triangles64, dtype=np.float64)[tree.tri_ids] - tree.origin
     axis_all = layout.split_axis(tree.nodes).astype(np.int64)
     split_all = layout.split(tree.nodes).astype(np.float64)
     above_all = layout.above_child(tree.nodes).astype(np.int64)

@@ -74,7 +74,7 @@ class KdTree:
         fields["params"] = BuildParams(**fields["params"])
         tree = cls(**fields)
         try:
-            tree.validate(coverage_samples=0)
+            tree.validate(coverage_samples=None)
         except TreeError as e:
             raise TreeFileError(f"{name}: {e}") from None
         return tree
@@ -159,6 +159,8 @@ class KdTree:
 
     def validate(self, coverage_samples=4, seed=0):
         """Check the structural invariants; raise TreeError naming the first broken one.
+
+        coverage_samples=None skips the (slower) coverage check; the file loader does.
 
         - array shapes and dtypes; indices in range (children, leaf ranges, leaf
           triangle indices, tri_ids < n_input_tris); finite splits and triangles;

@@ -1,0 +1,152 @@
+"""Primary-ray speed and accuracy: kdray beside Open3D (and embreex) on the same rays.
+
+usage: python bench/bench_trace.py [--meshes bunny,teapot-x256] [--size 1024]
+                                   [--repeat 5] [--sample 20000] [--device SPEC]
+
+For each mesh: build time, then for 1024 x 1024 primary rays of a framing camera
+(warm, median of --repeat runs):
+  kdray render depth   Tracer.render(camera, ["depth"]): rays made on the device
+  kdray render default Tracer.render(camera) with depth, normal, bary, id
+  kdray trace          Tracer.trace(origins, directions) from numpy to numpy
+  open3d cast          RaycastingScene.cast_rays on a prepared tensor (cast only)
+  open3d numpy         numpy rays -> tensor -> cast_rays -> numpy
+  embreex              trimesh's embreex front end, numpy to numpy (if installed)
+Accuracy on --sample random pixels against a float64 reference (the input mesh in
+float64, candidates from kdray's tree): hit/miss disagreements, relative depth error
+(99th percentile and max, over rays both hit).
+"""
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from meshes import mesh as bench_mesh  # noqa: E402
+
+import kdray  # noqa: E402
+from kdray import reference  # noqa: E402
+
+
+def timed(fn, repeat):
+    """Median wall time of `repeat` calls after one warm-up call; returns (seconds, result)."""
+    result = fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), result
+
+
+def accuracy(t, prim, ref_t, ref_prim, sample):
+    """Errors of (t, prim) on the sampled rays against the reference."""
+    t, prim = np.asarray(t)[sample].astype(np.float64), np.asarray(prim)[sample].astype(np.int64)
+    hit = np.isfinite(t)
+    ref_hit = ref_prim >= 0
+    both = hit & ref_hit
+    rel = np.abs(t[both] - ref_t[both]) / ref_t[both]
+    return {
+        "disagree": int(np.count_nonzero(hit != ref_hit)),
+        "prim_diff": int(np.count_nonzero(both & (prim != ref_prim))),
+        "p99": float(np.percentile(rel, 99)) if len(rel) else float("nan"),
+        "max": float(rel.max()) if len(rel) else float("nan"),
+    }
+
+
+def open3d_runs(m, o, d, repeat):
+    try:
+        import open3d as o3d
+    except ImportError:
+        return []
+    t0 = time.perf_counter()
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(m.vertices.astype(np.float32)),
+                        o3d.core.Tensor(m.faces.astype(np.uint32)))
+    scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))   # builds the BVH
+    build = time.perf_counter() - t0
+    rays = o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32))
+    cast_s, res = timed(lambda: scene.cast_rays(rays), repeat)
+
+    def numpy_to_numpy():
+        r = scene.cast_rays(o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32)))
+        return r["t_hit"].numpy(), r["primitive_ids"].numpy()
+    np_s, (t, prim) = timed(numpy_to_numpy, repeat)
+    prim = np.where(np.isfinite(t), prim.astype(np.int64), -1)
+    return [("open3d cast", build, cast_s, t, prim), ("open3d numpy", build, np_s, t, prim)]
+
+
+def embreex_runs(m, o, d, repeat):
+    try:
+        import embreex  # noqa: F401
+        import trimesh
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+    except ImportError:
+        return []
+    t0 = time.perf_counter()
+    tm = trimesh.Trimesh(m.vertices, m.faces, process=False)
+    rmi = RayMeshIntersector(tm)
+    rmi.intersects_first(o[:1], d[:1])
+    build = time.perf_counter() - t0
+
+    def run():
+        tri, ray, loc = rmi.intersects_id(o, d, multiple_hits=False, return_locations=True)
+        t = np.full(len(o), np.inf)
+        prim = np.full(len(o), -1, dtype=np.int64)
+        t[ray] = np.einsum("ij,ij->i", loc - o[ray], d[ray]) / np.einsum("ij,ij->i", d[ray], d[ray])
+        prim[ray] = tri
+        return t, prim
+    s, (t, prim) = timed(run, max(1, repeat // 2))
+    return [("embreex", build, s, t, prim)]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--meshes", default="bunny,teapot-x256")
+    ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--sample", type=int, default=20000)
+    ap.add_argument("--device", default=None)
+    args = ap.parse_args()
+    n_rays = args.size * args.size
+    rng = np.random.default_rng(0)
+    print(f"# {n_rays} primary rays ({args.size}x{args.size}), median of {args.repeat} warm runs")
+    header = f"{'mesh':<12} {'tris':>9} {'method':<22} {'build s':>8} {'trace s':>8} {'Mrays/s':>8} " \
+             f"{'disagree':>8} {'prim!=':>6} {'depth p99':>10} {'depth max':>10}"
+    print(header)
+    for name in args.meshes.split(","):
+        m = bench_mesh(name)
+        kdray.build(m.vertices[:3], np.array([[0, 1, 2]]))           # compile the builder
+        t0 = time.perf_counter()
+        tree = kdray.build(m.vertices, m.faces)
+        build_s = time.perf_counter() - t0
+        lo, hi = tree.origin + tree.bounds.astype(np.float64)
+        camera = kdray.Camera.frame(lo, hi, args.size, args.size)
+        o, d = camera.rays()
+        sample = rng.choice(n_rays, size=min(args.sample, n_rays), replace=False)
+        ref = reference.traverse(tree, o[sample], d[sample], triangles64=m.triangles)
+        tracer = kdray.Tracer(tree, device=args.device)
+        runs = []
+        s, img = timed(lambda: tracer.render(camera, aovs=("depth",)), args.repeat)
+        runs.append(("kdray render depth", build_s, s, img["depth"].ravel(), None))
+        s, img = timed(lambda: tracer.render(camera), args.repeat)
+        runs.append(("kdray render default", build_s, s, img["depth"].ravel(), img["id"].ravel()))
+        s, hits = timed(lambda: tracer.trace(o, d), args.repeat)
+        runs.append(("kdray trace", build_s, s, hits.t, hits.prim))
+        runs += open3d_runs(m, o, d, args.repeat)
+        runs += embreex_runs(m, o, d, args.repeat)
+        for method, b, s, t, prim in runs:
+            if prim is None:
+                prim = np.where(np.isfinite(t), 0, -1)
+                acc = accuracy(t, prim, ref.t, np.where(ref.hit, 0, -1), sample)
+            else:
+                prim = np.where(np.isfinite(t), np.asarray(prim).astype(np.int64), -1)
+                acc = accuracy(t, prim, ref.t, ref.prim, sample)
+            print(f"{name:<12} {len(m.faces):>9} {method:<22} {b:>8.3f} {s:>8.4f} {n_rays / s / 1e6:>8.2f} "
+                  f"{acc['disagree']:>8} {acc['prim_diff']:>6} {acc['p99']:>10.2e} {acc['max']:>10.2e}",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,37 @@
+"""Benchmark meshes: the shared real meshes and deterministic subdivisions of them.
+
+`mesh(name)` -> kdray.Mesh for names like "bunny" (69,451 triangles), "bunny-x4"
+(each triangle split into 4 once: 277,804), "teapot-x256" (1,617,920), ...
+A suffix -x4^k subdivides k times (midpoint subdivision, deterministic).
+"""
+import math
+from pathlib import Path
+
+import numpy as np
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+FILES = {"bunny": "stanford-bunny.obj", "fandisk": "fandisk.obj", "teapot": "teapot.obj",
+         "spot": "spot.obj"}
+
+
+def subdivide(vertices, faces, times):
+    """Midpoint subdivision, `times` rounds: (n,3) float64, (m,3) int -> 4^times * m faces."""
+    import trimesh.remesh
+    for _ in range(times):
+        vertices, faces = trimesh.remesh.subdivide(vertices, faces)
+    return np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+
+
+def mesh(name):
+    """'bunny', 'bunny-x4', 'teapot-x256', ... -> kdray.mesh.Mesh."""
+    from kdray.load import load
+    from kdray.mesh import Mesh
+    base, _, factor = name.partition("-x")
+    m = load(SHARED / FILES[base])
+    if factor:
+        times = round(math.log(int(factor), 4))
+        if 4 ** times != int(factor):
+            raise ValueError(f"{name}: the factor must be a power of 4")
+        v, f = subdivide(m.vertices, m.faces, times)
+        m = Mesh.from_arrays(v, f, name=name)
+    return m

@@ -1,0 +1,277 @@
+"""The `kdray` command: a thin shell over the Python API.
+
+Errors: library code raises KdrayError subclasses; here they become one line on
+stderr and exit code 1 (click's usage errors exit 2). `--debug` shows tracebacks.
+"""
+import logging
+import os
+import sys
+import time
+
+import click
+import numpy as np
+
+from .errors import CameraError, KdrayError, OutputError
+
+log = logging.getLogger("kdray")
+
+
+def _floats(n):
+    """A click callback parsing 'a,b,c' into a tuple of n floats."""
+    def parse(ctx, param, value):
+        if value is None:
+            return None
+        try:
+            out = tuple(float(x) for x in value.split(","))
+        except ValueError:
+            raise click.BadParameter(f"expected {n} comma-separated numbers, got {value!r}")
+        if len(out) != n:
+            raise click.BadParameter(f"expected {n} comma-separated numbers, got {len(out)}")
+        return out
+    return parse
+
+
+def _size(ctx, param, value):
+    try:
+        w, h = (int(x) for x in value.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"expected WIDTHxHEIGHT, e.g. 640x480, got {value!r}")
+    if w < 1 or h < 1:
+        raise click.BadParameter(f"width and height must be at least 1, got {w}x{h}")
+    return w, h
+
+
+def build_options(f):
+    """The builder's parameters as options (defaults documented in kdray.tree.BuildParams)."""
+    from .tree import BuildParams
+    d = BuildParams()
+    opts = [
+        click.option("--k-t", "K_T", type=float, default=d.K_T, show_default=True,
+                     help="K_T: SAH cost of one traversal step."),
+        click.option("--k-i", "K_I", type=float, default=d.K_I, show_default=True,
+                     help="K_I: SAH cost of one ray/triangle test."),
+        click.option("--empty-bonus", type=float, default=d.empty_bonus, show_default=True,
+                     help="lambda: SAH cost factor for splits with an empty side (1 = off)."),
+        click.option("--max-depth", type=int, default=d.max_depth, show_default=True,
+                     help="Deepest leaf; 0 = round(8 + 1.3 log2 n), at most 64."),
+        click.option("--leaf-size", type=int, default=d.leaf_size, show_default=True,
+                     help="Nodes with at most this many triangles become leaves."),
+    ]
+    for opt in reversed(opts):
+        f = opt(f)
+    return f
+
+
+def _build_kwargs(kw):
+    return {k: kw.pop(k) for k in ("K_T", "K_I", "empty_bonus", "max_depth", "leaf_size")}
+
+
+def _print_stats(stats, seconds=None):
+    width = max(len(k) for k in stats)
+    for k, v in stats.items():
+        click.echo(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
+    if seconds is not None:
+        click.echo(f"{'build_seconds':<{width}}  {seconds:.3f}")
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("-v", "--verbose", count=True, help="More log output on stderr (-vv for debug).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors on stderr.")
+@click.option("--debug", is_flag=True, help="Show a traceback on errors.")
+def cli(verbose, quiet, debug):
+    """kdray: exact depth, normal, barycentric and triangle-id images of meshes."""
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, format="kdray: %(message)s", stream=sys.stderr)
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--dump", type=click.Path(dir_okay=False), help="Write the tree to this file.")
+@build_options
+def build(scene, dump, **kw):
+    """Build the SAH k-d tree of SCENE; print its statistics and the build time."""
+    from .build import build as build_tree
+    from .load import load
+    params = _build_kwargs(kw)
+    mesh = load(scene)
+    _check_not_same(scene, dump)
+    t0 = time.perf_counter()
+    tree = build_tree(mesh.vertices, mesh.faces, **params)
+    seconds = time.perf_counter() - t0
+    if dump:
+        _save_tree(tree, dump)
+    _print_stats(tree.stats(), seconds)
+
+
+@cli.command()
+@click.argument("tree_file", metavar="TREE.bin", type=click.Path(dir_okay=False))
+@click.option("--check", is_flag=True, help="Also run the full structural validation.")
+def info(tree_file, check):
+    """Print a tree file's header and statistics (the loader always checks the format)."""
+    from .tree import KdTree
+    tree = KdTree.load(tree_file)
+    p = tree.params
+    click.echo(f"file               {tree_file}")
+    click.echo(f"origin             {' '.join(repr(float(x)) for x in tree.origin)}")
+    click.echo(f"bounds (relative)  {tree.bounds[0].tolist()} .. {tree.bounds[1].tolist()}")
+    click.echo(f"params             K_T={p.K_T} K_I={p.K_I} empty_bonus={p.empty_bonus} "
+               f"max_depth={p.max_depth} leaf_size={p.leaf_size}")
+    _print_stats(tree.stats())
+    if check:
+        tree.validate()
+        click.echo("check              ok")
+
+
+@cli.command()
+def devices():
+    """List the OpenCL platforms and devices kdray can use."""
+    from .device import list_devices
+    for line in list_devices():
+        click.echo(line)
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="EXR file to write [default: SCENE's name with .exr, here].")
+@click.option("--size", default="640x480", show_default=True, callback=_size, help="Image WIDTHxHEIGHT.")
+@click.option("--eye", callback=_floats(3), help="Camera position X,Y,Z (look-at camera).")
+@click.option("--target", callback=_floats(3), help="Point looked at X,Y,Z.")
+@click.option("--up", callback=_floats(3), default="0,1,0", show_default=True, help="Up direction X,Y,Z.")
+@click.option("--fov", type=float, default=45.0, show_default=True, help="Vertical field of view, degrees.")
+@click.option("--intrinsics", callback=_floats(4), help="FX,FY,CX,CY in pixels (with --pose).")
+@click.option("--pose", type=click.Path(dir_okay=False),
+              help="4x4 camera-to-world matrix file (OpenCV axes), with --intrinsics.")
+@click.option("--camera", "camera_file", type=click.Path(dir_okay=False), help="A JSON camera file.")
+@click.option("--aov", default="depth,normal,bary,id", show_default=True,
+              help="Comma-separated outputs: depth, distance, normal, bary, id, position.")
+@click.option("--preview", type=click.Path(dir_okay=False), help="Also write an 8-bit PNG for people.")
+@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
+              help="Render from this dumped tree instead of building one.")
+@click.option("--device", default=None, help="OpenCL device, PYOPENCL_CTX syntax (e.g. 0:0).")
+@build_options
+def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_file, aov,
+           preview, tree_file, device, **kw):
+    """Render SCENE's depth, normal, barycentric and id images to an EXR file."""
+    from .images import parse_aovs, write_exr, write_preview
+    from .trace import Tracer
+    from .tree import KdTree
+    params = _build_kwargs(kw)
+    aovs = parse_aovs(aov)
+    width, height = size
+    if output is None:
+        output = os.path.splitext(os.path.basename(scene))[0] + ".exr"
+    for path in (output, preview):
+        _check_not_same(scene, path)
+        _check_not_same(tree_file, path)
+    _check_folder(output)
+    if preview:
+        _check_folder(preview)
+    timings = {}
+    t0 = time.perf_counter()
+    if tree_file:
+        tree = KdTree.load(tree_file)
+        timings["load"] = time.perf_counter() - t0
+    else:
+        from .build import build as build_tree
+        from .load import load
+        mesh = load(scene)
+        timings["load"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        tree = build_tree(mesh.vertices, mesh.faces, **params)
+        timings["build"] = time.perf_counter() - t0
+    camera = _camera(tree, width, height, eye, target, up, fov, intrinsics, pose, camera_file)
+    t0 = time.perf_counter()
+    tracer = Tracer(tree, device=device)
+    timings["setup"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    images = tracer.render(camera, aovs=aovs)
+    timings["trace"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    write_exr(output, images)
+    if preview:
+        write_preview(preview, images)
+    timings["write"] = time.perf_counter() - t0
+    hit = np.count_nonzero(np.isfinite(images["depth"])) if "depth" in images else None
+    log.info("%s", "  ".join(f"{k} {v:.3f}s" for k, v in timings.items()))
+    click.echo(f"wrote {output} ({width}x{height}, {', '.join(aovs)}"
+               + (f", {hit} of {width * height} pixels hit" if hit is not None else "") + ")")
+
+
+def _camera(tree, width, height, eye, target, up, fov, intrinsics, pose, camera_file):
+    """Choose the camera from the options: JSON file, intrinsics + pose, look-at, or framing."""
+    from .camera import Camera, pose_from_file
+    if camera_file:
+        if eye or target or intrinsics or pose:
+            raise click.UsageError("--camera cannot be combined with --eye/--target/--intrinsics/--pose")
+        return Camera.from_json(camera_file)
+    if intrinsics or pose:
+        if not (intrinsics and pose):
+            raise click.UsageError("--intrinsics and --pose go together")
+        if eye or target:
+            raise click.UsageError("--eye/--target cannot be combined with --intrinsics/--pose")
+        fx, fy, cx, cy = intrinsics
+        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], dtype=np.float64)
+        return Camera.from_intrinsics(K, pose_from_file(pose), width, height)
+    lo = tree.origin + tree.bounds[0].astype(np.float64)
+    hi = tree.origin + tree.bounds[1].astype(np.float64)
+    if eye or target:
+        if not (eye and target):
+            raise click.UsageError("--eye and --target go together")
+        return Camera.look_at(eye, target, up, fov, width, height)
+    return Camera.frame(lo, hi, width, height, fov_deg=fov)
+
+
+def _same_file(a, b):
+    if not a or not b or not os.path.exists(a) or not os.path.exists(b):
+        return bool(a and b and os.path.abspath(a) == os.path.abspath(b))
+    return os.path.samefile(a, b)
+
+
+def _check_not_same(src, dst):
+    if _same_file(src, dst):
+        raise OutputError(f"{dst}: the output would overwrite the input {src}")
+
+
+def _check_folder(path):
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise OutputError(f"{path}: the folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise OutputError(f"{path}: the folder {folder} is not writable")
+
+
+def _save_tree(tree, path):
+    _check_folder(path)
+    try:
+        tree.save(path)
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write the tree file ({e.strerror or e})") from None
+
+
+def main(argv=None):
+    """Console entry point: run the click group, turning errors into one line."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    debug = "--debug" in argv
+    try:
+        cli.main(args=argv, prog_name="kdray", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("kdray: interrupted", err=True)
+        sys.exit(130)
+    except click.ClickException as e:
+        e.show()
+        sys.exit(e.exit_code)
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        click.echo("kdray: interrupted", err=True)
+        sys.exit(130)
+    except KdrayError as e:
+        if debug:
+            raise
+        click.echo(f"kdray: error: {e}", err=True)
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
