@@ -1,0 +1,456 @@
+"""Camera: a pinhole camera with OpenCV axes, and the rays of its pixels.
+
+    camera = Camera.look_at(eye=(0, 1, 4), target=(0, 1, 0), fov_deg=40,
+                            width=640, height=480)
+    camera = Camera.from_intrinsics(K, cam_to_world, width, height)
+    camera = Camera.frame(mesh_min, mesh_max, 640, 480)      # automatic 3/4 view
+    camera = Camera.from_json("camera.json")
+    origins, directions = camera.rays()                     # (H*W, 3) float64 each
+
+Conventions (the public contract, see the project's interface document):
+
+- Camera frame: OpenCV, x right, y down, z forward. ``cam_to_world`` is a (4, 4)
+  float64 matrix whose upper-left (3, 3) block R is a rotation (orthonormal, det +1)
+  and whose last column holds the eye.
+- ``K`` is the (3, 3) float64 intrinsic matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]],
+  in pixels. Pixel (i, j) (i = column, j = row) is sampled at its centre:
+  ``direction = R @ inv(K) @ [i + 0.5, j + 0.5, 1]``. Directions are not normalized:
+  their camera-z is 1, so a ray parameter t is the z-depth of the point it reaches.
+- ``look_at``'s field of view is vertical: fy = (H / 2) / tan(fov / 2), fx = fy,
+  cx = W / 2, cy = H / 2.
+
+Camera files (JSON) hold one object in either of two forms::
+
+    {"width": 640, "height": 480,
+     "eye": [0, 1, 4], "target": [0, 1, 0], "up": [0, 1, 0], "fov": 40}
+
+    {"width": 640, "height": 480,
+     "K": [[500, 0, 320], [0, 500, 240], [0, 0, 1]],
+     "cam_to_world": [[1, 0, 0, 0], [0, -1, 0, 1], [0, 0, -1, 4], [0, 0, 0, 1]]}
+
+``up`` (default [0, 1, 0]) and ``fov`` (vertical, degrees, default 45) are optional in
+the first form; ``K`` may also be given as {"fx": .., "fy": .., "cx": .., "cy": ..}.
+``to_json`` writes the second form, which round-trips exactly.
+
+Pose files (``pose_from_file``) hold a (4, 4) camera-to-world matrix: a ``.npy``
+array, or text with 16 numbers separated by whitespace or commas, row by row
+(lines starting with ``#`` are comments).
+"""
+import dataclasses
+import json
+import math
+import numbers
+import os
+import secrets
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CameraError, OutputError
+
+ORTHONORMAL_TOL = 1e-6
+"""Largest |R^T R - I| entry and |det R - 1| accepted for a pose's rotation."""
+
+PARALLEL_TOL = 1e-6
+"""look_at refuses an `up` whose sine of angle with the view direction is below this."""
+
+DEFAULT_FOV_DEG = 45.0
+DEFAULT_UP = (0.0, 1.0, 0.0)
+
+DEFAULT_VIEW = (-0.5, -0.4, -0.75)
+"""`frame`'s default viewing direction: from the front-right-above (+x, +y, +z) of the
+box towards its centre, about 34 degrees round and 24 degrees down: a 3/4 view of a
+y-up model facing +z."""
+
+FRAME_FILL = 0.9
+"""`frame` keeps the box inside this fraction of the image's half-width and half-height."""
+
+
+def _vector(value, name, n=3):
+    """`value` as a finite (n,) float64 array, or CameraError naming it."""
+    try:
+        array = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CameraError(f"{name} must be {n} numbers, got {value!r}.") from None
+    if array.shape != (n,):
+        raise CameraError(f"{name} must be {n} numbers, got {value!r}.")
+    if not np.all(np.isfinite(array)):
+        raise CameraError(f"{name} must be finite, got {array.tolist()}.")
+    return array
+
+
+def _size(value, name):
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise CameraError(f"{name} must be a whole number of pixels >= 1, got {value!r}.")
+    return int(value)
+
+
+def _matrix(value, shape, name):
+    try:
+        array = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CameraError(f"{name} must be a {shape[0]}x{shape[1]} matrix of numbers.") from None
+    if array.shape != shape:
+        raise CameraError(
+            f"{name} must be a {shape[0]}x{shape[1]} matrix, got shape {array.shape}."
+        )
+    if not np.all(np.isfinite(array)):
+        raise CameraError(f"{name} must be finite, got {array.tolist()}.")
+    return array
+
+
+def _check_intrinsics(K):
+    K = _matrix(K, (3, 3), "K")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise CameraError(f"K must have positive fx and fy, got fx={K[0, 0]}, fy={K[1, 1]}.")
+    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+        raise CameraError(
+            f"K must be upper triangular with last row [0, 0, 1], got {K.tolist()}."
+        )
+    return K
+
+
+def _check_pose(cam_to_world, name="cam_to_world"):
+    M = _matrix(cam_to_world, (4, 4), name)
+    if not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
+        raise CameraError(f"{name} must have last row [0, 0, 0, 1], got {M[3].tolist()}.")
+    R = M[:3, :3]
+    error = np.abs(R.T @ R - np.eye(3)).max()
+    det = np.linalg.det(R)
+    if error > ORTHONORMAL_TOL or abs(det - 1.0) > ORTHONORMAL_TOL:
+        raise CameraError(
+            f"the rotation part of {name} must be orthonormal with determinant +1 "
+            f"(tolerance {ORTHONORMAL_TOL:g}); got |R^T R - I| = {error:.3g}, det = {det:.9g}."
+        )
+    return M
+
+
+def _look_at_rotation(eye, target, up):
+    """R (columns: camera x right, y down, z forward in world space) for look_at."""
+    view = target - eye
+    distance = np.linalg.norm(view)
+    if distance == 0:
+        raise CameraError(f"eye and target are the same point {eye.tolist()}.")
+    if not np.isfinite(distance):
+        raise CameraError("eye and target are too far apart to compute a view direction.")
+    z = view / distance
+    up_norm = np.linalg.norm(up)
+    if up_norm == 0:
+        raise CameraError("up must not be the zero vector.")
+    x = np.cross(z, up / up_norm)
+    sine = np.linalg.norm(x)
+    if not sine >= PARALLEL_TOL:
+        raise CameraError(
+            f"up {up.tolist()} is parallel to the view direction {z.tolist()}; "
+            "choose an up that is not along target - eye."
+        )
+    x /= sine
+    y = np.cross(z, x)  # image down
+    return np.column_stack([x, y / np.linalg.norm(y), z])
+
+
+def _fov_intrinsics(fov_deg, width, height):
+    try:
+        fov = float(fov_deg)
+    except (TypeError, ValueError):
+        raise CameraError(f"fov must be a number of degrees, got {fov_deg!r}.") from None
+    if not (0.0 < fov < 180.0):
+        raise CameraError(f"fov must be between 0 and 180 degrees (exclusive), got {fov_deg!r}.")
+    f = (height / 2.0) / math.tan(math.radians(fov) / 2.0)
+    return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _readonly(array):
+    array = np.array(array, dtype=np.float64)
+    array.setflags(write=False)
+    return array
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Camera:
+    """A pinhole camera: image size, intrinsics and pose (OpenCV axes).
+
+    width, height : int                  image size in pixels, >= 1
+    K             : (3, 3) float64       intrinsics, pixels (read-only copy)
+    cam_to_world  : (4, 4) float64       camera-to-world rigid transform (read-only copy)
+    """
+
+    width: int
+    height: int
+    K: np.ndarray
+    cam_to_world: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "width", _size(self.width, "width"))
+        object.__setattr__(self, "height", _size(self.height, "height"))
+        K = _check_intrinsics(self.K)
+        if abs(np.linalg.det(K)) == 0 or not np.all(np.isfinite(np.linalg.inv(K))):
+            raise CameraError(f"K must be invertible, got {K.tolist()}.")
+        object.__setattr__(self, "K", _readonly(K))
+        object.__setattr__(self, "cam_to_world", _readonly(_check_pose(self.cam_to_world)))
+
+    def __eq__(self, other):
+        if not isinstance(other, Camera):
+            return NotImplemented
+        return (
+            self.width == other.width
+            and self.height == other.height
+            and np.array_equal(self.K, other.K)
+            and np.array_equal(self.cam_to_world, other.cam_to_world)
+        )
+
+    __hash__ = None
+
+    # Constructors ---------------------------------------------------------------
+
+    @classmethod
+    def look_at(cls, eye, target, up=DEFAULT_UP, fov_deg=DEFAULT_FOV_DEG, width=640, height=480):
+        """A camera at `eye` looking at `target`, `up` pointing up in the image.
+
+        fov_deg is the vertical field of view in degrees, in (0, 180).
+        """
+        width, height = _size(width, "width"), _size(height, "height")
+        eye = _vector(eye, "eye")
+        target = _vector(target, "target")
+        up = _vector(up, "up")
+        K = _fov_intrinsics(fov_deg, width, height)
+        pose = np.eye(4)
+        pose[:3, :3] = _look_at_rotation(eye, target, up)
+        pose[:3, 3] = eye
+        return cls(width, height, K, pose)
+
+    @classmethod
+    def from_intrinsics(cls, K, cam_to_world, width, height):
+        """A camera from a (3, 3) intrinsic matrix and a (4, 4) camera-to-world pose."""
+        return cls(width, height, K, cam_to_world)
+
+    @classmethod
+    def frame(
+        cls,
+        bounds_min,
+        bounds_max,
+        width=640,
+        height=480,
+        fov_deg=DEFAULT_FOV_DEG,
+        direction=DEFAULT_VIEW,
+        up=DEFAULT_UP,
+    ):
+        """A camera looking along `direction` at the centre of a box, far enough back
+        that all 8 corners lie inside the middle `FRAME_FILL` of the image.
+
+        Works for flat boxes (zero extent on some axis), a single point (framed as a
+        tiny box), and boxes of any size or distance from the origin.
+        """
+        lo = _vector(bounds_min, "bounds_min")
+        hi = _vector(bounds_max, "bounds_max")
+        if np.any(lo > hi):
+            raise CameraError(f"bounds_min {lo.tolist()} exceeds bounds_max {hi.tolist()}.")
+        view = _vector(direction, "direction")
+        if not np.linalg.norm(view) > 0:
+            raise CameraError("direction must not be the zero vector.")
+        up = _vector(up, "up")
+        width, height = _size(width, "width"), _size(height, "height")
+        K = _fov_intrinsics(fov_deg, width, height)
+
+        centre = (lo + hi) / 2.0
+        half = (hi - lo) / 2.0
+        radius = np.linalg.norm(half)
+        if radius == 0:  # a single point: frame a tiny box around it
+            half = np.full(3, 1e-3 * max(np.abs(centre).max(), 1.0))
+            radius = np.linalg.norm(half)
+
+        # An up along the view direction: fall back to the world axis least along it.
+        view = view / np.linalg.norm(view)
+        if np.linalg.norm(np.cross(view, up / np.linalg.norm(up))) < 1e-3:
+            up = np.eye(3)[np.argmin(np.abs(view))]
+        R = _look_at_rotation(np.zeros(3), view, up)
+
+        # Corners relative to the centre, in camera axes; the eye is at distance D back
+        # along z, so a corner's depth is a_z + D. Keep |a_x| <= tan_x (a_z + D), etc.
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        a = (signs * half) @ R  # (8, 3): R^T @ corner offset, row by row
+        tan_x = FRAME_FILL * (width / 2.0) / K[0, 0]
+        tan_y = FRAME_FILL * (height / 2.0) / K[1, 1]
+        need = np.maximum(np.abs(a[:, 0]) / tan_x, np.abs(a[:, 1]) / tan_y) - a[:, 2]
+        distance = max(need.max(), 1.01 * radius)  # and the eye outside the box
+
+        pose = np.eye(4)
+        pose[:3, :3] = R
+        pose[:3, 3] = centre - distance * view
+        return cls(width, height, K, pose)
+
+    @classmethod
+    def from_json(cls, path):
+        """Read a camera file (see the module docstring for its two forms)."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise CameraError(f"camera file {path} does not exist.") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise CameraError(f"camera file {path} cannot be read: {exc}.") from None
+        except json.JSONDecodeError as exc:
+            raise CameraError(f"camera file {path} is not valid JSON: {exc}.") from None
+        try:
+            return cls._from_dict(data)
+        except CameraError as exc:
+            raise CameraError(f"camera file {path}: {exc}") from None
+
+    @classmethod
+    def _from_dict(cls, data):
+        if not isinstance(data, dict):
+            raise CameraError("expected a JSON object with width, height and a pose.")
+        look_keys = {"eye", "target", "up", "fov"}
+        matrix_keys = {"K", "cam_to_world"}
+        unknown = set(data) - look_keys - matrix_keys - {"width", "height"}
+        if unknown:
+            raise CameraError(
+                f"unknown keys {sorted(unknown)}; expected width, height and either "
+                "eye, target, up, fov or K, cam_to_world."
+            )
+        for key in ("width", "height"):
+            if key not in data:
+                raise CameraError(f"missing '{key}'.")
+        uses_look = bool(look_keys & set(data))
+        uses_matrix = bool(matrix_keys & set(data))
+        if uses_look and uses_matrix:
+            raise CameraError("give either eye/target/up/fov or K/cam_to_world, not both.")
+        if uses_look:
+            for key in ("eye", "target"):
+                if key not in data:
+                    raise CameraError(f"missing '{key}'.")
+            return cls.look_at(
+                data["eye"],
+                data["target"],
+                data.get("up", DEFAULT_UP),
+                _json_number(data.get("fov", DEFAULT_FOV_DEG), "fov"),
+                data["width"],
+                data["height"],
+            )
+        if not uses_matrix:
+            raise CameraError("missing a pose: give eye and target, or K and cam_to_world.")
+        for key in ("K", "cam_to_world"):
+            if key not in data:
+                raise CameraError(f"missing '{key}'.")
+        K = data["K"]
+        if isinstance(K, dict):
+            names = {"fx", "fy", "cx", "cy"}
+            if set(K) != names:
+                raise CameraError(f"K as an object needs the keys fx, fy, cx, cy, got {sorted(K)}.")
+            fx, fy, cx, cy = (_json_number(K[n], f"K.{n}") for n in ("fx", "fy", "cx", "cy"))
+            K = [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
+        elif not _is_nested_numbers(K):
+            raise CameraError("K must be a 3x3 array of numbers or {fx, fy, cx, cy}.")
+        if not _is_nested_numbers(data["cam_to_world"]):
+            raise CameraError("cam_to_world must be a 4x4 array of numbers.")
+        return cls(data["width"], data["height"], K, data["cam_to_world"])
+
+    def to_json(self, path):
+        """Write this camera as a JSON file (K and cam_to_world form; exact round trip)."""
+        path = Path(path)
+        text = json.dumps(
+            {
+                "width": self.width,
+                "height": self.height,
+                "K": self.K.tolist(),
+                "cam_to_world": self.cam_to_world.tolist(),
+            },
+            indent=2,
+        )
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+        try:
+            with open(tmp, "x", encoding="utf-8") as f:
+                f.write(text + "\n")
+            os.replace(tmp, path)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise OutputError(f"cannot write camera file {path}: {exc.strerror or exc}.") from None
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+
+    # Properties and rays ---------------------------------------------------------
+
+    @property
+    def rotation(self):
+        """(3, 3) float64: columns are the camera's x (right), y (down), z (forward)."""
+        return self.cam_to_world[:3, :3]
+
+    @property
+    def eye(self):
+        """(3,) float64: the camera centre in world space."""
+        return self.cam_to_world[:3, 3]
+
+    @property
+    def forward(self):
+        """(3,) float64: the unit optical axis (camera +z) in world space."""
+        return self.cam_to_world[:3, 2]
+
+    def rays(self):
+        """One ray per pixel through its centre, row-major (row j, then column i).
+
+        Returns origins (H*W, 3) float64 (all the eye) and directions (H*W, 3) float64
+        with camera-z 1 (not normalized).
+        """
+        M = self.rotation @ np.linalg.inv(self.K)
+        u = np.arange(self.width, dtype=np.float64) + 0.5
+        v = np.arange(self.height, dtype=np.float64) + 0.5
+        uu, vv = np.meshgrid(u, v)  # (H, W): row j, column i
+        directions = uu.reshape(-1, 1) * M[:, 0] + vv.reshape(-1, 1) * M[:, 1] + M[:, 2]
+        origins = np.broadcast_to(self.eye, directions.shape).copy()
+        return origins, directions
+
+    def project(self, points):
+        """World points (n, 3) -> (pixels (n, 2) float64, depth (n,) float64).
+
+        pixels are continuous image coordinates (x right, y down): pixel (i, j) covers
+        [i, i + 1) x [j, j + 1) and its centre is (i + 0.5, j + 0.5). depth is the
+        camera-z (negative behind the camera).
+        """
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        cam = (points - self.eye) @ self.rotation  # R^T (p - eye), row by row
+        depth = cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pixels = (cam @ self.K.T)[:, :2] / depth[:, None]
+        return pixels, depth
+
+
+def _json_number(value, name):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise CameraError(f"{name} must be a number, got {value!r}.")
+    return float(value)
+
+
+def _is_nested_numbers(value):
+    if isinstance(value, list):
+        return all(_is_nested_numbers(v) for v in value)
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def pose_from_file(path):
+    """Read a (4, 4) float64 camera-to-world matrix (OpenCV axes) from a .npy or text file.
+
+    Text: 16 numbers separated by whitespace and/or commas, row by row; lines starting
+    with '#' are comments. The rotation part must be orthonormal with det +1.
+    """
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".npy":
+            matrix = np.load(path, allow_pickle=False)
+        else:
+            lines = path.read_text(encoding="utf-8").splitlines()
+            text = " ".join(line for line in lines if not line.lstrip().startswith("#"))
+            tokens = text.replace(",", " ").split()
+            if len(tokens) != 16:
+                raise CameraError(f"pose file {path} must hold 16 numbers, found {len(tokens)}.")
+            try:
+                matrix = np.array([float(t) for t in tokens]).reshape(4, 4)
+            except ValueError as exc:
+                raise CameraError(f"pose file {path} holds a value that is not a number: {exc}.") from None
+    except FileNotFoundError:
+        raise CameraError(f"pose file {path} does not exist.") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise CameraError(f"pose file {path} cannot be read: {exc}.") from None
+    if not isinstance(matrix, np.ndarray) or matrix.dtype.kind not in "fiu":
+        raise CameraError(f"pose file {path} must hold a numeric array.")
+    return _check_pose(matrix, name=f"the pose in {path}")
