@@ -1,8 +1,25 @@
 """kdray: exact depth, normal, barycentric and triangle-id images of meshes.
 
     import kdray
-    mesh = kdray.load("scene.obj")
-    tree = kdray.build(mesh.vertices, mesh.faces)
-    tracer = kdray.Tracer(tree)
-    hits = tracer.trace(origins, directions)
+    mesh = kdray.load("scene.obj")                  # vertices (n,3) float64, faces (m,3) int64
+    tree = kdray.build(mesh.vertices, mesh.faces)   # SAH k-d tree (KdTree)
+    tracer = kdray.Tracer(tree)                     # owns its OpenCL context
+    hits = tracer.trace(origins, directions)        # t, prim, u, v, normal
+    images = tracer.render(kdray.Camera.look_at(eye, target), aovs=("depth", "id"))
+
+The public API is what this module exports, nothing else.
 """
+from .build import build
+from .camera import Camera
+from .errors import (CameraError, DeviceError, KdrayError, KernelBuildError, MeshError,
+                     OutputError, TreeError, TreeFileError)
+from .load import load
+from .mesh import Mesh
+from .trace import Hits, Tracer
+from .tree import BuildParams, KdTree
+
+__version__ = "0.1.0"
+
+__all__ = ["load", "build", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera",
+           "KdrayError", "MeshError", "TreeError", "TreeFileError", "DeviceError",
+           "KernelBuildError", "CameraError", "OutputError"]

@@ -3,6 +3,7 @@
 Errors: library code raises KdrayError subclasses; here they become one line on
 stderr and exit code 1 (click's usage errors exit 2). `--debug` shows tracebacks.
 """
+import contextlib
 import logging
 import os
 import sys
@@ -11,7 +12,7 @@ import time
 import click
 import numpy as np
 
-from .errors import CameraError, KdrayError, OutputError
+from .errors import KdrayError, OutputError
 
 log = logging.getLogger("kdray")
 
@@ -66,6 +67,30 @@ def _build_kwargs(kw):
     return {k: kw.pop(k) for k in ("K_T", "K_I", "empty_bonus", "max_depth", "leaf_size")}
 
 
+class Steps:
+    """Times the steps of a command; shows them on stderr when it is a terminal
+    (and -q was not given), stays quiet otherwise. `-v` logs the timings."""
+
+    def __init__(self):
+        self.seconds = {}
+        self.live = sys.stderr.isatty() and log.getEffectiveLevel() <= logging.WARNING
+
+    @contextlib.contextmanager
+    def __call__(self, what):
+        if self.live:
+            click.echo(f"kdray: {what}...", err=True, nl=False)
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            dt = self.seconds[what] = time.perf_counter() - t0
+            if self.live:
+                click.echo(f"\rkdray: {what} ({dt:.2f} s)", err=True)
+
+    def log(self):
+        log.info("%s", ", ".join(f"{k} {v:.3f} s" for k, v in self.seconds.items()))
+
+
 def _print_stats(stats, seconds=None):
     width = max(len(k) for k in stats)
     for k, v in stats.items():
@@ -93,14 +118,19 @@ def build(scene, dump, **kw):
     from .build import build as build_tree
     from .load import load
     params = _build_kwargs(kw)
-    mesh = load(scene)
     _check_not_same(scene, dump)
-    t0 = time.perf_counter()
-    tree = build_tree(mesh.vertices, mesh.faces, **params)
-    seconds = time.perf_counter() - t0
     if dump:
-        _save_tree(tree, dump)
-    _print_stats(tree.stats(), seconds)
+        _check_folder(dump)
+    step = Steps()
+    with step("loading"):
+        mesh = load(scene)
+    with step(f"building the tree of {len(mesh.faces):,} triangles"):
+        tree = build_tree(mesh.vertices, mesh.faces, **params)
+    if dump:
+        with step("writing the tree"):
+            _save_tree(tree, dump)
+    step.log()
+    _print_stats(tree.stats(), step.seconds[f"building the tree of {len(mesh.faces):,} triangles"])
 
 
 @cli.command()
@@ -167,33 +197,33 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
     _check_folder(output)
     if preview:
         _check_folder(preview)
-    timings = {}
-    t0 = time.perf_counter()
+    step = Steps()
     if tree_file:
-        tree = KdTree.load(tree_file)
-        timings["load"] = time.perf_counter() - t0
+        with step("loading the tree"):
+            tree = KdTree.load(tree_file)
     else:
         from .build import build as build_tree
         from .load import load
-        mesh = load(scene)
-        timings["load"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        tree = build_tree(mesh.vertices, mesh.faces, **params)
-        timings["build"] = time.perf_counter() - t0
+        with step("loading"):
+            mesh = load(scene)
+        with step(f"building the tree of {len(mesh.faces):,} triangles"):
+            tree = build_tree(mesh.vertices, mesh.faces, **params)
     camera = _camera(tree, width, height, eye, target, up, fov, intrinsics, pose, camera_file)
-    t0 = time.perf_counter()
-    tracer = Tracer(tree, device=device)
-    timings["setup"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    images = tracer.render(camera, aovs=aovs)
-    timings["trace"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    write_exr(output, images)
-    if preview:
-        write_preview(preview, images)
-    timings["write"] = time.perf_counter() - t0
-    hit = np.count_nonzero(np.isfinite(images["depth"])) if "depth" in images else None
-    log.info("%s", "  ".join(f"{k} {v:.3f}s" for k, v in timings.items()))
+    with step("setting up the device"):
+        tracer = Tracer(tree, device=device)
+    with step(f"tracing {width}x{height} rays"):
+        images = tracer.render(camera, aovs=aovs)
+    with step("writing"):
+        write_exr(output, images)
+        if preview:
+            write_preview(preview, images)
+    step.log()
+    if "id" in images:
+        hit = np.count_nonzero(images["id"] != 0xFFFFFFFF)
+    elif "depth" in images or "distance" in images:
+        hit = np.count_nonzero(np.isfinite(images.get("depth", images.get("distance"))))
+    else:
+        hit = None
     click.echo(f"wrote {output} ({width}x{height}, {', '.join(aovs)}"
                + (f", {hit} of {width * height} pixels hit" if hit is not None else "") + ")")
 

@@ -1,0 +1,32 @@
+"""The public API: what `import kdray` exports, and that loading, building and the
+reference tracer work on a machine without OpenCL or OpenImageIO."""
+import subprocess
+import sys
+
+import kdray
+
+
+def test_public_names():
+    for name in ("load", "build", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera",
+                 "KdrayError", "MeshError", "TreeFileError", "DeviceError", "KernelBuildError"):
+        assert hasattr(kdray, name), name
+    assert issubclass(kdray.KernelBuildError, kdray.DeviceError)
+    assert issubclass(kdray.TreeFileError, kdray.KdrayError)
+
+
+def test_no_opencl_or_oiio_needed_to_build():
+    code = """
+import sys
+sys.modules["pyopencl"] = None          # any import of it now fails
+sys.modules["OpenImageIO"] = None
+import numpy as np, kdray
+from kdray import reference
+m = kdray.Mesh.from_arrays(np.random.default_rng(0).random((30, 3)), np.arange(30).reshape(10, 3))
+tree = kdray.build(m.vertices, m.faces)
+tree.validate()
+h = reference.traverse(tree, np.zeros((5, 3)), np.ones((5, 3)))
+print("ok", len(h.t))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok 5"

@@ -1,0 +1,107 @@
+"""Every way a user can be wrong ends in one sentence on stderr and exit 1 (2 for
+usage errors), never a traceback, and never a written file."""
+import os
+
+import pytest
+
+from conftest import SCENES
+from test_cli import run
+
+SCENE = SCENES / "cornell.obj"
+
+
+def assert_one_line_error(code, err, *words, exit_code=1):
+    assert code == exit_code, err
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 or exit_code == 2, err
+    for w in words:
+        assert w.lower() in err.lower(), (w, err)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--aov", "depth,colour"], ["colour", "valid"]),
+    (["--aov", ","], ["no aov"]),
+    (["--eye", "0,0,3", "--target", "0,0,0", "--fov", "0"], ["fov", "180"]),
+    (["--eye", "0,0,3", "--target", "0,0,0", "--fov", "180"], ["fov", "180"]),
+    (["--eye", "0,0,3", "--target", "0,0,0", "--fov", "-5"], ["fov"]),
+    (["--eye", "1,2,3", "--target", "1,2,3"], ["same point"]),
+    (["--eye", "0,3,0", "--target", "0,0,0", "--up", "0,1,0"], ["up", "parallel"]),
+    (["--eye", "0,0,3", "--target", "0,0,0", "--up", "0,0,0"], ["up"]),
+])
+def test_bad_camera_and_aov_options(capsys, tmp_path, args, words):
+    out = tmp_path / "o.exr"
+    code, _, err = run(capsys, "render", SCENE, "-o", out, *args)
+    assert_one_line_error(code, err, *words)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("content, words", [
+    ("{not json", ["json"]),
+    ('{"width": 4, "height": 3}', ["pose"]),
+    ('{"width": 4, "height": 3, "eye": [0,0,1], "target": [0,0,1]}', ["same point"]),
+    ('{"width": -4, "height": 3, "eye": [0,0,1], "target": [0,0,0]}', ["width"]),
+    ('{"width": 4, "height": 3, "K": [[1,0,0],[0,1,0]], "cam_to_world": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', ["K"]),
+])
+def test_malformed_camera_file(capsys, tmp_path, content, words):
+    cam = tmp_path / "cam.json"
+    cam.write_text(content)
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr", "--camera", cam)
+    assert_one_line_error(code, err, "cam.json", *words)
+
+
+@pytest.mark.parametrize("content, words", [
+    ("1 2 3", ["16 numbers", "pose.txt"]),
+    ("2 0 0 0  0 1 0 0  0 0 1 0  0 0 0 1", ["rotation"]),
+    ("a b c d e f g h i j k l m n o p", ["pose"]),
+])
+def test_malformed_pose_file(capsys, tmp_path, content, words):
+    pose = tmp_path / "pose.txt"
+    pose.write_text(content)
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr",
+                       "--intrinsics", "100,100,32,24", "--pose", pose)
+    assert_one_line_error(code, err, *words)
+
+
+def test_intrinsics_without_pose_is_a_usage_error(capsys, tmp_path):
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr", "--intrinsics", "1,1,1,1")
+    assert code == 2 and "--pose" in err
+
+
+def test_missing_output_folder(capsys, tmp_path):
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "nope" / "o.exr")
+    assert_one_line_error(code, err, "does not exist")
+
+
+def test_unwritable_output_folder(capsys, tmp_path, monkeypatch):
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o500)
+    real_access = os.access       # root may write anywhere: pretend to be a plain user
+    monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(ro) else real_access(p, mode))
+    code, _, err = run(capsys, "render", SCENE, "-o", ro / "o.exr")
+    assert_one_line_error(code, err, "not writable")
+
+
+def test_output_onto_input(capsys, tmp_path):
+    scene = tmp_path / "s.obj"
+    scene.write_bytes(SCENE.read_bytes())
+    code, _, err = run(capsys, "render", scene, "-o", scene)
+    assert_one_line_error(code, err, "overwrite the input")
+    assert scene.read_bytes() == SCENE.read_bytes()
+    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "o.exr", "--preview", scene)
+    assert_one_line_error(code, err, "overwrite the input")
+
+
+def test_missing_and_bad_scene(capsys, tmp_path):
+    code, _, err = run(capsys, "render", tmp_path / "none.obj", "-o", tmp_path / "o.exr")
+    assert_one_line_error(code, err, "none.obj", "no such file")
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99999999\n")
+    code, _, err = run(capsys, "render", bad, "-o", tmp_path / "o.exr")
+    assert_one_line_error(code, err, "bad.ply")
+
+
+def test_debug_shows_the_traceback(capsys, tmp_path):
+    with pytest.raises(Exception):
+        from kdray.cli import main
+        main(["--debug", "render", str(tmp_path / "none.obj")])
