@@ -227,7 +227,11 @@ class KdTree:
         w = rng.random((m, n_random, 3)) ** 2
         w /= w.sum(axis=2, keepdims=True)
         weights = np.concatenate([np.broadcast_to(fixed, (m, 7, 3)), w], axis=1)
-        pts = np.einsum("mkj,mjc->mkc", weights, tri).reshape(-1, 3)
+        pts = np.einsum("mkj,mjc->mkc", weights, tri)
+        # a triangle lying flat in a plane must be sampled exactly in it (the weighted
+        # sum can round one ulp off, onto the side of a split it is not listed on)
+        flat = tri.min(axis=1) == tri.max(axis=1)
+        pts = np.where(flat[:, None, :], tri[:, None, 0, :], pts).reshape(-1, 3)
         pts = np.clip(pts, self.bounds[0], self.bounds[1])
         owner = np.repeat(np.arange(m), weights.shape[1])
         leaves = point_leaves(self.nodes, pts)

@@ -1,0 +1,159 @@
+"""Splitting a node's events between its children (Wald & Havran 2006, Sec. 5.2).
+
+Given the chosen plane, every triangle of the node is classified by its events on
+the split axis (errata 4), not by its vertices:
+
+    END at or before the plane      -> left (below) only
+    START at or after the plane     -> right (above) only
+    PLANAR before / after the plane -> that side; PLANAR at it -> the side SAH chose
+    everything else                 -> both: a straddler
+
+One linear pass per axis moves the events of one-sided triangles to their child,
+still sorted. Straddlers are re-clipped to each child's box (`clip.clip_split`),
+their few new events are sorted and merged in. No node sorts all its events, so the
+whole build is O(n log n) (errata 7).
+
+Numba-compiled (`cache=True`; the first call compiles).
+"""
+import numpy as np
+from numba import njit
+
+from .clip import clip_split
+from .events import END, START, box_events, key_bits, key_kind, key_prim, sort_range
+
+ON_LEFT = np.int8(1)
+ON_RIGHT = np.int8(2)
+ON_BOTH = np.int8(3)
+
+
+@njit(cache=True)
+def classify(buf, start, count, split_bits, planar_left, side, strad):
+    """Classify the triangles of one node by its run of events on the split axis.
+
+    buf[start:start+count] : the split axis's sorted events;  split_bits : the plane's
+    `position_bits`;  planar_left : where PLANAR-at-the-plane triangles go.
+    Writes side[prim] (ON_LEFT / ON_RIGHT / ON_BOTH) for every triangle of the node
+    and the straddlers, in event order, to strad. Returns their number.
+    """
+    stop = start + count
+    for i in range(start, stop):
+        key = buf[i]
+        bits = key_bits(key)
+        kind = key_kind(key)
+        prim = key_prim(key)
+        if kind == START:                   # START comes before its END in the run
+            side[prim] = ON_RIGHT if bits >= split_bits else ON_BOTH
+        elif kind == END:
+            if bits <= split_bits:
+                side[prim] = ON_LEFT
+        else:
+            if bits < split_bits:
+                side[prim] = ON_LEFT
+            elif bits > split_bits:
+                side[prim] = ON_RIGHT
+            else:
+                side[prim] = ON_LEFT if planar_left else ON_RIGHT
+    n = 0
+    for i in range(start, stop):
+        key = buf[i]
+        if key_bits(key) >= split_bits:
+            break
+        if key_kind(key) == START:
+            prim = key_prim(key)
+            if side[prim] == ON_BOTH:
+                strad[n] = prim
+                n += 1
+    return n
+
+
+@njit(cache=True)
+def clip_straddlers(tri, strad, n, box, axis, pos, poly, left_box, right_box, left_ok, right_ok):
+    """Clip each straddler to both children's boxes; *_ok[s] False: nothing left there."""
+    for s in range(n):
+        left_ok[s], right_ok[s] = clip_split(tri, strad[s], box, axis, pos, poly,
+                                             left_box[s], right_box[s])
+
+
+@njit(cache=True)
+def split_runs(buf, off, counts, side, left, right, left_runs, right_runs):
+    """Copy the events of one-sided triangles to `left` / `right`, run by run.
+
+    Runs stay sorted. left, right : at least sum(counts) + 1 long (the branch-free
+    copy writes one slot past the end). left_runs, right_runs : (3, 2) int64, written
+    (start, count) per axis. Returns the number of left-only and right-only triangles.
+    """
+    wl = 0
+    wr = 0
+    start = off
+    for k in range(3):
+        left_runs[k, 0] = wl
+        right_runs[k, 0] = wr
+        for i in range(start, start + counts[k]):
+            key = buf[i]
+            s = side[key_prim(key)]
+            left[wl] = key
+            right[wr] = key
+            wl += s == ON_LEFT
+            wr += s == ON_RIGHT
+        left_runs[k, 1] = wl - left_runs[k, 0]
+        right_runs[k, 1] = wr - right_runs[k, 0]
+        start += counts[k]
+    # Triangles per side: one START or PLANAR each in the x run.
+    n_left = 0
+    for i in range(left_runs[0, 1]):
+        n_left += key_kind(left[i]) != END
+    n_right = 0
+    for i in range(right_runs[0, 1]):
+        n_right += key_kind(right[i]) != END
+    return n_left, n_right
+
+
+@njit(cache=True)
+def straddler_events(strad, n, boxes, ok, out, runs):
+    """Events of the clipped straddlers in one child, each axis's run sorted.
+
+    boxes : (>= n, 2, 3) float32;  ok : (>= n,) bool;  runs : (3, 2) int64, written.
+    Returns the number of straddlers kept in this child.
+    """
+    w = 0
+    kept = 0
+    for k in range(3):
+        runs[k, 0] = w
+        for s in range(n):
+            if ok[s]:
+                w = box_events(boxes[s, 0, k], boxes[s, 1, k], strad[s], out, w)
+                if k == 0:
+                    kept += 1
+        runs[k, 1] = w - runs[k, 0]
+        sort_range(out, runs[k, 0], w)
+    return kept
+
+
+@njit(cache=True)
+def merge_runs(a, a_runs, b, b_runs, out, w, counts):
+    """Merge each axis's run of a and of b (both sorted) into out[w:]; counts (3,) is
+    written with the merged runs' lengths. Returns the new write position."""
+    for k in range(3):
+        i = a_runs[k, 0]
+        i_end = i + a_runs[k, 1]
+        j = b_runs[k, 0]
+        j_end = j + b_runs[k, 1]
+        w0 = w
+        while i < i_end and j < j_end:
+            if a[i] < b[j]:
+                out[w] = a[i]
+                i += 1
+            else:
+                out[w] = b[j]
+                j += 1
+            w += 1
+        while i < i_end:
+            out[w] = a[i]
+            i += 1
+            w += 1
+        while j < j_end:
+            out[w] = b[j]
+            j += 1
+            w += 1
+        counts[k] = w - w0
+    return w

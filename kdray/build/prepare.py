@@ -1,0 +1,76 @@
+"""Mesh arrays -> the float32 triangles the tree stores.
+
+    vertices  : (n, 3) float-like, world coordinates (read as float64)
+    faces     : (m, 3) int, indices into vertices; triangle ids are row numbers
+    ->
+    triangles : (k, 3, 3) float32   kept triangles, relative to `origin`
+    tri_ids   : (k,) uint32         input row of each kept triangle (input order kept)
+    origin    : (3,) float64        centre of the box of the finite vertices the faces use
+    bounds    : (2, 3) float32      box of the kept triangles (min, max), relative
+
+A triangle is left out when a coordinate is not finite after the shift to float32, or
+when its float32 cross product is zero: such a triangle can never be hit.
+"""
+import dataclasses
+
+import numpy as np
+
+from .. import layout
+from ..errors import MeshError
+
+
+@dataclasses.dataclass(frozen=True)
+class Prepared:
+    triangles: np.ndarray
+    tri_ids: np.ndarray
+    origin: np.ndarray
+    bounds: np.ndarray
+    n_input_tris: int
+
+
+def prepare(vertices, faces):
+    """Validate mesh arrays and make the kept float32 triangles; raises MeshError."""
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces)
+    except (TypeError, ValueError) as e:
+        raise MeshError(f"vertices and faces must be numeric arrays ({e})") from None
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise MeshError(f"vertices must be an (n, 3) array, got shape {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise MeshError(f"faces must be an (m, 3) array of triangles, got shape {f.shape}")
+    m = len(f)
+    if m == 0:
+        raise MeshError("no triangles left after removing degenerate ones (the mesh has no faces)")
+    if m >= layout.MAX_NODES:
+        raise MeshError(f"{m} triangles; a tree holds fewer than {layout.MAX_NODES}")
+    if not np.issubdtype(f.dtype, np.integer):
+        if not np.issubdtype(f.dtype, np.number) or not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
+            raise MeshError("face indices must be integers")
+    f = f.astype(np.int64)
+    if f.min() < 0 or f.max() >= len(v):
+        bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
+        raise MeshError(f"face {bad} has a vertex index out of range (the mesh has {len(v)} vertices)")
+
+    # Origin: centre of the float64 box of the (finite) vertices the faces use.
+    used = np.zeros(len(v), dtype=bool)
+    used[f.ravel()] = True
+    used &= np.isfinite(v).all(axis=1)
+    if not used.any():
+        raise MeshError("no triangles left after removing degenerate ones (no finite vertex)")
+    pts = v[used]
+    origin = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        tri = (v[f] - origin).astype(np.float32)
+        finite = np.isfinite(tri).all(axis=(1, 2))
+        e1 = tri[:, 1] - tri[:, 0]
+        e2 = tri[:, 2] - tri[:, 0]
+        cross = np.cross(e1, e2)                       # float32, as the kernels see it
+    keep = finite & (cross != 0).any(axis=1)
+    if not keep.any():
+        raise MeshError("no triangles left after removing degenerate ones")
+    tri_ids = np.flatnonzero(keep).astype(np.uint32)
+    tri = np.ascontiguousarray(tri[keep])
+    bounds = np.stack([tri.min(axis=(0, 1)), tri.max(axis=(0, 1))]).astype(np.float32)
+    return Prepared(tri, tri_ids, origin, bounds, m)

@@ -1,0 +1,102 @@
+"""The SAH sweep: the cheapest split plane of one node (Wald & Havran 2006, Alg. 1, 3).
+
+Cost of splitting a node V with a plane p (K_T, K_I, lambda = empty_bonus)::
+
+    C(p) = lambda * (K_T + K_I * (P_L N_L + P_R N_R)),   P_X = SA(V_X) / SA(V)
+
+with lambda applied only when one side gets no triangle. Triangles lying in p
+(PLANAR) are tried on either side and the cheaper is kept. Only planes strictly
+inside the node's box are evaluated: a boundary plane has an empty side with no
+volume, and would let the build split empty slabs forever. A node flat along one
+axis (e.g. a mesh lying in z = 0) has no candidate there and a positive area from
+the other two axes.
+
+Numba-compiled (`cache=True`; the first call compiles).
+"""
+import numpy as np
+from numba import njit
+
+from .events import PLANAR, START, key_bits, key_kind, position_bits, position_value
+
+LEFT = 0
+"""Planar triangles at the chosen plane go to the below (left) child..."""
+RIGHT = 1
+"""...or to the above (right) child."""
+
+
+@njit(cache=True)
+def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus):
+    """Sweep the node's three sorted event runs.
+
+    buf[off:] : the node's events (x run, y run, z run; `counts` (3,) long);
+    n_tris : triangles in the node;  box : (2, 3) float64 (float32 values).
+    Returns (cost, axis, position float32, side LEFT/RIGHT for planar triangles,
+    n_left, n_right triangles on each side); axis is -1 and cost inf when no plane
+    lies strictly inside the box.
+    Ties keep the first found: lower axis, lower position, planar triangles left.
+    """
+    ext0 = box[1, 0] - box[0, 0]
+    ext1 = box[1, 1] - box[0, 1]
+    ext2 = box[1, 2] - box[0, 2]
+    area = 2.0 * (ext0 * ext1 + ext1 * ext2 + ext2 * ext0)
+    best_cost = np.inf
+    best_axis = -1
+    best_pos = np.float32(0.0)
+    best_side = LEFT
+    best_left = 0
+    best_right = 0
+    if not area > 0.0:
+        return best_cost, best_axis, best_pos, best_side, best_left, best_right
+    inv_area = 1.0 / area
+    start = off
+    for k in range(3):
+        end = start + counts[k]
+        lo = box[0, k]
+        hi = box[1, k]
+        lo_bits = position_bits(lo)
+        hi_bits = position_bits(hi)
+        e1 = box[1, (k + 1) % 3] - box[0, (k + 1) % 3]
+        e2 = box[1, (k + 2) % 3] - box[0, (k + 2) % 3]
+        cap = 2.0 * e1 * e2 * inv_area              # P of a zero-width slab
+        perim = 2.0 * (e1 + e2) * inv_area          # dP / dx
+        n_left = 0
+        n_right = n_tris
+        # Per event, branch-free: END and PLANAR leave the right side at once, PLANAR
+        # and START join the left after the position's planes are evaluated.
+        p_planar = 0
+        p_start = 0
+        for i in range(start, end):
+            key = buf[i]
+            kind = key_kind(key)
+            n_right -= kind != START
+            p_planar += kind == PLANAR
+            p_start += kind == START
+            bits = key_bits(key)
+            if i + 1 < end and key_bits(buf[i + 1]) == bits:
+                continue                            # more events at this position
+            # Errata 2: N_P = p_planar; N_R -= p_planar + p_end (done); evaluate; N_L += ...
+            if lo_bits < bits and bits < hi_bits:
+                x = np.float64(position_value(bits))
+                p_left = cap + (x - lo) * perim
+                p_right = cap + (hi - x) * perim
+                # planar triangles on the left
+                n_l = n_left + p_planar
+                c = K_T + K_I * (p_left * n_l + p_right * n_right)
+                if n_l == 0 or n_right == 0:
+                    c *= empty_bonus
+                if c < best_cost:
+                    best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), LEFT
+                    best_left, best_right = n_l, n_right
+                if p_planar > 0:                    # ... and on the right
+                    n_r = n_right + p_planar
+                    c = K_T + K_I * (p_left * n_left + p_right * n_r)
+                    if n_left == 0 or n_r == 0:
+                        c *= empty_bonus
+                    if c < best_cost:
+                        best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), RIGHT
+                        best_left, best_right = n_left, n_r
+            n_left += p_start + p_planar
+            p_planar = 0
+            p_start = 0
+        start = end
+    return best_cost, best_axis, best_pos, best_side, best_left, best_right

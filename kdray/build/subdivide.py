@@ -1,0 +1,210 @@
+"""The build loop: nodes in depth-first order from an explicit work stack.
+
+The events of pending nodes live in one uint64 buffer used as a stack: the node on
+top of the work stack owns the top of the buffer. Splitting it writes the above
+(right) child's events where the node's were and the below (left) child's after
+them; the left child is processed next and so becomes node i + 1 (depth-first,
+pbrt layout), the right child waits on the stack with the index of the parent whose
+`above_child` it fills in when it is emitted.
+
+Numba-compiled (`cache=True`; the first call compiles).
+"""
+import numpy as np
+from numba import njit
+
+from .classify import (classify, clip_straddlers, merge_runs, split_runs,
+                       straddler_events)
+from .clip import polygon_scratch
+from .events import END, key_kind, key_prim, position_bits, sort_range
+from .sah import LEFT, best_split
+
+MAX_REFS_PER_TRI = 32.0
+"""Reference budget: a node may hold `budget` leaf references in its subtree (the root
+max_refs_per_tri * n); a split whose sides hold more than that is not made, and the
+budget is shared between the children in proportion to their triangles. So the tree
+never lists more than max_refs_per_tri * n triangles. SAH alone does not bound them:
+in a flat node (all triangles in one plane) P_L + P_R = 1, duplicating a triangle is
+free, and overlapping coplanar triangles double at every level down to max_depth."""
+
+_LEAF = np.uint32(3)
+_U2 = np.uint32(2)
+
+
+@njit(cache=True)
+def _grow(a, used, need):
+    """`a` if it holds `need` rows, else a copy of its first `used` rows in an array of
+    at least twice the rows."""
+    if need <= len(a):
+        return a
+    b = np.empty((max(need, 2 * len(a)),) + a.shape[1:], dtype=a.dtype)
+    b[:used] = a[:used]
+    return b
+
+
+@njit(cache=True)
+def subdivide(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_size,
+              max_refs_per_tri=MAX_REFS_PER_TRI):
+    """Build the tree's nodes from the root's sorted events.
+
+    tri : (m, 3, 3) float32;  keys, counts : from `events.sorted_root_events`;
+    bounds : (2, 3) float64 root box (float32 values);  max_depth : resolved;
+    max_refs_per_tri : the reference budget (see MAX_REFS_PER_TRI).
+    Returns (nodes (n, 2) uint32, leaf_tris (r,) uint32, depth of the deepest leaf).
+    """
+    m = tri.shape[0]
+    total = len(keys)
+    buf = np.empty(max(2 * total, 64), dtype=np.uint64)
+    buf[:total] = keys
+
+    # Work stack: at most one pending right child per level, plus the node on top.
+    cap_stack = max_depth + 4
+    st_off = np.empty(cap_stack, dtype=np.int64)
+    st_counts = np.empty((cap_stack, 3), dtype=np.int64)
+    st_n = np.empty(cap_stack, dtype=np.int64)
+    st_box = np.empty((cap_stack, 2, 3), dtype=np.float64)
+    st_depth = np.empty(cap_stack, dtype=np.int64)
+    st_parent = np.empty(cap_stack, dtype=np.int64)
+    st_budget = np.empty(cap_stack, dtype=np.float64)
+    st_off[0] = 0
+    st_counts[0] = counts
+    st_n[0] = m
+    for c in range(3):
+        st_box[0, 0, c] = bounds[0, c]
+        st_box[0, 1, c] = bounds[1, c]
+    st_depth[0] = 0
+    st_parent[0] = -1
+    st_budget[0] = max_refs_per_tri * m
+    top = 1
+
+    nodes = np.empty((max(16, 2 * m), 2), dtype=np.uint32)
+    n_nodes = 0
+    leaf_tris = np.empty(max(16, 2 * m), dtype=np.uint32)
+    n_refs = 0
+    deepest = 0
+
+    # Scratch, grown on demand.
+    poly = polygon_scratch()
+    side = np.zeros(m, dtype=np.int8)
+    strad = np.empty(m, dtype=np.int64)
+    left = np.empty(16, dtype=np.uint64)
+    right = np.empty(16, dtype=np.uint64)
+    new_left = np.empty(16, dtype=np.uint64)
+    new_right = np.empty(16, dtype=np.uint64)
+    left_box = np.empty((16, 2, 3), dtype=np.float32)
+    right_box = np.empty((16, 2, 3), dtype=np.float32)
+    left_ok = np.empty(16, dtype=np.bool_)
+    right_ok = np.empty(16, dtype=np.bool_)
+    left_runs = np.empty((3, 2), dtype=np.int64)
+    right_runs = np.empty((3, 2), dtype=np.int64)
+    new_left_runs = np.empty((3, 2), dtype=np.int64)
+    new_right_runs = np.empty((3, 2), dtype=np.int64)
+    box = np.empty((2, 3), dtype=np.float64)
+    box_left = np.empty((2, 3), dtype=np.float64)
+    box_right = np.empty((2, 3), dtype=np.float64)
+    node_counts = np.empty(3, dtype=np.int64)
+    right_counts = np.empty(3, dtype=np.int64)
+    left_counts = np.empty(3, dtype=np.int64)
+
+    while top > 0:
+        top -= 1
+        off = st_off[top]
+        node_counts[:] = st_counts[top]
+        n = st_n[top]
+        box[:, :] = st_box[top]
+        depth = st_depth[top]
+        parent = st_parent[top]
+        budget = st_budget[top]
+
+        idx = n_nodes
+        nodes = _grow(nodes, n_nodes, n_nodes + 1)
+        n_nodes += 1
+        if parent >= 0:
+            nodes[parent, 0] |= np.uint32(idx) << _U2
+
+        axis = -1
+        if n > leaf_size and depth < max_depth:
+            cost, axis, pos, planar_side, n_below, n_above = best_split(
+                buf, off, node_counts, n, box, K_T, K_I, empty_bonus)
+            if axis >= 0 and cost > K_I * n:            # errata 6: no lambda on the leaf
+                axis = -1
+            if axis >= 0 and n_below + n_above > budget:  # out of references
+                axis = -1
+
+        if axis < 0:
+            # Leaf: the node's triangles (one START or PLANAR each on x), in index order.
+            leaf_tris = _grow(leaf_tris, n_refs, n_refs + n)
+            c = 0
+            for i in range(off, off + node_counts[0]):
+                if key_kind(buf[i]) != END:
+                    leaf_tris[n_refs + c] = np.uint32(key_prim(buf[i]))
+                    c += 1
+            sort_range(leaf_tris, n_refs, n_refs + c)
+            nodes[idx, 0] = _LEAF | (np.uint32(c) << _U2)
+            nodes[idx, 1] = np.uint32(n_refs)
+            n_refs += c
+            deepest = max(deepest, depth)
+            continue
+
+        # Interior node; its above_child is filled in when the right child is emitted.
+        nodes[idx, 0] = np.uint32(axis)
+        nodes[idx, 1] = np.float32(pos).view(np.uint32)
+
+        run_start = off
+        for k in range(axis):
+            run_start += node_counts[k]
+        n_strad = classify(buf, run_start, node_counts[axis], position_bits(pos),
+                           planar_side == LEFT, side, strad)
+
+        box_left[:, :] = box
+        box_left[1, axis] = pos
+        box_right[:, :] = box
+        box_right[0, axis] = pos
+        if n_strad > len(left_ok):
+            size = max(n_strad, 2 * len(left_ok))
+            left_box = np.empty((size, 2, 3), dtype=np.float32)
+            right_box = np.empty((size, 2, 3), dtype=np.float32)
+            left_ok = np.empty(size, dtype=np.bool_)
+            right_ok = np.empty(size, dtype=np.bool_)
+        clip_straddlers(tri, strad, n_strad, box, axis, pos, poly,
+                        left_box, right_box, left_ok, right_ok)
+
+        node_total = node_counts[0] + node_counts[1] + node_counts[2]
+        if node_total + 1 > len(left):
+            size = max(node_total + 1, 2 * len(left))
+            left = np.empty(size, dtype=np.uint64)
+            right = np.empty(size, dtype=np.uint64)
+        n_left, n_right = split_runs(buf, off, node_counts, side, left, right, left_runs, right_runs)
+
+        if 6 * n_strad > len(new_left):
+            size = max(6 * n_strad, 2 * len(new_left))
+            new_left = np.empty(size, dtype=np.uint64)
+            new_right = np.empty(size, dtype=np.uint64)
+        n_left += straddler_events(strad, n_strad, left_box, left_ok, new_left, new_left_runs)
+        n_right += straddler_events(strad, n_strad, right_box, right_ok, new_right, new_right_runs)
+
+        need = off
+        for k in range(3):
+            need += left_runs[k, 1] + right_runs[k, 1] + new_left_runs[k, 1] + new_right_runs[k, 1]
+        buf = _grow(buf, off, need)
+        w = merge_runs(right, right_runs, new_right, new_right_runs, buf, off, right_counts)
+        merge_runs(left, left_runs, new_left, new_left_runs, buf, w, left_counts)
+
+        # Push the right child first, so the left one is emitted next (index idx + 1).
+        st_off[top] = off
+        st_counts[top] = right_counts
+        st_n[top] = n_right
+        st_box[top] = box_right
+        st_depth[top] = depth + 1
+        st_parent[top] = idx
+        st_budget[top] = budget * n_above / (n_below + n_above)
+        top += 1
+        st_off[top] = w
+        st_counts[top] = left_counts
+        st_n[top] = n_left
+        st_box[top] = box_left
+        st_depth[top] = depth + 1
+        st_parent[top] = -1
+        st_budget[top] = budget * n_below / (n_below + n_above)
+        top += 1
+
+    return nodes[:n_nodes].copy(), leaf_tris[:n_refs].copy(), deepest

@@ -1,0 +1,408 @@
+"""The SAH k-d tree builder: valid trees on many kinds of input (KdTree.validate),
+the same hits as the brute-force oracle, determinism, parameters, and the sweep's
+choice checked against a direct evaluation of every candidate plane."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kdray import layout, reference
+from kdray.build import build
+from kdray.build.clip import clip_split, polygon_scratch
+from kdray.build.events import position_bits, position_value, sorted_root_events
+from kdray.build.sah import best_split
+from kdray.build.subdivide import MAX_REFS_PER_TRI
+from kdray.errors import MeshError
+
+SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+
+
+# -- helpers ------------------------------------------------------------------------
+
+def soup(rng, n, size=0.05, flat_axis=None):
+    """n random small triangles in the unit cube: (3n, 3) vertices, (n, 3) faces."""
+    centre = rng.random((n, 1, 3))
+    tri = centre + size * rng.normal(size=(n, 3, 3))
+    if flat_axis is not None:
+        tri[..., flat_axis] = 0.0
+    return tri.reshape(-1, 3), np.arange(3 * n).reshape(-1, 3)
+
+
+def grid(nx, ny):
+    """A flat (nx-1) x (ny-1) grid of unit squares in z = 0, two triangles each."""
+    g = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"), -1).reshape(-1, 2)
+    v = np.c_[g, np.zeros(len(g))].astype(np.float64)
+    i = (np.arange(nx - 1)[:, None] * ny + np.arange(ny - 1)[None]).ravel()
+    return v, np.r_[np.c_[i, i + ny, i + 1], np.c_[i + 1, i + ny, i + ny + 1]]
+
+
+def cubes(nx, ny, nz):
+    """Unit cubes on an integer lattice (12 triangles each): geometry on split planes."""
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    faces = np.array([f for a, b, c, d in quads for f in ((a, b, c), (a, c, d))])
+    vs, fs = [], []
+    for k, off in enumerate(np.array([[x, y, z] for x in range(nx) for y in range(ny)
+                                      for z in range(nz)], float)):
+        vs.append(corners + 2 * off)          # a gap of one unit between cubes
+        fs.append(faces + 8 * k)
+    return np.concatenate(vs), np.concatenate(fs)
+
+
+def load_shared(name):
+    import trimesh
+    path = SHARED_MESHES / name
+    if not path.exists():
+        pytest.skip(f"shared mesh {path} is not present")
+    m = trimesh.load(path, force="mesh", process=False, skip_materials=True)
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def leaves(tree):
+    """[(node index, leaf triangle array)] of every leaf."""
+    out = []
+    for i in np.flatnonzero(layout.is_leaf(tree.nodes)):
+        start = int(layout.leaf_offset(tree.nodes[i:i + 1])[0])
+        count = int(layout.n_prims(tree.nodes[i:i + 1])[0])
+        out.append((i, tree.leaf_tris[start:start + count]))
+    return out
+
+
+def check_tree(tree, vertices, faces):
+    """validate() plus the builder's own contract: kept triangles, ids, leaf order."""
+    tree.validate()
+    f = np.asarray(faces, dtype=np.int64)
+    expected = (np.asarray(vertices, dtype=np.float64)[f[tree.tri_ids]] - tree.origin).astype(np.float32)
+    np.testing.assert_array_equal(tree.triangles, expected)
+    assert np.all(np.diff(tree.tri_ids.astype(np.int64)) > 0)          # input order kept
+    assert tree.n_input_tris == len(f)
+    np.testing.assert_array_equal(tree.bounds[0], tree.triangles.min(axis=(0, 1)))
+    np.testing.assert_array_equal(tree.bounds[1], tree.triangles.max(axis=(0, 1)))
+    leaf = layout.is_leaf(tree.nodes)
+    starts = layout.leaf_offset(tree.nodes[leaf]).astype(np.int64)
+    counts = layout.n_prims(tree.nodes[leaf]).astype(np.int64)
+    assert np.array_equal(starts, np.r_[0, np.cumsum(counts)[:-1]])    # leaves in node order
+    step = np.diff(tree.leaf_tris.astype(np.int64))
+    first = np.zeros(len(tree.leaf_tris), dtype=bool)
+    first[starts[counts > 0]] = True
+    assert np.all(step[~first[1:]] > 0)                                 # increasing per leaf
+    assert tree.stats()["refs_per_triangle"] <= MAX_REFS_PER_TRI
+
+
+def rays(rng, tree, n):
+    """World-space rays: most aimed at points inside the scene box, some axis-parallel."""
+    lo, hi = tree.bounds.astype(np.float64) + tree.origin
+    size = np.max(hi - lo)
+    o = rng.uniform(lo - 0.3 * size, hi + 0.3 * size, (n, 3))
+    d = rng.uniform(lo, hi, (n, 3)) - o
+    d[: n // 10, :2] = 0.0                                               # along z
+    d[n // 10: n // 5, 0] = 0.0                                          # in x planes
+    return o, d
+
+
+def assert_same_hits(tree, rng, n=1500, min_hits=50):
+    """reference.traverse through the tree == brute force over the tree's triangles."""
+    o, d = rays(rng, tree, n)
+    a = reference.traverse(tree, o, d)
+    b = reference.brute_force(tree.triangles.astype(np.float64), o - tree.origin, d)
+    assert b.hit.sum() >= min_hits
+    np.testing.assert_array_equal(a.hit, b.hit)
+    np.testing.assert_array_equal(a.t, b.t)
+    # Same arithmetic on the same triangles: ties at equal t resolve alike (lowest id).
+    np.testing.assert_array_equal(a.prim, np.where(b.hit, tree.tri_ids.astype(np.int64)[np.maximum(b.prim, 0)], -1))
+
+
+# -- valid trees ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed,n,size", [(0, 1, 0.1), (1, 2, 0.1), (2, 7, 0.2), (3, 97, 0.1),
+                                         (4, 1013, 0.05), (5, 5003, 0.02), (6, 333, 0.5)])
+def test_random_soups(seed, n, size):
+    rng = np.random.default_rng(seed)
+    v, f = soup(rng, n, size)
+    tree = build(v, f)
+    check_tree(tree, v, f)
+    assert len(tree.triangles) == n
+    if n >= 97:
+        assert_same_hits(tree, rng, n=800)
+
+
+@pytest.mark.parametrize("name", ["teapot.obj", "spot.obj", "fandisk.obj", "stanford-bunny.obj"])
+def test_shared_meshes(name):
+    v, f = load_shared(name)
+    tree = build(v, f)
+    check_tree(tree, v, f)
+    s = tree.stats()
+    assert s["leaves"] > len(tree.triangles) / 8
+    assert 1.0 <= s["refs_per_triangle"] <= 8.0
+
+
+@pytest.mark.parametrize("name", ["teapot.obj", "fandisk.obj"])
+def test_shared_meshes_hits_match_brute_force(name):
+    v, f = load_shared(name)
+    tree = build(v, f)
+    assert_same_hits(tree, np.random.default_rng(11), n=1000, min_hits=200)
+
+
+def test_planar_mesh():
+    v, f = grid(41, 23)
+    v[:, :2] += 0.3 * np.random.default_rng(3).random((len(v), 2))   # irregular, still flat
+    tree = build(v, f)
+    check_tree(tree, v, f)
+    assert tree.bounds[0, 2] == tree.bounds[1, 2] == 0.0
+    assert len(tree.nodes) > 100
+    assert np.all(layout.split_axis(tree.nodes) != 2)                # no split along z
+    assert_same_hits(tree, np.random.default_rng(4), n=1000, min_hits=200)
+
+
+def test_planar_overlapping_soup_stays_bounded():
+    # Coplanar overlapping triangles: in a flat node P_L + P_R = 1, so SAH alone would
+    # duplicate them down to max_depth; the reference budget bounds the tree.
+    rng = np.random.default_rng(5)
+    v, f = soup(rng, 1500, size=0.4, flat_axis=2)
+    tree = build(v, f)
+    check_tree(tree, v, f)
+    assert tree.stats()["refs_per_triangle"] <= MAX_REFS_PER_TRI
+
+
+def test_cubes_on_the_split_planes():
+    v, f = cubes(5, 4, 3)
+    tree = build(v, f)
+    check_tree(tree, v, f)
+    inner = ~layout.is_leaf(tree.nodes)
+    splits = layout.split(tree.nodes[inner]).astype(np.float64) + tree.origin[layout.split_axis(tree.nodes[inner])]
+    assert np.any(splits == np.round(splits))                      # planes through cube faces
+    assert tree.stats()["refs_per_triangle"] == 1.0                # nothing straddles a face plane
+    assert_same_hits(tree, np.random.default_rng(6), n=1500, min_hits=300)
+
+
+def test_degenerate_triangles_are_left_out():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 2, 2], [3, 3, 3], [4, 4, 4],
+                  [np.nan, 0, 0], [np.inf, 1, 1], [0, 0, 1], [1e-30, 0, 0], [0, 1e-30, 0]], float)
+    f = np.array([
+        [0, 1, 2],      # 0 good
+        [0, 0, 1],      # 1 repeated vertex: zero area
+        [3, 4, 5],      # 2 collinear
+        [0, 1, 6],      # 3 NaN vertex
+        [0, 2, 7],      # 4 infinite vertex
+        [0, 1, 2],      # 5 duplicate of 0: kept
+        [1, 2, 8],      # 6 good
+        [0, 9, 10],     # 7 cross product underflows to zero in float32
+        [2, 1, 0],      # 8 good (reversed)
+    ])
+    tree = build(v, f)
+    np.testing.assert_array_equal(tree.tri_ids, [0, 5, 6, 8])
+    check_tree(tree, v, f)
+    listed = np.unique(tree.leaf_tris)
+    assert set(listed.tolist()) == {0, 1, 2, 3}
+    # the origin ignores non-finite vertices
+    assert np.all(np.isfinite(tree.origin))
+
+
+def test_origin_is_centre_of_the_used_vertices():
+    rng = np.random.default_rng(9)
+    v, f = soup(rng, 50)
+    v = np.vstack([v, [[1e6, -1e6, 5e5]]])                            # unused far vertex
+    v += [1e5, -2e3, 7.0]
+    tree = build(v, f)
+    used = v[:-1]
+    np.testing.assert_array_equal(tree.origin, 0.5 * (used.min(0) + used.max(0)))
+    check_tree(tree, v, f)
+
+
+@pytest.mark.parametrize("v,f,match", [
+    (np.zeros((3, 3)), np.array([[0, 1, 2]]), "no triangles left"),
+    (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2.0]]), np.array([[0, 1, 2]]), "no triangles left"),
+    (np.full((3, 3), np.nan), np.array([[0, 1, 2]]), "no triangles left"),
+    (np.eye(3), np.zeros((0, 3), int), "no triangles left"),
+    (np.eye(3), np.array([[0, 1, 3]]), "out of range"),
+    (np.eye(3), np.array([[0, -1, 2]]), "out of range"),
+    (np.eye(3)[:, :2], np.array([[0, 1, 2]]), "vertices must be"),
+    (np.eye(3), np.array([[0, 1]]), "faces must be"),
+    (np.eye(3), np.array([[0, 1, 2.5]]), "integers"),
+])
+def test_bad_meshes_raise(v, f, match):
+    with pytest.raises(MeshError, match=match):
+        build(v, f)
+
+
+def test_dense_cluster_in_a_huge_scene():
+    rng = np.random.default_rng(10)
+    v1, f1 = soup(rng, 40, size=0.05)
+    v1 = v1 * 1e4 - 5e3                                               # a few huge triangles
+    v2, f2 = soup(rng, 2000, size=0.03)
+    v2 = v2 * 0.1 + 1234.5                                            # a dense tiny cluster
+    v = np.vstack([v1, v2])
+    f = np.vstack([f1, f2 + len(v1)])
+    tree = build(v, f)
+    check_tree(tree, v, f)
+    # rays at the cluster
+    o = 1234.5 + rng.uniform(-1, 1, (800, 3))
+    d = 1234.5 + 0.1 * rng.random((800, 3)) - o
+    a = reference.traverse(tree, o, d)
+    b = reference.brute_force(tree.triangles.astype(np.float64), o - tree.origin, d)
+    assert b.hit.sum() > 100
+    np.testing.assert_array_equal(a.prim, np.where(b.hit, tree.tri_ids.astype(np.int64)[np.maximum(b.prim, 0)], -1))
+
+
+@pytest.mark.parametrize("flat", [False, True])
+def test_long_thin_overlapping_slivers(flat):
+    rng = np.random.default_rng(12)
+    n = 3000
+    x0 = 0.1 * rng.random(n)
+    y = rng.random(n)
+    z = 0.0 if flat else rng.random(n)
+    a = np.stack([x0, y, np.broadcast_to(z, n)], 1)
+    b = np.stack([x0 + 1 + rng.random(n), y + 1e-3, np.broadcast_to(z, n) + (0 if flat else 1e-3)], 1)
+    c = np.stack([x0 + 0.5, y + 2e-3 * rng.random(n), np.broadcast_to(z, n)], 1)
+    v = np.stack([a, b, c], 1).reshape(-1, 3)
+    f = np.arange(3 * n).reshape(-1, 3)
+    tree = build(v, f)
+    check_tree(tree, v, f)
+    assert tree.stats()["refs_per_triangle"] <= MAX_REFS_PER_TRI
+
+
+# -- determinism and parameters ------------------------------------------------------
+
+def test_deterministic():
+    v, f = load_shared("teapot.obj")
+    a = build(v, f)
+    b = build(v.copy(), f.copy())
+    assert a == b
+    assert a.to_bytes() == b.to_bytes()
+
+
+def test_parameters_change_the_tree():
+    rng = np.random.default_rng(13)
+    v, f = soup(rng, 2000, 0.03)
+    base = build(v, f)
+    assert base.params.max_depth == round(8 + 1.3 * np.log2(2000))
+    no_bonus = build(v, f, empty_bonus=1.0)
+    assert no_bonus.params.empty_bonus == 1.0
+    assert no_bonus != base
+    assert no_bonus.stats()["empty_leaves"] < base.stats()["empty_leaves"]
+    shallow = build(v, f, max_depth=3)
+    check_tree(shallow, v, f)
+    assert shallow.depth == 3 and shallow.params.max_depth == 3
+    cheap_tests = build(v, f, K_I=1.0)                                # splitting rarely pays
+    assert len(cheap_tests.nodes) < len(base.nodes)
+    one_leaf = build(v, f, leaf_size=10 ** 6)
+    assert len(one_leaf.nodes) == 1 and len(one_leaf.leaf_tris) == 2000
+    big_leaves = build(v, f, leaf_size=8)
+    check_tree(big_leaves, v, f)
+    assert len(big_leaves.nodes) < len(base.nodes)
+
+
+@pytest.mark.parametrize("kw", [dict(K_T=0), dict(K_I=-1), dict(empty_bonus=0), dict(empty_bonus=1.5),
+                                dict(max_depth=-1), dict(leaf_size=-1), dict(K_T=float("nan"))])
+def test_bad_parameters_raise(kw):
+    with pytest.raises(ValueError):
+        build(np.eye(3), np.array([[0, 1, 2]]), **kw)
+
+
+# -- the sweep -----------------------------------------------------------------------
+
+def test_two_separated_triangles_are_split_apart():
+    # A spans x in [0, 1], B x in [3, 4]; both span [0, 1] in y and z. Candidates
+    # strictly inside the root box [0, 4] x [0, 1]^2: x = 1 and x = 3, each with one
+    # triangle per side: C = 15 + 20 (P_L + P_R) = 15 + 20 (6/18 + 14/18) < 40 = 20 * 2.
+    v = np.array([[0, 0, 0], [1, 1, 0], [0, 1, 1], [3, 0, 0], [4, 1, 0], [3, 1, 1]], float)
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    tree = build(v, f)
+    tree.validate()
+    assert len(tree.nodes) == 3
+    assert layout.split_axis(tree.nodes)[0] == 0
+    split = layout.split(tree.nodes[:1])[0] + tree.origin[0]
+    assert split == 1.0                                   # tie with x = 3: lower plane first
+    assert [t.tolist() for _, t in leaves(tree)] == [[0], [1]]
+    keys, counts = sorted_root_events(tree.triangles)
+    cost, axis, pos, side, n_l, n_r = best_split(keys, 0, counts, 2, tree.bounds.astype(np.float64),
+                                                 15.0, 20.0, 0.8)
+    assert (axis, n_l, n_r) == (0, 1, 1)
+    assert cost == pytest.approx(15 + 20 * (6 + 14) / 18)
+
+
+def brute_force_sah(boxes, box, K_T, K_I, lam):
+    """Min SAH cost over every candidate plane, straight from the definition."""
+    ext = box[1] - box[0]
+    area = 2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[2] * ext[0])
+    best = np.inf
+    for k in range(3):
+        lo, hi = boxes[:, 0, k], boxes[:, 1, k]
+        for p in np.unique(np.r_[lo, hi]):
+            if not box[0, k] < p < box[1, k]:
+                continue
+            e = ext.copy()
+            e[k] = p - box[0, k]
+            p_l = 2 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]) / area
+            e[k] = box[1, k] - p
+            p_r = 2 * (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]) / area
+            planar = (lo == p) & (hi == p)
+            n_l = np.sum(lo < p)
+            n_r = np.sum(hi > p)
+            for nl, nr in ((n_l + planar.sum(), n_r), (n_l, n_r + planar.sum())):
+                c = K_T + K_I * (p_l * nl + p_r * nr)
+                best = min(best, c * (lam if nl == 0 or nr == 0 else 1.0))
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_sweep_finds_the_cheapest_plane(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 60))
+    tri = rng.random((n, 3, 3))
+    tri = (np.round(tri * 6) / 6).astype(np.float32)    # shared positions, planar triangles
+    tri[: n // 4, :, int(rng.integers(3))] = np.float32(0.5)
+    boxes = np.stack([tri.min(axis=1), tri.max(axis=1)], axis=1).astype(np.float64)
+    box = np.stack([boxes[:, 0].min(0), boxes[:, 1].max(0)])
+    keys, counts = sorted_root_events(tri)
+    lam = [0.8, 1.0, 0.5][seed % 3]
+    cost, axis, pos, side, _, _ = best_split(keys, 0, counts, n, box, 15.0, 20.0, lam)
+    expected = brute_force_sah(boxes, box, 15.0, 20.0, lam)
+    if np.isinf(expected):
+        assert axis == -1
+    else:
+        assert cost == pytest.approx(expected, rel=1e-12)
+        assert box[0, axis] < pos < box[1, axis]
+
+
+# -- events and clipping ---------------------------------------------------------------
+
+def test_event_positions_keep_float_order():
+    rng = np.random.default_rng(14)
+    x = np.r_[rng.normal(size=200) * 10.0 ** rng.integers(-30, 30, 200), 0.0, -0.0,
+              np.finfo(np.float32).max, -np.finfo(np.float32).max, 1e-45, -1e-45].astype(np.float32)
+    bits = np.array([position_bits(v) for v in x], dtype=np.uint64)
+    order = np.argsort(bits, kind="stable")
+    assert np.all(np.diff(x[order].astype(np.float64)) >= 0)
+    assert position_bits(np.float32(0.0)) == position_bits(np.float32(-0.0))
+    back = np.array([position_value(b) for b in bits], dtype=np.float32)
+    np.testing.assert_array_equal(back, x)
+
+
+def test_clipped_boxes_are_conservative():
+    rng = np.random.default_rng(15)
+    poly = polygon_scratch()
+    w = rng.random((300, 3)) ** 2
+    w /= w.sum(1, keepdims=True)
+    out_l = np.empty((2, 3), np.float32)
+    out_r = np.empty((2, 3), np.float32)
+    seen_empty = 0
+    for trial in range(300):
+        tri = rng.normal(size=(1, 3, 3)).astype(np.float32)
+        box = np.sort(rng.normal(size=(2, 3)), axis=0).astype(np.float32).astype(np.float64)
+        axis = int(rng.integers(3))
+        pos = np.float32(rng.uniform(box[0, axis], box[1, axis]))
+        ok_l, ok_r = clip_split(tri, 0, box, axis, pos, poly, out_l, out_r)
+        pts = w @ tri[0].astype(np.float64)
+        for ok, out, lo_k, hi_k in ((ok_l, out_l, box[0, axis], pos), (ok_r, out_r, pos, box[1, axis])):
+            child = box.copy()
+            child[0, axis], child[1, axis] = lo_k, hi_k
+            inside = np.all((pts >= child[0]) & (pts <= child[1]), axis=1)
+            if not ok:
+                seen_empty += 1
+                assert not inside.any()
+                continue
+            assert np.all(out[0] <= out[1])
+            assert np.all(out[0] >= child[0]) and np.all(out[1] <= child[1])
+            assert np.all(pts[inside] >= out[0]) and np.all(pts[inside] <= out[1])
+    assert seen_empty > 0
