@@ -36,3 +36,7 @@ class CameraError(KdrayError):
 
 class OutputError(KdrayError):
     """An image or tree file that cannot be written."""
+
+
+class ParameterError(KdrayError, ValueError):
+    """An option or argument out of its range (a build parameter, a work size)."""

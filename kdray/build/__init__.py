@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..tree import BuildParams, KdTree
 from .events import sorted_root_events
 from .prepare import prepare
@@ -42,20 +43,20 @@ def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, 
 
     Triangles with a non-finite coordinate or a zero float32 cross product are left
     out (`tri_ids` maps kept triangles to input rows). Raises MeshError for bad arrays
-    or when no triangle is left; ValueError for parameters out of range.
+    or when no triangle is left; ParameterError (a ValueError) for parameters out of range.
     """
     params = BuildParams(K_T=float(K_T), K_I=float(K_I), empty_bonus=float(empty_bonus),
                          max_depth=int(max_depth), leaf_size=int(leaf_size))
     if not (math.isfinite(params.K_T) and params.K_T > 0):
-        raise ValueError(f"K_T must be a positive number, got {K_T}")
+        raise ParameterError(f"K_T must be a positive number, got {K_T}")
     if not (math.isfinite(params.K_I) and params.K_I > 0):
-        raise ValueError(f"K_I must be a positive number, got {K_I}")
+        raise ParameterError(f"K_I must be a positive number, got {K_I}")
     if not 0 < params.empty_bonus <= 1:
-        raise ValueError(f"empty_bonus must be in (0, 1], got {empty_bonus}")
+        raise ParameterError(f"empty_bonus must be in (0, 1], got {empty_bonus}")
     if params.max_depth < 0:
-        raise ValueError(f"max_depth must be >= 0 (0 = automatic), got {max_depth}")
+        raise ParameterError(f"max_depth must be >= 0 (0 = automatic), got {max_depth}")
     if params.leaf_size < 0:
-        raise ValueError(f"leaf_size must be >= 0, got {leaf_size}")
+        raise ParameterError(f"leaf_size must be >= 0, got {leaf_size}")
 
     mesh = prepare(vertices, faces)
     params = params.resolved(len(mesh.triangles))
