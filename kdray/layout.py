@@ -1,6 +1,6 @@
 """The k-d tree's binary layout and its file format: the single source of truth.
 
-`kernels/layout.h` mirrors the node encoding below; `tests/test_layout.py` checks
+`kernels/layout.h` mirrors the node encoding below; `tests/test_device_layout.py` checks
 that they agree on a device.
 
 Node (8 bytes, pbrt-style, depth-first order)::

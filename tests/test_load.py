@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-import kdray.load as kl
+from kdray.load import load
 from kdray.errors import MeshError
 from kdray.mesh import Mesh
 from conftest import shared_mesh
@@ -11,7 +11,7 @@ from conftest import shared_mesh
 @pytest.mark.parametrize("name, n_tris", [("stanford-bunny.obj", 69451), ("fandisk.obj", 12946),
                                           ("teapot.obj", 6320), ("spot.obj", 5856)])
 def test_shared_meshes(name, n_tris):
-    m = kl.load(shared_mesh(name))
+    m = load(shared_mesh(name))
     assert m.faces.shape == (n_tris, 3) and m.vertices.dtype == np.float64
     assert m.faces.min() >= 0 and m.faces.max() < len(m.vertices)
 
@@ -20,7 +20,7 @@ def test_quads_and_polygons_are_triangulated(tmp_path):
     p = tmp_path / "q.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nv 1.5 2 0\n"
                  "f 1 2 3 4\nf 2 5 6 7 3\nusemtl nothing\n")
-    m = kl.load(p)
+    m = load(p)
     assert len(m.faces) == 2 + 3
     assert np.isclose(np.linalg.norm(np.cross(m.triangles[:, 1] - m.triangles[:, 0],
                                               m.triangles[:, 2] - m.triangles[:, 0]), axis=1).sum() / 2,
@@ -33,7 +33,7 @@ def test_ply_and_stl(tmp_path):
     for ext in ("ply", "stl", "off"):
         p = tmp_path / f"box.{ext}"
         box.export(p)
-        assert len(kl.load(p).faces) == 12
+        assert len(load(p).faces) == 12
 
 
 def test_scene_transforms_are_applied(tmp_path):
@@ -44,7 +44,7 @@ def test_scene_transforms_are_applied(tmp_path):
     scene.add_geometry(a, node_name="b", transform=trimesh.transformations.translation_matrix([10, 0, 0]))
     p = tmp_path / "s.glb"
     scene.export(p)
-    m = kl.load(p)
+    m = load(p)
     assert len(m.faces) == 24
     assert m.bounds[1][0] == pytest.approx(10.5)
 
@@ -64,7 +64,7 @@ def test_bad_files(tmp_path, content, ext, message):
     if content is not None:
         p.write_text(content)
     with pytest.raises(MeshError, match=message):
-        kl.load(p)
+        load(p)
 
 
 def test_mesh_arrays_are_checked():

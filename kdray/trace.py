@@ -1,0 +1,358 @@
+"""Tracer: a KdTree on an OpenCL device; nearest hits of rays and images of cameras.
+
+    tracer = Tracer(tree, device=None)              # context, queue, tree upload
+    hits = tracer.trace(origins, directions)        # (N, 3) world coordinates
+    hits.t, hits.prim, hits.u, hits.v, hits.normal
+    images = tracer.render(camera, aovs=("depth", "normal", "bary", "id"))
+
+Arrays returned::
+
+    Hits.t       (N,) float32     ray parameter in units of |direction|; +inf on a miss
+    Hits.prim    (N,) uint32      input triangle id; 0xFFFFFFFF on a miss
+    Hits.u, .v   (N,) float32     P = (1 - u - v) v0 + u v1 + v v2; 0 on a miss
+    Hits.normal  (N, 3) float32   unit geometric normal (v1 - v0) x (v2 - v0); 0 on a miss
+
+Precision far from the scene's origin: the tree's float32 data is relative to its
+float64 `origin`; ray origins are moved there in float64 on the host and only then
+rounded to float32, so a scene at 1e6 traces as accurately as one at 0.
+
+The kernels are compiled once per option set (outputs, stack size, work sizes) and
+kept on the Tracer; the kernels compute and store only the outputs asked for.
+"""
+import dataclasses
+import logging
+import time
+
+import numpy as np
+
+from . import device as _device
+from .errors import KdrayError
+from .layout import MAX_DEPTH_LIMIT
+
+log = logging.getLogger(__name__)
+
+MISS = np.uint32(0xFFFFFFFF)
+"""`prim` / `id` of a ray that hits nothing."""
+
+AOVS = ("depth", "distance", "normal", "bary", "id", "position")
+"""Every output `render` knows."""
+
+DEFAULT_AOVS = ("depth", "normal", "bary", "id")
+
+MAX_RAYS_PER_LAUNCH = 1 << 22
+"""Rays per kernel launch: bounds device memory per launch (at most 52 bytes a ray,
+about 220 MB) and keeps the 32-bit batch counter far from overflow."""
+
+_POISON = np.uint32(0x7FBADBAD)
+"""Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
+larger than any triangle id): a test can then see any element the kernel missed."""
+
+_OUTPUTS = ("T", "UV", "NORMAL", "ID", "STATS")
+_OUTPUT_WIDTH = {"T": (1, np.float32), "UV": (2, np.float32), "NORMAL": (3, np.float32),
+                 "ID": (1, np.uint32), "STATS": (4, np.uint32)}
+
+
+@dataclasses.dataclass(eq=False)
+class Hits:
+    """Nearest hits of N rays (see the module docstring for the arrays)."""
+
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+
+    @property
+    def hit(self):
+        """(N,) bool: the ray hit something."""
+        return self.prim != MISS
+
+    def __len__(self):
+        return len(self.t)
+
+    def __getitem__(self, index):
+        """The hits of a subset of the rays (a slice, mask or index array)."""
+        return Hits(self.t[index], self.prim[index], self.u[index], self.v[index],
+                    self.normal[index])
+
+
+def default_stack_size(tree):
+    """tree.depth + 1 entries (a ray never needs more), at least 1, at most 64."""
+    return int(min(max(int(tree.depth) + 1, 1), MAX_DEPTH_LIMIT))
+
+
+def default_work_sizes(device):
+    """(local_size, batch_size, groups) for a device.
+
+    CPU (PoCL): a work-group runs on one thread, its work-items one after another, and
+    a traversal loop does not vectorize across them; small groups keep the per-group
+    barrier cheap and many groups (4 per core) balance the load through the counter.
+    GPU: 64 work-items (two warps / one wavefront), batches of 4 rays each, and about
+    one full device of resident groups.
+    """
+    cu = max(int(device.max_compute_units), 1)
+    if _device.is_cpu(device):
+        local = 8
+        return local, 8 * local, 4 * cu
+    local = min(64, int(device.max_work_group_size))
+    return local, 4 * local, 16 * cu
+
+
+class Tracer:
+    """A KdTree uploaded to one OpenCL device.
+
+    tree : KdTree
+    device : None (prefer a GPU, else the CPU) or a PYOPENCL_CTX-style string "0:1"
+    stack_size : short-stack entries (1..64); default `default_stack_size(tree)`.
+        Results do not depend on it; smaller stacks restart more often.
+    local_size, batch_size, groups : work-group size, rays a group takes at a time
+        (a multiple of local_size) and work-groups launched; defaults per device kind
+        (`default_work_sizes`).
+    """
+
+    def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
+                 groups=None):
+        cl = _device._cl()
+        if stack_size is None:
+            stack_size = default_stack_size(tree)
+        if not (isinstance(stack_size, (int, np.integer)) and 1 <= stack_size <= MAX_DEPTH_LIMIT):
+            raise KdrayError(f"stack_size must be an integer from 1 to {MAX_DEPTH_LIMIT}, "
+                             f"got {stack_size!r}")
+        self.tree = tree
+        self.stack_size = int(stack_size)
+        self.context, self.device = _device.create_context(device)
+        self.queue = cl.CommandQueue(self.context)
+        d_local, d_batch, d_groups = default_work_sizes(self.device)
+        self.local_size = int(local_size or d_local)
+        # default batch: the device's, rounded up to a multiple of the local size
+        self.batch_size = int(batch_size or -(-d_batch // self.local_size) * self.local_size)
+        self.groups = int(groups or d_groups)
+        if self.local_size < 1 or self.local_size > self.device.max_work_group_size:
+            raise KdrayError(f"local_size {self.local_size} is not in 1..{self.device.max_work_group_size} "
+                             f"on {self.device.name.strip()}")
+        if self.batch_size % self.local_size or self.groups < 1:
+            raise KdrayError(f"batch_size ({self.batch_size}) must be a multiple of local_size "
+                             f"({self.local_size}) and groups ({self.groups}) at least 1")
+        self._programs = {}
+        self._poison_outputs = False
+        self._upload(tree)
+
+    # -- set-up ----------------------------------------------------------------------
+
+    def _buffer(self, array):
+        """A read-only device copy of `array` (one dummy element when it is empty:
+        OpenCL has no empty buffers)."""
+        cl = _device._cl()
+        array = np.ascontiguousarray(array)
+        if array.size == 0:
+            array = np.zeros(1, dtype=array.dtype)
+        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=array)
+
+    def _upload(self, tree):
+        cl = _device._cl()
+        self._n_nodes = len(tree.nodes)
+        self._nodes = self._buffer(np.asarray(tree.nodes, dtype=np.uint32).reshape(-1, 2))
+        self._leaf_tris = self._buffer(np.asarray(tree.leaf_tris, dtype=np.uint32))
+        self._tris = self._buffer(np.asarray(tree.triangles, dtype=np.float32).reshape(-1))
+        self._tri_ids = self._buffer(np.asarray(tree.tri_ids, dtype=np.uint32))
+        self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))
+        self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)
+        self._origin = np.asarray(tree.origin, dtype=np.float64)
+
+    def program(self, outputs, stats=False):
+        """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
+        with its kernels: {"program": Program, "trace_rays": Kernel, ...}."""
+        defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
+                   "BATCH_SIZE": self.batch_size}
+        for name in outputs:
+            defines[f"OUT_{name}"] = None
+        if stats:
+            defines["STATS"] = None
+        key = tuple(sorted(defines.items(), key=lambda kv: kv[0]))
+        entry = self._programs.get(key)
+        if entry is None:
+            cl = _device._cl()
+            started = time.perf_counter()
+            program = _device.build_program(self.context, "render.cl", defines)
+            log.debug("built render.cl with %s in %.2f s", " ".join(
+                k if v is None else f"{k}={v}" for k, v in key), time.perf_counter() - started)
+            entry = {"program": program}
+            for name in ("trace_rays", "render_camera"):
+                entry[name] = cl.Kernel(program, name)
+            self._programs[key] = entry
+        return entry
+
+    # -- launching ---------------------------------------------------------------------
+
+    def _launch(self, kernel_name, outputs, n, args, host_out, stats=False):
+        """Run `kernel_name` over n rays writing `host_out` (dict output -> host array of
+        n rows). args: the kernel's arguments between the tree and the counter."""
+        cl = _device._cl()
+        if n == 0:
+            return
+        kernel = self.program(outputs, stats)[kernel_name]
+        names = list(outputs) + (["STATS"] if stats else [])
+        device_out = {}
+        for name in names:
+            nbytes = host_out[name].nbytes
+            buf = cl.Buffer(self.context, cl.mem_flags.WRITE_ONLY, nbytes)
+            if self._poison_outputs:
+                cl.enqueue_fill_buffer(self.queue, buf, _POISON, 0, nbytes)
+            device_out[name] = buf
+        cl.enqueue_fill_buffer(self.queue, self._counter, np.uint32(0), 0, 4)
+        groups = min(self.groups, -(-n // self.batch_size))
+        kernel(self.queue, (groups * self.local_size,), (self.local_size,),
+               self._nodes, self._leaf_tris, self._tris, self._tri_ids, self._bounds,
+               np.uint32(self._n_nodes), *args, self._counter,
+               *(device_out.get(name) for name in _OUTPUTS))
+        for name, buf in device_out.items():
+            cl.enqueue_copy(self.queue, host_out[name], buf)
+        self.queue.finish()
+
+    # -- rays ----------------------------------------------------------------------------
+
+    def _rays(self, origins, directions):
+        """(origins relative to the tree's origin, directions), (N, 3) float32 each."""
+        o = np.asarray(origins, dtype=np.float64)
+        d = np.asarray(directions)
+        if d.ndim != 2 or d.shape[1] != 3:
+            raise KdrayError(f"directions must be an (N, 3) array, got shape {d.shape}")
+        if o.shape == (3,):
+            o = np.broadcast_to(o, d.shape)
+        if o.shape != d.shape:
+            raise KdrayError(f"origins {o.shape} and directions {d.shape} must both be (N, 3)")
+        o32 = np.ascontiguousarray(o - self._origin, dtype=np.float32)
+        with np.errstate(over="ignore"):
+            d32 = np.ascontiguousarray(d, dtype=np.float32)
+        return o32, d32
+
+    def trace(self, origins, directions, t_min=0.0, t_max=np.inf):
+        """Nearest hit of every ray o + t d with t_min < t < t_max.
+
+        origins : (N, 3) or (3,) float64 or float32, world coordinates
+        directions : (N, 3), any length (t is in units of |direction|)
+        t_min : >= 0 (default 0: hits behind the origin or at it never count)
+        Returns Hits. Rays with non-finite components or a zero direction miss.
+        """
+        hits, _ = self._trace(origins, directions, t_min, t_max)
+        return hits
+
+    def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False):
+        t_min, t_max = float(t_min), float(t_max)
+        if not (t_min >= 0.0 and t_max >= t_min):
+            raise KdrayError(f"need 0 <= t_min <= t_max, got t_min={t_min}, t_max={t_max}")
+        o, d = self._rays(origins, directions)
+        n = len(d)
+        out = {"T": np.empty(n, np.float32), "UV": np.empty((n, 2), np.float32),
+               "NORMAL": np.empty((n, 3), np.float32), "ID": np.empty(n, np.uint32)}
+        if stats:
+            out["STATS"] = np.empty((n, 4), np.uint32)
+        cl = _device._cl()
+        flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+        for start in range(0, n, MAX_RAYS_PER_LAUNCH):
+            stop = min(n, start + MAX_RAYS_PER_LAUNCH)
+            o_buf = cl.Buffer(self.context, flags, hostbuf=o[start:stop])
+            d_buf = cl.Buffer(self.context, flags, hostbuf=d[start:stop])
+            self._launch("trace_rays", ("T", "UV", "NORMAL", "ID"), stop - start,
+                         (o_buf, d_buf, np.uint32(stop - start), np.float32(t_min),
+                          np.float32(t_max)),
+                         {k: v[start:stop] for k, v in out.items()}, stats=stats)
+        hits = Hits(t=out["T"], prim=out["ID"], u=np.ascontiguousarray(out["UV"][:, 0]),
+                    v=np.ascontiguousarray(out["UV"][:, 1]), normal=out["NORMAL"])
+        return hits, out.get("STATS")
+
+    # -- cameras -------------------------------------------------------------------------
+
+    def _camera_constants(self, camera):
+        """(M, eye): float32 R K^-1 (3, 3) and eye relative to the tree's origin (3,),
+        exactly as the kernel receives them."""
+        c2w = np.asarray(camera.cam_to_world, dtype=np.float64)
+        M = c2w[:3, :3] @ np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
+        eye = c2w[:3, 3] - self._origin
+        return M.astype(np.float32), eye.astype(np.float32)
+
+    def camera_rays(self, camera):
+        """The rays `render` traces, computed on the host with the kernel's float32
+        arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
+        row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c)."""
+        M, eye = self._camera_constants(camera)
+        w, h = int(camera.width), int(camera.height)
+        x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
+        y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
+        d = np.stack([M[r, 0] * x + M[r, 1] * y + M[r, 2] for r in range(3)], axis=1)
+        origins = np.broadcast_to(eye.astype(np.float64) + self._origin, d.shape)
+        return origins, d
+
+    def render(self, camera, aovs=DEFAULT_AOVS):
+        """Primary-ray images of `camera` (kdray.Camera: width, height, K, cam_to_world).
+
+        aovs : names from AOVS (or one comma-separated string). Returns a dict, in the
+        order asked: depth (H, W) z-depth, +inf on a miss; distance (H, W) along the
+        ray; normal (H, W, 3); bary (H, W, 2) u, v; id (H, W) uint32; position (H, W, 3)
+        world hit point (NaN on a miss). Only what is asked is computed and stored.
+        """
+        aovs = _check_aovs(aovs)
+        w, h = int(camera.width), int(camera.height)
+        if w < 1 or h < 1:
+            raise KdrayError(f"camera size must be at least 1x1, got {w}x{h}")
+        n = w * h
+        if n >= 1 << 32:
+            raise KdrayError(f"{w}x{h} pixels are too many for one render (at most 2^32 - 1)")
+        outputs = []
+        if {"depth", "distance", "position"} & set(aovs):
+            outputs.append("T")
+        if "bary" in aovs:
+            outputs.append("UV")
+        if "normal" in aovs:
+            outputs.append("NORMAL")
+        if "id" in aovs:
+            outputs.append("ID")
+        shapes = {"T": (n,), "UV": (n, 2), "NORMAL": (n, 3), "ID": (n,)}
+        out = {k: np.empty(shapes[k], _OUTPUT_WIDTH[k][1]) for k in outputs}
+        M, eye = self._camera_constants(camera)
+        camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]).astype(np.float32))
+        for start in range(0, n, MAX_RAYS_PER_LAUNCH):
+            stop = min(n, start + MAX_RAYS_PER_LAUNCH)
+            self._launch("render_camera", tuple(outputs), stop - start,
+                         (camera_buf, np.uint32(w), np.uint32(start), np.uint32(stop - start)),
+                         {k: v[start:stop] for k, v in out.items()})
+
+        images = {}
+        if "distance" in aovs or "position" in aovs:
+            origins, d = self.camera_rays(camera)
+            t = out["T"].astype(np.float64)[:, None]
+        for name in aovs:
+            if name == "depth":
+                images[name] = out["T"].reshape(h, w)
+            elif name == "distance":
+                dist = t[:, 0] * np.linalg.norm(d.astype(np.float64), axis=1)
+                images[name] = dist.astype(np.float32).reshape(h, w)
+            elif name == "position":
+                with np.errstate(invalid="ignore"):
+                    p = origins + t * d.astype(np.float64)
+                p[~np.isfinite(t[:, 0])] = np.nan
+                images[name] = p.astype(np.float32).reshape(h, w, 3)
+            elif name == "normal":
+                images[name] = out["NORMAL"].reshape(h, w, 3)
+            elif name == "bary":
+                images[name] = out["UV"].reshape(h, w, 2)
+            elif name == "id":
+                images[name] = out["ID"].reshape(h, w)
+        return images
+
+
+def _check_aovs(aovs):
+    """Validated AOV names, duplicates dropped, in the order given."""
+    if isinstance(aovs, str):
+        aovs = [a for a in aovs.split(",")]
+    names = []
+    for a in aovs:
+        name = str(a).strip().lower()
+        if name not in AOVS:
+            raise KdrayError(f"unknown output {a!r}: choose from {', '.join(AOVS)}")
+        if name not in names:
+            names.append(name)
+    if not names:
+        raise KdrayError(f"no outputs asked for: choose from {', '.join(AOVS)}")
+    return tuple(names)

@@ -1,0 +1,41 @@
+/* kernels/layout.h: the k-d tree's device layout. Mirrors kdray/layout.py, which is
+ * the single source of truth; tests/test_device_layout.py checks them against each
+ * other on a device.
+ *
+ * Node, 8 bytes, depth-first order (pbrt):
+ *   flags  uint32  bits 0-1: split_axis (0, 1, 2) or KD_LEAF (3)
+ *                  bits 2-31: interior: above_child (node index; below child is i + 1)
+ *                             leaf: n_prims (triangles listed in the leaf)
+ *   data   uint32  interior: float32 bits of the split position (relative to the origin)
+ *                  leaf: leaf_offset, first index into leaf_tris
+ *
+ * Leaf triangle list: leaf_tris[leaf_offset .. leaf_offset + n_prims), uint32 indices
+ * into the triangle array (9 float32 each: v0 xyz, v1 xyz, v2 xyz, relative to the
+ * tree's origin); tri_ids[i] is triangle i's index in the input.
+ */
+#ifndef KDRAY_LAYOUT_H
+#define KDRAY_LAYOUT_H
+
+#define KD_LEAF 3u
+#define KD_NO_HIT 0xFFFFFFFFu          /* id written on a miss */
+
+typedef struct __attribute__((aligned(8))) {
+    uint flags;                          /* 4 bytes: split_axis | above_child/n_prims << 2 */
+    uint data;                           /* 4 bytes: split (float bits) or leaf_offset */
+} KdNode;                                /* 8 bytes */
+
+uint kd_split_axis(KdNode n) { return n.flags & 3u; }
+bool kd_is_leaf(KdNode n) { return (n.flags & 3u) == KD_LEAF; }
+uint kd_above_child(KdNode n) { return n.flags >> 2; }
+uint kd_n_prims(KdNode n) { return n.flags >> 2; }
+float kd_split(KdNode n) { return as_float(n.data); }
+uint kd_leaf_offset(KdNode n) { return n.data; }
+
+/* The nearest hit found so far; private to a work-item, never stored as a struct. */
+typedef struct {
+    float t;                             /* ray parameter, in units of |direction| */
+    float u, v;                          /* weights of v1 and v2 */
+    uint tri;                            /* index into the tree's triangles, or KD_NO_HIT */
+} Hit;
+
+#endif

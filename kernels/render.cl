@@ -1,0 +1,151 @@
+/* kernels/render.cl: kdray's kernel entry points.
+ *
+ *   trace_rays     rays from buffers (origins, directions: 3 floats each)
+ *   render_camera  primary rays of a pinhole camera, generated here
+ *
+ * Both are persistent: the host launches about enough work-groups to fill the device,
+ * and each group pulls batches of BATCH_SIZE rays from one global counter (reset to 0
+ * before every launch) until the rays run out. Work-item 0 fetches the batch into
+ * __local memory between two barriers that every work-item of the group reaches the
+ * same number of times, which OpenCL guarantees on every device (PoCL runs a group's
+ * work-items one after another between barriers).
+ *
+ * Options (-D): LOCAL_SIZE (work-group size, required), BATCH_SIZE (a multiple of it),
+ * STACK_SIZE (see traverse.cl); outputs, each only when asked: OUT_T (t, +inf on a
+ * miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on a miss),
+ * OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
+ * Output buffers that are not compiled in may be passed as NULL.
+ */
+#pragma OPENCL FP_CONTRACT OFF
+#include "layout.h"
+#include "triangle.cl"
+#include "traverse.cl"
+
+#ifndef LOCAL_SIZE
+#define LOCAL_SIZE 64
+#endif
+#ifndef BATCH_SIZE
+#define BATCH_SIZE LOCAL_SIZE
+#endif
+
+#define KD_TREE_ARGS                                                                     \
+    __global const KdNode *nodes, __global const uint *leaf_tris,                        \
+    __global const float *tris, __global const uint *tri_ids, __global const float *bounds, \
+    uint n_nodes
+
+#define KD_OUTPUT_ARGS                                                                   \
+    __global float *out_t, __global float *out_uv, __global float *out_normal,           \
+    __global uint *out_id, __global uint *out_stats
+
+#define KD_TREE_PARAMS                                                                   \
+    __global const KdNode *nodes, __global const uint *leaf_tris,                        \
+    __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax,   \
+    uint n_nodes
+#define KD_TREE_PASS nodes, leaf_tris, tris, tri_ids, bmin, bmax, n_nodes
+#define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
+
+/* Trace ray k and write its outputs: only those compiled in. */
+void trace_and_store(uint k, float3 o, float3 d, float t_min, float t_max,
+                     KD_TREE_PARAMS, KD_OUTPUT_ARGS)
+{
+    Hit hit;
+#ifdef STATS
+    uint4 stats = (uint4)(0u);
+    bool found = trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o, d, t_min, t_max, &hit,
+                           &stats);
+    vstore4(stats, k, out_stats);
+#else
+    bool found = trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o, d, t_min, t_max, &hit);
+#endif
+#ifdef OUT_T
+    out_t[k] = found ? hit.t : INFINITY;
+#endif
+#ifdef OUT_UV
+    vstore2(found ? (float2)(hit.u, hit.v) : (float2)(0.0f, 0.0f), k, out_uv);
+#endif
+#ifdef OUT_NORMAL
+    float3 normal = (float3)(0.0f, 0.0f, 0.0f);
+    if (found) {
+        __global const float *p = tris + 9 * (size_t)hit.tri;
+        float3 p0 = vload3(0, p);
+        normal = normalize(cross(vload3(1, p) - p0, vload3(2, p) - p0));
+    }
+    vstore3(normal, k, out_normal);
+#endif
+#ifdef OUT_ID
+    out_id[k] = found ? tri_ids[hit.tri] : KD_NO_HIT;
+#endif
+}
+
+/* The first ray of the group's next batch. Work-item 0 takes BATCH_SIZE rays from the
+ * global counter; every work-item of the group must call this the same number of
+ * times (the barriers are in uniform control flow). */
+uint fetch_batch(__local uint *slot, __global volatile uint *counter)
+{
+    if (get_local_id(0) == 0)
+        *slot = atomic_add(counter, (uint)BATCH_SIZE);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    uint start = *slot;
+    barrier(CLK_LOCAL_MEM_FENCE);        /* all have read it before it is overwritten */
+    return start;
+}
+
+/* Nearest hits of n_rays rays; origins relative to the tree's origin. */
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
+void trace_rays(KD_TREE_ARGS,
+                __global const float *origins, __global const float *directions,
+                uint n_rays, float t_min, float t_max,
+                __global volatile uint *counter, KD_OUTPUT_ARGS)
+{
+    float3 bmin = vload3(0, bounds);
+    float3 bmax = vload3(1, bounds);
+    __local uint batch;
+    for (;;) {
+        uint start = fetch_batch(&batch, counter);
+        if (start >= n_rays)             /* the same for the whole group */
+            break;
+        for (uint j = get_local_id(0); j < BATCH_SIZE; j += LOCAL_SIZE) {
+            uint k = start + j;
+            if (k >= n_rays)
+                break;
+            trace_and_store(k, vload3(k, origins), vload3(k, directions), t_min, t_max,
+                            KD_TREE_PASS, KD_OUTPUT_PASS);
+        }
+    }
+}
+
+/* Primary rays of pixels pixel_offset .. pixel_offset + n_pixels - 1 (row-major, row
+ * length `width`), written to outputs 0 .. n_pixels - 1.
+ * camera: 12 floats, M = R K^-1 row-major (9), then the eye relative to the tree's
+ * origin (3). Pixel (i, j) (column, row): direction M [i + 0.5, j + 0.5, 1], not
+ * normalized, so t is the z-depth. */
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
+void render_camera(KD_TREE_ARGS, __global const float *camera,
+                   uint width, uint pixel_offset, uint n_pixels,
+                   __global volatile uint *counter, KD_OUTPUT_ARGS)
+{
+    float3 bmin = vload3(0, bounds);
+    float3 bmax = vload3(1, bounds);
+    float3 m0 = vload3(0, camera);       /* rows of M */
+    float3 m1 = vload3(1, camera);
+    float3 m2 = vload3(2, camera);
+    float3 eye = vload3(3, camera);
+    __local uint batch;
+    for (;;) {
+        uint start = fetch_batch(&batch, counter);
+        if (start >= n_pixels)           /* the same for the whole group */
+            break;
+        for (uint j = get_local_id(0); j < BATCH_SIZE; j += LOCAL_SIZE) {
+            uint k = start + j;
+            if (k >= n_pixels)
+                break;
+            uint pixel = pixel_offset + k;
+            float x = (float)(pixel % width) + 0.5f;
+            float y = (float)(pixel / width) + 0.5f;
+            float3 dir = (float3)(m0.x * x + m0.y * y + m0.z,
+                                  m1.x * x + m1.y * y + m1.z,
+                                  m2.x * x + m2.y * y + m2.z);
+            trace_and_store(k, eye, dir, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS);
+        }
+    }
+}

@@ -1,0 +1,110 @@
+/* kernels/triangle.cl: the watertight ray/triangle test of Woop, Benthin & Wald 2013,
+ * "Watertight Ray/Triangle Intersection" (JCGT 2(1)); the shape of pbrt-v4's
+ * IntersectTriangle.
+ *
+ * The ray is sheared so that it runs along +z from the origin; the triangle's
+ * vertices, taken relative to the ray origin and sheared the same way, are tested
+ * with 2D edge functions U, V, W. A point on an edge shared by two triangles gives
+ * the same edge value (up to sign) in both, so no ray leaks between them. Needs
+ * FP_CONTRACT OFF: a fused multiply-add would round the two triangles' shared edge
+ * function differently.
+ *
+ * Hit convention: P = (1 - u - v) v0 + u v1 + v v2, u = V / det, v = W / det,
+ * t = T / det in units of |direction|; a hit needs t_min < t < t_best.
+ */
+#ifndef KDRAY_TRIANGLE_CL
+#define KDRAY_TRIANGLE_CL
+
+#pragma OPENCL FP_CONTRACT OFF
+#ifdef cl_khr_fp64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
+
+/* Component k (0, 1, 2) of v, without indexing a private array. */
+float kd_comp(float3 v, uint k) { return k == 0u ? v.x : (k == 1u ? v.y : v.z); }
+
+/* Per-ray constants of the shear. */
+typedef struct {
+    uint kx, ky, kz;                     /* kz: largest |d| component; kx, ky: the others */
+    float Sx, Sy, Sz;                    /* d[kx] / d[kz], d[ky] / d[kz], 1 / d[kz] */
+} RayShear;
+
+RayShear ray_shear(float3 d)
+{
+    RayShear s;
+    /* kz = argmax |d| (first of equals), kx and ky cyclic after it */
+    float3 a = fabs(d);
+    s.kz = (a.x >= a.y) ? ((a.x >= a.z) ? 0u : 2u) : ((a.y >= a.z) ? 1u : 2u);
+    s.kx = (s.kz == 2u) ? 0u : s.kz + 1u;
+    s.ky = (s.kx == 2u) ? 0u : s.kx + 1u;
+    float dz = kd_comp(d, s.kz);
+    /* Swap kx and ky to keep the triangle's winding when the ray runs along -kz */
+    if (dz < 0.0f) {
+        uint k = s.kx;
+        s.kx = s.ky;
+        s.ky = k;
+    }
+    s.Sx = kd_comp(d, s.kx) / dz;
+    s.Sy = kd_comp(d, s.ky) / dz;
+    s.Sz = 1.0f / dz;
+    return s;
+}
+
+/* Intersect the ray (o, shear) with triangle (p0, p1, p2), all relative to the tree's
+ * origin. On a hit with t_min < t < t_best, write t, u, v and return true. */
+bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2,
+                        float t_min, float t_best, float *t_out, float *u_out, float *v_out)
+{
+    /* Vertices relative to the ray origin */
+    float3 A = p0 - o;
+    float3 B = p1 - o;
+    float3 C = p2 - o;
+
+    /* Shear and scale the vertices (z is scaled later, only for candidate hits) */
+    float Az = kd_comp(A, s->kz), Bz = kd_comp(B, s->kz), Cz = kd_comp(C, s->kz);
+    float Ax = kd_comp(A, s->kx) - s->Sx * Az;
+    float Ay = kd_comp(A, s->ky) - s->Sy * Az;
+    float Bx = kd_comp(B, s->kx) - s->Sx * Bz;
+    float By = kd_comp(B, s->ky) - s->Sy * Bz;
+    float Cx = kd_comp(C, s->kx) - s->Sx * Cz;
+    float Cy = kd_comp(C, s->ky) - s->Sy * Cz;
+
+    /* Scaled barycentric coordinates (edge functions) */
+    float U = Cx * By - Cy * Bx;
+    float V = Ax * Cy - Ay * Cx;
+    float W = Bx * Ay - By * Ax;
+
+#ifdef cl_khr_fp64
+    /* On an edge, recompute in double: the products of floats are exact there, so
+     * the sign of each edge function is exact. */
+    if (U == 0.0f || V == 0.0f || W == 0.0f) {
+        U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
+        V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
+        W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
+    }
+#endif
+
+    /* Miss when the edge functions differ in sign (written so that NaN misses) */
+    if (!((U >= 0.0f && V >= 0.0f && W >= 0.0f) || (U <= 0.0f && V <= 0.0f && W <= 0.0f)))
+        return false;
+    float det = U + V + W;
+    if (det == 0.0f)
+        return false;
+
+    /* Scaled hit distance, compared with det instead of dividing */
+    float T = U * (s->Sz * Az) + V * (s->Sz * Bz) + W * (s->Sz * Cz);
+    float T_abs = det < 0.0f ? -T : T;
+    float det_abs = fabs(det);
+    if (!(T_abs > t_min * det_abs && T_abs < t_best * det_abs))
+        return false;
+
+    float t = T / det;
+    if (!(t > t_min && t < t_best))      /* the division may round onto a bound */
+        return false;
+    *t_out = t;
+    *u_out = V / det;
+    *v_out = W / det;
+    return true;
+}
+
+#endif

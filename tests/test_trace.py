@@ -1,0 +1,627 @@
+"""Tracer against the float64 brute-force oracle (kdray.reference), on trees of several
+shapes: a single leaf, median and random splits (tests/trees.py) and kdray.build's SAH
+trees. Hits must agree ray by ray; where they differ the difference must be a tie or a
+ray grazing an edge, checked in float64 on the triangles themselves."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import trees
+from kdray import layout
+from kdray.errors import KdrayError
+from kdray.reference import brute_force
+from kdray.trace import MISS, Tracer, default_stack_size
+
+MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+
+RTOL_T = 1e-5           # relative t error against float64
+BARY_TOL = 1e-4         # how far outside a triangle (in barycentrics) a graze may be
+MAX_GRAZE = 0.002       # fraction of rays allowed to graze an edge differently
+
+
+def mesh(name):
+    path = MESHES / name
+    if not path.exists():
+        pytest.skip(f"shared mesh {path} is not present")
+    from kdray.load import load
+    m = load(path)
+    return m.vertices, m.faces
+
+
+def sah_tree(vertices, faces):
+    from kdray.build import build
+    return build(vertices, faces)
+
+
+_TRACERS = {}
+
+
+def tracer(tree, **kw):
+    """One Tracer per (tree, options) for the whole session: contexts and programs are
+    made once."""
+    kw = {k: v for k, v in kw.items() if v is not None}
+    key = (id(tree), tuple(sorted(kw.items())))
+    if key not in _TRACERS:
+        _TRACERS[key] = (tree, Tracer(tree, **kw))
+    return _TRACERS[key][1]
+
+
+# -- rays and the oracle -------------------------------------------------------------
+
+def random_rays(tree, n, seed, inside=0.25):
+    """Rays in world coordinates: most from outside the scene towards points in its box,
+    a fraction `inside` from points in the box in random directions."""
+    rng = np.random.default_rng(seed)
+    lo = tree.bounds[0].astype(np.float64) + tree.origin
+    hi = tree.bounds[1].astype(np.float64) + tree.origin
+    c, r = 0.5 * (lo + hi), np.linalg.norm(hi - lo)
+    n_in = int(n * inside)
+    o = np.concatenate([c + rng.normal(size=(n - n_in, 3)) * r,
+                        lo + rng.random((n_in, 3)) * (hi - lo)])
+    target = lo + rng.random((n, 3)) * (hi - lo)
+    d = np.concatenate([target[: n - n_in] - o[: n - n_in], rng.normal(size=(n_in, 3)) * r])
+    d *= rng.uniform(0.1, 10.0, size=(n, 1))          # t is in units of |d|
+    return o, d
+
+
+def reference(tree, o, d, t_min=0.0, t_max=np.inf, frame="world"):
+    """brute_force on the tree's own triangles, prim mapped to input ids.
+
+    frame="world": world coordinates, float64 ray origins as given.
+    frame="tree": relative to the tree's origin, with the ray origins rounded to float32
+        as the tracer rounds them: exactly the tracer's input, for rays whose exact
+        position matters (in split planes, on faces).
+    Returns (t, prim int64 -1 on miss, u, v, triangles in input order, origins), the
+    last two in the frame used."""
+    if frame == "world":
+        tri = tree.triangles.astype(np.float64) + tree.origin
+        by_id = trees.world_triangles(tree)
+    else:
+        tri = tree.triangles.astype(np.float64)
+        by_id = trees.world_triangles(tree) - tree.origin
+        by_id[tree.tri_ids] = tri
+        o = (o - tree.origin).astype(np.float32).astype(np.float64)
+        d = np.asarray(d).astype(np.float32).astype(np.float64)
+    ref = brute_force(tri, o, d, t_min, t_max)
+    prim = np.where(ref.prim >= 0, tree.tri_ids[np.maximum(ref.prim, 0)].astype(np.int64), -1)
+    return ref.t, prim, ref.u, ref.v, by_id, o
+
+
+def plane_hit(tri, o, d):
+    """Ray/plane intersection of each ray with its triangle's plane, float64:
+    (t, barycentrics (k, 3) of v0, v1, v2), without edge tests."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    n = np.cross(e1, e2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("ij,ij->i", tri[:, 0] - o, n) / np.einsum("ij,ij->i", d, n)
+        p = o + t[:, None] * d - tri[:, 0]
+        nn = np.einsum("ij,ij->i", n, n)
+        b1 = np.einsum("ij,ij->i", np.cross(p, e2), n) / nn
+        b2 = np.einsum("ij,ij->i", np.cross(e1, p), n) / nn
+    return t, np.stack([1 - b1 - b2, b1, b2], axis=1)
+
+
+def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, frame="world"):
+    """Assert that `hits` agree with the oracle; return the number of rays that hit."""
+    t_ref, p_ref, u_ref, v_ref, world, o = reference(tree, o, d, t_min, t_max, frame)
+    ours = np.where(hits.prim == MISS, -1, hits.prim.astype(np.int64))
+    hit, ref_hit = ours >= 0, p_ref >= 0
+    # miss values
+    assert np.all(np.isposinf(hits.t[~hit]))
+    assert np.all(hits.u[~hit] == 0) and np.all(hits.v[~hit] == 0)
+    assert np.all(hits.normal[~hit] == 0)
+    assert np.all((hits.t[hit] > t_min) & (hits.t[hit] < t_max))
+
+    same = hit & ref_hit & (ours == p_ref)
+    # t: relative error RTOL_T, plus (for rays starting next to a surface) the float32
+    # rounding of coordinates, 1e-6 of the scene's size along the ray
+    scale = np.linalg.norm(tree.bounds[1].astype(np.float64) - tree.bounds[0])
+    err = np.abs(hits.t[same] - t_ref[same])
+    allowed = RTOL_T * t_ref[same] + 1e-6 * scale / np.linalg.norm(d[same], axis=1)
+    assert np.all(err <= allowed), f"t error {np.max(err / t_ref[same]):.3g}"
+    # barycentrics: the points they give agree to 1e-5 of the scene's size (as t does)
+    tri = world[ours[same]]
+
+    def point(u, v):
+        u, v = u.astype(np.float64)[:, None], v.astype(np.float64)[:, None]
+        return (1 - u - v) * tri[:, 0] + u * tri[:, 1] + v * tri[:, 2]
+    err = np.linalg.norm(point(hits.u[same], hits.v[same]) - point(u_ref[same], v_ref[same]), axis=1)
+    assert err.size == 0 or err.max() <= RTOL_T * scale, f"barycentric error {err.max() / scale:.3g}"
+    # normals: float64 (v1 - v0) x (v2 - v0) of the hit triangle
+    n64 = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n64 /= np.linalg.norm(n64, axis=1, keepdims=True)
+    assert np.allclose(hits.normal[same], n64, atol=1e-5)
+
+    # both hit, different triangles: a tie (ours is hit, nearly, at the same t), or one
+    # of the two grazes an edge and the other is the hit behind it
+    diff = np.flatnonzero(hit & ref_hit & (ours != p_ref))
+    n_diff_grazes = 0
+    if len(diff):
+        t_p, b = plane_hit(world[ours[diff]], o[diff], d[diff])
+        assert np.all(b.min(axis=1) >= -BARY_TOL), "a different, non-touching triangle"
+        tie = np.isclose(t_p, t_ref[diff], rtol=RTOL_T)
+        _, b_ref = plane_hit(world[p_ref[diff]], o[diff], d[diff])
+        graze = np.where(t_p < t_ref[diff], np.abs(b.min(axis=1)) <= BARY_TOL,
+                         np.abs(b_ref.min(axis=1)) <= BARY_TOL)
+        assert np.all(tie | graze), "a different triangle at another t"
+        n_diff_grazes = int(np.count_nonzero(~tie))
+    # one hit, the other missed: only a ray grazing an edge
+    only_ours = np.flatnonzero(hit & ~ref_hit)
+    only_ref = np.flatnonzero(~hit & ref_hit)
+    if len(only_ours):
+        _, b = plane_hit(world[ours[only_ours]], o[only_ours], d[only_ours])
+        assert np.all(np.abs(b.min(axis=1)) <= BARY_TOL), "hit where the oracle sees none"
+    if len(only_ref):
+        _, b = plane_hit(world[p_ref[only_ref]], o[only_ref], d[only_ref])
+        assert np.all(np.abs(b.min(axis=1)) <= BARY_TOL), \
+            f"missed {len(only_ref)} rays the oracle hits squarely"
+    grazes = len(only_ours) + len(only_ref) + n_diff_grazes
+    assert grazes <= max_graze * len(o) + 1, f"{grazes} grazing disagreements"
+    return int(hit.sum())
+
+
+# -- trees of several shapes ---------------------------------------------------------
+
+def soup(seed, m=300):
+    """Random triangles of mixed sizes in the unit cube, with duplicates (exact ties)
+    and a few triangles sharing edges."""
+    rng = np.random.default_rng(seed)
+    centers = rng.random((m, 1, 3))
+    size = 10.0 ** rng.uniform(-2.5, -0.5, size=(m, 1, 1))
+    tri = centers + rng.normal(size=(m, 3, 3)) * size
+    tri[-10:] = tri[:10]                                  # duplicates: exact ties
+    tri[-20:-10, 0], tri[-20:-10, 1] = tri[:10, 1], tri[:10, 0]   # shared edges
+    return tri.reshape(-1, 3), np.arange(3 * m).reshape(m, 3)
+
+
+TREE_KINDS = {
+    "leaf": lambda v, f: trees.leaf_tree(v, f),
+    "median": lambda v, f: trees.split_tree(v, f, max_depth=18, leaf_size=4),
+    "random": lambda v, f: trees.split_tree(v, f, max_depth=14, split="random", seed=7),
+    "sah": sah_tree,
+}
+
+
+@pytest.mark.parametrize("kind", list(TREE_KINDS))
+def test_soup_matches_reference(kind):
+    v, f = soup(1)
+    tree = TREE_KINDS[kind](v, f)
+    tree.validate()
+    o, d = random_rays(tree, 3001, seed=2)
+    hits = tracer(tree).trace(o, d)
+    assert check_hits(hits, tree, o, d) > 1000
+
+
+_MESH_TREES = {}
+
+
+def mesh_tree(name, kind):
+    if (name, kind) not in _MESH_TREES:
+        v, f = mesh(name)
+        _MESH_TREES[name, kind] = TREE_KINDS[kind](v, f)
+    return _MESH_TREES[name, kind]
+
+
+@pytest.mark.parametrize("name,kind,n", [
+    ("teapot.obj", "median", 1501), ("teapot.obj", "random", 1501), ("teapot.obj", "sah", 1501),
+    ("fandisk.obj", "sah", 1201), ("spot.obj", "median", 1201), ("spot.obj", "sah", 1201),
+    ("stanford-bunny.obj", "sah", 401),
+])
+def test_mesh_matches_reference(name, kind, n):
+    tree = mesh_tree(name, kind)
+    o, d = random_rays(tree, n, seed=len(name))
+    hits = tracer(tree).trace(o, d)
+    assert check_hits(hits, tree, o, d) > n // 3
+
+
+def test_t_range():
+    """t_min and t_max narrow the hits, strictly: t_min < t < t_max."""
+    tree = mesh_tree("teapot.obj", "sah")
+    o, d = random_rays(tree, 1001, seed=5, inside=0.5)
+    full = tracer(tree).trace(o, d)
+    t_min, t_max = np.float32(0.05), np.float32(0.8)
+    part = tracer(tree).trace(o, d, t_min=t_min, t_max=t_max)
+    check_hits(part, tree, o, d, t_min=float(t_min), t_max=float(t_max))
+    # hits of the full range inside (t_min, t_max) stay; those before t_min are replaced
+    keep = (full.t > t_min) & (full.t < t_max)
+    assert np.array_equal(part.prim[keep], full.prim[keep])
+    assert np.all(part.t[full.t <= t_min] > t_min)
+    with pytest.raises(KdrayError):
+        tracer(tree).trace(o, d, t_min=-1.0)
+
+
+# -- watertightness --------------------------------------------------------------------------
+
+def convex_mesh():
+    """A closed, convex, stretched icosphere (5120 triangles) off the origin."""
+    import trimesh
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    shift = np.random.default_rng(16).normal(size=3)
+    return sphere.vertices * np.array([1.0, 0.7, 1.3]) + shift, sphere.faces
+
+
+def vertex_and_edge_rays(tree, seed, offset=(0.0, 0.0, 0.0)):
+    """Rays from a point inside the mesh (its centre + offset) through every vertex,
+    every edge midpoint and a random point of every edge of the tree's triangles;
+    d = target - origin, so the surface is at t = 1."""
+    rng = np.random.default_rng(seed)
+    rel = tree.triangles.astype(np.float64)                 # the tracer's vertices
+    center = rel.reshape(-1, 3).mean(axis=0) + np.asarray(offset)
+    edges = np.concatenate([rel[:, [0, 1]], rel[:, [1, 2]], rel[:, [2, 0]]])
+    w = rng.random((len(edges), 1))
+    targets = np.concatenate([rel.reshape(-1, 3),                       # vertices
+                              0.5 * (edges[:, 0] + edges[:, 1]),         # edge midpoints
+                              w * edges[:, 0] + (1 - w) * edges[:, 1]])  # edge points
+    return np.broadcast_to(center + tree.origin, targets.shape), targets - center
+
+
+@pytest.mark.parametrize("kind", ["median", "sah"])
+def test_watertight(kind):
+    """Rays from inside a closed convex mesh through its vertices and along its edges
+    never leak between triangles (Woop et al.'s guarantee), also where a vertex lies on
+    several split planes (SAH trees put planes at vertices) and for any stack size."""
+    v, f = convex_mesh()
+    tree = TREE_KINDS[kind](v, f)
+    for offset in [(0.0, 0.0, 0.0), (0.013, -0.021, 0.007)]:
+        o, d = vertex_and_edge_rays(tree, seed=17, offset=offset)
+        base = None
+        for size in (1, 2, None):
+            hits = tracer(tree, stack_size=size).trace(o, d)
+            leaks = np.count_nonzero(hits.prim == MISS)
+            assert leaks == 0, f"{leaks} of {len(d)} rays leaked (stack {size}, offset {offset})"
+            assert np.allclose(hits.t, 1.0, atol=1e-4)
+            if base is None:
+                base = hits
+            assert np.array_equal(hits.prim, base.prim) and np.array_equal(hits.t, base.t)
+
+
+def test_watertight_closed_cad_mesh():
+    """The same from a point inside fandisk (closed, non-convex, with axis-aligned faces
+    and many vertices on split planes): every ray through a vertex or an edge hits."""
+    import trimesh
+    v, f = mesh("fandisk.obj")
+    tree = mesh_tree("fandisk.obj", "sah")
+    solid = trimesh.Trimesh(v, f, process=False)
+    assert solid.is_watertight
+    lo, hi = solid.bounds
+    points = lo + np.random.default_rng(18).random((200, 3)) * (hi - lo)
+    inside = points[solid.contains(points)][0]
+    center = tree.triangles.reshape(-1, 3).astype(np.float64).mean(axis=0) + tree.origin
+    o, d = vertex_and_edge_rays(tree, seed=19, offset=inside - center)
+    for size in (1, None):
+        hits = tracer(tree, stack_size=size).trace(o, d)
+        leaks = np.count_nonzero(hits.prim == MISS)
+        assert leaks == 0, f"{leaks} of {len(d)} rays leaked (stack {size})"
+
+
+# -- every output written, any ray count ------------------------------------------------
+
+@pytest.mark.parametrize("n", [0, 1, 31, 1_000_003])
+def test_every_output_written(n):
+    """Outputs are poisoned (NaN / 0x7FBADBAD) before the launch; every element must be
+    overwritten, for counts that fit no work size."""
+    v, f = soup(3, m=100)
+    tree = trees.split_tree(v, f, max_depth=10, leaf_size=2)
+    tr = Tracer(tree)
+    tr._poison_outputs = True
+    o, d = random_rays(tree, n, seed=n)
+    hits = tr.trace(o, d)
+    assert hits.t.shape == (n,) and hits.prim.shape == (n,) and hits.normal.shape == (n, 3)
+    assert hits.t.dtype == np.float32 and hits.prim.dtype == np.uint32
+    assert not np.any(np.isnan(hits.t)) and not np.any(np.isnan(hits.u))
+    assert not np.any(np.isnan(hits.v)) and not np.any(np.isnan(hits.normal))
+    hit = hits.prim != MISS
+    assert np.all(hits.prim[hit] < tree.n_input_tris)
+    assert np.all(np.isfinite(hits.t[hit])) and np.all(np.isposinf(hits.t[~hit]))
+    assert np.allclose(np.linalg.norm(hits.normal[hit], axis=1), 1, atol=1e-6)
+    if n > 1000:
+        assert 0.1 * n < hit.sum() < 0.95 * n
+        # the same rays traced in a small batch give the same answers
+        sub = np.random.default_rng(0).choice(n, 997, replace=False)
+        small = tr.trace(o[sub], d[sub])
+        assert np.array_equal(small.prim, hits.prim[sub])
+        assert np.array_equal(small.t, hits.t[sub])
+    elif n:
+        check_hits(hits, tree, o, d)
+
+
+def test_work_sizes_do_not_change_results():
+    """Local size, batch size and group count change the schedule, never the answer."""
+    tree = mesh_tree("teapot.obj", "sah")
+    o, d = random_rays(tree, 20_011, seed=8)
+    base = tracer(tree).trace(o, d)
+    for local, batch, groups in [(1, 1, 1), (4, 12, 3), (16, 64, 5), (64, 64, 2)]:
+        other = Tracer(tree, local_size=local, batch_size=batch, groups=groups).trace(o, d)
+        assert np.array_equal(other.prim, base.prim)
+        assert np.array_equal(other.t, base.t)
+
+
+# -- short stack and restart -------------------------------------------------------------
+
+def deep_tree():
+    """Median splits down to single triangles: depth 22 on the teapot."""
+    if ("teapot.obj", "deep") not in _MESH_TREES:
+        v, f = mesh("teapot.obj")
+        _MESH_TREES["teapot.obj", "deep"] = trees.split_tree(v, f, max_depth=30, leaf_size=1)
+    return _MESH_TREES["teapot.obj", "deep"]
+
+
+@pytest.mark.parametrize("kind", ["median", "sah"])
+def test_stack_size_does_not_change_results(kind):
+    """Bit-identical hits for stacks of 1, 2, 4 and 32 entries on trees deep enough that
+    small stacks restart (counted by the STATS build of the kernel), for random rays,
+    rays in split planes and rays through vertices (where split planes cross)."""
+    tree = deep_tree() if kind == "median" else mesh_tree("teapot.obj", "sah")
+    assert tree.depth >= 16
+    o, d = random_rays(tree, 4001, seed=11, inside=0.5)
+    o2, d2 = split_plane_rays(tree, 600, seed=12)
+    o3, d3 = vertex_and_edge_rays(tree, seed=13)
+    pick = np.random.default_rng(14).choice(len(d3), 2000, replace=False)
+    o, d = np.concatenate([o, o2, o3[pick]]), np.concatenate([d, d2, d3[pick]])
+    results = {}
+    for size in (1, 2, 4, 32):
+        hits, stats = tracer(tree, stack_size=size)._trace(o, d, stats=True,
+                                                           t_min=surface_t_min(tree))
+        results[size] = (hits, stats)
+    restarts = {size: int(stats[:, 3].sum()) for size, (_, stats) in results.items()}
+    assert restarts[1] > restarts[2] > restarts[4] > 0
+    assert restarts[32] == 0
+    base = results[32][0]
+    for size in (1, 2, 4):
+        hits = results[size][0]
+        for field in ("t", "prim", "u", "v", "normal"):
+            assert np.array_equal(getattr(hits, field), getattr(base, field), equal_nan=True), \
+                (size, field)
+    n = len(d) - len(pick)              # rays aimed at vertices: see test_watertight
+    check_hits(base[:n], tree, o[:n], d[:n], t_min=surface_t_min(tree), frame="tree")
+
+
+def test_default_stack_size():
+    tree = deep_tree()
+    assert tracer(tree).stack_size == default_stack_size(tree) == tree.depth + 1
+    with pytest.raises(KdrayError):
+        Tracer(tree, stack_size=0)
+    with pytest.raises(KdrayError):
+        Tracer(tree, stack_size=65)
+
+
+# -- precision far from the origin --------------------------------------------------------
+
+def test_far_from_origin():
+    """The teapot moved by 1e6 (and its rays with it) traces as accurately as at 0."""
+    v, f = mesh("teapot.obj")
+    shift = np.array([1e6, -1e6, 1e6])
+    near_tree, far_tree = sah_tree(v, f), sah_tree(v + shift, f)
+    assert np.all(np.abs(far_tree.origin) > 9e5)
+    o, d = random_rays(near_tree, 1501, seed=13)
+    near = tracer(near_tree).trace(o, d)
+    far = tracer(far_tree).trace(o + shift, d)
+    n_hit = check_hits(far, far_tree, o + shift, d)
+    assert n_hit > 500
+    both = (near.prim != MISS) & (far.prim == near.prim)
+    assert both.sum() > 0.99 * n_hit
+    assert np.allclose(far.t[both], near.t[both], rtol=RTOL_T)
+
+
+# -- zero direction components, rays in split planes ---------------------------------------
+
+def axis_rays(tree, n, seed):
+    """Rays parallel to an axis (two components +0.0 or -0.0), in both senses."""
+    rng = np.random.default_rng(seed)
+    lo = tree.bounds[0].astype(np.float64) + tree.origin
+    hi = tree.bounds[1].astype(np.float64) + tree.origin
+    o = lo + rng.random((n, 3)) * (hi - lo)
+    axis = rng.integers(3, size=n)
+    sign = rng.choice([-1.0, 1.0], size=n)
+    d = np.where(rng.random((n, 3)) < 0.5, 0.0, -0.0)
+    d[np.arange(n), axis] = sign * rng.uniform(0.5, 2.0, size=n)
+    # start outside the box, on the far side of the travel
+    o[np.arange(n), axis] = np.where(sign > 0, lo[axis] - 1.0, hi[axis] + 1.0)
+    return o, d
+
+
+def split_plane_rays(tree, n, seed):
+    """Rays lying in split planes of the tree (o[axis] == split, d[axis] = +-0), and rays
+    crossing a split plane exactly where they start (o[axis] == split, d[axis] != 0)."""
+    rng = np.random.default_rng(seed)
+    inner = np.flatnonzero(~layout.is_leaf(tree.nodes))
+    nodes = rng.choice(inner, size=n)
+    axis = layout.split_axis(tree.nodes[nodes]).astype(np.int64)
+    split = layout.split(tree.nodes[nodes]).astype(np.float64)
+    boxes = tree.node_boxes().astype(np.float64)
+    lo, hi = boxes[nodes, 0], boxes[nodes, 1]
+    o_rel = lo + rng.random((n, 3)) * (hi - lo)
+    o_rel[np.arange(n), axis] = split                      # exactly representable: float32
+    target = lo + rng.random((n, 3)) * (hi - lo)
+    d = target - o_rel
+    in_plane = rng.random(n) < 0.7
+    d[np.arange(n), axis] = np.where(in_plane, np.where(rng.random(n) < 0.5, 0.0, -0.0),
+                                     d[np.arange(n), axis])
+    # in-plane rays start back along the ray, outside the node (still in the plane);
+    # the others start on the plane, inside the node
+    o_rel[in_plane] -= 2.0 * d[in_plane]
+    zero = np.all(d == 0, axis=1)
+    d[zero, (axis[zero] + 1) % 3] = 1.0
+    d /= np.linalg.norm(d, axis=1, keepdims=True)          # (keeps the zeros' signs)
+    return o_rel.astype(np.float32).astype(np.float64) + tree.origin, d
+
+
+def surface_t_min(tree):
+    """A t_min (for unit directions) that leaves out hits on a surface the ray starts
+    on, whose sign is a matter of rounding."""
+    return 1e-5 * float(np.linalg.norm(tree.bounds[1].astype(np.float64) - tree.bounds[0]))
+
+
+def test_axis_parallel_rays_signed_zeros():
+    tree = mesh_tree("fandisk.obj", "sah")
+    o, d = axis_rays(tree, 801, seed=14)
+    hits = tracer(tree).trace(o, d)
+    assert check_hits(hits, tree, o, d, frame="tree") > 200
+    # flipping the sign of the zero components changes nothing
+    flipped_d = np.where(d == 0, -d, d)
+    assert np.array_equal(np.signbit(flipped_d) != np.signbit(d), d == 0)
+    flipped = tracer(tree).trace(o, flipped_d)
+    assert np.array_equal(flipped.prim, hits.prim) and np.array_equal(flipped.t, hits.t)
+
+
+@pytest.mark.parametrize("kind", ["sah", "median"])
+def test_rays_in_split_planes(kind):
+    tree = mesh_tree("fandisk.obj" if kind == "sah" else "teapot.obj", kind)
+    o, d = split_plane_rays(tree, 701, seed=15)
+    # most rays really start on their plane in the tracer's float32 coordinates
+    o32 = (o - tree.origin).astype(np.float32)
+    splits = layout.split(tree.nodes)[~layout.is_leaf(tree.nodes)]
+    on_plane = np.isin(o32, splits).any(axis=1)
+    assert on_plane.mean() > 0.9
+    assert (on_plane & (d == 0).any(axis=1)).mean() > 0.5
+    t_min = surface_t_min(tree)
+    hits = tracer(tree).trace(o, d, t_min=t_min)
+    assert check_hits(hits, tree, o, d, t_min=t_min, frame="tree") > 100
+
+
+def test_in_plane_ray_sees_both_sides():
+    """A ray in the plane z = 0 of the root's split, with one wall below the plane and
+    one above it, each touching the plane with an edge and listed on its side only; an
+    inner split makes a short stack overflow. Both walls must be found from either end,
+    whatever the stack size."""
+    wall = lambda x, z0, z1: [[[x, -1, z0], [x, 1, z0], [x, 1, z1]], [[x, -1, z0], [x, 1, z1], [x, -1, z1]]]
+    tris = np.array(wall(1.0, -1.0, 0.0) + wall(2.0, 0.0, 1.0), dtype=np.float32)
+    # root: z = 0; below: x = 1.5 split (wall at x = 1 left); above: leaf with the x = 2 wall
+    nodes = np.concatenate([
+        layout.make_interior([2], [0.0], [4]),
+        layout.make_interior([0], [1.5], [3]),
+        layout.make_leaf([2], [0]),
+        layout.make_leaf([0], [0]),
+        layout.make_leaf([2], [2]),
+    ])
+    from kdray.tree import BuildParams, KdTree
+    tree = KdTree(nodes=nodes, leaf_tris=np.array([0, 1, 2, 3], dtype=np.uint32), triangles=tris,
+                  tri_ids=np.arange(4, dtype=np.uint32), origin=np.zeros(3),
+                  bounds=np.array([[0, -1, -1], [3, 1, 1]], dtype=np.float32), n_input_tris=4,
+                  depth=2, params=BuildParams(max_depth=2))
+    tree.validate()
+    o = np.array([[0.0, 0.3, 0.0], [3.0, -0.2, 0.0], [0.0, 0.3, 0.0], [3.0, -0.2, 0.0]])
+    d = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, -0.0], [-1.0, 0.0, -0.0]])
+    for size in (1, 2, 3):
+        hits = tracer(tree, stack_size=size).trace(o, d)
+        assert hits.t.tolist() == [1.0, 1.0, 1.0, 1.0], size
+        assert set(hits.prim[[0, 2]]) <= {0, 1} and set(hits.prim[[1, 3]]) <= {2, 3}
+    check_hits(hits, tree, o, d)
+
+
+def test_bad_rays_miss():
+    """Zero, NaN and infinite directions or origins miss instead of hanging or hitting."""
+    tree = mesh_tree("teapot.obj", "sah")
+    c = tree.origin
+    o = np.array([c, c, c, c + np.nan, c + np.inf, c - 10])
+    d = np.array([[0, 0, 0], [np.nan, 1, 0], [np.inf, 0, 0], [0, 0, 1], [0, 0, 1], [0, 0, 0]])
+    hits = tracer(tree).trace(o, d)
+    assert np.all(hits.prim == MISS) and np.all(np.isposinf(hits.t))
+
+
+def test_input_checks():
+    tree = mesh_tree("teapot.obj", "sah")
+    tr = tracer(tree)
+    with pytest.raises(KdrayError):
+        tr.trace(np.zeros((3, 3)), np.ones((4, 3)))
+    with pytest.raises(KdrayError):
+        tr.trace(np.zeros((3, 2)), np.ones((3, 2)))
+    # a single origin broadcasts; float32 input works
+    hits = tr.trace(tree.origin - [0, 0, 10], np.array([[0, 0, 1]], dtype=np.float32))
+    assert len(hits) == 1
+
+
+# -- render ----------------------------------------------------------------------------------
+
+def camera_for(tree, width, height):
+    """A look-at camera a little outside the scene's bounding sphere, off the axes."""
+    from kdray.camera import Camera
+    lo = tree.bounds[0].astype(np.float64) + tree.origin
+    hi = tree.bounds[1].astype(np.float64) + tree.origin
+    c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+    view = np.array([0.35, 0.3, 1.0]) / np.linalg.norm([0.35, 0.3, 1.0])
+    return Camera.look_at(c + 2.2 * r * view, c, up=(0, 1, 0), fov_deg=40, width=width,
+                          height=height)
+
+
+def test_render_rays_match_host_rays():
+    """Rays made on the device equal the host's: render == trace(camera_rays), bit for
+    bit; and the depth agrees with float64 camera rays (Camera.rays) to 1e-5."""
+    tree = mesh_tree("spot.obj", "sah")
+    cam = camera_for(tree, 97, 61)
+    tr = tracer(tree)
+    images = tr.render(cam, aovs=("depth", "normal", "bary", "id"))
+    o, d = tr.camera_rays(cam)
+    hits = tr.trace(o, d)
+    assert np.array_equal(images["depth"].ravel(), hits.t)
+    assert np.array_equal(images["id"].ravel(), hits.prim)
+    assert np.array_equal(images["normal"].reshape(-1, 3), hits.normal)
+    assert np.array_equal(images["bary"].reshape(-1, 2), np.stack([hits.u, hits.v], 1))
+    hit = hits.prim != MISS
+    assert 0.1 < hit.mean() < 0.9
+    # independent float64 rays: the same triangles almost everywhere, t equal to 1e-5
+    o64, d64 = cam.rays()
+    ref = tr.trace(o64, d64)
+    same = hit & (ref.prim == hits.prim)
+    assert same.sum() > 0.99 * hit.sum()
+    assert np.allclose(images["depth"].ravel()[same], ref.t[same], rtol=RTOL_T)
+    # and t is the z-depth: camera-z of the hit point
+    p = o64[same] + hits.t[same, None].astype(np.float64) * d64[same]
+    z = (p - cam.eye) @ cam.rotation[:, 2]
+    assert np.allclose(z, hits.t[same], rtol=RTOL_T)
+
+
+def test_render_aovs():
+    tree = mesh_tree("teapot.obj", "sah")
+    cam = camera_for(tree, 64, 48)
+    tr = tracer(tree)
+    everything = ("depth", "distance", "normal", "bary", "id", "position")
+    images = tr.render(cam, aovs=everything)
+    assert list(images) == list(everything)
+    shapes = {"depth": (48, 64), "distance": (48, 64), "normal": (48, 64, 3),
+              "bary": (48, 64, 2), "id": (48, 64), "position": (48, 64, 3)}
+    for name, shape in shapes.items():
+        assert images[name].shape == shape, name
+        assert images[name].dtype == (np.uint32 if name == "id" else np.float32), name
+    miss = images["id"] == MISS
+    assert miss.any() and (~miss).any()
+    assert np.all(np.isposinf(images["depth"][miss])) and np.all(np.isposinf(images["distance"][miss]))
+    assert np.all(images["normal"][miss] == 0) and np.all(images["bary"][miss] == 0)
+    assert np.all(np.isnan(images["position"][miss]))
+    # distance = depth * |d|; position lies on the hit triangle, at that distance from the eye
+    o, d = tr.camera_rays(cam)
+    hit = ~miss.ravel()
+    dist = images["distance"].ravel()[hit]
+    assert np.allclose(dist, images["depth"].ravel()[hit] * np.linalg.norm(d[hit], axis=1), rtol=1e-6)
+    pos = images["position"].reshape(-1, 3)[hit].astype(np.float64)
+    assert np.allclose(np.linalg.norm(pos - cam.eye, axis=1), dist, rtol=1e-5)
+    tri = trees.world_triangles(tree)[images["id"].ravel()[hit]]
+    uv = images["bary"].reshape(-1, 2)[hit].astype(np.float64)
+    p_bary = (1 - uv.sum(1))[:, None] * tri[:, 0] + uv[:, :1] * tri[:, 1] + uv[:, 1:] * tri[:, 2]
+    scale = np.linalg.norm(tree.bounds[1] - tree.bounds[0])
+    assert np.allclose(pos, p_bary, atol=1e-5 * scale)
+    # a subset asks for less and gets the same values
+    few = tr.render(cam, aovs=("id", "depth"))
+    assert list(few) == ["id", "depth"]
+    assert np.array_equal(few["id"], images["id"]) and np.array_equal(few["depth"], images["depth"])
+    with pytest.raises(KdrayError):
+        tr.render(cam, aovs=("depth", "albedo"))
+    with pytest.raises(KdrayError):
+        tr.render(cam, aovs=())
+
+
+def test_render_compiles_only_what_is_asked():
+    tree = mesh_tree("teapot.obj", "sah")
+    tr = Tracer(tree)
+    cam = camera_for(tree, 16, 8)
+    tr.render(cam, aovs=("id",))
+    (key,) = tr._programs
+    defines = dict(key)
+    assert "OUT_ID" in defines
+    assert not {"OUT_T", "OUT_UV", "OUT_NORMAL", "STATS"} & set(defines)
+    tr.render(cam, aovs=("id",))
+    assert len(tr._programs) == 1                       # built once, reused
+    tr.render(cam, aovs=("distance",))
+    assert {k for k, _ in list(tr._programs)[1]} >= {"OUT_T"}
+    assert not {"OUT_ID", "OUT_UV", "OUT_NORMAL"} & {k for k, _ in list(tr._programs)[1]}
