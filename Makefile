@@ -4,6 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cksum pyproject.toml | cut -d' ' -f1)
 SCENE ?= scenes/cornell.obj
+CAMERA ?= scenes/cornell.json
 OUT ?= out
 
 .PHONY: install render test test-long bench bench-build bench-trace golden clean
@@ -20,7 +21,7 @@ $(STAMP): pyproject.toml
 # Render the default scene: out/cornell.exr and a PNG preview.
 render: $(STAMP)
 	mkdir -p $(OUT)
-	$(BIN)/kdray render $(SCENE) -o $(OUT)/cornell.exr --preview $(OUT)/cornell.png
+	$(BIN)/kdray render $(SCENE) --camera $(CAMERA) -o $(OUT)/cornell.exr --preview $(OUT)/cornell.png
 
 # The test suite (about 10 minutes at most on 2 cores); long checks are `make test-long`.
 test: $(STAMP)
