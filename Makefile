@@ -7,7 +7,7 @@ SCENE ?= scenes/cornell.obj
 CAMERA ?= scenes/cornell.json
 OUT ?= out
 
-.PHONY: install render test test-long bench bench-build bench-trace golden clean
+.PHONY: install render test test-long bench bench-deps bench-build bench-trace golden clean
 
 install: $(STAMP)
 
@@ -33,8 +33,14 @@ test-long: $(STAMP)
 bench-build: $(STAMP)
 	$(BIN)/python bench/bench_build.py
 
-bench-trace: $(STAMP)
+# Open3D's wheel needs the system library libusb-1.0: installed here when we may.
+bench-deps: $(STAMP)
 	$(BIN)/python -m pip install -q -e '.[bench]'
+	@ldconfig -p | grep -q libusb-1.0 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+	  (apt-get install -y -q libusb-1.0-0 || (apt-get update -q && apt-get install -y -q libusb-1.0-0)); } || \
+	  echo "note: Open3D needs libusb-1.0 (apt-get install libusb-1.0-0); it is left out of the comparison"
+
+bench-trace: bench-deps
 	$(BIN)/python bench/bench_trace.py
 
 bench: bench-build bench-trace

@@ -58,7 +58,8 @@ def accuracy(t, prim, ref_t, ref_prim, sample):
 def open3d_runs(m, o, d, repeat):
     try:
         import open3d as o3d
-    except ImportError:
+    except ImportError as e:
+        print(f"# open3d left out: {e}", flush=True)
         return []
     t0 = time.perf_counter()
     scene = o3d.t.geometry.RaycastingScene()
@@ -82,7 +83,8 @@ def embreex_runs(m, o, d, repeat):
         import embreex  # noqa: F401
         import trimesh
         from trimesh.ray.ray_pyembree import RayMeshIntersector
-    except ImportError:
+    except ImportError as e:
+        print(f"# embreex left out: {e}", flush=True)
         return []
     t0 = time.perf_counter()
     tm = trimesh.Trimesh(m.vertices, m.faces, process=False)

@@ -12,7 +12,7 @@ import time
 import click
 import numpy as np
 
-from .errors import KdrayError, OutputError
+from .errors import KdrayError, MeshError, OutputError
 
 log = logging.getLogger("kdray")
 
@@ -91,6 +91,15 @@ class Steps:
         log.info("%s", ", ".join(f"{k} {v:.3f} s" for k, v in self.seconds.items()))
 
 
+def _build_mesh(mesh, path, params):
+    """Build the tree of a loaded mesh; mesh errors name the file."""
+    from .build import build as build_tree
+    try:
+        return build_tree(mesh.vertices, mesh.faces, **params)
+    except MeshError as e:
+        raise MeshError(f"{path}: {e}") from None
+
+
 def _print_stats(stats, seconds=None):
     width = max(len(k) for k in stats)
     for k, v in stats.items():
@@ -115,7 +124,6 @@ def cli(verbose, quiet, debug):
 @build_options
 def build(scene, dump, **kw):
     """Build the SAH k-d tree of SCENE; print its statistics and the build time."""
-    from .build import build as build_tree
     from .load import load
     params = _build_kwargs(kw)
     _check_not_same(scene, dump)
@@ -125,7 +133,7 @@ def build(scene, dump, **kw):
     with step("loading"):
         mesh = load(scene)
     with step(f"building the tree of {len(mesh.faces):,} triangles"):
-        tree = build_tree(mesh.vertices, mesh.faces, **params)
+        tree = _build_mesh(mesh, scene, params)
     if dump:
         with step("writing the tree"):
             _save_tree(tree, dump)
@@ -202,12 +210,11 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
         with step("loading the tree"):
             tree = KdTree.load(tree_file)
     else:
-        from .build import build as build_tree
         from .load import load
         with step("loading"):
             mesh = load(scene)
         with step(f"building the tree of {len(mesh.faces):,} triangles"):
-            tree = build_tree(mesh.vertices, mesh.faces, **params)
+            tree = _build_mesh(mesh, scene, params)
     camera = _camera(tree, width, height, eye, target, up, fov, intrinsics, pose, camera_file)
     with step("setting up the device"):
         tracer = Tracer(tree, device=device)

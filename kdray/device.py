@@ -15,6 +15,7 @@ traversal relies on IEEE infinities, NaN and signed zeros. Where the device offe
 device gives the same t, u, v as any other that rounds correctly.
 """
 import logging
+import os
 from pathlib import Path
 
 from .errors import DeviceError, KernelBuildError
@@ -77,12 +78,15 @@ def choose_device(spec=None):
 
     spec : None, or a PYOPENCL_CTX-style string "PLATFORM[:DEVICE]", each part an index
         or a case-insensitive substring of the name ("0", "0:1", "nvidia", "portable:0").
-        None or "" prefers a GPU and falls back to any device (PoCL's CPU device).
+        None reads the PYOPENCL_CTX environment variable; unset or "" prefers a GPU
+        and falls back to any device (PoCL's CPU device).
         Never prompts.
     Raises DeviceError when no platform or no matching device exists.
     """
     cl = _cl()
     platforms = _platforms()
+    if spec is None:
+        spec = os.environ.get("PYOPENCL_CTX")
     if spec is None or str(spec).strip() == "":
         devices = [d for p in platforms for d in _devices(p)]
         if not devices:

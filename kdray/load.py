@@ -36,6 +36,8 @@ def load(path):
                         f"(kdray reads OBJ, PLY, STL, OFF, GLB/glTF and what else trimesh loads)")
     try:
         scene = trimesh.load(path, force="scene", process=False, skip_materials=True)
+    except IndexError as e:
+        raise MeshError(f"{path}: a face refers to a vertex that does not exist ({e})") from None
     except Exception as e:  # trimesh raises many kinds for a malformed file
         raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: {e})") from None
     vertices, faces = [], []

@@ -21,12 +21,13 @@ kept on the Tracer; the kernels compute and store only the outputs asked for.
 """
 import dataclasses
 import logging
+import os
 import time
 
 import numpy as np
 
 from . import device as _device
-from .errors import KdrayError
+from .errors import DeviceError, KdrayError
 from .layout import MAX_DEPTH_LIMIT
 
 log = logging.getLogger(__name__)
@@ -149,8 +150,27 @@ class Tracer:
         return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                          hostbuf=array)
 
+    def _check_fits(self, tree):
+        """DeviceError when the tree cannot live on the device: one buffer larger than
+        the device's largest allocation, or all of them (plus a launch's rays and
+        outputs) more than its global memory."""
+        name = self.device.name.strip()
+        largest = int(self.device.max_mem_alloc_size)
+        arrays = {"nodes": tree.nodes, "leaf triangle lists": tree.leaf_tris,
+                  "triangles": tree.triangles, "triangle ids": tree.tri_ids}
+        for what, array in arrays.items():
+            if array.nbytes > largest:
+                raise DeviceError(f"the tree's {what} ({array.nbytes / 2**20:.0f} MiB) do not fit in "
+                                  f"one buffer on {name} (at most {largest / 2**20:.0f} MiB)")
+        need = sum(a.nbytes for a in arrays.values()) + MAX_RAYS_PER_LAUNCH * 52
+        have = int(self.device.global_mem_size)
+        if need > have:
+            raise DeviceError(f"the tree and a launch's rays need {need / 2**20:.0f} MiB on {name}, "
+                              f"which has {have / 2**20:.0f} MiB")
+
     def _upload(self, tree):
         cl = _device._cl()
+        self._check_fits(tree)
         self._n_nodes = len(tree.nodes)
         self._nodes = self._buffer(np.asarray(tree.nodes, dtype=np.uint32).reshape(-1, 2))
         self._leaf_tris = self._buffer(np.asarray(tree.leaf_tris, dtype=np.uint32))
@@ -299,6 +319,7 @@ class Tracer:
         n = w * h
         if n >= 1 << 32:
             raise KdrayError(f"{w}x{h} pixels are too many for one render (at most 2^32 - 1)")
+        _check_host_memory(n * _host_bytes_per_pixel(aovs), f"a {w}x{h} render of {', '.join(aovs)}")
         outputs = []
         if {"depth", "distance", "position"} & set(aovs):
             outputs.append("T")
@@ -340,6 +361,40 @@ class Tracer:
             elif name == "id":
                 images[name] = out["ID"].reshape(h, w)
         return images
+
+
+def _host_bytes_per_pixel(aovs):
+    """Host bytes a render needs per pixel: kernel outputs, images, and the float64
+    rays that `distance` and `position` are computed from."""
+    size = {"depth": 4, "distance": 4, "normal": 12, "bary": 8, "id": 4, "position": 12}
+    total = sum(size[a] for a in aovs) + 4
+    if "distance" in aovs or "position" in aovs:
+        total += 12 + 8 + 24 + 24
+    return total
+
+
+def available_memory():
+    """Bytes of host memory available now (Linux MemAvailable), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _check_host_memory(nbytes, what):
+    """KdrayError, before anything is allocated, when `what` needs more host memory
+    than is available."""
+    have = available_memory()
+    if have is not None and nbytes > have:
+        raise KdrayError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory, but "
+                         f"{have / 2**30:.1f} GiB are available: ask for a smaller image or fewer AOVs")
 
 
 def _check_aovs(aovs):

@@ -105,3 +105,73 @@ def test_debug_shows_the_traceback(capsys, tmp_path):
     with pytest.raises(Exception):
         from kdray.cli import main
         main(["--debug", "render", str(tmp_path / "none.obj")])
+
+
+def test_absurd_size_is_refused_before_allocating(capsys, tmp_path):
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr", "--size", "60000x60000")
+    assert_one_line_error(code, err, "GiB", "available")
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr", "--size", "100000x100000")
+    assert_one_line_error(code, err, "too many")
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_mesh_problems_name_the_file(capsys, tmp_path):
+    degenerate = tmp_path / "flat.obj"
+    degenerate.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\nf 1 1 2\n")
+    code, _, err = run(capsys, "render", degenerate, "-o", tmp_path / "o.exr")
+    assert_one_line_error(code, err, "flat.obj", "no triangles left")
+    out_of_range = tmp_path / "oor.obj"
+    out_of_range.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
+    code, _, err = run(capsys, "build", out_of_range)
+    assert_one_line_error(code, err, "oor.obj", "does not exist")
+    points = tmp_path / "points.ply"
+    import numpy as np
+    import trimesh
+    trimesh.PointCloud(np.random.default_rng(0).random((10, 3))).export(points)
+    code, _, err = run(capsys, "render", points, "-o", tmp_path / "o.exr")
+    assert_one_line_error(code, err, "points.ply", "no triangles")
+
+
+def test_no_opencl_platform_says_how_to_get_one(capsys, tmp_path, monkeypatch):
+    import pyopencl
+    monkeypatch.setattr(pyopencl, "get_platforms", lambda: [])
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr")
+    assert_one_line_error(code, err, "no OpenCL platform", "pip install pocl-binary-distribution")
+    code, _, err = run(capsys, "devices")
+    assert_one_line_error(code, err, "pocl-binary-distribution")
+
+
+def test_device_choice(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("PYOPENCL_CTX", "7:0")
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr")
+    assert_one_line_error(code, err, "no OpenCL platform 7")
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr", "--device", "nosuchvendor")
+    assert_one_line_error(code, err, "nosuchvendor")
+    monkeypatch.delenv("PYOPENCL_CTX")
+    code, out, err = run(capsys, "devices")
+    assert code == 0 and "--device 0:0" in out and "default:" in out
+
+
+def test_an_existing_tree_file_survives_a_failed_write(tmp_path, monkeypatch):
+    from small_trees import two_leaf_tree
+    from kdray import layout
+    path = tmp_path / "t.kdt"
+    two_leaf_tree().save(path)
+    before = path.read_bytes()
+
+    def fail(*args):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(layout.os, "fsync", fail)
+    with pytest.raises(KeyboardInterrupt):
+        two_leaf_tree().save(path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["t.kdt"]
+
+
+def test_progress_only_on_a_terminal(capsys, tmp_path, monkeypatch):
+    import sys
+    code, out, err = run(capsys, "build", SCENES / "sphere.obj")
+    assert code == 0 and err == ""                     # not a terminal: quiet
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    code, out, err = run(capsys, "build", SCENES / "sphere.obj")
+    assert code == 0 and "building the tree of 1,280 triangles" in err
