@@ -10,6 +10,31 @@ import numpy as np
 from .errors import MeshError
 
 
+def check_arrays(vertices, faces):
+    """(vertices (n, 3) float64, faces (m, 3) int64) after checking shapes, that there
+    is a face, and that face indices are integers in range; raises MeshError.
+    Vertex values are not checked here (see Mesh.from_arrays and the builder)."""
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces)
+    except (TypeError, ValueError) as e:
+        raise MeshError(f"vertices and faces must be numeric arrays ({e})") from None
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise MeshError(f"vertices must be an (n, 3) array, got shape {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise MeshError(f"faces must be an (m, 3) array of triangles, got shape {f.shape}")
+    if len(f) == 0:
+        raise MeshError("has no triangles")
+    if not np.issubdtype(f.dtype, np.integer):
+        if not np.issubdtype(f.dtype, np.number) or not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
+            raise MeshError("face indices must be integers")
+    f = f.astype(np.int64)
+    if f.min() < 0 or f.max() >= len(v):
+        bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
+        raise MeshError(f"face {bad} has a vertex index out of range (the mesh has {len(v)} vertices)")
+    return v, f
+
+
 @dataclasses.dataclass(frozen=True)
 class Mesh:
     vertices: np.ndarray
@@ -25,24 +50,9 @@ class Mesh:
         here; the builder leaves them out of the tree.
         """
         try:
-            v = np.asarray(vertices, dtype=np.float64)
-            f = np.asarray(faces)
-        except (TypeError, ValueError) as e:
-            raise MeshError(f"{name}: vertices and faces must be numeric arrays ({e})") from None
-        if v.ndim != 2 or v.shape[1] != 3:
-            raise MeshError(f"{name}: vertices must be an (n, 3) array, got shape {v.shape}")
-        if f.ndim != 2 or f.shape[1] != 3:
-            raise MeshError(f"{name}: faces must be an (m, 3) array of triangles, got shape {f.shape}")
-        if len(f) == 0:
-            raise MeshError(f"{name}: has no triangles")
-        if not np.issubdtype(f.dtype, np.integer):
-            if not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
-                raise MeshError(f"{name}: face indices must be integers")
-        f = f.astype(np.int64)
-        if f.min() < 0 or f.max() >= len(v):
-            bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
-            raise MeshError(f"{name}: face {bad} has a vertex index out of range "
-                            f"(the mesh has {len(v)} vertices)")
+            v, f = check_arrays(vertices, faces)
+        except MeshError as e:
+            raise MeshError(f"{name}: {e}") from None
         used = np.zeros(len(v), dtype=bool)
         used[f.ravel()] = True
         finite = np.isfinite(v).all(axis=1)

@@ -213,7 +213,7 @@ def test_origin_is_centre_of_the_used_vertices():
     (np.zeros((3, 3)), np.array([[0, 1, 2]]), "no triangles left"),
     (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2.0]]), np.array([[0, 1, 2]]), "no triangles left"),
     (np.full((3, 3), np.nan), np.array([[0, 1, 2]]), "no triangles left"),
-    (np.eye(3), np.zeros((0, 3), int), "no triangles left"),
+    (np.eye(3), np.zeros((0, 3), int), "has no triangles"),
     (np.eye(3), np.array([[0, 1, 3]]), "out of range"),
     (np.eye(3), np.array([[0, -1, 2]]), "out of range"),
     (np.eye(3)[:, :2], np.array([[0, 1, 2]]), "vertices must be"),

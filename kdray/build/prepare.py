@@ -17,6 +17,7 @@ import numpy as np
 
 from .. import layout
 from ..errors import MeshError
+from ..mesh import check_arrays
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,27 +31,10 @@ class Prepared:
 
 def prepare(vertices, faces):
     """Validate mesh arrays and make the kept float32 triangles; raises MeshError."""
-    try:
-        v = np.asarray(vertices, dtype=np.float64)
-        f = np.asarray(faces)
-    except (TypeError, ValueError) as e:
-        raise MeshError(f"vertices and faces must be numeric arrays ({e})") from None
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise MeshError(f"vertices must be an (n, 3) array, got shape {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise MeshError(f"faces must be an (m, 3) array of triangles, got shape {f.shape}")
+    v, f = check_arrays(vertices, faces)
     m = len(f)
-    if m == 0:
-        raise MeshError("no triangles left after removing degenerate ones (the mesh has no faces)")
     if m >= layout.MAX_NODES:
         raise MeshError(f"{m} triangles; a tree holds fewer than {layout.MAX_NODES}")
-    if not np.issubdtype(f.dtype, np.integer):
-        if not np.issubdtype(f.dtype, np.number) or not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
-            raise MeshError("face indices must be integers")
-    f = f.astype(np.int64)
-    if f.min() < 0 or f.max() >= len(v):
-        bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
-        raise MeshError(f"face {bad} has a vertex index out of range (the mesh has {len(v)} vertices)")
 
     # Origin: centre of the float64 box of the (finite) vertices the faces use.
     used = np.zeros(len(v), dtype=bool)
