@@ -74,3 +74,27 @@ def test_mesh_arrays_are_checked():
         Mesh.from_arrays(np.zeros((3, 3)), np.zeros((0, 3), int))
     with pytest.raises(MeshError, match=r"\(m, 3\)"):
         Mesh.from_arrays(np.zeros((4, 3)), [[0, 1, 2, 3]])
+
+
+def test_non_mesh_and_unreadable_files(tmp_path, monkeypatch):
+    junk = tmp_path / "junk.ply"
+    junk.write_bytes(bytes(np.random.default_rng(0).integers(0, 256, 4096).astype(np.uint8)))
+    with pytest.raises(MeshError, match="junk.ply"):
+        load(junk)
+    text = tmp_path / "notes.obj"
+    text.write_text("this is not a mesh\njust words\n")
+    with pytest.raises(MeshError, match="notes.obj.*no triangles"):
+        load(text)
+    png = tmp_path / "image.stl"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(200))
+    with pytest.raises(MeshError, match="image.stl"):
+        load(png)
+    with pytest.raises(MeshError, match="is a folder"):
+        load(tmp_path)
+    import os
+    secret = tmp_path / "secret.obj"
+    secret.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    real_access = os.access                     # root reads anything: pretend otherwise
+    monkeypatch.setattr(os, "access", lambda p, m: False if str(p) == str(secret) else real_access(p, m))
+    with pytest.raises(MeshError, match="permission denied"):
+        load(secret)
