@@ -50,12 +50,12 @@ def cubes(nx, ny, nz):
 
 
 def load_shared(name):
-    import trimesh
+    from kdray.load import load
     path = SHARED_MESHES / name
     if not path.exists():
         pytest.skip(f"shared mesh {path} is not present")
-    m = trimesh.load(path, force="mesh", process=False, skip_materials=True)
-    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+    m = load(path)
+    return m.vertices, m.faces
 
 
 def leaves(tree):

@@ -284,9 +284,14 @@ def test_watertight_closed_cad_mesh():
     tree = mesh_tree("fandisk.obj", "sah")
     solid = trimesh.Trimesh(v, f, process=False)
     assert solid.is_watertight
+    # a point inside: halfway between where a ray from outside enters and leaves
     lo, hi = solid.bounds
-    points = lo + np.random.default_rng(18).random((200, 3)) * (hi - lo)
-    inside = points[solid.contains(points)][0]
+    o = lo - 0.5 * (hi - lo)
+    d = 0.5 * (lo + hi) - o
+    enter = brute_force(v[f], o[None], d[None])
+    leave = brute_force(v[f], o[None], d[None], t_min=enter.t[0] * (1 + 1e-9))
+    assert enter.hit[0] and leave.hit[0]
+    inside = o + d * 0.5 * (enter.t[0] + leave.t[0])
     center = tree.triangles.reshape(-1, 3).astype(np.float64).mean(axis=0) + tree.origin
     o, d = vertex_and_edge_rays(tree, seed=19, offset=inside - center)
     for size in (1, None):
