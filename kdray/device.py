@@ -9,7 +9,7 @@ Programs are plain OpenCL C in the repository's `kernels/` folder, built with re
 state: a `Tracer` owns its context and queue and caches the programs it builds.
 pyopencl is imported inside the functions, so the rest of kdray imports without it.
 
-Build options never include -cl-fast-relaxed-math or -cl-finite-math-only: the
+Build options never relax IEEE arithmetic (no fast or finite-only math): the
 traversal relies on IEEE infinities, NaN and signed zeros. Where the device offers it,
 -cl-fp32-correctly-rounded-divide-sqrt makes single-precision division exact, so a
 device gives the same t, u, v as any other that rounds correctly.
