@@ -19,3 +19,11 @@ def shared_mesh(name):
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+def shared_mesh_arrays(name):
+    """(vertices (n,3) float64, faces (m,3) int64) of a shared mesh, loaded by kdray.load;
+    the test is skipped when ../shared/meshes is absent."""
+    from kdray.load import load
+    m = load(shared_mesh(name))
+    return m.vertices, m.faces

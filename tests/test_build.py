@@ -1,7 +1,6 @@
 """The SAH k-d tree builder: valid trees on many kinds of input (KdTree.validate),
 the same hits as the brute-force oracle, determinism, parameters, and the sweep's
 choice checked against a direct evaluation of every candidate plane."""
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +12,8 @@ from kdray.build.events import position_bits, position_value, sorted_root_events
 from kdray.build.sah import best_split
 from kdray.build.subdivide import MAX_REFS_PER_TRI
 from kdray.errors import MeshError
+from conftest import shared_mesh_arrays
 
-SHARED_MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
 
 # -- helpers ------------------------------------------------------------------------
@@ -49,13 +48,7 @@ def cubes(nx, ny, nz):
     return np.concatenate(vs), np.concatenate(fs)
 
 
-def load_shared(name):
-    from kdray.load import load
-    path = SHARED_MESHES / name
-    if not path.exists():
-        pytest.skip(f"shared mesh {path} is not present")
-    m = load(path)
-    return m.vertices, m.faces
+load_shared = shared_mesh_arrays
 
 
 def leaves(tree):

@@ -1,10 +1,8 @@
 """The command line: output, exit codes, one-line errors."""
-import numpy as np
-import pytest
 
 from kdray.cli import main
 from kdray.tree import KdTree
-from conftest import SCENES, shared_mesh
+from conftest import shared_mesh
 
 
 def run(capsys, *argv):

@@ -2,7 +2,6 @@
 shapes: a single leaf, median and random splits (tests/trees.py) and kdray.build's SAH
 trees. Hits must agree ray by ray; where they differ the difference must be a tie or a
 ray grazing an edge, checked in float64 on the triangles themselves."""
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,23 +9,17 @@ import pytest
 import trees
 from kdray import layout
 from kdray.errors import KdrayError
+from conftest import shared_mesh_arrays
 from kdray.reference import brute_force
 from kdray.trace import MISS, Tracer, default_stack_size
 
-MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
 RTOL_T = 1e-5           # relative t error against float64
 BARY_TOL = 1e-4         # how far outside a triangle (in barycentrics) a graze may be
 MAX_GRAZE = 0.002       # fraction of rays allowed to graze an edge differently
 
 
-def mesh(name):
-    path = MESHES / name
-    if not path.exists():
-        pytest.skip(f"shared mesh {path} is not present")
-    from kdray.load import load
-    m = load(path)
-    return m.vertices, m.faces
+mesh = shared_mesh_arrays
 
 
 def sah_tree(vertices, faces):
