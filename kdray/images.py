@@ -27,14 +27,13 @@ leaves a half-written file and never damages an existing one.
 """
 import concurrent.futures
 import os
-import secrets
 import struct
 import zlib
-from pathlib import Path
 
 import numpy as np
 
 from .errors import KdrayError, OutputError
+from .files import atomic_write, atomic_write_bytes
 
 AOVS = ("depth", "distance", "normal", "bary", "id", "position")
 """Every AOV a render can produce, in a fixed order."""
@@ -119,34 +118,6 @@ def _channel_arrays(images, path):
     if size[0] < 1 or size[1] < 1:
         raise OutputError(f"cannot write {path}: images have no pixels ({size[1]}x{size[0]}).")
     return channels, size
-
-
-# Atomic writes -------------------------------------------------------------------------
-
-
-def _atomic_write(path, write):
-    """Call write(tmp_path) for a fresh temporary file beside `path`, then rename it over
-    `path`. OSError -> OutputError naming `path`; the temporary file never survives."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
-    try:
-        # Created here (mode 0o666 less the umask) so the result has normal permissions.
-        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-        write(tmp)
-        os.replace(tmp, path)
-    except OSError as exc:
-        _remove(tmp)
-        raise OutputError(f"cannot write {path}: {exc.strerror or exc}.") from None
-    except BaseException:
-        _remove(tmp)
-        raise
-
-
-def _remove(path):
-    try:
-        os.unlink(path)
-    except OSError:
-        pass
 
 
 # OpenEXR encoding ----------------------------------------------------------------------
@@ -241,13 +212,7 @@ def write_exr(path, images):
     channels, (height, width) = _channel_arrays(images, path)
     data = _encode_exr(channels, width, height)
 
-    def write(tmp):
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-
-    _atomic_write(path, write)
+    atomic_write_bytes(path, data)
 
 
 def _oiio():
@@ -411,4 +376,4 @@ def write_preview(path, images):
         if not ok:
             raise OutputError(f"cannot write {path}: {out.geterror() or 'OpenImageIO failed'}.")
 
-    _atomic_write(path, write)
+    atomic_write(path, write)

@@ -44,7 +44,6 @@ Tree file, version 1 (all little-endian)::
 The version changes only when this layout does.
 """
 import hashlib
-import os
 import struct
 
 import numpy as np
@@ -202,20 +201,3 @@ def decode(data, name="tree file"):
         params=dict(K_T=K_T, K_I=K_I, empty_bonus=empty_bonus,
                     max_depth=int(max_depth), leaf_size=int(leaf_size)),
     )
-
-
-def write_atomic(path, data):
-    """Write bytes to `path` through a temporary file in the same folder and a
-    rename, so a crash or Ctrl-C never leaves a half-written file."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)

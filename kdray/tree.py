@@ -16,6 +16,7 @@ import os
 import numpy as np
 
 from . import layout
+from .files import atomic_write_bytes
 from .errors import TreeError, TreeFileError
 
 
@@ -81,7 +82,7 @@ class KdTree:
 
     def save(self, path):
         """Write the tree file atomically (temporary file + rename)."""
-        layout.write_atomic(path, self.to_bytes())
+        atomic_write_bytes(path, self.to_bytes())
 
     @classmethod
     def load(cls, path):

@@ -154,14 +154,14 @@ def test_device_choice(capsys, tmp_path, monkeypatch):
 
 def test_an_existing_tree_file_survives_a_failed_write(tmp_path, monkeypatch):
     from small_trees import two_leaf_tree
-    from kdray import layout
+    from kdray import files
     path = tmp_path / "t.kdt"
     two_leaf_tree().save(path)
     before = path.read_bytes()
 
     def fail(*args):
         raise KeyboardInterrupt
-    monkeypatch.setattr(layout.os, "fsync", fail)
+    monkeypatch.setattr(files.os, "fsync", fail)
     with pytest.raises(KeyboardInterrupt):
         two_leaf_tree().save(path)
     assert path.read_bytes() == before
