@@ -43,7 +43,10 @@ bench-deps: $(STAMP)
 bench-trace: bench-deps
 	$(BIN)/python bench/bench_trace.py
 
-bench: bench-build bench-trace
+# `kdray bench`: error against run time for kdray's settings, Open3D and embreex.
+bench: bench-deps
+	mkdir -p $(OUT)
+	$(BIN)/kdray bench --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
 
 # Regenerate the golden images on purpose (review the diff before committing).
 golden: $(STAMP)
