@@ -6,15 +6,23 @@
   ray's segment touches), so a tree that misses a triangle somewhere shows up.
 
 Both use the watertight test of Woop, Benthin & Wald 2013 in float64, the rule the
-kernels follow: a hit needs t_min < t < t_max (t > 0 strictly by default), a ray in
-the triangle's plane (det = 0) misses, zero-area triangles never hit, and of hits at
-equal t the lowest triangle index wins. t is in units of |direction|.
+kernels follow: a hit needs t_min < t < t_max (t > 0 strictly by default) and t above
+the bound on its own rounding error (pbrt-v4's, so a ray that starts on a surface never
+hits it at a rounded t just above 0); a ray in the triangle's plane (det = 0) misses;
+zero-area triangles never hit; of hits at equal t the lowest triangle index wins.
+t is in units of |direction|.
 """
 import dataclasses
 
 import numpy as np
 
 MISS = np.uint32(0xFFFFFFFF)
+
+
+def _gamma(n):
+    """Bound on n float64 roundings, n u / (1 - n u) with u = 2^-53 (pbrt's gamma)."""
+    u = 2.0 ** -53
+    return n * u / (1 - n * u)
 
 
 @dataclasses.dataclass
@@ -79,9 +87,22 @@ def intersect(tri, o, d, t_min, t_max):
         W = bx * ay - by * ax
         det = U + V + W
         inside = ~(((U < 0) | (V < 0) | (W < 0)) & ((U > 0) | (V > 0) | (W > 0)))
-        T = U * (sz * pz[:, 0]) + V * (sz * pz[:, 1]) + W * (sz * pz[:, 2])
+        zs = sz[:, None] * pz                   # scaled z of the three vertices
+        T = U * zs[:, 0] + V * zs[:, 1] + W * zs[:, 2]
         t = T / det
-        hit = inside & (det != 0) & (t > t_min) & (t < t_max) & np.isfinite(t)
+        # t must exceed the bound on its own float64 rounding error (as in the kernels,
+        # with float64's unit roundoff): a ray starting on a surface never hits it
+        max_z = np.abs(zs).max(axis=1)
+        max_x = np.abs(np.stack([ax, bx, cx])).max(axis=0)
+        max_y = np.abs(np.stack([ay, by, cy])).max(axis=0)
+        max_e = np.abs(np.stack([U, V, W])).max(axis=0)
+        delta_z = _gamma(3) * max_z
+        delta_x = _gamma(5) * (max_x + max_z)
+        delta_y = _gamma(5) * (max_y + max_z)
+        delta_e = 2 * (_gamma(2) * max_x * max_y + delta_y * max_x + delta_x * max_y)
+        delta_t = 3 * (_gamma(3) * max_e * max_z + delta_e * max_z + delta_z * max_e) / np.abs(det)
+        hit = (inside & (det != 0) & (t > t_min) & (t < t_max) & np.isfinite(t)
+               & (t > delta_t))
         u = np.where(hit, V / det, 0.0)
         v = np.where(hit, W / det, 0.0)
     return hit, np.where(hit, t, np.inf), u, v

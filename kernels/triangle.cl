@@ -10,7 +10,8 @@
  * function differently.
  *
  * Hit convention: P = (1 - u - v) v0 + u v1 + v v2, u = V / det, v = W / det,
- * t = T / det in units of |direction|; a hit needs t_min < t < t_best.
+ * t = T / det in units of |direction|; a hit needs t_min < t < t_best and t larger
+ * than the bound on its own rounding error (so t = 0 never counts, even rounded).
  */
 #ifndef KDRAY_TRIANGLE_CL
 #define KDRAY_TRIANGLE_CL
@@ -19,6 +20,9 @@
 #ifdef cl_khr_fp64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
+
+/* gamma(n) = n u / (1 - n u), u = 2^-24: the bound on n float32 roundings (pbrt). */
+#define KD_GAMMA(n) ((float)(n) * 0x1p-24f / (1.0f - (float)(n) * 0x1p-24f))
 
 /* Component k (0, 1, 2) of v, without indexing a private array. */
 float kd_comp(float3 v, uint k) { return k == 0u ? v.x : (k == 1u ? v.y : v.z); }
@@ -100,6 +104,23 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
 
     float t = T / det;
     if (!(t > t_min && t < t_best))      /* the division may round onto a bound */
+        return false;
+
+    /* t must exceed a conservative bound on its own rounding error (pbrt-v4, after
+     * Woop et al.), so a ray starting on a surface never hits that surface at a
+     * rounded t just above 0. Magnitudes of the sheared coordinates bound the error
+     * of each step: the shear (x, y, z), the edge functions (e), then T. */
+    float max_z = fmax(fabs(s->Sz * Az), fmax(fabs(s->Sz * Bz), fabs(s->Sz * Cz)));
+    float max_x = fmax(fabs(Ax), fmax(fabs(Bx), fabs(Cx)));
+    float max_y = fmax(fabs(Ay), fmax(fabs(By), fabs(Cy)));
+    float max_e = fmax(fabs(U), fmax(fabs(V), fabs(W)));
+    float delta_z = KD_GAMMA(3) * max_z;
+    float delta_x = KD_GAMMA(5) * (max_x + max_z);
+    float delta_y = KD_GAMMA(5) * (max_y + max_z);
+    float delta_e = 2.0f * (KD_GAMMA(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
+    float delta_t = 3.0f * (KD_GAMMA(3) * max_e * max_z + delta_e * max_z + delta_z * max_e)
+                    / det_abs;
+    if (!(t > delta_t))
         return false;
     *t_out = t;
     *u_out = V / det;
