@@ -92,13 +92,16 @@ def intersect(tri, o, d, t_min, t_max):
         t = T / det
         # t must exceed the bound on its own float64 rounding error (as in the kernels,
         # with float64's unit roundoff): a ray starting on a surface never hits it
-        max_z = np.abs(zs).max(axis=1)
+        # (the shear's error in x, y is in units of length: unscaled z; T's uses the
+        # scaled z, in units of t)
+        max_zu = np.abs(pz).max(axis=1)
+        max_z = np.abs(sz) * max_zu
         max_x = np.abs(np.stack([ax, bx, cx])).max(axis=0)
         max_y = np.abs(np.stack([ay, by, cy])).max(axis=0)
         max_e = np.abs(np.stack([U, V, W])).max(axis=0)
         delta_z = _gamma(3) * max_z
-        delta_x = _gamma(5) * (max_x + max_z)
-        delta_y = _gamma(5) * (max_y + max_z)
+        delta_x = _gamma(5) * (max_x + max_zu)
+        delta_y = _gamma(5) * (max_y + max_zu)
         delta_e = 2 * (_gamma(2) * max_x * max_y + delta_y * max_x + delta_x * max_y)
         delta_t = 3 * (_gamma(3) * max_e * max_z + delta_e * max_z + delta_z * max_e) / np.abs(det)
         hit = (inside & (det != 0) & (t > t_min) & (t < t_max) & np.isfinite(t)

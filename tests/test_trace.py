@@ -15,7 +15,7 @@ from kdray.trace import MISS, Tracer, default_stack_size
 
 
 RTOL_T = 1e-5           # relative t error against float64
-BARY_TOL = 1e-4         # how far outside a triangle (in barycentrics) a graze may be
+GRAZE_ULPS = 64         # how near an edge a graze passes: float32 ulps of the magnitudes involved
 MAX_GRAZE = 0.002       # fraction of rays allowed to graze an edge differently
 
 
@@ -95,6 +95,34 @@ def plane_hit(tri, o, d):
     return t, np.stack([1 - b1 - b2, b1, b2], axis=1)
 
 
+def edge_distance(tri, o, d):
+    """(k,) distance between each ray's line and the nearest edge of its triangle: how far
+    the ray must move to change whether it hits (independent of the angle it meets the
+    plane at). tri (k,3,3), o, d (k,3)."""
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    def perp(x):
+        return x - np.einsum("ij,ij->i", x, u)[:, None] * u
+    dist = np.full(len(o), np.inf)
+    for a, c in ((0, 1), (1, 2), (2, 0)):
+        wp, ep = perp(tri[:, a] - o), perp(tri[:, c] - tri[:, a])
+        ee = np.einsum("ij,ij->i", ep, ep)
+        s = np.clip(-np.einsum("ij,ij->i", wp, ep) / np.where(ee > 0, ee, 1.0), 0, 1)
+        dist = np.minimum(dist, np.linalg.norm(wp + s[:, None] * ep, axis=1))
+    return dist
+
+
+def graze_tolerance(tree, tri, o, d, t_p, frame):
+    """(k,) how near an edge a ray may pass and still be a float32 graze: GRAZE_ULPS float32
+    ulps of the largest coordinate involved (ray origin, hit point, vertices), measured in
+    the tree's frame. A barycentric tolerance would not do: at a grazing angle a rounding
+    of the ray moves the plane's hit point along the plane by 1/cos of the angle."""
+    shift = tree.origin if frame == "world" else 0.0
+    mags = [np.linalg.norm(o - shift, axis=1), np.linalg.norm(o + t_p[:, None] * d - shift, axis=1),
+            np.abs(tri - (shift if np.ndim(shift) == 0 else shift[None, None])).max(axis=(1, 2))]
+    return GRAZE_ULPS * 2.0 ** -24 * np.max(mags, axis=0)
+
+
 def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, frame="world"):
     """Assert that `hits` agree with the oracle; return the number of rays that hit."""
     t_ref, p_ref, u_ref, v_ref, world, o = reference(tree, o, d, t_min, t_max, frame)
@@ -130,25 +158,32 @@ def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, f
     # of the two grazes an edge and the other is the hit behind it
     diff = np.flatnonzero(hit & ref_hit & (ours != p_ref))
     n_diff_grazes = 0
+    def gap(prims, rays):
+        """(distance from the ray's line to the triangle, 0 when the line passes through it;
+        distance to its nearest edge; tolerance for a float32 graze; plane t)."""
+        tri = world[prims]
+        t_p, b = plane_hit(tri, o[rays], d[rays])
+        edge = edge_distance(tri, o[rays], d[rays])
+        outside = np.where(b.min(axis=1) >= 0, 0.0, edge)
+        return outside, edge, graze_tolerance(tree, tri, o[rays], d[rays], t_p, frame), t_p
+
     if len(diff):
-        t_p, b = plane_hit(world[ours[diff]], o[diff], d[diff])
-        assert np.all(b.min(axis=1) >= -BARY_TOL), "a different, non-touching triangle"
+        out_ours, edge_ours, tol, t_p = gap(ours[diff], diff)
+        assert np.all(out_ours <= tol), "a different, non-touching triangle"
         tie = np.isclose(t_p, t_ref[diff], rtol=RTOL_T)
-        _, b_ref = plane_hit(world[p_ref[diff]], o[diff], d[diff])
-        graze = np.where(t_p < t_ref[diff], np.abs(b.min(axis=1)) <= BARY_TOL,
-                         np.abs(b_ref.min(axis=1)) <= BARY_TOL)
+        _, edge_ref, tol_ref, _ = gap(p_ref[diff], diff)
+        graze = np.where(t_p < t_ref[diff], edge_ours <= tol, edge_ref <= tol_ref)
         assert np.all(tie | graze), "a different triangle at another t"
         n_diff_grazes = int(np.count_nonzero(~tie))
     # one hit, the other missed: only a ray grazing an edge
     only_ours = np.flatnonzero(hit & ~ref_hit)
     only_ref = np.flatnonzero(~hit & ref_hit)
     if len(only_ours):
-        _, b = plane_hit(world[ours[only_ours]], o[only_ours], d[only_ours])
-        assert np.all(np.abs(b.min(axis=1)) <= BARY_TOL), "hit where the oracle sees none"
+        _, edge, tol, _ = gap(ours[only_ours], only_ours)
+        assert np.all(edge <= tol), "hit where the oracle sees none"
     if len(only_ref):
-        _, b = plane_hit(world[p_ref[only_ref]], o[only_ref], d[only_ref])
-        assert np.all(np.abs(b.min(axis=1)) <= BARY_TOL), \
-            f"missed {len(only_ref)} rays the oracle hits squarely"
+        _, edge, tol, _ = gap(p_ref[only_ref], only_ref)
+        assert np.all(edge <= tol), f"missed {len(only_ref)} rays the oracle hits squarely"
     grazes = len(only_ours) + len(only_ref) + n_diff_grazes
     assert grazes <= max_graze * len(o) + 1, f"{grazes} grazing disagreements"
     return int(hit.sum())
