@@ -27,17 +27,7 @@ from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
 from kdray import reference  # noqa: E402
-
-
-def timed(fn, repeat):
-    """Median wall time of `repeat` calls after one warm-up call; returns (seconds, result)."""
-    result = fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), result
+from kdray.bench import embreex_hits, timed  # noqa: E402
 
 
 def accuracy(t, prim, ref_t, ref_prim, sample):
@@ -81,25 +71,10 @@ def open3d_runs(m, o, d, repeat):
 def embreex_runs(m, o, d, repeat):
     try:
         import embreex  # noqa: F401
-        import trimesh
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
     except ImportError as e:
         print(f"# embreex left out: {e}", flush=True)
         return []
-    t0 = time.perf_counter()
-    tm = trimesh.Trimesh(m.vertices, m.faces, process=False)
-    rmi = RayMeshIntersector(tm)
-    rmi.intersects_first(o[:1], d[:1])
-    build = time.perf_counter() - t0
-
-    def run():
-        tri, ray, loc = rmi.intersects_id(o, d, multiple_hits=False, return_locations=True)
-        t = np.full(len(o), np.inf)
-        prim = np.full(len(o), -1, dtype=np.int64)
-        t[ray] = np.einsum("ij,ij->i", loc - o[ray], d[ray]) / np.einsum("ij,ij->i", d[ray], d[ray])
-        prim[ray] = tri
-        return t, prim
-    s, (t, prim) = timed(run, max(1, repeat // 2))
+    build, s, t, prim, _ = embreex_hits(m, o, d, max(1, repeat // 2))
     return [("embreex", build, s, t, prim)]
 
 

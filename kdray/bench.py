@@ -1,7 +1,9 @@
 """`kdray bench`: error against run time, kdray's settings beside Open3D and embreex.
 
     rows, notes = run(scenes, size=(512, 512), repeat=5, sample=10000, settings=None)
-    print(format_table(rows)); write_csv(rows, "bench.csv"); plot(rows, "bench.png")
+    table = format_table(rows)
+    write_csv(rows, "bench.csv")
+    plot(rows, "bench.png")
 
 For each scene: the automatic framing camera (`Camera.frame`) gives W x H primary rays,
 the same rays for every setting. A setting is
@@ -184,7 +186,9 @@ def _kdray(setting, mesh, trees, o, d, repeat, device):
     return build_s, s, hits.t, prim, hits.normal
 
 
-def _open3d(mesh, o, d, repeat):
+def open3d_hits(mesh, o, d, repeat):
+    """Open3D's RaycastingScene, numpy rays to numpy hits (float32 world coordinates).
+    Returns (build s, median trace s, t, prim (-1 on a miss), normal)."""
     import open3d as o3d
     t0 = time.perf_counter()
     scene = o3d.t.geometry.RaycastingScene()
@@ -201,7 +205,9 @@ def _open3d(mesh, o, d, repeat):
     return build_s, s, t, np.where(hit, prim.astype(np.int64), -1), normal
 
 
-def _embreex(mesh, o, d, repeat):
+def embreex_hits(mesh, o, d, repeat):
+    """trimesh's embreex front end, numpy to numpy (hit points refined in float64 by
+    trimesh). Returns (build s, median trace s, t, prim (-1 on a miss), None)."""
     import trimesh
     from trimesh.ray.ray_pyembree import RayMeshIntersector
     t0 = time.perf_counter()
@@ -293,9 +299,9 @@ def run(scenes=None, size=(512, 512), repeat=5, sample=10000, settings=None, dev
                 if s.kind == "kdray":
                     b, t_s, t, prim, normal = _kdray(s, mesh, trees, o, d, repeat, device)
                 elif s.kind == "open3d":
-                    b, t_s, t, prim, normal = _open3d(mesh, o, d, repeat)
+                    b, t_s, t, prim, normal = open3d_hits(mesh, o, d, repeat)
                 else:
-                    b, t_s, t, prim, normal = _embreex(mesh, o, d, repeat)
+                    b, t_s, t, prim, normal = embreex_hits(mesh, o, d, repeat)
             t, prim = np.asarray(t)[idx], np.asarray(prim)[idx]
             if normal is None:                 # embreex: the float64 normal of its triangle
                 if tri_normal is None:

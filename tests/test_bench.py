@@ -5,21 +5,10 @@ import numpy as np
 import pytest
 
 from kdray import bench
-from kdray.cli import main
+from test_cli import run
 from conftest import SCENES
 
 SMALL = ["--size", "48x32", "--repeat", "1", "--sample", "300"]
-
-
-def run(capsys, *argv):
-    """Run `kdray argv...`; returns (exit code, stdout, stderr)."""
-    try:
-        main(list(map(str, argv)))
-        code = 0
-    except SystemExit as e:
-        code = e.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_bench_table_csv_plot(capsys, tmp_path):
