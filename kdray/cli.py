@@ -191,8 +191,8 @@ def devices():
 def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_file, aov,
            preview, tree_file, device, **kw):
     """Render SCENE's depth, normal, barycentric and id images to an EXR file."""
-    from .images import parse_aovs, write_exr, write_preview
-    from .trace import Tracer
+    from .images import write_exr, write_preview
+    from .trace import Tracer, parse_aovs
     from .tree import KdTree
     params = _build_kwargs(kw)
     aovs = parse_aovs(aov)

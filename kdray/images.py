@@ -34,11 +34,7 @@ import numpy as np
 
 from .errors import KdrayError, OutputError
 from .files import atomic_write, atomic_write_bytes
-
-AOVS = ("depth", "distance", "normal", "bary", "id", "position")
-"""Every AOV a render can produce, in a fixed order."""
-
-DEFAULT_AOVS = ("depth", "normal", "bary", "id")
+from .trace import AOVS, MISS
 
 CHANNELS = {
     "depth": ("Z",),
@@ -50,26 +46,8 @@ CHANNELS = {
 }
 """Each AOV's EXR channel names (the public contract)."""
 
-MISS_ID = 0xFFFFFFFF
-
 ZIP_LEVEL = 4
 """zlib level for EXR chunks (OpenEXR's own default)."""
-
-
-def parse_aovs(text):
-    """'depth,normal' -> ('depth', 'normal'). 'all' gives every AOV; duplicates are dropped.
-
-    Raises KdrayError naming the valid AOVs for an unknown or empty list.
-    """
-    names = [name.strip().lower() for name in str(text).split(",")]
-    names = [name for name in names if name]
-    if names == ["all"]:
-        return AOVS
-    unknown = [name for name in names if name not in AOVS]
-    if unknown or not names:
-        what = f"unknown AOV {', '.join(repr(n) for n in unknown)}" if unknown else "no AOV given"
-        raise KdrayError(f"{what}; valid AOVs are {', '.join(AOVS)} (or 'all').")
-    return tuple(dict.fromkeys(names))
 
 
 # Checking the images dict ----------------------------------------------------------
@@ -105,7 +83,7 @@ def _channel_arrays(images, path):
         if aov == "id":
             if array.dtype.kind not in "iu":
                 raise OutputError(f"cannot write {path}: id must be an integer array, got {array.dtype}.")
-            if array.size and (array.min() < 0 or array.max() > MISS_ID):
+            if array.size and (array.min() < 0 or array.max() > MISS):
                 raise OutputError(f"cannot write {path}: id values must fit in uint32.")
             channels.append(("id", array.astype("<u4")))
         else:
@@ -320,7 +298,7 @@ def _id_panel(ids):
     h ^= h >> np.uint32(13)
     rgb = np.stack([(h >> np.uint32(s)) & np.uint32(0xFF) for s in (0, 8, 16)], axis=-1)
     rgb = (48 + rgb * 207 // 255).astype(np.uint8)  # never near black
-    rgb[x == MISS_ID] = 0
+    rgb[x == MISS] = 0
     return rgb
 
 

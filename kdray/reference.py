@@ -16,9 +16,6 @@ import dataclasses
 
 import numpy as np
 
-MISS = np.uint32(0xFFFFFFFF)
-
-
 def _gamma(n):
     """Bound on n float64 roundings, n u / (1 - n u) with u = 2^-53 (pbrt's gamma)."""
     u = 2.0 ** -53

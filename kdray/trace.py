@@ -312,7 +312,7 @@ class Tracer:
         ray; normal (H, W, 3); bary (H, W, 2) u, v; id (H, W) uint32; position (H, W, 3)
         world hit point (NaN on a miss). Only what is asked is computed and stored.
         """
-        aovs = _check_aovs(aovs)
+        aovs = parse_aovs(aovs)
         w, h = int(camera.width), int(camera.height)
         if w < 1 or h < 1:
             raise KdrayError(f"camera size must be at least 1x1, got {w}x{h}")
@@ -397,17 +397,20 @@ def _check_host_memory(nbytes, what):
                          f"{have / 2**30:.1f} GiB are available: ask for a smaller image or fewer AOVs")
 
 
-def _check_aovs(aovs):
-    """Validated AOV names, duplicates dropped, in the order given."""
+def parse_aovs(aovs):
+    """Validated AOV names, in the order given, duplicates dropped.
+
+    aovs : a sequence of names, or one comma-separated string ('all' = every AOV).
+    Raises KdrayError naming the valid AOVs for an unknown name or an empty list.
+    """
     if isinstance(aovs, str):
-        aovs = [a for a in aovs.split(",")]
-    names = []
-    for a in aovs:
-        name = str(a).strip().lower()
-        if name not in AOVS:
-            raise KdrayError(f"unknown output {a!r}: choose from {', '.join(AOVS)}")
-        if name not in names:
-            names.append(name)
-    if not names:
-        raise KdrayError(f"no outputs asked for: choose from {', '.join(AOVS)}")
-    return tuple(names)
+        aovs = aovs.split(",")
+    names = [str(a).strip().lower() for a in aovs]
+    names = [n for n in names if n]
+    if names == ["all"]:
+        return AOVS
+    unknown = [n for n in names if n not in AOVS]
+    if unknown or not names:
+        what = f"unknown AOV {', '.join(repr(n) for n in unknown)}" if unknown else "no AOV given"
+        raise KdrayError(f"{what}; valid AOVs are {', '.join(AOVS)} (or 'all').")
+    return tuple(dict.fromkeys(names))

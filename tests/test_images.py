@@ -9,7 +9,8 @@ import pytest
 
 from kdray import images
 from kdray.errors import KdrayError, OutputError
-from kdray.images import AOVS, DEFAULT_AOVS, parse_aovs, read_exr, write_exr, write_preview
+from kdray.images import read_exr, write_exr, write_preview
+from kdray.trace import AOVS, DEFAULT_AOVS, parse_aovs
 
 SPECIAL_IDS = [0, 1, 2**24 + 1, 0xFFFFFFFE, 0xFFFFFFFF]
 CONTRACT_CHANNELS = {
