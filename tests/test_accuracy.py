@@ -25,7 +25,7 @@ from kdray.build import build
 from kdray.reference import brute_force, traverse
 from kdray.trace import MISS, Tracer
 from conftest import SCENES, shared_mesh
-from test_trace import check_hits, split_plane_rays, tracer
+from test_trace import assert_watertight, check_hits, split_plane_rays, tracer
 
 P99_REL = 1e-6          # issue 4: 99th percentile of the relative depth error
 
@@ -149,15 +149,7 @@ def test_watertight_tessellated_box():
     for center in centers:
         d = targets - center
         o = np.broadcast_to(center + tree.origin, d.shape)
-        base = None
-        for size in (1, None):
-            hits = tracer(tree, stack_size=size).trace(o, d)
-            leaks = np.count_nonzero(hits.prim == MISS)
-            assert leaks == 0, f"{leaks} of {len(d)} rays leaked (stack {size}, centre {center})"
-            assert np.allclose(hits.t, 1.0, atol=1e-5)
-            if base is None:
-                base = hits
-            assert np.array_equal(hits.prim, base.prim) and np.array_equal(hits.t, base.t)
+        base = assert_watertight(tree, o, d, (1, None), atol=1e-5, label=f"centre {center}")
         # the hit triangle touches the target (a triangle the vertex or edge belongs to)
         tri = v[f][base.prim.astype(np.int64)] - tree.origin
         p = center + base.t.astype(np.float64)[:, None] * d
@@ -179,10 +171,7 @@ def test_watertight_scene_sphere():
         center = np.asarray(center) - tree.origin
         d = targets - center
         o = np.broadcast_to(center + tree.origin, d.shape)
-        for size in (1, None):
-            hits = tracer(tree, stack_size=size).trace(o, d)
-            assert np.count_nonzero(hits.prim == MISS) == 0, (center, size)
-            assert np.allclose(hits.t, 1.0, atol=1e-5)
+        assert_watertight(tree, o, d, (1, None), atol=1e-5, label=f"centre {center}")
 
 
 # -- 2. far from the origin ----------------------------------------------------------------

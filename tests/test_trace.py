@@ -293,15 +293,22 @@ def test_watertight(kind):
     tree = TREE_KINDS[kind](v, f)
     for offset in [(0.0, 0.0, 0.0), (0.013, -0.021, 0.007)]:
         o, d = vertex_and_edge_rays(tree, seed=17, offset=offset)
-        base = None
-        for size in (1, 2, None):
-            hits = tracer(tree, stack_size=size).trace(o, d)
-            leaks = np.count_nonzero(hits.prim == MISS)
-            assert leaks == 0, f"{leaks} of {len(d)} rays leaked (stack {size}, offset {offset})"
-            assert np.allclose(hits.t, 1.0, atol=1e-4)
-            if base is None:
-                base = hits
-            assert np.array_equal(hits.prim, base.prim) and np.array_equal(hits.t, base.t)
+        assert_watertight(tree, o, d, (1, 2, None), atol=1e-4, label=f"offset {offset}")
+
+
+def assert_watertight(tree, o, d, stack_sizes, atol, label=""):
+    """Rays aimed at points of a closed surface with |d| = distance: for every stack size,
+    no ray leaks, t = 1 within atol, and the results are identical. Returns the hits."""
+    base = None
+    for size in stack_sizes:
+        hits = tracer(tree, stack_size=size).trace(o, d)
+        leaks = np.count_nonzero(hits.prim == MISS)
+        assert leaks == 0, f"{leaks} of {len(d)} rays leaked (stack {size}, {label})"
+        assert np.allclose(hits.t, 1.0, atol=atol)
+        if base is None:
+            base = hits
+        assert np.array_equal(hits.prim, base.prim) and np.array_equal(hits.t, base.t)
+    return base
 
 
 def test_watertight_closed_cad_mesh():
