@@ -24,6 +24,16 @@ RIGHT = 1
 """...or to the above (right) child."""
 
 
+@njit(cache=True, inline="always")
+def sah_cost(p_left, p_right, n_left, n_right, K_T, K_I, empty_bonus):
+    """C = lambda (K_T + K_I (P_L N_L + P_R N_R)), lambda = empty_bonus when a side
+    holds no triangles (W&H; P_L, P_R relative to the node's surface area)."""
+    c = K_T + K_I * (p_left * n_left + p_right * n_right)
+    if n_left == 0 or n_right == 0:
+        c *= empty_bonus
+    return c
+
+
 @njit(cache=True)
 def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus):
     """Sweep the node's three sorted event runs.
@@ -81,17 +91,13 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus):
                 p_right = cap + (hi - x) * perim
                 # planar triangles on the left
                 n_l = n_left + p_planar
-                c = K_T + K_I * (p_left * n_l + p_right * n_right)
-                if n_l == 0 or n_right == 0:
-                    c *= empty_bonus
+                c = sah_cost(p_left, p_right, n_l, n_right, K_T, K_I, empty_bonus)
                 if c < best_cost:
                     best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), LEFT
                     best_left, best_right = n_l, n_right
                 if p_planar > 0:                    # ... and on the right
                     n_r = n_right + p_planar
-                    c = K_T + K_I * (p_left * n_left + p_right * n_r)
-                    if n_left == 0 or n_r == 0:
-                        c *= empty_bonus
+                    c = sah_cost(p_left, p_right, n_left, n_r, K_T, K_I, empty_bonus)
                     if c < best_cost:
                         best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), RIGHT
                         best_left, best_right = n_left, n_r
