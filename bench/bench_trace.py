@@ -27,7 +27,7 @@ from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
 from kdray import reference  # noqa: E402
-from kdray.bench import embreex_hits, timed  # noqa: E402
+from kdray.bench import embreex_hits, open3d_cast, open3d_scene, timed  # noqa: E402
 
 
 def accuracy(t, prim, ref_t, ref_prim, sample):
@@ -51,20 +51,10 @@ def open3d_runs(m, o, d, repeat):
     except ImportError as e:
         print(f"# open3d left out: {e}", flush=True)
         return []
-    t0 = time.perf_counter()
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(m.vertices.astype(np.float32)),
-                        o3d.core.Tensor(m.faces.astype(np.uint32)))
-    scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))   # builds the BVH
-    build = time.perf_counter() - t0
+    scene, build = open3d_scene(m)
     rays = o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32))
-    cast_s, res = timed(lambda: scene.cast_rays(rays), repeat)
-
-    def numpy_to_numpy():
-        r = scene.cast_rays(o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32)))
-        return r["t_hit"].numpy(), r["primitive_ids"].numpy()
-    np_s, (t, prim) = timed(numpy_to_numpy, repeat)
-    prim = np.where(np.isfinite(t), prim.astype(np.int64), -1)
+    cast_s, _ = timed(lambda: scene.cast_rays(rays), repeat)
+    np_s, (t, prim, _) = timed(lambda: open3d_cast(scene, o, d), repeat)
     return [("open3d cast", build, cast_s, t, prim), ("open3d numpy", build, np_s, t, prim)]
 
 

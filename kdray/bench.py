@@ -186,23 +186,33 @@ def _kdray(setting, mesh, trees, o, d, repeat, device):
     return build_s, s, hits.t, prim, hits.normal
 
 
-def open3d_hits(mesh, o, d, repeat):
-    """Open3D's RaycastingScene, numpy rays to numpy hits (float32 world coordinates).
-    Returns (build s, median trace s, t, prim (-1 on a miss), normal)."""
+def open3d_scene(mesh):
+    """Open3D's RaycastingScene of a mesh in float32 world coordinates, its BVH built
+    (Open3D builds lazily, at the first cast). Returns (scene, build seconds)."""
     import open3d as o3d
     t0 = time.perf_counter()
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
                         o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-    scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))   # builds the BVH (lazy)
-    build_s = time.perf_counter() - t0
+    scene.cast_rays(o3d.core.Tensor(np.zeros((1, 6), np.float32)))
+    return scene, time.perf_counter() - t0
 
-    def run():
-        r = scene.cast_rays(o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32)))
-        return r["t_hit"].numpy(), r["primitive_ids"].numpy(), r["primitive_normals"].numpy()
-    s, (t, prim, normal) = timed(run, repeat)
-    hit = np.isfinite(t)
-    return build_s, s, t, np.where(hit, prim.astype(np.int64), -1), normal
+
+def open3d_cast(scene, o, d):
+    """numpy rays -> Open3D -> numpy (t, prim with -1 on a miss, normal)."""
+    import open3d as o3d
+    r = scene.cast_rays(o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32)))
+    t = r["t_hit"].numpy()
+    prim = np.where(np.isfinite(t), r["primitive_ids"].numpy().astype(np.int64), -1)
+    return t, prim, r["primitive_normals"].numpy()
+
+
+def open3d_hits(mesh, o, d, repeat):
+    """Open3D's RaycastingScene, numpy rays to numpy hits (float32 world coordinates).
+    Returns (build s, median trace s, t, prim (-1 on a miss), normal)."""
+    scene, build_s = open3d_scene(mesh)
+    s, (t, prim, normal) = timed(lambda: open3d_cast(scene, o, d), repeat)
+    return build_s, s, t, prim, normal
 
 
 def embreex_hits(mesh, o, d, repeat):
