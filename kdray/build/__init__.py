@@ -32,14 +32,18 @@ __all__ = ["build"]
 log = logging.getLogger(__name__)
 
 
-def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, leaf_size=1):
+def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, leaf_size=1,
+          origin=None):
     """Build a KdTree over a triangle mesh.
 
     vertices : (n, 3) float-like (read as float64);  faces : (m, 3) int.
     K_T, K_I : SAH costs of a traversal step and of a triangle test (W&H Table 1);
     empty_bonus : lambda in (0, 1], the cost factor of a split with an empty side;
     max_depth : deepest leaf, 0 = round(8 + 1.3 log2 n) capped at 64 (pbrt);
-    leaf_size : nodes with at most this many triangles become leaves.
+    leaf_size : nodes with at most this many triangles become leaves;
+    origin : None (centre of the box of the vertices the faces use) or (3,) float64:
+        the point the float32 triangles are stored relative to. A tree over part of a
+        mesh built with the whole mesh's origin stores the same float32 triangles.
 
     Triangles with a non-finite coordinate or a zero float32 cross product are left
     out (`tri_ids` maps kept triangles to input rows). Raises MeshError for bad arrays
@@ -58,7 +62,7 @@ def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, 
     if params.leaf_size < 0:
         raise ParameterError(f"leaf_size must be >= 0, got {leaf_size}")
 
-    mesh = prepare(vertices, faces)
+    mesh = prepare(vertices, faces, origin)
     params = params.resolved(len(mesh.triangles))
     keys, counts = sorted_root_events(mesh.triangles)
     nodes, leaf_tris, depth = subdivide(

@@ -29,8 +29,13 @@ class Prepared:
     n_input_tris: int
 
 
-def prepare(vertices, faces):
-    """Validate mesh arrays and make the kept float32 triangles; raises MeshError."""
+def prepare(vertices, faces, origin=None):
+    """Validate mesh arrays and make the kept float32 triangles; raises MeshError.
+
+    origin : None (the centre of the used vertices' box) or a (3,) float64 to use
+        instead, so that a subset of a mesh keeps the float32 coordinates it has in
+        the whole mesh.
+    """
     v, f = check_arrays(vertices, faces)
     m = len(f)
     if m >= layout.MAX_NODES:
@@ -42,8 +47,13 @@ def prepare(vertices, faces):
     used &= np.isfinite(v).all(axis=1)
     if not used.any():
         raise MeshError("no triangles left after removing degenerate ones (no finite vertex)")
-    pts = v[used]
-    origin = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    if origin is None:
+        pts = v[used]
+        origin = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    else:
+        origin = np.asarray(origin, dtype=np.float64)
+        if origin.shape != (3,) or not np.isfinite(origin).all():
+            raise MeshError(f"origin must be 3 finite numbers, got {origin!r}")
 
     with np.errstate(over="ignore", invalid="ignore"):
         tri = (v[f] - origin).astype(np.float32)
