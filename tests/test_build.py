@@ -2,6 +2,8 @@
 the same hits as the brute-force oracle, determinism, parameters, and the sweep's
 choice checked against a direct evaluation of every candidate plane."""
 
+import importlib
+
 import numpy as np
 import pytest
 
@@ -285,8 +287,22 @@ def test_parameters_change_the_tree():
     assert len(big_leaves.nodes) < len(base.nodes)
 
 
+@pytest.mark.parametrize("task_depth", [1, 3, 6])
+def test_threads_give_the_same_tree(monkeypatch, task_depth):
+    # Subtrees built as tasks on threads and spliced in == the one-thread build.
+    subdivide = importlib.import_module("kdray.build.subdivide")   # kdray.build is the function
+    v, f = load_shared("fandisk.obj")
+    one = build(v, f, threads=1)
+    monkeypatch.setattr(subdivide, "MIN_PARALLEL_TRIS", 0)
+    monkeypatch.setattr(subdivide, "TASK_DEPTH", task_depth)
+    many = build(v, f, threads=3)
+    assert many.to_bytes() == one.to_bytes()
+    assert many.depth == one.depth
+
+
 @pytest.mark.parametrize("kw", [dict(K_T=0), dict(K_I=-1), dict(empty_bonus=0), dict(empty_bonus=1.5),
-                                dict(max_depth=-1), dict(leaf_size=-1), dict(K_T=float("nan"))])
+                                dict(max_depth=-1), dict(leaf_size=-1), dict(K_T=float("nan")),
+                                dict(threads=0)])
 def test_bad_parameters_raise(kw):
     with pytest.raises(ValueError):
         build(np.eye(3), np.array([[0, 1, 2]]), **kw)

@@ -8,16 +8,17 @@ Pipeline (one module each): `prepare` (mesh arrays -> float32 triangles relative
 an origin, degenerate ones left out), `events` (one sort of the root's events),
 `sah` (the sweep that picks a plane), `classify` + `clip` (splitting the sorted
 events between the children, re-clipping straddlers), `subdivide` (the depth-first
-loop with an explicit stack).
+loop with an explicit stack; subtrees below the top levels are built on threads).
 
 The build is a pure function: no I/O, no globals; the same input gives identical
-arrays. The numba kernels are cached on disk (`__pycache__`); the first call in a
-fresh checkout compiles them (about 20 s on 2 cores). numba checks a cached function
-against its own file only: after editing one of these modules, delete
+arrays, whatever the number of threads. The numba kernels are cached on disk
+(`__pycache__`); the first call in a fresh checkout compiles them (about 20 s on 2
+cores). numba checks a cached function against its own file only: after editing one of these modules, delete
 `kdray/build/__pycache__/*.nb[ic]` so that the functions calling it are rebuilt too.
 """
 import logging
 import math
+import os
 
 import numpy as np
 
@@ -25,7 +26,7 @@ from ..errors import ParameterError
 from ..tree import BuildParams, KdTree
 from .events import sorted_root_events
 from .prepare import prepare
-from .subdivide import subdivide
+from .subdivide import build_nodes
 
 __all__ = ["build"]
 
@@ -33,7 +34,7 @@ log = logging.getLogger(__name__)
 
 
 def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, leaf_size=1,
-          origin=None):
+          origin=None, threads=None):
     """Build a KdTree over a triangle mesh.
 
     vertices : (n, 3) float-like (read as float64);  faces : (m, 3) int.
@@ -43,7 +44,9 @@ def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, 
     leaf_size : nodes with at most this many triangles become leaves;
     origin : None (centre of the box of the vertices the faces use) or (3,) float64:
         the point the float32 triangles are stored relative to. A tree over part of a
-        mesh built with the whole mesh's origin stores the same float32 triangles.
+        mesh built with the whole mesh's origin stores the same float32 triangles;
+    threads : None (the CPUs this process may run on) or the number of threads that
+        build subtrees; the tree is the same for any number.
 
     Triangles with a non-finite coordinate or a zero float32 cross product are left
     out (`tri_ids` maps kept triangles to input rows). Raises MeshError for bad arrays
@@ -62,12 +65,18 @@ def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, 
     if params.leaf_size < 0:
         raise ParameterError(f"leaf_size must be >= 0, got {leaf_size}")
 
+    if threads is None:
+        threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if int(threads) < 1:
+        raise ParameterError(f"threads must be >= 1 (or None), got {threads}")
+
     mesh = prepare(vertices, faces, origin)
     params = params.resolved(len(mesh.triangles))
     keys, counts = sorted_root_events(mesh.triangles)
-    nodes, leaf_tris, depth = subdivide(
+    nodes, leaf_tris, depth = build_nodes(
         mesh.triangles, keys, counts, mesh.bounds.astype(np.float64),
-        params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size)
+        params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size,
+        threads=int(threads))
     del keys
     log.debug("built %d nodes, %d leaf references over %d triangles (%d input)",
               len(nodes), len(leaf_tris), len(mesh.triangles), mesh.n_input_tris)

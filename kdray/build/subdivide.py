@@ -7,8 +7,16 @@ them; the left child is processed next and so becomes node i + 1 (depth-first,
 pbrt layout), the right child waits on the stack with the index of the parent whose
 `above_child` it fills in when it is emitted.
 
-Numba-compiled (`cache=True`; the first call compiles).
+Parallel build (`build_nodes`): the top TASK_DEPTH levels are built first, the
+nodes below them are handed back as tasks (their sorted events, box, depth, budget);
+the tasks' subtrees are built on threads (`subdivide` releases the GIL) and spliced
+into the placeholders (`splice`). A node's subtree depends only on its events, box,
+depth and budget, so the tree is the same, byte for byte, for any number of threads.
+
+`subdivide` is numba-compiled (`cache=True`; the first call compiles).
 """
+import concurrent.futures
+
 import numpy as np
 from numba import njit
 
@@ -26,6 +34,14 @@ never lists more than max_refs_per_tri * n triangles. SAH alone does not bound t
 in a flat node (all triangles in one plane) P_L + P_R = 1, duplicating a triangle is
 free, and overlapping coplanar triangles double at every level down to max_depth."""
 
+TASK_DEPTH = 3
+"""Depth of the nodes built as separate tasks: up to 2**3 = 8 subtrees, enough to keep
+a few threads busy when the subtrees differ in size."""
+
+MIN_PARALLEL_TRIS = 20000
+"""Meshes with fewer triangles are built on one thread (a build of that size takes a
+few hundredths of a second)."""
+
 _LEAF = np.uint32(3)
 _U2 = np.uint32(2)
 
@@ -41,17 +57,24 @@ def _grow(a, used, need):
     return b
 
 
-@njit(cache=True)
-def subdivide(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_size,
-              max_refs_per_tri=MAX_REFS_PER_TRI):
-    """Build the tree's nodes from the root's sorted events.
+@njit(cache=True, nogil=True)
+def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty_bonus,
+              max_depth, leaf_size, task_depth):
+    """Build the nodes of the subtree of one node from its sorted events.
 
-    tri : (m, 3, 3) float32;  keys, counts : from `events.sorted_root_events`;
-    bounds : (2, 3) float64 root box (float32 values);  max_depth : resolved;
-    max_refs_per_tri : the reference budget (see MAX_REFS_PER_TRI).
-    Returns (nodes (n, 2) uint32, leaf_tris (r,) uint32, depth of the deepest leaf).
+    tri : (m, 3, 3) float32;  keys (e,) uint64, counts (3,) int64 : the node's sorted
+    event runs (the root's from `events.sorted_root_events`);  n_tris : its triangles;
+    bounds : (2, 3) float64 its box (float32 values);  depth0 : its depth;  budget0 :
+    its reference budget (the root's max_refs_per_tri * m, see MAX_REFS_PER_TRI);
+    max_depth : resolved;  task_depth : nodes at this depth (> depth0) are not built
+    but handed back as tasks (a placeholder node stands in for each), -1 = none.
+    Returns (nodes (n, 2) uint32, leaf_tris (r,) uint32, depth of the deepest leaf,
+    tasks), node and leaf indices counted from this subtree's root; tasks is
+    (node (k,) int64 placeholder index, keys (E,) uint64 and key_start (k + 1,) int64
+    their events, counts (k, 3) int64, n (k,) int64, box (k, 2, 3) float64,
+    depth (k,) int64, budget (k,) float64), in node order.
     """
-    m = tri.shape[0]
+    m = n_tris
     total = len(keys)
     buf = np.empty(max(2 * total, 64), dtype=np.uint64)
     buf[:total] = keys
@@ -71,10 +94,20 @@ def subdivide(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_
     for c in range(3):
         st_box[0, 0, c] = bounds[0, c]
         st_box[0, 1, c] = bounds[1, c]
-    st_depth[0] = 0
+    st_depth[0] = depth0
     st_parent[0] = -1
-    st_budget[0] = max_refs_per_tri * m
+    st_budget[0] = budget0
     top = 1
+
+    task_node = np.empty(16, dtype=np.int64)
+    task_keys = np.empty(16, dtype=np.uint64)
+    task_start = np.zeros(17, dtype=np.int64)
+    task_counts = np.empty((16, 3), dtype=np.int64)
+    task_n = np.empty(16, dtype=np.int64)
+    task_box = np.empty((16, 2, 3), dtype=np.float64)
+    task_depth_of = np.empty(16, dtype=np.int64)
+    task_budget = np.empty(16, dtype=np.float64)
+    n_tasks = 0
 
     nodes = np.empty((max(16, 2 * m), 2), dtype=np.uint32)
     n_nodes = 0
@@ -84,8 +117,8 @@ def subdivide(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_
 
     # Scratch, grown on demand.
     poly = polygon_scratch()
-    side = np.zeros(m, dtype=np.int8)
-    strad = np.empty(m, dtype=np.int64)
+    side = np.zeros(tri.shape[0], dtype=np.int8)
+    strad = np.empty(max(m, 1), dtype=np.int64)
     left = np.empty(16, dtype=np.uint64)
     right = np.empty(16, dtype=np.uint64)
     new_left = np.empty(16, dtype=np.uint64)
@@ -120,6 +153,31 @@ def subdivide(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_
         n_nodes += 1
         if parent >= 0:
             nodes[parent, 0] |= np.uint32(idx) << _U2
+
+        if depth == task_depth:
+            # A task: copy its events out, leave a placeholder node.
+            node_total = node_counts[0] + node_counts[1] + node_counts[2]
+            k = n_tasks
+            task_node = _grow(task_node, k, k + 1)
+            task_start = _grow(task_start, k + 1, k + 2)
+            task_counts = _grow(task_counts, k, k + 1)
+            task_n = _grow(task_n, k, k + 1)
+            task_box = _grow(task_box, k, k + 1)
+            task_depth_of = _grow(task_depth_of, k, k + 1)
+            task_budget = _grow(task_budget, k, k + 1)
+            task_keys = _grow(task_keys, task_start[k], task_start[k] + node_total)
+            task_keys[task_start[k]:task_start[k] + node_total] = buf[off:off + node_total]
+            task_start[k + 1] = task_start[k] + node_total
+            task_node[k] = idx
+            task_counts[k] = node_counts
+            task_n[k] = n
+            task_box[k] = box
+            task_depth_of[k] = depth
+            task_budget[k] = budget
+            n_tasks += 1
+            nodes[idx, 0] = _LEAF
+            nodes[idx, 1] = 0
+            continue
 
         axis = -1
         if n > leaf_size and depth < max_depth:
@@ -207,4 +265,85 @@ def subdivide(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_
         st_budget[top] = budget * n_below / (n_below + n_above)
         top += 1
 
-    return nodes[:n_nodes].copy(), leaf_tris[:n_refs].copy(), deepest
+    tasks = (task_node[:n_tasks].copy(), task_keys[:task_start[n_tasks]].copy(),
+             task_start[:n_tasks + 1].copy(), task_counts[:n_tasks].copy(), task_n[:n_tasks].copy(),
+             task_box[:n_tasks].copy(), task_depth_of[:n_tasks].copy(), task_budget[:n_tasks].copy())
+    return nodes[:n_nodes].copy(), leaf_tris[:n_refs].copy(), deepest, tasks
+
+
+def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_size,
+                threads=1, max_refs_per_tri=MAX_REFS_PER_TRI):
+    """The tree's nodes from the root's sorted events, on `threads` threads.
+
+    tri : (m, 3, 3) float32;  keys, counts : from `events.sorted_root_events`;
+    bounds : (2, 3) float64 root box (float32 values);  max_depth : resolved.
+    Returns (nodes (n, 2) uint32, leaf_tris (r,) uint32, depth of the deepest leaf),
+    the same for any `threads`.
+    """
+    m = tri.shape[0]
+    args = (K_T, K_I, empty_bonus, max_depth, leaf_size)
+    budget = max_refs_per_tri * m
+    if threads <= 1 or m < MIN_PARALLEL_TRIS or max_depth <= TASK_DEPTH:
+        nodes, leaf_tris, depth, _ = subdivide(tri, keys, counts, m, bounds, 0, budget, *args, -1)
+        return nodes, leaf_tris, depth
+    nodes, leaf_tris, depth, tasks = subdivide(tri, keys, counts, m, bounds, 0, budget, *args,
+                                               TASK_DEPTH)
+    node, task_keys, key_start, task_counts, task_n, task_box, task_depth, task_budget = tasks
+    del keys, tasks
+
+    def run(k):
+        return subdivide(tri, task_keys[key_start[k]:key_start[k + 1]], task_counts[k],
+                         task_n[k], task_box[k], task_depth[k], task_budget[k], *args, -1)[:3]
+
+    # Largest first, so that the last task to finish is a small one.
+    order = np.argsort(-np.diff(key_start), kind="stable")
+    with concurrent.futures.ThreadPoolExecutor(threads) as pool:
+        futures = {k: pool.submit(run, k) for k in order}
+        subtrees = [futures[k].result() for k in range(len(node))]
+    depth = max([depth] + [d for _, _, d in subtrees])
+    nodes, leaf_tris = splice(nodes, leaf_tris, node, [s[0] for s in subtrees],
+                              [s[1] for s in subtrees])
+    return nodes, leaf_tris, depth
+
+
+def splice(nodes, leaf_tris, node, sub_nodes, sub_leaf_tris):
+    """Put subtrees in place of placeholder nodes, renumbering nodes and leaf offsets.
+
+    nodes : (n, 2) uint32, leaf_tris (r,) uint32 : the top of the tree;  node : (k,)
+    int64 increasing, the placeholders;  sub_nodes[j] (n_j, 2) uint32, sub_leaf_tris[j]
+    (r_j,) uint32 : the subtree of placeholder node[j], indices from its root.
+    Returns (nodes, leaf_tris) as the depth-first build of the whole tree lays them out.
+    """
+    size = np.array([len(a) for a in sub_nodes], dtype=np.int64)
+    refs = np.array([len(a) for a in sub_leaf_tris], dtype=np.int64)
+    idx = np.arange(len(nodes))
+    before = np.searchsorted(node, idx)                     # placeholders before node i
+    node_shift = np.r_[0, np.cumsum(size - 1)]
+    ref_shift = np.r_[0, np.cumsum(refs)]
+    new_index = idx + node_shift[before]
+    leaf = (nodes[:, 0] & _LEAF) == _LEAF
+    # The top's leaf references before each placeholder (the top's leaves are in node order).
+    top_count = np.where(leaf, nodes[:, 0] >> _U2, 0).astype(np.int64)
+    top_refs_before = np.r_[0, np.cumsum(top_count)][node]
+
+    out = np.empty((len(nodes) + int(size.sum()) - len(node), 2), dtype=np.uint32)
+    top = nodes.copy()
+    interior = ~leaf
+    above = (top[interior, 0] >> _U2).astype(np.int64)
+    top[interior, 0] = (top[interior, 0] & _LEAF) | (new_index[above] << 2).astype(np.uint32)
+    top[leaf, 1] += ref_shift[before[leaf]].astype(np.uint32)
+    keep = np.ones(len(nodes), dtype=bool)
+    keep[node] = False
+    out[new_index[keep]] = top[keep]
+    pieces = []
+    for j, (sub, sub_refs) in enumerate(zip(sub_nodes, sub_leaf_tris)):
+        base = new_index[node[j]]
+        sub = sub.copy()
+        sub_leaf = (sub[:, 0] & _LEAF) == _LEAF
+        sub[~sub_leaf, 0] += np.uint32(base << 2)
+        sub[sub_leaf, 1] += np.uint32(top_refs_before[j] + ref_shift[j])
+        out[base:base + len(sub)] = sub
+        start = top_refs_before[j - 1] if j > 0 else 0
+        pieces += [leaf_tris[start:top_refs_before[j]], sub_refs]
+    pieces.append(leaf_tris[top_refs_before[-1] if len(node) else 0:])
+    return out, np.concatenate(pieces)
