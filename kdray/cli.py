@@ -91,13 +91,47 @@ class Steps:
         log.info("%s", ", ".join(f"{k} {v:.3f} s" for k, v in self.seconds.items()))
 
 
-def _build_mesh(mesh, path, params):
-    """Build the tree of a loaded mesh; mesh errors name the file."""
-    from .build import build as build_tree
+def _build_mesh(mesh, path, params, builder=None, *args):
+    """builder(vertices, faces, *args, **params) (default kdray.build.build) on a loaded
+    mesh; mesh errors name the file."""
+    if builder is None:
+        from .build import build as builder
     try:
-        return build_tree(mesh.vertices, mesh.faces, **params)
+        return builder(mesh.vertices, mesh.faces, *args, **params)
     except MeshError as e:
         raise MeshError(f"{path}: {e}") from None
+
+
+KERNEL_OUTPUTS = ("T", "UV", "NORMAL", "ID")
+"""The kernels' outputs (-D OUT_<name>), as kdray.trace names them."""
+
+
+def kernel_outputs(aovs):
+    """The kernel outputs `Tracer.render` compiles in for `aovs`: depth, distance and
+    position need T, bary UV, normal NORMAL, id ID (kdray.trace.Tracer.render)."""
+    need = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "normal": "NORMAL",
+            "id": "ID"}
+    wanted = {need[a] for a in aovs}
+    return tuple(name for name in KERNEL_OUTPUTS if name in wanted)
+
+
+def _log_left_out(tree, tracer, n_culled, from_file, outputs):
+    """-v: what the render left out: triangles, kernel outputs, stack entries."""
+    from .trace import default_stack_size
+    n_input, n_kept = tree.n_input_tris, len(tree.tri_ids)
+    if from_file:
+        log.info("the tree holds %d of %d input triangles (the others are degenerate, or were "
+                 "left out when it was built)", n_kept, n_input)
+    else:
+        culled = n_culled or 0
+        log.info("triangles left out as degenerate: %d of %d", n_input - n_kept - culled, n_input)
+        if n_culled is not None:
+            log.info("triangles left out by --cull (outside the view): %d of %d; %d in the tree",
+                     culled, n_input, n_kept)
+    skipped = [name for name in KERNEL_OUTPUTS if name not in outputs]
+    log.info("kernel outputs: %s; not computed: %s", ", ".join(outputs), ", ".join(skipped) or "none")
+    log.info("stack size: %d entries (tree depth %d; default %d)", tracer.stack_size, tree.depth,
+             default_stack_size(tree))
 
 
 def _print_stats(stats, seconds=None):
@@ -187,10 +221,13 @@ def devices():
 @click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
               help="Render from this dumped tree instead of building one.")
 @click.option("--device", default=None, help="OpenCL device, PYOPENCL_CTX syntax (e.g. 0:0).")
+@click.option("--cull", is_flag=True,
+              help="Build the tree of only the triangles the camera can see (same images).")
 @build_options
 def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_file, aov,
-           preview, tree_file, device, **kw):
+           preview, tree_file, device, cull, **kw):
     """Render SCENE's depth, normal, barycentric and id images to an EXR file."""
+    from .camera import Camera
     from .images import write_exr, write_preview
     from .trace import Tracer, parse_aovs
     from .tree import KdTree
@@ -205,21 +242,41 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
     _check_folder(output)
     if preview:
         _check_folder(preview)
+    if cull and tree_file:
+        raise click.UsageError("--cull applies when building the tree; it cannot be combined with --tree")
     step = Steps()
+    n_culled = None
     if tree_file:
         with step("loading the tree"):
             tree = KdTree.load(tree_file)
+        camera = _camera(lambda: _tree_box(tree), width, height, eye, target, up, fov,
+                         intrinsics, pose, camera_file)
     else:
         from .load import load
         with step("loading"):
             mesh = load(scene)
-        with step(f"building the tree of {len(mesh.faces):,} triangles"):
-            tree = _build_mesh(mesh, scene, params)
-    camera = _camera(tree, width, height, eye, target, up, fov, intrinsics, pose, camera_file)
+        if cull:
+            from .cull import build_for_camera, scene_box
+            camera = _camera(lambda: _build_mesh(mesh, scene, {}, scene_box), width, height, eye,
+                             target, up, fov, intrinsics, pose, camera_file)
+            with step(f"building the tree of the visible part of {len(mesh.faces):,} triangles"):
+                tree, n_culled = _build_mesh(mesh, scene, params, build_for_camera, camera)
+        else:
+            with step(f"building the tree of {len(mesh.faces):,} triangles"):
+                tree = _build_mesh(mesh, scene, params)
+            camera = _camera(lambda: _tree_box(tree), width, height, eye, target, up, fov,
+                             intrinsics, pose, camera_file)
     with step("setting up the device"):
         tracer = Tracer(tree, device=device)
+    outputs = kernel_outputs(aovs)
+    with step("compiling the kernels"):
+        # build the program, then launch it on one pixel: PoCL compiles a kernel again
+        # at its first launch (per work-group size), which belongs here, not to tracing
+        tracer.program(outputs)
+        tracer.render(Camera(1, 1, camera.K, camera.cam_to_world), aovs=aovs)
     with step(f"tracing {width}x{height} rays"):
         images = tracer.render(camera, aovs=aovs)
+    _log_left_out(tree, tracer, n_culled, from_file=bool(tree_file), outputs=outputs)
     with step("writing"):
         write_exr(output, images)
         if preview:
@@ -275,8 +332,9 @@ def bench(scenes, size, repeat, sample, settings, plot_file, csv_file, device, o
         click.echo(f"kdray: note: {note}" if note else f"kdray: wrote {plot_file}", err=True)
 
 
-def _camera(tree, width, height, eye, target, up, fov, intrinsics, pose, camera_file):
-    """Choose the camera from the options: JSON file, intrinsics + pose, look-at, or framing."""
+def _camera(box, width, height, eye, target, up, fov, intrinsics, pose, camera_file):
+    """Choose the camera from the options: JSON file, intrinsics + pose, look-at, or
+    framing the box that `box()` returns ((lo, hi) float64 world, asked only then)."""
     from .camera import Camera, pose_from_file
     if camera_file:
         if eye or target or intrinsics or pose:
@@ -290,13 +348,18 @@ def _camera(tree, width, height, eye, target, up, fov, intrinsics, pose, camera_
         fx, fy, cx, cy = intrinsics
         K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], dtype=np.float64)
         return Camera.from_intrinsics(K, pose_from_file(pose), width, height)
-    lo = tree.origin + tree.bounds[0].astype(np.float64)
-    hi = tree.origin + tree.bounds[1].astype(np.float64)
     if eye or target:
         if not (eye and target):
             raise click.UsageError("--eye and --target go together")
         return Camera.look_at(eye, target, up, fov, width, height)
+    lo, hi = box()
     return Camera.frame(lo, hi, width, height, fov_deg=fov)
+
+
+def _tree_box(tree):
+    """(lo, hi) (3,) float64 world box of a tree's triangles."""
+    return (tree.origin + tree.bounds[0].astype(np.float64),
+            tree.origin + tree.bounds[1].astype(np.float64))
 
 
 def _same_file(a, b):
