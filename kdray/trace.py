@@ -82,8 +82,22 @@ def default_stack_size(tree):
     return int(min(max(int(tree.depth) + 1, 1), MAX_DEPTH_LIMIT))
 
 
-def default_work_sizes(device):
-    """(local_size, batch_size, groups) for a device.
+PACKET = 8
+"""Rays per work-item in packet mode (float8 lanes, kernels/packet.cl)."""
+
+
+def default_packet(device):
+    """Rays per work-item: PACKET on CPU devices, 1 on others.
+
+    PoCL runs a work-item's traversal loop scalar (a data-dependent loop does not
+    vectorize across work-items), so on a CPU 8 coherent rays share one work-item in
+    float8 lanes. A GPU already runs work-items in lock-step (SIMT): one ray each.
+    """
+    return PACKET if _device.is_cpu(device) else 1
+
+
+def default_work_sizes(device, packet=1):
+    """(local_size, batch_size, groups) for a device and rays per work-item.
 
     CPU (PoCL): a work-group runs on one thread, its work-items one after another, and
     a traversal loop does not vectorize across them; small groups keep the per-group
@@ -94,9 +108,9 @@ def default_work_sizes(device):
     cu = max(int(device.max_compute_units), 1)
     if _device.is_cpu(device):
         local = 8
-        return local, 8 * local, 4 * cu
+        return local, 8 * local * packet, 4 * cu
     local = min(64, int(device.max_work_group_size))
-    return local, 4 * local, 16 * cu
+    return local, 4 * local * packet, 16 * cu
 
 
 class Tracer:
@@ -106,13 +120,15 @@ class Tracer:
     device : None (prefer a GPU, else the CPU) or a PYOPENCL_CTX-style string "0:1"
     stack_size : short-stack entries (1..64); default `default_stack_size(tree)`.
         Results do not depend on it; smaller stacks restart more often.
+    packet : rays per work-item, 1 or PACKET (8: float8 packets); default
+        `default_packet(device)`: 8 on CPUs, 1 on GPUs. Results do not depend on it.
     local_size, batch_size, groups : work-group size, rays a group takes at a time
-        (a multiple of local_size) and work-groups launched; defaults per device kind
-        (`default_work_sizes`).
+        (a multiple of local_size * packet) and work-groups launched; defaults per
+        device kind (`default_work_sizes`).
     """
 
     def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
-                 groups=None):
+                 groups=None, packet=None):
         cl = _device._cl()
         if stack_size is None:
             stack_size = default_stack_size(tree)
@@ -123,17 +139,21 @@ class Tracer:
         self.stack_size = int(stack_size)
         self.context, self.device = _device.create_context(device)
         self.queue = cl.CommandQueue(self.context)
-        d_local, d_batch, d_groups = default_work_sizes(self.device)
+        self.packet = int(default_packet(self.device) if packet is None else packet)
+        if self.packet not in (1, PACKET):
+            raise KdrayError(f"packet must be 1 or {PACKET}, got {packet!r}")
+        d_local, d_batch, d_groups = default_work_sizes(self.device, self.packet)
         self.local_size = int(local_size or d_local)
-        # default batch: the device's, rounded up to a multiple of the local size
-        self.batch_size = int(batch_size or -(-d_batch // self.local_size) * self.local_size)
+        # default batch: the device's, rounded up to a multiple of a round's rays
+        per_round = self.local_size * self.packet
+        self.batch_size = int(batch_size or -(-d_batch // per_round) * per_round)
         self.groups = int(groups or d_groups)
         if self.local_size < 1 or self.local_size > self.device.max_work_group_size:
             raise KdrayError(f"local_size {self.local_size} is not in 1..{self.device.max_work_group_size} "
                              f"on {self.device.name.strip()}")
-        if self.batch_size % self.local_size or self.groups < 1:
+        if self.batch_size % per_round or self.groups < 1:
             raise KdrayError(f"batch_size ({self.batch_size}) must be a multiple of local_size "
-                             f"({self.local_size}) and groups ({self.groups}) at least 1")
+                             f"x packet ({per_round}) and groups ({self.groups}) at least 1")
         self._programs = {}
         self._poison_outputs = False
         self._upload(tree)
@@ -185,6 +205,9 @@ class Tracer:
         with its kernels: {"program": Program, "trace_rays": Kernel, ...}."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
                    "BATCH_SIZE": self.batch_size}
+        if self.packet > 1:
+            defines["PACKET"] = None
+            defines["PACKET_STACK_SIZE"] = default_stack_size(self.tree)
         for name in outputs:
             defines[f"OUT_{name}"] = None
         if stats:

@@ -10,8 +10,9 @@
  * same number of times, which OpenCL guarantees on every device (PoCL runs a group's
  * work-items one after another between barriers).
  *
- * Options (-D): LOCAL_SIZE (work-group size, required), BATCH_SIZE (a multiple of it),
- * STACK_SIZE (see traverse.cl); outputs, each only when asked: OUT_T (t, +inf on a
+ * Options (-D): LOCAL_SIZE (work-group size, required), BATCH_SIZE (a multiple of it,
+ * times 8 with PACKET), STACK_SIZE (see traverse.cl); PACKET: each work-item traces 8
+ * consecutive rays as a float8 packet (packet.cl; for CPU devices), else one ray; outputs, each only when asked: OUT_T (t, +inf on a
  * miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on a miss),
  * OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
  * Output buffers that are not compiled in may be passed as NULL.
@@ -20,6 +21,9 @@
 #include "layout.h"
 #include "triangle.cl"
 #include "traverse.cl"
+#ifdef PACKET
+#include "packet.cl"
+#endif
 
 #ifndef LOCAL_SIZE
 #define LOCAL_SIZE 64
@@ -44,38 +48,70 @@
 #define KD_TREE_PASS nodes, leaf_tris, tris, tri_ids, bmin, bmax, n_nodes
 #define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
 
-/* Trace ray k and write its outputs: only those compiled in. */
-void trace_and_store(uint k, float3 o, float3 d, float t_min, float t_max,
-                     KD_TREE_PARAMS, KD_OUTPUT_ARGS)
+/* Write ray k's outputs: only those compiled in. */
+void store_hit(uint k, const Hit *hit, __global const float *tris, __global const uint *tri_ids,
+               KD_OUTPUT_ARGS)
 {
-    Hit hit;
-#ifdef STATS
-    uint4 stats = (uint4)(0u);
-    bool found = trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o, d, t_min, t_max, &hit,
-                           &stats);
-    vstore4(stats, k, out_stats);
-#else
-    bool found = trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o, d, t_min, t_max, &hit);
-#endif
+    bool found = hit->tri != KD_NO_HIT;
 #ifdef OUT_T
-    out_t[k] = found ? hit.t : INFINITY;
+    out_t[k] = found ? hit->t : INFINITY;
 #endif
 #ifdef OUT_UV
-    vstore2(found ? (float2)(hit.u, hit.v) : (float2)(0.0f, 0.0f), k, out_uv);
+    vstore2(found ? (float2)(hit->u, hit->v) : (float2)(0.0f, 0.0f), k, out_uv);
 #endif
 #ifdef OUT_NORMAL
     float3 normal = (float3)(0.0f, 0.0f, 0.0f);
     if (found) {
-        __global const float *p = tris + 9 * (size_t)hit.tri;
+        __global const float *p = tris + 9 * (size_t)hit->tri;
         float3 p0 = vload3(0, p);
         normal = normalize(cross(vload3(1, p) - p0, vload3(2, p) - p0));
     }
     vstore3(normal, k, out_normal);
 #endif
 #ifdef OUT_ID
-    out_id[k] = found ? tri_ids[hit.tri] : KD_NO_HIT;
+    out_id[k] = found ? tri_ids[hit->tri] : KD_NO_HIT;
 #endif
 }
+
+#ifdef PACKET
+/* Trace rays k0 .. k0 + count - 1 (count <= KD_PACKET) as one packet and store them. */
+void trace_and_store(uint k0, uint count, const float3 *o, const float3 *d, float t_min,
+                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS)
+{
+    Hit hits[KD_PACKET];
+#ifdef STATS
+    uint4 stats[KD_PACKET];
+    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, count, o, d, t_min, t_max, hits,
+                 stats);
+#else
+    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, count, o, d, t_min, t_max, hits);
+#endif
+    for (uint l = 0; l < count; l++) {
+#ifdef STATS
+        vstore4(stats[l], k0 + l, out_stats);
+#endif
+        store_hit(k0 + l, &hits[l], tris, tri_ids, KD_OUTPUT_PASS);
+    }
+}
+#define KD_RAYS_PER_ITEM KD_PACKET
+#else
+/* Trace ray k0 (count = 1) and store it. */
+void trace_and_store(uint k0, uint count, const float3 *o, const float3 *d, float t_min,
+                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS)
+{
+    Hit hit;
+#ifdef STATS
+    uint4 stats = (uint4)(0u);
+    trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o[0], d[0], t_min, t_max, &hit,
+              &stats);
+    vstore4(stats, k0, out_stats);
+#else
+    trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o[0], d[0], t_min, t_max, &hit);
+#endif
+    store_hit(k0, &hit, tris, tri_ids, KD_OUTPUT_PASS);
+}
+#define KD_RAYS_PER_ITEM 1
+#endif
 
 /* The first ray of the group's next batch. Work-item 0 takes BATCH_SIZE rays from the
  * global counter; every work-item of the group must call this the same number of
@@ -104,12 +140,18 @@ void trace_rays(KD_TREE_ARGS,
         uint start = fetch_batch(&batch, counter);
         if (start >= n_rays)             /* the same for the whole group */
             break;
-        for (uint j = get_local_id(0); j < BATCH_SIZE; j += LOCAL_SIZE) {
-            uint k = start + j;
-            if (k >= n_rays)
+        for (uint j = get_local_id(0) * KD_RAYS_PER_ITEM; j < BATCH_SIZE;
+             j += LOCAL_SIZE * KD_RAYS_PER_ITEM) {
+            uint k0 = start + j;
+            if (k0 >= n_rays)
                 break;
-            trace_and_store(k, vload3(k, origins), vload3(k, directions), t_min, t_max,
-                            KD_TREE_PASS, KD_OUTPUT_PASS);
+            uint count = min((uint)KD_RAYS_PER_ITEM, n_rays - k0);
+            float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
+            for (uint l = 0; l < count; l++) {
+                o[l] = vload3(k0 + l, origins);
+                d[l] = vload3(k0 + l, directions);
+            }
+            trace_and_store(k0, count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS);
         }
     }
 }
@@ -135,17 +177,23 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
         uint start = fetch_batch(&batch, counter);
         if (start >= n_pixels)           /* the same for the whole group */
             break;
-        for (uint j = get_local_id(0); j < BATCH_SIZE; j += LOCAL_SIZE) {
-            uint k = start + j;
-            if (k >= n_pixels)
+        for (uint j = get_local_id(0) * KD_RAYS_PER_ITEM; j < BATCH_SIZE;
+             j += LOCAL_SIZE * KD_RAYS_PER_ITEM) {
+            uint k0 = start + j;
+            if (k0 >= n_pixels)
                 break;
-            uint pixel = pixel_offset + k;
-            float x = (float)(pixel % width) + 0.5f;
-            float y = (float)(pixel / width) + 0.5f;
-            float3 dir = (float3)(m0.x * x + m0.y * y + m0.z,
-                                  m1.x * x + m1.y * y + m1.z,
-                                  m2.x * x + m2.y * y + m2.z);
-            trace_and_store(k, eye, dir, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS);
+            uint count = min((uint)KD_RAYS_PER_ITEM, n_pixels - k0);
+            float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
+            for (uint l = 0; l < count; l++) {
+                uint pixel = pixel_offset + k0 + l;
+                float x = (float)(pixel % width) + 0.5f;
+                float y = (float)(pixel / width) + 0.5f;
+                o[l] = eye;
+                d[l] = (float3)(m0.x * x + m0.y * y + m0.z,
+                                m1.x * x + m1.y * y + m1.z,
+                                m2.x * x + m2.y * y + m2.z);
+            }
+            trace_and_store(k0, count, o, d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS);
         }
     }
 }

@@ -57,24 +57,26 @@ bool kd_slab(float o, float d, float lo, float hi, float *t0, float *t1)
         return o >= lo && o <= hi;
     float ta = (lo - o) / d;
     float tb = (hi - o) / d;
-    *t0 = fmax(*t0, fmin(ta, tb));
-    *t1 = fmin(*t1, fmax(ta, tb));
+    *t0 = kd_max(*t0, kd_min(ta, tb));   /* no NaN: d != 0, o and the box finite */
+    *t1 = kd_min(*t1, kd_max(ta, tb));
     return true;
 }
 
-/* Test every triangle of a leaf, keeping the nearest hit with t_min < t < hit->t. */
+/* Test every triangle of a leaf, keeping the first hit with t_min < t < t_max in the
+ * order (t, triangle index). */
 void kd_intersect_leaf(KdNode leaf, __global const uint *leaf_tris, __global const float *tris,
-                       const RayShear *shear, float3 o, float t_min, Hit *hit KD_STATS_PARAM)
+                       const RayShear *shear, float3 o, float t_min, float t_max,
+                       Hit *hit KD_STATS_PARAM)
 {
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
     for (uint i = 0; i < count; i++) {
         uint tri = leaf_tris[first + i];
-        __global const float *p = tris + 9 * (size_t)tri;
         float t, u, v;
         KD_STAT(z);
-        if (intersect_triangle(shear, o, vload3(0, p), vload3(1, p), vload3(2, p),
-                               t_min, hit->t, &t, &u, &v)) {
+        if (intersect_triangle(shear, o, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
+                               kd_vertex(tris, tri, 2), tri,
+                               t_min, t_max, hit->t, hit->tri, &t, &u, &v)) {
             hit->t = t;
             hit->u = u;
             hit->v = v;
@@ -91,6 +93,15 @@ void kd_intersect_leaf(KdNode leaf, __global const uint *leaf_tris, __global con
  * around the vertex, whichever way each t rounded. */
 #define KD_T_SLACK 9.5367431640625e-07f
 
+/* A leaf's hit is final when it is before the leaf's exit by more than the slack:
+ * every leaf after it in the order starts at a plane crossed at t_exit or later (as
+ * rounded, within the slack), so it cannot hold a nearer hit, nor one as near with a
+ * lower index (a hit exactly on the plane is looked for on the other side too). */
+bool kd_hit_final(float t_hit, float t_exit)
+{
+    return t_hit < t_exit * (1.0f - KD_T_SLACK);
+}
+
 /* One front-to-back traversal of [t_enter, t_exit]. `side` picks the child of an
  * in-plane node (bit axis: 0 below, 1 above); the axes met in-plane are or-ed into
  * *in_plane. Returns when the nearest hit is certain or every leaf has been visited.
@@ -98,7 +109,7 @@ void kd_intersect_leaf(KdNode leaf, __global const uint *leaf_tris, __global con
  * per restart), so that a corrupt tree cannot hang the device. */
 void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, __global const uint *leaf_tris,
                       __global const float *tris, const RayShear *shear,
-                      float3 o, float3 d, float t_min, float t_enter, float t_exit,
+                      float3 o, float3 d, float t_min, float t_max, float t_enter, float t_exit,
                       uint side, uint *in_plane, Hit *hit KD_STATS_PARAM)
 {
     uint stack_node[STACK_SIZE];
@@ -143,7 +154,7 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, __global co
             float t_lo = t_min_cur * (1.0f - KD_T_SLACK);
             float t_hi = t_max_cur * (1.0f + KD_T_SLACK);
 
-            if (isnan(t_split)) {
+            if (kd_isnan(t_split)) {
                 /* The ray lies in the split plane: this pass's side */
                 *in_plane |= 1u << axis;
                 node = ((side >> axis) & 1u) ? above : below;
@@ -152,7 +163,7 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, __global co
             } else if (t_split < t_lo) {
                 node = second;
             } else {
-                float t_mid = clamp(t_split, t_min_cur, t_max_cur);
+                float t_mid = kd_clamp(t_split, t_min_cur, t_max_cur);
                 bool last_in_below = last_leaf < above;
                 if (resuming && last_in_below != below_first) {
                     /* last_leaf is in the second child: the first one is done */
@@ -186,9 +197,9 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, __global co
         } else {
             /* Leaf: test its triangles; a hit at or before the leaf's exit is final */
             KD_STAT(y);
-            kd_intersect_leaf(n, leaf_tris, tris, shear, o, t_min, hit KD_STATS_ARG);
+            kd_intersect_leaf(n, leaf_tris, tris, shear, o, t_min, t_max, hit KD_STATS_ARG);
             last_leaf = node;
-            if (hit->t <= t_max_cur)
+            if (kd_hit_final(hit->t, t_max_cur))
                 break;
         }
 
@@ -227,7 +238,7 @@ bool trace_ray(__global const KdNode *nodes, uint n_nodes, __global const uint *
     hit->u = 0.0f;
     hit->v = 0.0f;
     hit->tri = KD_NO_HIT;
-    if (!(all(isfinite(o)) && all(isfinite(d))) || (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f))
+    if (!(kd_finite3(o) && kd_finite3(d)) || (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f))
         return false;
 
     /* Compute the ray's parametric range inside the scene box, clipped to [t_min, t_max] */
@@ -245,7 +256,7 @@ bool trace_ray(__global const KdNode *nodes, uint n_nodes, __global const uint *
     uint done = 1u;                      /* passes run, one bit per side mask */
     uint side = 0;
     for (;;) {
-        kd_traverse_pass(nodes, 2u * n_nodes + 2u, leaf_tris, tris, &shear, o, d, t_min,
+        kd_traverse_pass(nodes, 2u * n_nodes + 2u, leaf_tris, tris, &shear, o, d, t_min, t_max,
                          t_enter, t_exit, side, &in_plane, hit KD_STATS_ARG);
         /* Next side mask made only of in-plane axes, not yet run */
         side = 0;

@@ -10,13 +10,18 @@
  * function differently.
  *
  * Hit convention: P = (1 - u - v) v0 + u v1 + v v2, u = V / det, v = W / det,
- * t = T / det in units of |direction|; a hit needs t_min < t < t_best and t larger
- * than the bound on its own rounding error (so t = 0 never counts, even rounded).
+ * t = T / det in units of |direction|; a hit needs t_min < t < t_max, t larger than
+ * the bound on its own rounding error (so t = 0 never counts, even rounded), and
+ * (t, tri) before the best hit so far in the order "smaller t, then lower triangle
+ * index" (kd_before). Whether a triangle is hit therefore depends on the ray and the
+ * triangle alone, and the nearest hit does not depend on the order triangles are
+ * tested in: a packet, a scalar traversal and a tree over fewer triangles agree.
  */
 #ifndef KDRAY_TRIANGLE_CL
 #define KDRAY_TRIANGLE_CL
 
 #pragma OPENCL FP_CONTRACT OFF
+#include "ops.h"
 #ifdef cl_khr_fp64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
@@ -93,10 +98,18 @@ bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, fl
 }
 #endif
 
-/* Intersect the ray (o, shear) with triangle (p0, p1, p2), all relative to the tree's
- * origin. On a hit with t_min < t < t_best, write t, u, v and return true. */
-bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2,
-                        float t_min, float t_best, float *t_out, float *u_out, float *v_out)
+/* (t, tri) comes before (t_best, tri_best): nearer, or as near with a lower index. */
+bool kd_before(float t, uint tri, float t_best, uint tri_best)
+{
+    return t < t_best || (t == t_best && tri < tri_best);
+}
+
+/* Intersect the ray (o, shear) with triangle `tri` (p0, p1, p2), all relative to the
+ * tree's origin. On a hit with t_min < t < t_max that comes before (t_best,
+ * tri_best), write t, u, v and return true. */
+bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2, uint tri,
+                        float t_min, float t_max, float t_best, uint tri_best,
+                        float *t_out, float *u_out, float *v_out)
 {
     /* Vertices relative to the ray origin */
     float3 A = p0 - o;
@@ -134,15 +147,12 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     if (det == 0.0f)
         return false;
 
-    /* Scaled hit distance, compared with det instead of dividing */
+    /* Hit distance; compared after the division only, so that the decision is one
+     * rounding of T / det whatever the best hit so far is */
     float T = U * (s->Sz * Az) + V * (s->Sz * Bz) + W * (s->Sz * Cz);
-    float T_abs = det < 0.0f ? -T : T;
-    float det_abs = fabs(det);
-    if (!(T_abs > t_min * det_abs && T_abs < t_best * det_abs))
-        return false;
-
+    float det_abs = kd_abs(det);
     float t = T / det;
-    if (!(t > t_min && t < t_best))      /* the division may round onto a bound */
+    if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best)))
         return false;
 
     /* t must exceed a conservative bound on its own rounding error (pbrt-v4, after
@@ -151,11 +161,11 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
      * of each step: the shear (x, y, with |Sx|, |Sy| <= 1 times the unscaled z, in
      * units of length), the edge functions (e), then T (scaled z, in units of t).
      * pbrt adds the scaled z to x and y, which is only right for |d| near 1. */
-    float max_zu = fmax(fabs(Az), fmax(fabs(Bz), fabs(Cz)));
-    float max_z = fabs(s->Sz) * max_zu;
-    float max_x = fmax(fabs(Ax), fmax(fabs(Bx), fabs(Cx)));
-    float max_y = fmax(fabs(Ay), fmax(fabs(By), fabs(Cy)));
-    float max_e = fmax(fabs(U), fmax(fabs(V), fabs(W)));
+    float max_zu = kd_max(kd_abs(Az), kd_max(kd_abs(Bz), kd_abs(Cz)));
+    float max_z = kd_abs(s->Sz) * max_zu;
+    float max_x = kd_max(kd_abs(Ax), kd_max(kd_abs(Bx), kd_abs(Cx)));
+    float max_y = kd_max(kd_abs(Ay), kd_max(kd_abs(By), kd_abs(Cy)));
+    float max_e = kd_max(kd_abs(U), kd_max(kd_abs(V), kd_abs(W)));
     float delta_z = KD_GAMMA(3) * max_z;
     float delta_x = KD_GAMMA(5) * (max_x + max_zu);
     float delta_y = KD_GAMMA(5) * (max_y + max_zu);

@@ -371,8 +371,10 @@ def test_work_sizes_do_not_change_results():
     tree = mesh_tree("teapot.obj", "sah")
     o, d = random_rays(tree, 20_011, seed=8)
     base = tracer(tree).trace(o, d)
-    for local, batch, groups in [(1, 1, 1), (4, 12, 3), (16, 64, 5), (64, 64, 2)]:
-        other = Tracer(tree, local_size=local, batch_size=batch, groups=groups).trace(o, d)
+    for packet, local, batch, groups in [(1, 1, 1, 1), (1, 4, 12, 3), (1, 64, 64, 2),
+                                         (8, 1, 8, 1), (8, 4, 96, 3), (8, 16, 128, 5)]:
+        other = Tracer(tree, packet=packet, local_size=local, batch_size=batch,
+                       groups=groups).trace(o, d)
         assert np.array_equal(other.prim, base.prim)
         assert np.array_equal(other.t, base.t)
 
@@ -401,8 +403,8 @@ def test_stack_size_does_not_change_results(kind):
     o, d = np.concatenate([o, o2, o3[pick]]), np.concatenate([d, d2, d3[pick]])
     results = {}
     for size in (1, 2, 4, 32):
-        hits, stats = tracer(tree, stack_size=size)._trace(o, d, stats=True,
-                                                           t_min=surface_t_min(tree))
+        hits, stats = tracer(tree, stack_size=size, packet=1)._trace(o, d, stats=True,
+                                                                     t_min=surface_t_min(tree))
         results[size] = (hits, stats)
     restarts = {size: int(stats[:, 3].sum()) for size, (_, stats) in results.items()}
     assert restarts[1] > restarts[2] > restarts[4] > 0
@@ -415,6 +417,63 @@ def test_stack_size_does_not_change_results(kind):
                 (size, field)
     n = len(d) - len(pick)              # rays aimed at vertices: see test_watertight
     check_hits(base[:n], tree, o[:n], d[:n], t_min=surface_t_min(tree), frame="tree")
+
+
+def packet_rays(tree, camera_size=67):
+    """Every kind of ray the packet kernel must agree on, (origins, directions): a
+    camera's (coherent, one origin), random ones (each lane its own origin and
+    direction), rays in split planes, at vertices and edges, axis-parallel with signed
+    zeros, and invalid ones (NaN, inf, zero direction) mixed in."""
+    lo, hi = tree.origin + tree.bounds.astype(np.float64)
+    from kdray import Camera
+    cam = Camera.frame(lo, hi, camera_size, camera_size - 6)
+    o1, d1 = cam.rays()
+    o2, d2 = random_rays(tree, 3001, seed=21, inside=0.5)
+    o3, d3 = split_plane_rays(tree, 500, seed=22)
+    o4, d4 = vertex_and_edge_rays(tree, seed=23)
+    o5, d5 = axis_rays(tree, 700, seed=24)
+    o = np.concatenate([o1, o2, o3, o4[:3000], o5])
+    d = np.concatenate([d1, d2, d3, d4[:3000], d5]).astype(np.float64)
+    bad = np.random.default_rng(25).choice(len(d), 40, replace=False)
+    d[bad[:10], 0] = np.nan
+    d[bad[10:20]] = 0.0
+    o[bad[20:30], 1] = np.inf
+    d[bad[30:], 2] = -np.inf
+    return o, d
+
+
+@pytest.mark.parametrize("kind", ["median", "sah"])
+def test_packets_equal_single_rays(kind):
+    """Packets of 8 rays in float8 lanes (CPU default) give bit for bit what one ray per
+    work-item gives, for coherent and incoherent rays, rays the packet hands to the
+    scalar kernel (split planes, diverging origins) and invalid rays; also with t_min
+    and t_max, for a camera render, and with a packet count that leaves lanes empty."""
+    tree = deep_tree() if kind == "median" else mesh_tree("teapot.obj", "sah")
+    o, d = packet_rays(tree)
+    single, packed = tracer(tree, packet=1), tracer(tree, packet=8)
+    for t_min, t_max in [(0.0, np.inf), (surface_t_min(tree), np.inf), (0.3, 2.5)]:
+        a = single.trace(o, d, t_min=t_min, t_max=t_max)
+        b = packed.trace(o, d, t_min=t_min, t_max=t_max)
+        for field in ("t", "prim", "u", "v", "normal"):
+            assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), \
+                (t_min, t_max, field)
+    assert 0.2 * len(d) < np.count_nonzero(a.hit) < 0.9 * len(d)
+    camera = camera_for(tree, 61, 37)
+    ra = single.render(camera, aovs="all")
+    rb = packed.render(camera, aovs="all")
+    for name in ra:
+        assert np.array_equal(ra[name], rb[name], equal_nan=True), name
+
+
+def test_packet_stats_count_the_same_work():
+    """On coherent camera rays a packet's lanes visit the nodes and leaves the single
+    rays visit (lanes are masked to their own), and restarts never happen."""
+    tree = mesh_tree("teapot.obj", "sah")
+    o, d = camera_for(tree, 64, 48).rays()
+    _, s1 = tracer(tree, packet=1)._trace(o, d, stats=True)
+    _, s8 = tracer(tree, packet=8)._trace(o, d, stats=True)
+    assert np.array_equal(s1[:, :3], s8[:, :3])
+    assert s8[:, 3].sum() == 0
 
 
 def test_default_stack_size():

@@ -1,0 +1,46 @@
+/* kernels/ops.h: plain-operator versions of the OpenCL builtins used in hot loops.
+ *
+ * PoCL as shipped by pocl-binary-distribution calls builtins such as fabs, fmax,
+ * clamp, isnan, select, any and vload as out-of-line functions, with vector arguments
+ * passed through memory; in the traversal loops that cost more than the arithmetic
+ * (see pocl-notes.md; measured in BENCHMARKS.md). These versions are bit for bit the
+ * same as the builtins for the values kdray gives them: masks are comparison results
+ * (each lane all ones or all zeros), and kd_max/kd_min see no NaN (their callers rule
+ * it out first) except where noted.
+ */
+#ifndef KDRAY_OPS_H
+#define KDRAY_OPS_H
+
+float kd_abs(float x) { return as_float(as_uint(x) & 0x7FFFFFFFu); }
+float kd_max(float a, float b) { return a > b ? a : b; }
+float kd_min(float a, float b) { return a < b ? a : b; }
+/* min(max(x, lo), hi) */
+float kd_clamp(float x, float lo, float hi) { return kd_min(kd_max(x, lo), hi); }
+bool kd_isnan(float x) { return x != x; }
+/* no component is infinite or NaN (x - x is 0 only for finite x) */
+bool kd_finite3(float3 v) { return v.x - v.x == 0.0f && v.y - v.y == 0.0f && v.z - v.z == 0.0f; }
+
+float8 kd_abs8(float8 x) { return as_float8(as_uint8(x) & (uint8)(0x7FFFFFFFu)); }
+/* lanes of b where mask m is set, else of a (select(a, b, m)) */
+float8 kd_select8(float8 a, float8 b, int8 m) { return as_float8((as_int8(a) & ~m) | (as_int8(b) & m)); }
+int8 kd_select8i(int8 a, int8 b, int8 m) { return (a & ~m) | (b & m); }
+uint8 kd_select8u(uint8 a, uint8 b, int8 m) { return (a & ~as_uint8(m)) | (b & as_uint8(m)); }
+float8 kd_max8(float8 a, float8 b) { return kd_select8(b, a, a > b); }
+float8 kd_min8(float8 a, float8 b) { return kd_select8(b, a, a < b); }
+float8 kd_clamp8(float8 x, float8 lo, float8 hi) { return kd_min8(kd_max8(x, lo), hi); }
+/* some lane of mask m is set */
+bool kd_any8(int8 m)
+{
+    int4 a = m.lo | m.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) != 0;
+}
+
+/* Triangle i's vertices from 9 floats each, without vload3 */
+float3 kd_vertex(__global const float *tris, uint i, uint k)
+{
+    __global const float *p = tris + 9 * (size_t)i + 3 * k;
+    return (float3)(p[0], p[1], p[2]);
+}
+
+#endif

@@ -1,0 +1,409 @@
+/* kernels/packet.cl: packets of 8 rays traversed together, in float8 (Wald, Slusallek,
+ * Benthin & Wagner 2001, "Interactive Rendering with Coherent Ray Tracing": the
+ * packet visits the union of its rays' nodes, each ray masked to its own).
+ *
+ * Why: PoCL runs a work-item's data-dependent loop scalar, one eighth of an AVX2 core
+ * (pocl-notes.md); the same loop on float8 lanes runs at full width. Coherent rays
+ * (a row of 8 pixels) share almost every node, so a packet costs about one ray.
+ *
+ * Each lane makes exactly the decisions the scalar traversal (traverse.cl) makes for
+ * its ray: the same t_split, slack, child ranges and early exit, and its triangle
+ * tests are the scalar test's arithmetic on vectors (same operations, same order,
+ * FP_CONTRACT OFF). Since a hit depends only on the ray and the triangle (the order
+ * (t, index), triangle.cl), a lane's result equals the scalar kernel's bit for bit.
+ *
+ * A lane leaves the packet and is traced again by the scalar kernel when it cannot
+ * follow the packet's order: at a node where its near child is not the packet's
+ * (origins on different sides of the plane), when it lies in a split plane (t_split
+ * NaN: the scalar kernel's passes handle it), or when the packet's stack is full.
+ *
+ * The packet's stack is a plain one of PACKET_STACK_SIZE entries (node, ranges, lanes):
+ * the Tracer makes it the tree's depth + 1, so it is never full on a valid tree.
+ */
+#ifndef KDRAY_PACKET_CL
+#define KDRAY_PACKET_CL
+
+#pragma OPENCL FP_CONTRACT OFF
+#include "layout.h"
+#include "triangle.cl"
+#include "traverse.cl"
+
+#define KD_PACKET 8
+
+#ifndef PACKET_STACK_SIZE
+#define PACKET_STACK_SIZE 64
+#endif
+
+#ifdef STATS
+/* per lane: x = interior nodes, y = leaves, z = triangle tests (as traverse.cl) */
+typedef struct { uint8 x, y, z; } KdPacketStats;
+#define KD_PSTAT(field, mask) ((*pstats).field += as_uint8(mask) & (uint8)(1u))
+#define KD_PSTATS_PARAM , KdPacketStats *pstats
+#define KD_PSTATS_ARG , pstats
+#else
+#define KD_PSTAT(field, mask)
+#define KD_PSTATS_PARAM
+#define KD_PSTATS_ARG
+#endif
+
+typedef struct {
+    float8 okx, oky, okz;                /* origin components along each lane's kx, ky, kz */
+    float8 Sx, Sy, Sz;                   /* shear constants (RayShear) per lane */
+    int8 kx, ky, kz;                     /* shear axes per lane */
+    bool uniform;                        /* every lane has the same axes ... */
+    uint ukx, uky, ukz;                  /* ... these */
+    float8 o[3], d[3];                   /* origin and direction per axis, for the planes */
+    float8 t_min, t_max;                 /* the rays' range: t_min < t < t_max */
+    RayShear shear[KD_PACKET];           /* per lane, for the rare double-precision path */
+    float3 o_lane[KD_PACKET];
+} KdPacket;
+
+/* A vector and its lanes (OpenCL C allows reading a union member other than the one
+ * written last); cheaper on PoCL than vload8/vstore8 on private arrays. */
+typedef union { float8 v; float s[KD_PACKET]; } KdF8;
+typedef union { int8 v; int s[KD_PACKET]; } KdI8;
+typedef union { uint8 v; uint s[KD_PACKET]; } KdU8;
+
+typedef struct {
+    float8 t;                            /* nearest t so far; t_max while none */
+    float8 V, W, det;                    /* of the nearest hit: u = V / det, v = W / det */
+    uint8 tri;                           /* its triangle index, KD_NO_HIT while none */
+} KdPacketHit;
+
+/* Component k of p for each lane (k per lane: 0, 1, 2). */
+float8 kd_pick8(float3 p, int8 k)
+{
+    return kd_select8(kd_select8((float8)(p.x), (float8)(p.y), k == 1), (float8)(p.z), k == 2);
+}
+
+/* The test of triangle.cl for every lane in `act` (-1 = on) against triangle `tri`
+ * (p0, p1, p2); lanes where it hits before their best hit take it. */
+void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uint tri,
+                         int8 act, KdPacketHit *h)
+{
+    float8 P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
+    if (r->uniform) {
+        P0x = (float8)(kd_comp(p0, r->ukx)); P0y = (float8)(kd_comp(p0, r->uky));
+        P0z = (float8)(kd_comp(p0, r->ukz));
+        P1x = (float8)(kd_comp(p1, r->ukx)); P1y = (float8)(kd_comp(p1, r->uky));
+        P1z = (float8)(kd_comp(p1, r->ukz));
+        P2x = (float8)(kd_comp(p2, r->ukx)); P2y = (float8)(kd_comp(p2, r->uky));
+        P2z = (float8)(kd_comp(p2, r->ukz));
+    } else {
+        P0x = kd_pick8(p0, r->kx); P0y = kd_pick8(p0, r->ky); P0z = kd_pick8(p0, r->kz);
+        P1x = kd_pick8(p1, r->kx); P1y = kd_pick8(p1, r->ky); P1z = kd_pick8(p1, r->kz);
+        P2x = kd_pick8(p2, r->kx); P2y = kd_pick8(p2, r->ky); P2z = kd_pick8(p2, r->kz);
+    }
+    /* Vertices relative to the ray origins, sheared (intersect_triangle's steps) */
+    float8 Az = P0z - r->okz, Bz = P1z - r->okz, Cz = P2z - r->okz;
+    float8 Ax = (P0x - r->okx) - r->Sx * Az;
+    float8 Ay = (P0y - r->oky) - r->Sy * Az;
+    float8 Bx = (P1x - r->okx) - r->Sx * Bz;
+    float8 By = (P1y - r->oky) - r->Sy * Bz;
+    float8 Cx = (P2x - r->okx) - r->Sx * Cz;
+    float8 Cy = (P2y - r->oky) - r->Sy * Cz;
+
+    float8 U = Cx * By - Cy * Bx;
+    float8 V = Ax * Cy - Ay * Cx;
+    float8 W = Bx * Ay - By * Ax;
+#ifdef cl_khr_fp64
+    int8 zero = act & ((U == 0.0f) | (V == 0.0f) | (W == 0.0f));
+    if (kd_any8(zero)) {
+        /* lane by lane (double8 to float8 conversions crash PoCL's LLVM) */
+        KdF8 ax, ay, bx, by, cx, cy, u, v, w;
+        KdI8 z;
+        ax.v = Ax; ay.v = Ay; bx.v = Bx; by.v = By; cx.v = Cx; cy.v = Cy;
+        u.v = U; v.v = V; w.v = W; z.v = zero;
+        for (uint l = 0; l < KD_PACKET; l++) {
+            if (z.s[l]) {
+                u.s[l] = (float)((double)cx.s[l] * (double)by.s[l] - (double)cy.s[l] * (double)bx.s[l]);
+                v.s[l] = (float)((double)ax.s[l] * (double)cy.s[l] - (double)ay.s[l] * (double)cx.s[l]);
+                w.s[l] = (float)((double)bx.s[l] * (double)ay.s[l] - (double)by.s[l] * (double)ax.s[l]);
+            }
+        }
+        U = u.v;
+        V = v.v;
+        W = w.v;
+    }
+#endif
+    int8 cand = act & (((U >= 0.0f) & (V >= 0.0f) & (W >= 0.0f))
+                       | ((U <= 0.0f) & (V <= 0.0f) & (W <= 0.0f)));
+    if (!kd_any8(cand))
+        return;
+    float8 det = U + V + W;
+    float8 T = U * (r->Sz * Az) + V * (r->Sz * Bz) + W * (r->Sz * Cz);
+    float8 det_abs = kd_abs8(det);
+    float8 t = T / det;
+    uint8 tri8 = (uint8)(tri);
+    cand &= (det != 0.0f) & (t > r->t_min) & (t < r->t_max)
+            & ((t < h->t) | ((t == h->t) & as_int8(tri8 < h->tri)));
+    if (!kd_any8(cand))
+        return;
+
+    /* The bound on t's rounding error (triangle.cl) */
+    float8 max_zu = kd_max8(kd_abs8(Az), kd_max8(kd_abs8(Bz), kd_abs8(Cz)));
+    float8 max_z = kd_abs8(r->Sz) * max_zu;
+    float8 max_x = kd_max8(kd_abs8(Ax), kd_max8(kd_abs8(Bx), kd_abs8(Cx)));
+    float8 max_y = kd_max8(kd_abs8(Ay), kd_max8(kd_abs8(By), kd_abs8(Cy)));
+    float8 max_e = kd_max8(kd_abs8(U), kd_max8(kd_abs8(V), kd_abs8(W)));
+    float8 delta_z = KD_GAMMA(3) * max_z;
+    float8 delta_x = KD_GAMMA(5) * (max_x + max_zu);
+    float8 delta_y = KD_GAMMA(5) * (max_y + max_zu);
+    float8 delta_e = 2.0f * (KD_GAMMA(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
+    float8 delta_t = 3.0f * (KD_GAMMA(3) * max_e * max_z + delta_e * max_z + delta_z * max_e)
+                     / det_abs;
+    int8 doubt = cand & !(t > delta_t);
+    if (kd_any8(doubt)) {
+        KdI8 doubt_l, ok_l;
+        doubt_l.v = doubt;
+        for (uint l = 0; l < KD_PACKET; l++) {
+#ifdef cl_khr_fp64
+            ok_l.s[l] = doubt_l.s[l] && kd_t_certified_double(&r->shear[l], r->o_lane[l], p0, p1, p2)
+                        ? -1 : 0;
+#else
+            ok_l.s[l] = 0;
+#endif
+        }
+        cand &= ~doubt | ok_l.v;
+    }
+    h->t = kd_select8(h->t, t, cand);
+    h->V = kd_select8(h->V, V, cand);
+    h->W = kd_select8(h->W, W, cand);
+    h->det = kd_select8(h->det, det, cand);
+    h->tri = kd_select8u(h->tri, tri8, cand);
+}
+
+/* Leaf: every lane in `act` tests the leaf's triangles. */
+void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const float *tris,
+                    const KdPacket *r, int8 act, KdPacketHit *h KD_PSTATS_PARAM)
+{
+    uint count = kd_n_prims(leaf);
+    uint first = kd_leaf_offset(leaf);
+    for (uint i = 0; i < count; i++) {
+        uint tri = leaf_tris[first + i];
+        KD_PSTAT(z, act);
+        kd_packet_intersect(r, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
+                            kd_vertex(tris, tri, 2), tri, act, h);
+    }
+}
+
+/* Front-to-back traversal of the packet's lanes in `act` over [t_enter, t_exit] per
+ * lane. Lanes that must be traced by the scalar kernel instead are or-ed into
+ * *fallback (and their hit is left as it is). */
+void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
+                        __global const uint *leaf_tris, __global const float *tris,
+                        const KdPacket *r, int8 act, float8 t_enter, float8 t_exit,
+                        KdPacketHit *h, int8 *fallback KD_PSTATS_PARAM)
+{
+    uint stack_node[PACKET_STACK_SIZE];
+    float8 stack_t_min[PACKET_STACK_SIZE];
+    float8 stack_t_max[PACKET_STACK_SIZE];
+    int8 stack_act[PACKET_STACK_SIZE];
+    uint count = 0;
+    int8 live = act;                     /* lanes still looking for their hit */
+    uint leaves = 0;
+
+    uint node = 0;
+    float8 t_min_cur = t_enter;
+    float8 t_max_cur = t_exit;
+
+    for (;;) {
+        KdNode n = nodes[node];
+        while (!kd_is_leaf(n) && kd_any8(act)) {
+            KD_PSTAT(x, act);
+            uint axis = kd_split_axis(n);
+            float split = kd_split(n);
+            float8 o_k = r->o[axis];
+            float8 d_k = r->d[axis];
+            float8 t_split = (split - o_k) / d_k;
+            uint below = node + 1u;
+            uint above = kd_above_child(n);
+
+            /* Each lane's own near child and the children it needs (traverse.cl) */
+            int8 below_first_l = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
+            float8 t_lo = t_min_cur * (1.0f - KD_T_SLACK);
+            float8 t_hi = t_max_cur * (1.0f + KD_T_SLACK);
+            int8 near_only = (t_split > t_hi) | (t_split <= 0.0f);
+            int8 far_only = ~near_only & (t_split < t_lo);
+            int8 both = act & ~near_only & ~far_only;
+            /* The packet's order is that of the lanes needing both children; a lane in
+             * the plane (t_split NaN), or needing both in the other order, leaves */
+            int8 leave = act & (t_split != t_split);
+            bool below_first = kd_any8(both & ~leave & below_first_l)
+                               || !kd_any8(both & ~leave) && kd_any8(act & ~leave & below_first_l);
+            leave |= both & (below_first ? ~below_first_l : below_first_l);
+            if (kd_any8(leave)) {
+                *fallback |= leave;
+                live &= ~leave;
+                act &= ~leave;
+                both &= ~leave;
+                if (!kd_any8(act))
+                    break;
+            }
+            uint first = below_first ? below : above;
+            uint second = below_first ? above : below;
+            /* A lane with the packet's order needs first (its near child) unless
+             * far_only and second unless near_only; one with the other order needs a
+             * single child: first if that is its far one */
+            int8 same = below_first ? below_first_l : ~below_first_l;
+            int8 need_first = act & kd_select8i(far_only, ~far_only, same);
+            int8 need_second = act & kd_select8i(near_only, ~near_only, same);
+            float8 t_mid = kd_clamp8(t_split, t_min_cur, t_max_cur);
+            if (!kd_any8(need_second)) {
+                node = first;
+            } else if (!kd_any8(need_first)) {
+                node = second;
+            } else {
+                if (count == PACKET_STACK_SIZE) {
+                    /* not on a valid tree (depth < PACKET_STACK_SIZE): the scalar kernel copes */
+                    *fallback |= live;
+                    return;
+                }
+                stack_node[count] = second;
+                stack_t_min[count] = kd_select8(t_min_cur, t_mid, both);
+                stack_t_max[count] = t_max_cur;
+                stack_act[count] = need_second;
+                count++;
+                node = first;
+                t_max_cur = kd_select8(t_max_cur, t_mid, both);
+                act = need_first;
+            }
+            n = nodes[node];
+        }
+
+        if (kd_any8(act)) {
+            if (++leaves > max_leaves)
+                return;
+            KD_PSTAT(y, act);
+            kd_packet_leaf(n, leaf_tris, tris, r, act, h KD_PSTATS_ARG);
+            /* lanes whose hit is final are done (traverse.cl, kd_hit_final) */
+            live &= ~(act & (h->t < t_max_cur * (1.0f - KD_T_SLACK)));
+        }
+
+        /* Pop the next entry with a live lane */
+        act = (int8)(0);
+        while (count > 0 && !kd_any8(act)) {
+            count--;
+            node = stack_node[count];
+            t_min_cur = stack_t_min[count];
+            t_max_cur = stack_t_max[count];
+            act = stack_act[count] & live;
+        }
+        if (!kd_any8(act))
+            return;
+    }
+}
+
+/* Nearest hits of `count` rays (1..KD_PACKET) o[l] + t d[l], t_min < t < t_max, as
+ * trace_ray gives them; bmin, bmax: the scene box. hits[l] (and stats[l] with STATS)
+ * receive the results. */
+void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uint *leaf_tris,
+                  __global const float *tris, float3 bmin, float3 bmax, uint count,
+                  const float3 *o, const float3 *d, float t_min, float t_max, Hit *hits
+#ifdef STATS
+                  , uint4 *stats
+#endif
+                  )
+{
+    KdPacket r;
+    KdF8 okx, oky, okz, Sx, Sy, Sz, ox, oy, oz, dx, dy, dz, t_enter, t_exit;
+    KdI8 kx, ky, kz, act;
+    for (uint l = 0; l < KD_PACKET; l++) {
+        /* lanes past `count` copy ray 0 and stay off */
+        float3 ol = o[l < count ? l : 0u];
+        float3 dl = d[l < count ? l : 0u];
+        hits[l].t = t_max;
+        hits[l].u = 0.0f;
+        hits[l].v = 0.0f;
+        hits[l].tri = KD_NO_HIT;
+        /* trace_ray's checks and box clip */
+        float te = t_min, tx = t_max;
+        bool on = l < count && kd_finite3(ol) && kd_finite3(dl)
+                  && !(dl.x == 0.0f && dl.y == 0.0f && dl.z == 0.0f)
+                  && kd_slab(ol.x, dl.x, bmin.x, bmax.x, &te, &tx)
+                  && kd_slab(ol.y, dl.y, bmin.y, bmax.y, &te, &tx)
+                  && kd_slab(ol.z, dl.z, bmin.z, bmax.z, &te, &tx)
+                  && te <= tx;
+        RayShear s = ray_shear(dl);
+        r.shear[l] = s;
+        r.o_lane[l] = ol;
+        okx.s[l] = kd_comp(ol, s.kx); oky.s[l] = kd_comp(ol, s.ky); okz.s[l] = kd_comp(ol, s.kz);
+        Sx.s[l] = s.Sx; Sy.s[l] = s.Sy; Sz.s[l] = s.Sz;
+        kx.s[l] = (int)s.kx; ky.s[l] = (int)s.ky; kz.s[l] = (int)s.kz;
+        ox.s[l] = ol.x; oy.s[l] = ol.y; oz.s[l] = ol.z;
+        dx.s[l] = dl.x; dy.s[l] = dl.y; dz.s[l] = dl.z;
+        t_enter.s[l] = te;
+        t_exit.s[l] = tx;
+        act.s[l] = on ? -1 : 0;
+    }
+    /* the shear axes are uniform when every lane that is on has those of the first */
+    r.uniform = true;
+    r.ukx = 0u; r.uky = 1u; r.ukz = 2u;
+    bool first = true;
+    for (uint l = 0; l < KD_PACKET; l++) {
+        if (!act.s[l])
+            continue;
+        if (first) {
+            r.ukx = (uint)kx.s[l]; r.uky = (uint)ky.s[l]; r.ukz = (uint)kz.s[l];
+            first = false;
+        }
+        r.uniform = r.uniform && (uint)kx.s[l] == r.ukx && (uint)ky.s[l] == r.uky
+                    && (uint)kz.s[l] == r.ukz;
+    }
+    r.okx = okx.v; r.oky = oky.v; r.okz = okz.v;
+    r.Sx = Sx.v; r.Sy = Sy.v; r.Sz = Sz.v;
+    r.kx = kx.v; r.ky = ky.v; r.kz = kz.v;
+    r.o[0] = ox.v; r.o[1] = oy.v; r.o[2] = oz.v;
+    r.d[0] = dx.v; r.d[1] = dy.v; r.d[2] = dz.v;
+    r.t_min = (float8)(t_min);
+    r.t_max = (float8)(t_max);
+
+    KdPacketHit h;
+    h.t = (float8)(t_max);
+    h.V = (float8)(0.0f);
+    h.W = (float8)(0.0f);
+    h.det = (float8)(1.0f);
+    h.tri = (uint8)(KD_NO_HIT);
+    KdI8 fallback;
+    fallback.v = (int8)(0);
+    int8 on = act.v;
+#ifdef STATS
+    KdPacketStats ps;
+    ps.x = (uint8)(0u); ps.y = (uint8)(0u); ps.z = (uint8)(0u);
+    KdPacketStats *pstats = &ps;
+#endif
+    if (kd_any8(on))
+        kd_packet_traverse(nodes, 2u * n_nodes + 2u, leaf_tris, tris, &r, on,
+                           t_enter.v, t_exit.v, &h, &fallback.v KD_PSTATS_ARG);
+
+    KdF8 t_l, V_l, W_l, det_l;
+    KdU8 tri_l;
+    t_l.v = h.t; V_l.v = h.V; W_l.v = h.W; det_l.v = h.det; tri_l.v = h.tri;
+#ifdef STATS
+    KdU8 sx, sy, sz;
+    sx.v = ps.x; sy.v = ps.y; sz.v = ps.z;
+#endif
+    for (uint l = 0; l < count; l++) {
+#ifdef STATS
+        stats[l] = (uint4)(sx.s[l], sy.s[l], sz.s[l], 0u);
+#endif
+        if (fallback.s[l]) {
+#ifdef STATS
+            uint4 more = (uint4)(0u);
+            trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o[l], d[l], t_min, t_max,
+                      &hits[l], &more);
+            stats[l] += more;
+#else
+            trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o[l], d[l], t_min, t_max,
+                      &hits[l]);
+#endif
+        } else if (act.s[l] && tri_l.s[l] != KD_NO_HIT) {
+            hits[l].t = t_l.s[l];
+            hits[l].u = V_l.s[l] / det_l.s[l];
+            hits[l].v = W_l.s[l] / det_l.s[l];
+            hits[l].tri = tri_l.s[l];
+        }
+    }
+}
+
+#endif
