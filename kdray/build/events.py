@@ -108,11 +108,17 @@ def root_events(tri):
 
 
 def sorted_root_events(tri):
-    """Events of the root node, each axis's run sorted (the build's only full sort)."""
+    """Events of the root node, each axis's run sorted (the build's only full sort).
+
+    Keys are distinct (they hold the triangle index), so every sort gives the same
+    order; the stable sort (a merge sort) is the faster one on real meshes, whose
+    triangles come in runs of nearby positions (0.12 s against 0.22 s for numpy's
+    quicksort on 3.2M keys of a 1.6M-triangle mesh; 0.28 s against 0.24 s on random keys).
+    """
     keys, counts = root_events(tri)
     start = 0
     for c in counts:
-        keys[start:start + c].sort()
+        keys[start:start + c].sort(kind="stable")
         start += c
     return keys, counts
 

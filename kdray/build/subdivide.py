@@ -132,8 +132,6 @@ def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empt
     new_left_runs = np.empty((3, 2), dtype=np.int64)
     new_right_runs = np.empty((3, 2), dtype=np.int64)
     box = np.empty((2, 3), dtype=np.float64)
-    box_left = np.empty((2, 3), dtype=np.float64)
-    box_right = np.empty((2, 3), dtype=np.float64)
     node_counts = np.empty(3, dtype=np.int64)
     right_counts = np.empty(3, dtype=np.int64)
     left_counts = np.empty(3, dtype=np.int64)
@@ -141,15 +139,18 @@ def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empt
     while top > 0:
         top -= 1
         off = st_off[top]
-        node_counts[:] = st_counts[top]
+        for k in range(3):
+            node_counts[k] = st_counts[top, k]
+            box[0, k] = st_box[top, 0, k]
+            box[1, k] = st_box[top, 1, k]
         n = st_n[top]
-        box[:, :] = st_box[top]
         depth = st_depth[top]
         parent = st_parent[top]
         budget = st_budget[top]
 
         idx = n_nodes
-        nodes = _grow(nodes, n_nodes, n_nodes + 1)
+        if n_nodes == len(nodes):
+            nodes = _grow(nodes, n_nodes, n_nodes + 1)
         n_nodes += 1
         if parent >= 0:
             nodes[parent, 0] |= np.uint32(idx) << _U2
@@ -190,7 +191,8 @@ def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empt
 
         if axis < 0:
             # Leaf: the node's triangles (one START or PLANAR each on x), in index order.
-            leaf_tris = _grow(leaf_tris, n_refs, n_refs + n)
+            if n_refs + n > len(leaf_tris):
+                leaf_tris = _grow(leaf_tris, n_refs, n_refs + n)
             c = 0
             for i in range(off, off + node_counts[0]):
                 if key_kind(buf[i]) != END:
@@ -213,10 +215,6 @@ def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empt
         n_strad = classify(buf, run_start, node_counts[axis], position_bits(pos),
                            planar_side == LEFT, side, strad)
 
-        box_left[:, :] = box
-        box_left[1, axis] = pos
-        box_right[:, :] = box
-        box_right[0, axis] = pos
         if n_strad > len(left_ok):
             size = max(n_strad, 2 * len(left_ok))
             left_box = np.empty((size, 2, 3), dtype=np.float32)
@@ -243,23 +241,28 @@ def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empt
         need = off
         for k in range(3):
             need += left_runs[k, 1] + right_runs[k, 1] + new_left_runs[k, 1] + new_right_runs[k, 1]
-        buf = _grow(buf, off, need)
+        if need > len(buf):
+            buf = _grow(buf, off, need)
         w = merge_runs(right, right_runs, new_right, new_right_runs, buf, off, right_counts)
         merge_runs(left, left_runs, new_left, new_left_runs, buf, w, left_counts)
 
         # Push the right child first, so the left one is emitted next (index idx + 1).
         st_off[top] = off
-        st_counts[top] = right_counts
         st_n[top] = n_right
-        st_box[top] = box_right
+        for k in range(3):
+            st_counts[top, k] = right_counts[k]
+            st_counts[top + 1, k] = left_counts[k]
+            for c in range(2):
+                st_box[top, c, k] = box[c, k]
+                st_box[top + 1, c, k] = box[c, k]
+        st_box[top, 0, axis] = pos
+        st_box[top + 1, 1, axis] = pos
         st_depth[top] = depth + 1
         st_parent[top] = idx
         st_budget[top] = budget * n_above / (n_below + n_above)
         top += 1
         st_off[top] = w
-        st_counts[top] = left_counts
         st_n[top] = n_left
-        st_box[top] = box_left
         st_depth[top] = depth + 1
         st_parent[top] = -1
         st_budget[top] = budget * n_below / (n_below + n_above)
