@@ -13,7 +13,17 @@ Build options never relax IEEE arithmetic (no fast or finite-only math): the
 traversal relies on IEEE infinities, NaN and signed zeros. Where the device offers it,
 -cl-fp32-correctly-rounded-divide-sqrt makes single-precision division exact, so a
 device gives the same t, u, v as any other that rounds correctly.
+
+Compiled programs are cached on disk by the OpenCL driver, not here: PoCL keeps them
+in POCL_CACHE_DIR (default ~/.cache/pocl/kcache; POCL_KERNEL_CACHE=0 turns it off),
+keyed by the preprocessed source (the `#include`d files too) and the options, with
+the code it compiles at a kernel's first launch beside them; NVIDIA's driver keeps
+its own; pyopencl's binary cache serves the drivers that have none. Some drivers'
+caches hash the top-level source and options but not the `#include`d files, so every
+build passes `-DKDRAY_KERNELS=<hash of every file in kernels/>`: a cache keyed by the
+options can never serve a program built from other kernels.
 """
+import hashlib
 import logging
 import os
 from pathlib import Path
@@ -144,13 +154,31 @@ def has_fp64(device):
     return "cl_khr_fp64" in device.extensions.split()
 
 
+def kernels_hash(folder=None):
+    """The first 16 hex digits of the SHA-256 of every file in `folder` (default
+    KERNEL_DIR): names and contents, in name order. Raises DeviceError when the folder
+    cannot be read."""
+    folder = Path(KERNEL_DIR if folder is None else folder)
+    digest = hashlib.sha256()
+    try:
+        for path in sorted(folder.iterdir()):
+            if path.is_file():
+                data = path.read_bytes()
+                digest.update(f"{path.name}\0{len(data)}\0".encode())
+                digest.update(data)
+    except OSError as e:
+        raise DeviceError(f"kernel folder {folder} cannot be read ({e.strerror or e}); "
+                          f"kdray's kernels/ folder must sit beside the kdray package") from None
+    return digest.hexdigest()[:16]
+
+
 def build_options(device, defines):
-    """-I, -D and precision options for `device`.
+    """-I, -D and precision options for `device`, with -DKDRAY_KERNELS=kernels_hash().
 
     defines : dict name -> value, or None for a bare `-D NAME`.
     """
     cl = _cl()
-    options = ["-I", str(KERNEL_DIR)]
+    options = ["-I", str(KERNEL_DIR), f"-DKDRAY_KERNELS={kernels_hash()}"]
     for name, value in sorted(defines.items()):
         options.append(f"-D{name}" if value is None else f"-D{name}={value}")
     try:
@@ -182,7 +210,7 @@ def build_program(context, source_name, defines=None):
         with warnings.catch_warnings():
             # PoCL and some drivers print harmless notes; the log is kept on errors.
             warnings.simplefilter("ignore", cl.CompilerWarning)
-            return program.build(options=options)
+            program = program.build(options=options)
     except cl.Error as e:
         build_log = ""
         try:
@@ -196,3 +224,20 @@ def build_program(context, source_name, defines=None):
         raise KernelBuildError(
             f"OpenCL program {source_name} failed to build on {device.name.strip()} "
             f"(options: {' '.join(options)}): {first}", log=build_log) from None
+    # A corrupt entry in the driver's cache builds "successfully" into a program without
+    # kernels (seen with PoCL 3.0: creating a kernel then fails, and the process aborts
+    # when it exits); say what to remove instead.
+    if "__kernel" in source and program.get_info(cl.program_info.NUM_KERNELS) == 0:
+        raise KernelBuildError(
+            f"OpenCL program {source_name} built on {device.name.strip()} without its kernels: "
+            f"the driver's compiler cache is probably corrupt; remove it ({_driver_cache(device)}) "
+            f"and run again")
+    return program
+
+
+def _driver_cache(device):
+    """Where the device's driver keeps compiled programs, in words."""
+    if "portable computing language" in device.platform.name.lower():
+        xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+        return os.environ.get("POCL_CACHE_DIR") or os.path.join(xdg, "pocl", "kcache")
+    return "see the OpenCL driver's documentation"

@@ -1,0 +1,126 @@
+"""Compiled kernels on disk: kdray relies on the OpenCL driver's cache (PoCL's here), and
+keys every build by a hash of all of kernels/, so a cache can never serve a program built
+from other kernels. The PoCL checks run in fresh processes with their own POCL_CACHE_DIR
+(PoCL reads it once, when it starts) and count the programs PoCL compiled and wrote."""
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from kdray import device as kdevice
+
+BUILD = """
+import sys
+from pathlib import Path
+import kdray.device as dev
+dev.KERNEL_DIR = Path(sys.argv[1])
+context, _ = dev.create_context()
+defines = {"STACK_SIZE": int(sys.argv[2]), "LOCAL_SIZE": 8, "BATCH_SIZE": 64, "OUT_T": None}
+try:
+    program = dev.build_program(context, "render.cl", defines)
+except dev.KernelBuildError as e:
+    print("KernelBuildError:", e)
+    sys.exit(3)
+print("kernels:", program.kernel_names)
+"""
+
+
+def _is_pocl():
+    try:
+        device = kdevice.choose_device(None)
+    except Exception:
+        return False
+    return "portable computing language" in device.platform.name.lower()
+
+
+pocl = pytest.mark.skipif(not _is_pocl(), reason="the default OpenCL device is not PoCL's")
+
+
+@pytest.fixture
+def kernels(tmp_path):
+    """A copy of kernels/ that a test may edit."""
+    folder = tmp_path / "kernels"
+    shutil.copytree(kdevice.KERNEL_DIR, folder)
+    return folder
+
+
+def build_in_new_process(cache, kernels, stack_size=8):
+    """(exit code, stdout + stderr) of building render.cl in a fresh process."""
+    env = dict(os.environ, POCL_CACHE_DIR=str(cache))
+    env.pop("POCL_KERNEL_CACHE", None)
+    proc = subprocess.run([sys.executable, "-c", BUILD, str(kernels), str(stack_size)],
+                          capture_output=True, text=True, env=env)
+    return proc.returncode, proc.stdout + proc.stderr
+
+
+def compiled(cache):
+    """{program.bc path: modification time in ns}: the programs PoCL compiled into `cache`."""
+    return {str(p): p.stat().st_mtime_ns for p in Path(cache).rglob("program.bc")}
+
+
+def test_kernels_hash_covers_every_file(kernels):
+    base = kdevice.kernels_hash(kernels)
+    assert len(base) == 16 and base == kdevice.kernels_hash(kernels)
+    for name in sorted(os.listdir(kernels)):
+        path = kernels / name
+        data = path.read_bytes()
+        path.write_bytes(data + b"\n")
+        assert kdevice.kernels_hash(kernels) != base, name
+        path.write_bytes(data)
+    assert kdevice.kernels_hash(kernels) == base
+    (kernels / "new.h").write_text("")
+    assert kdevice.kernels_hash(kernels) != base
+    with pytest.raises(kdevice.DeviceError):
+        kdevice.kernels_hash(kernels / "missing")
+
+
+def test_the_options_carry_the_hash():
+    try:
+        device = kdevice.choose_device(None)
+    except kdevice.DeviceError:
+        pytest.skip("no OpenCL device")
+    options = kdevice.build_options(device, {"STACK_SIZE": 4})
+    assert f"-DKDRAY_KERNELS={kdevice.kernels_hash()}" in options and "-DSTACK_SIZE=4" in options
+
+
+@pocl
+def test_second_build_compiles_nothing_and_a_new_define_compiles_again(tmp_path, kernels):
+    cache = tmp_path / "pocl"
+    code, out = build_in_new_process(cache, kernels)
+    assert code == 0 and "render_camera" in out, out
+    first = compiled(cache)
+    assert len(first) == 1
+    code, out = build_in_new_process(cache, kernels)
+    assert code == 0 and "render_camera" in out, out
+    assert compiled(cache) == first                 # loaded, not compiled again
+    code, out = build_in_new_process(cache, kernels, stack_size=9)
+    assert code == 0, out
+    assert len(compiled(cache)) == 2 and set(first) < set(compiled(cache))
+
+
+@pocl
+def test_an_edited_included_file_is_compiled_again(tmp_path, kernels):
+    cache = tmp_path / "pocl"
+    code, out = build_in_new_process(cache, kernels)
+    assert code == 0, out
+    with open(kernels / "triangle.cl", "a") as f:      # included by render.cl
+        f.write("\n#error edited after it was cached\n")
+    code, out = build_in_new_process(cache, kernels)
+    assert code == 3 and "edited after it was cached" in out, out
+
+
+@pocl
+def test_a_corrupt_cache_entry_is_reported_with_what_to_remove(tmp_path, kernels):
+    cache = tmp_path / "pocl"
+    code, out = build_in_new_process(cache, kernels)
+    assert code == 0, out
+    for path in compiled(cache):
+        Path(path).write_bytes(b"not LLVM bitcode")
+    code, out = build_in_new_process(cache, kernels)
+    assert "KernelBuildError" in out and "corrupt" in out and str(cache) in out, out
+    shutil.rmtree(cache)
+    code, out = build_in_new_process(cache, kernels)
+    assert code == 0 and "render_camera" in out, out
