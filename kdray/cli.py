@@ -67,12 +67,25 @@ def _build_kwargs(kw):
     return {k: kw.pop(k) for k in ("K_T", "K_I", "empty_bonus", "max_depth", "leaf_size")}
 
 
+def _process_age():
+    """Seconds since this process started (Linux, 10 ms resolution), or None."""
+    try:
+        with open("/proc/self/stat") as f:
+            fields = f.read().rpartition(")")[2].split()
+        started = int(fields[19]) / os.sysconf("SC_CLK_TCK")   # field 22: ticks after boot
+        return max(time.clock_gettime(time.CLOCK_BOOTTIME) - started, 0.0)
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+
+
 class Steps:
     """Times the steps of a command; shows them on stderr when it is a terminal
-    (and -q was not given), stays quiet otherwise. `-v` logs the timings."""
+    (and -q was not given), stays quiet otherwise. `-v` logs the timings, after the
+    start-up: the time from the process's start to the command (interpreter, imports)."""
 
     def __init__(self):
         self.seconds = {}
+        self.start_up = _process_age()
         self.live = sys.stderr.isatty() and log.getEffectiveLevel() <= logging.WARNING
 
     @contextlib.contextmanager
@@ -88,7 +101,8 @@ class Steps:
                 click.echo(f"\rkdray: {what} ({dt:.2f} s)", err=True)
 
     def log(self):
-        log.info("%s", ", ".join(f"{k} {v:.3f} s" for k, v in self.seconds.items()))
+        start = [] if self.start_up is None else [f"start-up {self.start_up:.3f} s"]
+        log.info("%s", ", ".join(start + [f"{k} {v:.3f} s" for k, v in self.seconds.items()]))
 
 
 def _build_mesh(mesh, path, params, builder=None, *args):
