@@ -8,9 +8,12 @@ For each mesh: build time, then for 1024 x 1024 primary rays of a framing camera
   kdray render depth   Tracer.render(camera, ["depth"]): rays made on the device
   kdray render default Tracer.render(camera) with depth, normal, bary, id
   kdray trace          Tracer.trace(origins, directions) from numpy to numpy
+  open3d pinhole depth create_rays_pinhole(K, pose) + cast_rays + t_hit to numpy
   open3d cast          RaycastingScene.cast_rays on a prepared tensor (cast only)
   open3d numpy         numpy rays -> tensor -> cast_rays -> numpy
   embreex              trimesh's embreex front end, numpy to numpy (if installed)
+and the ratios of the two workflows of issue 6: kdray render depth / open3d pinhole
+depth and kdray trace / open3d numpy (>= 1: kdray is faster).
 Accuracy on --sample random pixels against a float64 reference (the input mesh in
 float64, candidates from kdray's tree): hit/miss disagreements, relative depth error
 (99th percentile and max, over rays both hit).
@@ -45,7 +48,7 @@ def accuracy(t, prim, ref_t, ref_prim, sample):
     }
 
 
-def open3d_runs(m, o, d, repeat):
+def open3d_runs(m, o, d, camera, repeat):
     try:
         import open3d as o3d
     except ImportError as e:
@@ -55,7 +58,19 @@ def open3d_runs(m, o, d, repeat):
     rays = o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32))
     cast_s, _ = timed(lambda: scene.cast_rays(rays), repeat)
     np_s, (t, prim, _) = timed(lambda: open3d_cast(scene, o, d), repeat)
-    return [("open3d cast", build, cast_s, t, prim), ("open3d numpy", build, np_s, t, prim)]
+    # a depth image from intrinsics and a pose: Open3D makes the rays itself (its pixel
+    # convention differs by half a pixel, so its accuracy is the numpy row's)
+    K = o3d.core.Tensor(np.asarray(camera.K, dtype=np.float64))
+    w2c = o3d.core.Tensor(np.linalg.inv(np.asarray(camera.cam_to_world, dtype=np.float64)))
+
+    def pinhole():
+        r = o3d.t.geometry.RaycastingScene.create_rays_pinhole(K, w2c, int(camera.width),
+                                                               int(camera.height))
+        return scene.cast_rays(r)["t_hit"].numpy()
+
+    pin_s, _ = timed(pinhole, repeat)
+    return [("open3d pinhole depth", build, pin_s, t, prim), ("open3d cast", build, cast_s, t, prim),
+            ("open3d numpy", build, np_s, t, prim)]
 
 
 def embreex_runs(m, o, d, repeat):
@@ -101,8 +116,9 @@ def main():
         runs.append(("kdray render default", build_s, s, img["depth"].ravel(), img["id"].ravel()))
         s, hits = timed(lambda: tracer.trace(o, d), args.repeat)
         runs.append(("kdray trace", build_s, s, hits.t, hits.prim))
-        runs += open3d_runs(m, o, d, args.repeat)
+        runs += open3d_runs(m, o, d, camera, args.repeat)
         runs += embreex_runs(m, o, d, args.repeat)
+        speed = {method: n_rays / s / 1e6 for method, _, s, _, _ in runs}
         for method, b, s, t, prim in runs:
             if prim is None:
                 prim = np.where(np.isfinite(t), 0, -1)
@@ -113,6 +129,11 @@ def main():
             print(f"{name:<12} {len(m.faces):>9} {method:<22} {b:>8.3f} {s:>8.4f} {n_rays / s / 1e6:>8.2f} "
                   f"{acc['disagree']:>8} {acc['prim_diff']:>6} {acc['p99']:>10.2e} {acc['max']:>10.2e}",
                   flush=True)
+        # the issue's two workflows, kdray against Open3D (>= 1 means kdray is faster)
+        for ours, theirs in [("kdray render depth", "open3d pinhole depth"),
+                             ("kdray trace", "open3d numpy")]:
+            if theirs in speed:
+                print(f"# {name}: {ours} / {theirs} = {speed[ours] / speed[theirs]:.2f}", flush=True)
 
 
 if __name__ == "__main__":

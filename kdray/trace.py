@@ -156,6 +156,8 @@ class Tracer:
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")
         self._programs = {}
         self._poison_outputs = False
+        # A CPU device works on host memory: buffers over numpy arrays need no copies
+        self._zero_copy = _device.is_cpu(self.device)
         self._upload(tree)
 
     # -- set-up ----------------------------------------------------------------------
@@ -238,11 +240,7 @@ class Tracer:
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
-            nbytes = host_out[name].nbytes
-            buf = cl.Buffer(self.context, cl.mem_flags.WRITE_ONLY, nbytes)
-            if self._poison_outputs:
-                cl.enqueue_fill_buffer(self.queue, buf, _POISON, 0, nbytes)
-            device_out[name] = buf
+            device_out[name] = self._output_buffer(host_out[name])
         cl.enqueue_fill_buffer(self.queue, self._counter, np.uint32(0), 0, 4)
         groups = min(self.groups, -(-n // self.batch_size))
         kernel(self.queue, (groups * self.local_size,), (self.local_size,),
@@ -250,8 +248,35 @@ class Tracer:
                np.uint32(self._n_nodes), *args, self._counter,
                *(device_out.get(name) for name in _OUTPUTS))
         for name, buf in device_out.items():
-            cl.enqueue_copy(self.queue, host_out[name], buf)
+            if self._zero_copy:
+                # the buffer is the host array: a map makes the kernel's writes visible
+                mapped, _ = cl.enqueue_map_buffer(self.queue, buf, cl.map_flags.READ, 0,
+                                                  host_out[name].shape, host_out[name].dtype)
+                mapped.base.release(self.queue)
+            else:
+                cl.enqueue_copy(self.queue, host_out[name], buf)
         self.queue.finish()
+
+    def _input_buffer(self, array):
+        """A read-only device buffer of a contiguous host array: on a CPU device the
+        array itself (USE_HOST_PTR, no copy), else a copy."""
+        cl = _device._cl()
+        flag = cl.mem_flags.USE_HOST_PTR if self._zero_copy else cl.mem_flags.COPY_HOST_PTR
+        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | flag, hostbuf=array)
+
+    def _output_buffer(self, array):
+        """A write-only device buffer for a contiguous host array: on a CPU device the
+        array itself, so nothing is copied back. Poisoned first when asked."""
+        cl = _device._cl()
+        if self._poison_outputs:
+            array.reshape(-1).view(np.uint32)[:] = _POISON
+        if self._zero_copy:
+            return cl.Buffer(self.context, cl.mem_flags.WRITE_ONLY | cl.mem_flags.USE_HOST_PTR,
+                             hostbuf=array)
+        buf = cl.Buffer(self.context, cl.mem_flags.WRITE_ONLY, array.nbytes)
+        if self._poison_outputs:
+            cl.enqueue_fill_buffer(self.queue, buf, _POISON, 0, array.nbytes)
+        return buf
 
     # -- rays ----------------------------------------------------------------------------
 
@@ -265,8 +290,11 @@ class Tracer:
             o = np.broadcast_to(o, d.shape)
         if o.shape != d.shape:
             raise KdrayError(f"origins {o.shape} and directions {d.shape} must both be (N, 3)")
-        o32 = np.ascontiguousarray(o - self._origin, dtype=np.float32)
-        with np.errstate(over="ignore"):
+        # o - origin in float64, rounded to float32 on the way out (buffered: no
+        # float64 temporary of the whole array)
+        o32 = np.empty(o.shape, dtype=np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            np.subtract(o, self._origin, out=o32, dtype=np.float64, casting="unsafe")
             d32 = np.ascontiguousarray(d, dtype=np.float32)
         return o32, d32
 
@@ -291,12 +319,10 @@ class Tracer:
                "NORMAL": np.empty((n, 3), np.float32), "ID": np.empty(n, np.uint32)}
         if stats:
             out["STATS"] = np.empty((n, 4), np.uint32)
-        cl = _device._cl()
-        flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
         for start in range(0, n, MAX_RAYS_PER_LAUNCH):
             stop = min(n, start + MAX_RAYS_PER_LAUNCH)
-            o_buf = cl.Buffer(self.context, flags, hostbuf=o[start:stop])
-            d_buf = cl.Buffer(self.context, flags, hostbuf=d[start:stop])
+            o_buf = self._input_buffer(o[start:stop])
+            d_buf = self._input_buffer(d[start:stop])
             self._launch("trace_rays", ("T", "UV", "NORMAL", "ID"), stop - start,
                          (o_buf, d_buf, np.uint32(stop - start), np.float32(t_min),
                           np.float32(t_max)),

@@ -54,8 +54,6 @@ typedef struct {
     uint ukx, uky, ukz;                  /* ... these */
     float8 o[3], d[3];                   /* origin and direction per axis, for the planes */
     float8 t_min, t_max;                 /* the rays' range: t_min < t < t_max */
-    RayShear shear[KD_PACKET];           /* per lane, for the rare double-precision path */
-    float3 o_lane[KD_PACKET];
 } KdPacket;
 
 /* A vector and its lanes (OpenCL C allows reading a union member other than the one
@@ -156,14 +154,23 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
     if (kd_any8(doubt)) {
         KdI8 doubt_l, ok_l;
         doubt_l.v = doubt;
-        for (uint l = 0; l < KD_PACKET; l++) {
+        ok_l.v = (int8)(0);
 #ifdef cl_khr_fp64
-            ok_l.s[l] = doubt_l.s[l] && kd_t_certified_double(&r->shear[l], r->o_lane[l], p0, p1, p2)
-                        ? -1 : 0;
-#else
-            ok_l.s[l] = 0;
-#endif
+        KdI8 kx, ky, kz;
+        KdF8 Sx, Sy, Sz, ox, oy, oz;
+        kx.v = r->kx; ky.v = r->ky; kz.v = r->kz;
+        Sx.v = r->Sx; Sy.v = r->Sy; Sz.v = r->Sz;
+        ox.v = r->o[0]; oy.v = r->o[1]; oz.v = r->o[2];
+        for (uint l = 0; l < KD_PACKET; l++) {
+            if (!doubt_l.s[l])
+                continue;
+            RayShear sl;
+            sl.kx = (uint)kx.s[l]; sl.ky = (uint)ky.s[l]; sl.kz = (uint)kz.s[l];
+            sl.Sx = Sx.s[l]; sl.Sy = Sy.s[l]; sl.Sz = Sz.s[l];
+            float3 ol = (float3)(ox.s[l], oy.s[l], oz.s[l]);
+            ok_l.s[l] = kd_t_certified_double(&sl, ol, p0, p1, p2) ? -1 : 0;
         }
+#endif
         cand &= ~doubt | ok_l.v;
     }
     h->t = kd_select8(h->t, t, cand);
@@ -294,69 +301,79 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
     }
 }
 
-/* Nearest hits of `count` rays (1..KD_PACKET) o[l] + t d[l], t_min < t < t_max, as
- * trace_ray gives them; bmin, bmax: the scene box. hits[l] (and stats[l] with STATS)
- * receive the results. */
+/* One axis of trace_ray's box clip (kd_slab) for every lane: t0, t1 narrowed where d
+ * is not zero; returns the lanes still inside. */
+int8 kd_slab8(float8 o, float8 d, float lo, float hi, float8 *t0, float8 *t1)
+{
+    int8 flat = d == 0.0f;
+    float8 ta = (lo - o) / d;
+    float8 tb = (hi - o) / d;
+    *t0 = kd_select8(kd_max8(*t0, kd_min8(ta, tb)), *t0, flat);
+    *t1 = kd_select8(kd_min8(*t1, kd_max8(ta, tb)), *t1, flat);
+    return ~flat | ((o >= lo) & (o <= hi));
+}
+
+/* Component k (per lane: 0, 1, 2) of the vector (x, y, z) per lane. */
+float8 kd_comp8(float8 x, float8 y, float8 z, int8 k)
+{
+    return kd_select8(kd_select8(x, y, k == 1), z, k == 2);
+}
+
+/* Nearest hits of the rays o + t d (per lane, relative to the tree's origin) with
+ * t_min < t < t_max, as trace_ray gives them, for the lanes in `on`; bmin, bmax: the
+ * scene box. Writes t (t_max on a miss), u, v (0 on a miss) and tri (KD_NO_HIT on a
+ * miss) per lane, and with STATS per-lane counts. */
 void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uint *leaf_tris,
-                  __global const float *tris, float3 bmin, float3 bmax, uint count,
-                  const float3 *o, const float3 *d, float t_min, float t_max, Hit *hits
+                  __global const float *tris, float3 bmin, float3 bmax, int8 on,
+                  float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz,
+                  float t_min, float t_max,
+                  float8 *t_out, float8 *u_out, float8 *v_out, uint8 *tri_out
 #ifdef STATS
-                  , uint4 *stats
+                  , KdU8 *stat_x, KdU8 *stat_y, KdU8 *stat_z, KdU8 *stat_w
 #endif
                   )
 {
+    /* trace_ray's checks and box clip, lane by lane in vectors */
+    int8 finite = (ox - ox == 0.0f) & (oy - oy == 0.0f) & (oz - oz == 0.0f)
+                  & (dx - dx == 0.0f) & (dy - dy == 0.0f) & (dz - dz == 0.0f);
+    on &= finite & ~((dx == 0.0f) & (dy == 0.0f) & (dz == 0.0f));
+    float8 t_enter = (float8)(t_min), t_exit = (float8)(t_max);
+    on &= kd_slab8(ox, dx, bmin.x, bmax.x, &t_enter, &t_exit);
+    on &= kd_slab8(oy, dy, bmin.y, bmax.y, &t_enter, &t_exit);
+    on &= kd_slab8(oz, dz, bmin.z, bmax.z, &t_enter, &t_exit);
+    on &= t_enter <= t_exit;
+
+    /* ray_shear for every lane */
     KdPacket r;
-    KdF8 okx, oky, okz, Sx, Sy, Sz, ox, oy, oz, dx, dy, dz, t_enter, t_exit;
-    KdI8 kx, ky, kz, act;
-    for (uint l = 0; l < KD_PACKET; l++) {
-        /* lanes past `count` copy ray 0 and stay off */
-        float3 ol = o[l < count ? l : 0u];
-        float3 dl = d[l < count ? l : 0u];
-        hits[l].t = t_max;
-        hits[l].u = 0.0f;
-        hits[l].v = 0.0f;
-        hits[l].tri = KD_NO_HIT;
-        /* trace_ray's checks and box clip */
-        float te = t_min, tx = t_max;
-        bool on = l < count && kd_finite3(ol) && kd_finite3(dl)
-                  && !(dl.x == 0.0f && dl.y == 0.0f && dl.z == 0.0f)
-                  && kd_slab(ol.x, dl.x, bmin.x, bmax.x, &te, &tx)
-                  && kd_slab(ol.y, dl.y, bmin.y, bmax.y, &te, &tx)
-                  && kd_slab(ol.z, dl.z, bmin.z, bmax.z, &te, &tx)
-                  && te <= tx;
-        RayShear s = ray_shear(dl);
-        r.shear[l] = s;
-        r.o_lane[l] = ol;
-        okx.s[l] = kd_comp(ol, s.kx); oky.s[l] = kd_comp(ol, s.ky); okz.s[l] = kd_comp(ol, s.kz);
-        Sx.s[l] = s.Sx; Sy.s[l] = s.Sy; Sz.s[l] = s.Sz;
-        kx.s[l] = (int)s.kx; ky.s[l] = (int)s.ky; kz.s[l] = (int)s.kz;
-        ox.s[l] = ol.x; oy.s[l] = ol.y; oz.s[l] = ol.z;
-        dx.s[l] = dl.x; dy.s[l] = dl.y; dz.s[l] = dl.z;
-        t_enter.s[l] = te;
-        t_exit.s[l] = tx;
-        act.s[l] = on ? -1 : 0;
-    }
-    /* the shear axes are uniform when every lane that is on has those of the first */
-    r.uniform = true;
-    r.ukx = 0u; r.uky = 1u; r.ukz = 2u;
-    bool first = true;
-    for (uint l = 0; l < KD_PACKET; l++) {
-        if (!act.s[l])
-            continue;
-        if (first) {
-            r.ukx = (uint)kx.s[l]; r.uky = (uint)ky.s[l]; r.ukz = (uint)kz.s[l];
-            first = false;
-        }
-        r.uniform = r.uniform && (uint)kx.s[l] == r.ukx && (uint)ky.s[l] == r.uky
-                    && (uint)kz.s[l] == r.ukz;
-    }
-    r.okx = okx.v; r.oky = oky.v; r.okz = okz.v;
-    r.Sx = Sx.v; r.Sy = Sy.v; r.Sz = Sz.v;
-    r.kx = kx.v; r.ky = ky.v; r.kz = kz.v;
-    r.o[0] = ox.v; r.o[1] = oy.v; r.o[2] = oz.v;
-    r.d[0] = dx.v; r.d[1] = dy.v; r.d[2] = dz.v;
+    float8 ax = kd_abs8(dx), ay = kd_abs8(dy), az = kd_abs8(dz);
+    int8 kz = kd_select8i(kd_select8i((int8)(2), (int8)(1), ay >= az),
+                          kd_select8i((int8)(2), (int8)(0), ax >= az), ax >= ay);
+    int8 kx = kd_select8i(kz + 1, (int8)(0), kz == 2);
+    int8 ky = kd_select8i(kx + 1, (int8)(0), kx == 2);
+    float8 d_kz = kd_comp8(dx, dy, dz, kz);
+    int8 flip = d_kz < 0.0f;              /* swap kx, ky: keeps the winding */
+    int8 k = kx;
+    kx = kd_select8i(kx, ky, flip);
+    ky = kd_select8i(ky, k, flip);
+    r.kx = kx; r.ky = ky; r.kz = kz;
+    r.Sx = kd_comp8(dx, dy, dz, kx) / d_kz;
+    r.Sy = kd_comp8(dx, dy, dz, ky) / d_kz;
+    r.Sz = 1.0f / d_kz;
+    r.okx = kd_comp8(ox, oy, oz, kx);
+    r.oky = kd_comp8(ox, oy, oz, ky);
+    r.okz = kd_comp8(ox, oy, oz, kz);
+    r.o[0] = ox; r.o[1] = oy; r.o[2] = oz;
+    r.d[0] = dx; r.d[1] = dy; r.d[2] = dz;
     r.t_min = (float8)(t_min);
     r.t_max = (float8)(t_max);
+    /* uniform axes: those of the first lane that is on, shared by every lane on */
+    KdI8 on_l, kx_l, ky_l, kz_l;
+    on_l.v = on; kx_l.v = kx; ky_l.v = ky; kz_l.v = kz;
+    uint first = 0;
+    while (first < KD_PACKET - 1 && !on_l.s[first])
+        first++;
+    r.ukx = (uint)kx_l.s[first]; r.uky = (uint)ky_l.s[first]; r.ukz = (uint)kz_l.s[first];
+    r.uniform = !kd_any8(on & ((kx != (int)r.ukx) | (ky != (int)r.uky) | (kz != (int)r.ukz)));
 
     KdPacketHit h;
     h.t = (float8)(t_max);
@@ -366,44 +383,54 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uin
     h.tri = (uint8)(KD_NO_HIT);
     KdI8 fallback;
     fallback.v = (int8)(0);
-    int8 on = act.v;
 #ifdef STATS
     KdPacketStats ps;
     ps.x = (uint8)(0u); ps.y = (uint8)(0u); ps.z = (uint8)(0u);
     KdPacketStats *pstats = &ps;
 #endif
     if (kd_any8(on))
-        kd_packet_traverse(nodes, 2u * n_nodes + 2u, leaf_tris, tris, &r, on,
-                           t_enter.v, t_exit.v, &h, &fallback.v KD_PSTATS_ARG);
+        kd_packet_traverse(nodes, 2u * n_nodes + 2u, leaf_tris, tris, &r, on, t_enter, t_exit,
+                           &h, &fallback.v KD_PSTATS_ARG);
 
-    KdF8 t_l, V_l, W_l, det_l;
+    KdF8 t_l, u_l, v_l;
     KdU8 tri_l;
-    t_l.v = h.t; V_l.v = h.V; W_l.v = h.W; det_l.v = h.det; tri_l.v = h.tri;
+    t_l.v = h.t;
+    u_l.v = h.V / h.det;
+    v_l.v = h.W / h.det;
+    tri_l.v = h.tri;
 #ifdef STATS
-    KdU8 sx, sy, sz;
-    sx.v = ps.x; sy.v = ps.y; sz.v = ps.z;
+    stat_x->v = ps.x; stat_y->v = ps.y; stat_z->v = ps.z; stat_w->v = (uint8)(0u);
 #endif
-    for (uint l = 0; l < count; l++) {
-#ifdef STATS
-        stats[l] = (uint4)(sx.s[l], sy.s[l], sz.s[l], 0u);
-#endif
-        if (fallback.s[l]) {
+    if (kd_any8(fallback.v)) {
+        /* lanes the packet handed over: the scalar kernel from the start */
+        KdF8 oxl, oyl, ozl, dxl, dyl, dzl;
+        oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
+        for (uint l = 0; l < KD_PACKET; l++) {
+            if (!fallback.s[l])
+                continue;
+            Hit hit;
+            float3 o = (float3)(oxl.s[l], oyl.s[l], ozl.s[l]);
+            float3 d = (float3)(dxl.s[l], dyl.s[l], dzl.s[l]);
 #ifdef STATS
             uint4 more = (uint4)(0u);
-            trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o[l], d[l], t_min, t_max,
-                      &hits[l], &more);
-            stats[l] += more;
+            trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o, d, t_min, t_max, &hit, &more);
+            stat_x->s[l] += more.x; stat_y->s[l] += more.y;
+            stat_z->s[l] += more.z; stat_w->s[l] += more.w;
 #else
-            trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o[l], d[l], t_min, t_max,
-                      &hits[l]);
+            trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o, d, t_min, t_max, &hit);
 #endif
-        } else if (act.s[l] && tri_l.s[l] != KD_NO_HIT) {
-            hits[l].t = t_l.s[l];
-            hits[l].u = V_l.s[l] / det_l.s[l];
-            hits[l].v = W_l.s[l] / det_l.s[l];
-            hits[l].tri = tri_l.s[l];
+            t_l.s[l] = hit.t;
+            u_l.s[l] = hit.u;
+            v_l.s[l] = hit.v;
+            tri_l.s[l] = hit.tri;
         }
     }
+    /* a miss: t_max, 0, 0 (as trace_ray) */
+    int8 miss = as_int8(tri_l.v == (uint8)(KD_NO_HIT));
+    *t_out = kd_select8(t_l.v, (float8)(t_max), miss);
+    *u_out = kd_select8(u_l.v, (float8)(0.0f), miss);
+    *v_out = kd_select8(v_l.v, (float8)(0.0f), miss);
+    *tri_out = tri_l.v;
 }
 
 #endif

@@ -78,19 +78,35 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
 void trace_and_store(uint k0, uint count, const float3 *o, const float3 *d, float t_min,
                      float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS)
 {
-    Hit hits[KD_PACKET];
+    KdF8 ox, oy, oz, dx, dy, dz;
+    KdI8 on;
+    for (uint l = 0; l < KD_PACKET; l++) {
+        uint j = l < count ? l : 0u;     /* lanes past count copy ray 0 and stay off */
+        ox.s[l] = o[j].x; oy.s[l] = o[j].y; oz.s[l] = o[j].z;
+        dx.s[l] = d[j].x; dy.s[l] = d[j].y; dz.s[l] = d[j].z;
+        on.s[l] = l < count ? -1 : 0;
+    }
+    KdF8 t_l, u_l, v_l;
+    KdU8 tri_l;
 #ifdef STATS
-    uint4 stats[KD_PACKET];
-    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, count, o, d, t_min, t_max, hits,
-                 stats);
+    KdU8 sx, sy, sz, sw;
+    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, on.v, ox.v, oy.v, oz.v,
+                 dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
+                 &sx, &sy, &sz, &sw);
 #else
-    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, count, o, d, t_min, t_max, hits);
+    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, on.v, ox.v, oy.v, oz.v,
+                 dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
 #endif
     for (uint l = 0; l < count; l++) {
 #ifdef STATS
-        vstore4(stats[l], k0 + l, out_stats);
+        vstore4((uint4)(sx.s[l], sy.s[l], sz.s[l], sw.s[l]), k0 + l, out_stats);
 #endif
-        store_hit(k0 + l, &hits[l], tris, tri_ids, KD_OUTPUT_PASS);
+        Hit hit;
+        hit.t = t_l.s[l];
+        hit.u = u_l.s[l];
+        hit.v = v_l.s[l];
+        hit.tri = tri_l.s[l];
+        store_hit(k0 + l, &hit, tris, tri_ids, KD_OUTPUT_PASS);
     }
 }
 #define KD_RAYS_PER_ITEM KD_PACKET
