@@ -60,7 +60,7 @@ def run_once(scene, size, env, out):
                 name = m.group(3).split(".")[0]
                 imports[name] = imports.get(name, 0.0) + int(m.group(1)) * 1e-6
         elif line.startswith("kdray: start-up"):
-            steps = dict((k, float(v)) for k, v in re.findall(r"([^,]+?) (\d+\.\d+) s(?:, |$)", line[7:]))
+            steps = dict((k, float(v)) for k, v in re.findall(r"(.+?) (\d+\.\d+) s(?:, |$)", line[7:]))
     if steps is None:
         raise SystemExit("no step timings in kdray -v's output")
     row = {}
@@ -84,10 +84,9 @@ def cpu_name():
 
 def opencl_name():
     try:
-        import pyopencl as cl
         from kdray.device import choose_device
         d = choose_device(None)
-        return f"{d.name.strip()}, {d.platform.version.strip().split(' Linux')[0]}"
+        return f"{d.name.strip()}, {d.platform.version.split(' Linux')[0].strip()}"
     except Exception as e:  # the table is still useful without it
         return f"unknown OpenCL device ({e})"
 
