@@ -72,12 +72,12 @@ def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, 
 
     mesh = prepare(vertices, faces, origin)
     params = params.resolved(len(mesh.triangles))
-    keys, counts = sorted_root_events(mesh.triangles)
+    # The events are the builder's event stack, with room to grow (about twice the root's).
     nodes, leaf_tris, depth = build_nodes(
-        mesh.triangles, keys, counts, mesh.bounds.astype(np.float64),
+        mesh.triangles, *sorted_root_events(mesh.triangles, room=6 * len(mesh.triangles) + 64),
+        mesh.bounds.astype(np.float64),
         params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size,
         threads=int(threads))
-    del keys
     log.debug("built %d nodes, %d leaf references over %d triangles (%d input)",
               len(nodes), len(leaf_tris), len(mesh.triangles), mesh.n_input_tris)
     return KdTree(nodes=nodes, leaf_tris=leaf_tris, triangles=mesh.triangles,

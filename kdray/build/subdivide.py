@@ -58,26 +58,27 @@ def _grow(a, used, need):
 
 
 @njit(cache=True, nogil=True)
-def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty_bonus,
+def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty_bonus,
               max_depth, leaf_size, task_depth):
     """Build the nodes of the subtree of one node from its sorted events.
 
-    tri : (m, 3, 3) float32;  keys (e,) uint64, counts (3,) int64 : the node's sorted
-    event runs (the root's from `events.sorted_root_events`);  n_tris : its triangles;
+    tri : (m, 3, 3) float32;  buf (>= e,) uint64, counts (3,) int64 : the node's sorted
+    event runs in buf[:e], e = counts.sum() (the root's from `events.sorted_root_events`);
+    buf is used, and overwritten, as the event stack: room for about 2 e keys saves
+    copying it to a larger one (untouched room costs no memory);  n_tris : its triangles;
     bounds : (2, 3) float64 its box (float32 values);  depth0 : its depth;  budget0 :
     its reference budget (the root's max_refs_per_tri * m, see MAX_REFS_PER_TRI);
     max_depth : resolved;  task_depth : nodes at this depth (> depth0) are not built
     but handed back as tasks (a placeholder node stands in for each), -1 = none.
     Returns (nodes (n, 2) uint32, leaf_tris (r,) uint32, depth of the deepest leaf,
-    tasks), node and leaf indices counted from this subtree's root; tasks is
+    tasks), node and leaf indices counted from this subtree's root (nodes and
+    leaf_tris are views of larger arrays, not copied here: the caller copies them
+    once `buf` is freed); tasks is
     (node (k,) int64 placeholder index, keys (E,) uint64 and key_start (k + 1,) int64
     their events, counts (k, 3) int64, n (k,) int64, box (k, 2, 3) float64,
     depth (k,) int64, budget (k,) float64), in node order.
     """
     m = n_tris
-    total = len(keys)
-    buf = np.empty(max(2 * total, 64), dtype=np.uint64)
-    buf[:total] = keys
 
     # Work stack: at most one pending right child per level, plus the node on top.
     cap_stack = max_depth + 4
@@ -109,9 +110,11 @@ def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empt
     task_budget = np.empty(16, dtype=np.float64)
     n_tasks = 0
 
-    nodes = np.empty((max(16, 2 * m), 2), dtype=np.uint32)
+    # Room for the nodes and references of typical meshes (8 and 5 per triangle for
+    # the bunny); pages never written are never resident, so the room costs nothing.
+    nodes = np.empty((16 * m + 16, 2), dtype=np.uint32)
     n_nodes = 0
-    leaf_tris = np.empty(max(16, 2 * m), dtype=np.uint32)
+    leaf_tris = np.empty(16 * m + 16, dtype=np.uint32)
     n_refs = 0
     deepest = 0
 
@@ -271,14 +274,15 @@ def subdivide(tri, keys, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empt
     tasks = (task_node[:n_tasks].copy(), task_keys[:task_start[n_tasks]].copy(),
              task_start[:n_tasks + 1].copy(), task_counts[:n_tasks].copy(), task_n[:n_tasks].copy(),
              task_box[:n_tasks].copy(), task_depth_of[:n_tasks].copy(), task_budget[:n_tasks].copy())
-    return nodes[:n_nodes].copy(), leaf_tris[:n_refs].copy(), deepest, tasks
+    return nodes[:n_nodes], leaf_tris[:n_refs], deepest, tasks
 
 
 def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_size,
                 threads=1, max_refs_per_tri=MAX_REFS_PER_TRI):
     """The tree's nodes from the root's sorted events, on `threads` threads.
 
-    tri : (m, 3, 3) float32;  keys, counts : from `events.sorted_root_events`;
+    tri : (m, 3, 3) float32;  keys, counts : from `events.sorted_root_events` (keys
+    are overwritten: pass the only reference to them, so that they are freed early);
     bounds : (2, 3) float64 root box (float32 values);  max_depth : resolved.
     Returns (nodes (n, 2) uint32, leaf_tris (r,) uint32, depth of the deepest leaf),
     the same for any `threads`.
@@ -288,15 +292,21 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     budget = max_refs_per_tri * m
     if threads <= 1 or m < MIN_PARALLEL_TRIS or max_depth <= TASK_DEPTH:
         nodes, leaf_tris, depth, _ = subdivide(tri, keys, counts, m, bounds, 0, budget, *args, -1)
-        return nodes, leaf_tris, depth
+        return nodes.copy(), leaf_tris.copy(), depth
     nodes, leaf_tris, depth, tasks = subdivide(tri, keys, counts, m, bounds, 0, budget, *args,
                                                TASK_DEPTH)
     node, task_keys, key_start, task_counts, task_n, task_box, task_depth, task_budget = tasks
     del keys, tasks
 
     def run(k):
-        return subdivide(tri, task_keys[key_start[k]:key_start[k + 1]], task_counts[k],
-                         task_n[k], task_box[k], task_depth[k], task_budget[k], *args, -1)[:3]
+        e = key_start[k + 1] - key_start[k]
+        buf = np.empty(2 * e + 64, dtype=np.uint64)
+        buf[:e] = task_keys[key_start[k]:key_start[k + 1]]
+        sub_nodes, sub_leaf_tris, sub_depth, _ = subdivide(
+            tri, buf, task_counts[k], task_n[k], task_box[k], task_depth[k], task_budget[k],
+            *args, -1)
+        del buf
+        return sub_nodes.copy(), sub_leaf_tris.copy(), sub_depth
 
     # Largest first, so that the last task to finish is a small one.
     order = np.argsort(-np.diff(key_start), kind="stable")
