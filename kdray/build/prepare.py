@@ -56,7 +56,9 @@ def prepare(vertices, faces, origin=None):
             raise MeshError(f"origin must be 3 finite numbers, got {origin!r}")
 
     with np.errstate(over="ignore", invalid="ignore"):
-        tri = (v[f] - origin).astype(np.float32)
+        tri = v[f]
+        tri -= origin                                  # in place: one (m, 3, 3) float64 array
+        tri = tri.astype(np.float32)
         finite = np.isfinite(tri).all(axis=(1, 2))
         e1 = tri[:, 1] - tri[:, 0]
         e2 = tri[:, 2] - tri[:, 0]
@@ -65,7 +67,8 @@ def prepare(vertices, faces, origin=None):
     if not keep.any():
         raise MeshError("no triangles left after removing degenerate ones")
     tri_ids = np.flatnonzero(keep).astype(np.uint32)
-    tri = np.ascontiguousarray(tri[keep])
+    if len(tri_ids) < m:
+        tri = np.ascontiguousarray(tri[keep])
     flat = tri.reshape(-1, 9)                # a reduction over rows of 9 is the fast one in numpy
     lo = flat.min(axis=0).reshape(3, 3).min(axis=0)
     hi = flat.max(axis=0).reshape(3, 3).max(axis=0)

@@ -302,11 +302,8 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
         e = key_start[k + 1] - key_start[k]
         buf = np.empty(2 * e + 64, dtype=np.uint64)
         buf[:e] = task_keys[key_start[k]:key_start[k + 1]]
-        sub_nodes, sub_leaf_tris, sub_depth, _ = subdivide(
-            tri, buf, task_counts[k], task_n[k], task_box[k], task_depth[k], task_budget[k],
-            *args, -1)
-        del buf
-        return sub_nodes.copy(), sub_leaf_tris.copy(), sub_depth
+        return subdivide(tri, buf, task_counts[k], task_n[k], task_box[k], task_depth[k],
+                         task_budget[k], *args, -1)[:3]
 
     # Largest first, so that the last task to finish is a small one.
     order = np.argsort(-np.diff(key_start), kind="stable")
@@ -317,6 +314,21 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     nodes, leaf_tris = splice(nodes, leaf_tris, node, [s[0] for s in subtrees],
                               [s[1] for s in subtrees])
     return nodes, leaf_tris, depth
+
+
+@njit(cache=True, nogil=True)
+def _relocate(sub, out, base, ref_shift):
+    """out[base:base + len(sub)] = sub with above_child + base and leaf_offset + ref_shift.
+
+    sub, out : (n, 2) uint32 nodes;  base, ref_shift : int."""
+    above_shift = np.uint32(base) << _U2
+    for i in range(sub.shape[0]):
+        if sub[i, 0] & _LEAF == _LEAF:
+            out[base + i, 0] = sub[i, 0]
+            out[base + i, 1] = sub[i, 1] + np.uint32(ref_shift)
+        else:
+            out[base + i, 0] = sub[i, 0] + above_shift
+            out[base + i, 1] = sub[i, 1]
 
 
 def splice(nodes, leaf_tris, node, sub_nodes, sub_leaf_tris):
@@ -351,11 +363,7 @@ def splice(nodes, leaf_tris, node, sub_nodes, sub_leaf_tris):
     pieces = []
     for j, (sub, sub_refs) in enumerate(zip(sub_nodes, sub_leaf_tris)):
         base = new_index[node[j]]
-        sub = sub.copy()
-        sub_leaf = (sub[:, 0] & _LEAF) == _LEAF
-        sub[~sub_leaf, 0] += np.uint32(base << 2)
-        sub[sub_leaf, 1] += np.uint32(top_refs_before[j] + ref_shift[j])
-        out[base:base + len(sub)] = sub
+        _relocate(sub, out, base, top_refs_before[j] + ref_shift[j])
         start = top_refs_before[j - 1] if j > 0 else 0
         pieces += [leaf_tris[start:top_refs_before[j]], sub_refs]
     pieces.append(leaf_tris[top_refs_before[-1] if len(node) else 0:])
