@@ -101,7 +101,10 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
     top = 1
 
     task_node = np.empty(16, dtype=np.int64)
-    task_keys = np.empty(16, dtype=np.uint64)
+    # Room for the tasks' events (a few more than the node's) without copying them as
+    # they grow; untouched room is never resident.
+    task_keys = np.empty(2 * (counts[0] + counts[1] + counts[2]) + 16 if task_depth >= 0 else 16,
+                         dtype=np.uint64)
     task_start = np.zeros(17, dtype=np.int64)
     task_counts = np.empty((16, 3), dtype=np.int64)
     task_n = np.empty(16, dtype=np.int64)
@@ -310,6 +313,7 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     with concurrent.futures.ThreadPoolExecutor(threads) as pool:
         futures = {k: pool.submit(run, k) for k in order}
         subtrees = [futures[k].result() for k in range(len(node))]
+    del task_keys, futures
     depth = max([depth] + [d for _, _, d in subtrees])
     nodes, leaf_tris = splice(nodes, leaf_tris, node, [s[0] for s in subtrees],
                               [s[1] for s in subtrees])
