@@ -3,6 +3,7 @@
     keep = cull_faces(vertices, faces, camera)              # (k,) int64 face rows
     tree, n_left_out = build_for_camera(vertices, faces, camera, K_T=15.0)
     lo, hi = scene_box(vertices, faces)                     # what framing uses
+    origin = mesh_origin(vertices, faces)                   # the builder's default origin
 
 The frustum is the cone from the eye through the outermost pixel centres (pixels
 (0, 0), (W-1, 0), (W-1, H-1), (0, H-1), sampled at i + 0.5, j + 0.5), cut by the
@@ -89,15 +90,14 @@ def cull_faces(vertices, faces, camera, origin=None):
     v, f = check_arrays(vertices, faces)
     used = np.zeros(len(v), dtype=bool)
     used[f.ravel()] = True
-    finite = used & np.isfinite(v).all(axis=1)
+    used &= np.isfinite(v).all(axis=1)
+    if not used.any():                  # no finite vertex: no triangle can be hit anyway
+        return np.arange(len(f), dtype=np.int64)
+    if origin is None:
+        origin = mesh_origin(v, f)
     eye = np.asarray(camera.cam_to_world, dtype=np.float64)[:3, 3]
     rotation = np.asarray(camera.cam_to_world, dtype=np.float64)[:3, :3]
-    if not finite.any():
-        return np.arange(len(f), dtype=np.int64)
-    pts = v[finite]
-    if origin is None:
-        origin = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-    size = max(np.linalg.norm(pts - origin, axis=1).max(), np.linalg.norm(eye - origin))
+    size = max(np.linalg.norm(v[used] - origin, axis=1).max(), np.linalg.norm(eye - origin))
     abs_margin = SCENE_MARGIN * size
 
     planes, angle_margin = _frustum(camera)
@@ -119,25 +119,40 @@ def scene_box(vertices, faces):
             prep.origin + prep.bounds[1].astype(np.float64))
 
 
+def mesh_origin(vertices, faces):
+    """(3,) float64: the builder's default origin, the centre of the box of the finite
+    vertices the faces use (kdray.build.prepare's rule), or None when there is none."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.ravel()] = True
+    used &= np.isfinite(vertices).all(axis=1)
+    if not used.any():
+        return None
+    pts = vertices[used]
+    return 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+
+
 def build_for_camera(vertices, faces, camera, **build_params):
     """A KdTree of the triangles `camera` may see; its images equal the whole mesh's.
 
     vertices : (n, 3) float64;  faces : (m, 3) int;  camera : kdray.Camera
     build_params : keyword arguments of kdray.build.build (K_T, K_I, ...; not origin)
-    Returns (tree, n_left_out): the tree, with `tri_ids` pointing into `faces` and
-    `n_input_tris` = m, and the number of non-degenerate triangles left out by the
-    cull. When the camera sees nothing, one unreachable triangle (the first
-    non-degenerate one) is kept so that the tree is not empty: every ray misses.
+    Returns (tree, n_left_out): the tree, with the whole mesh's origin, `tri_ids`
+    pointing into `faces` and `n_input_tris` = m, and the number of triangles the cull
+    left out (degenerate ones among them included; the builder leaves out the
+    degenerate ones it is given, so m - n_left_out - len(tree.tri_ids) of those).
+    When the camera sees nothing, one unreachable triangle (the first non-degenerate
+    one) is kept so that the tree is not empty: every ray misses.
     Raises MeshError (as build does) when the mesh has no usable triangle.
     """
     v, f = check_arrays(vertices, faces)
-    prep = prepare(v, f)
-    candidates = prep.tri_ids.astype(np.int64)                  # non-degenerate rows
-    keep = cull_faces(v, f[candidates], camera, origin=prep.origin)
-    keep = candidates[keep] if len(keep) else candidates[:1]
-    n_left_out = len(candidates) - len(keep)
-    tree = build(v, f[keep], origin=prep.origin, **build_params)
+    origin = mesh_origin(v, f)
+    if origin is None:
+        prepare(v, f)                                           # raises build's MeshError
+    keep = cull_faces(v, f, camera, origin=origin)
+    if len(keep) == 0:
+        keep = prepare(v, f, origin).tri_ids[:1].astype(np.int64)
+    tree = build(v, f[keep], origin=origin, **build_params)
     tree = dataclasses.replace(tree, tri_ids=keep[tree.tri_ids].astype(np.uint32),
                                n_input_tris=len(f))
-    log.debug("culled %d of %d triangles outside the view frustum", n_left_out, len(candidates))
-    return tree, n_left_out
+    log.debug("culled %d of %d triangles outside the view frustum", len(f) - len(keep), len(f))
+    return tree, len(f) - len(keep)

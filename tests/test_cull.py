@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import kdray
-from kdray.cull import build_for_camera, cull_faces, scene_box
+from kdray.cull import build_for_camera, cull_faces, mesh_origin, scene_box
 from conftest import SCENES, shared_mesh_arrays
 
 SIZE = (96, 72)
@@ -120,3 +120,17 @@ def test_culling_keeps_degenerate_free_ids_and_refuses_bad_meshes():
     with pytest.raises(kdray.MeshError):
         build_for_camera(np.zeros((3, 3)), np.array([[0, 1, 2]]),
                          kdray.Camera.look_at((0, 0, 1), (0, 0, 0)))
+
+
+def test_mesh_origin_is_the_builders(rng):
+    """Unused and non-finite vertices are ignored as the builder ignores them."""
+    vertices = rng.normal(size=(40, 3)) * [1.0, 3.0, 1e3] + [5.0, -2.0, 1e5]
+    vertices[7] = [1e9, -1e9, 1e9]                          # unused
+    vertices[11] = [np.nan, 0.0, 0.0]                       # used, not finite
+    faces = rng.integers(0, 40, size=(30, 3))
+    faces = faces[(faces != 7).all(axis=1)]
+    faces[0] = [11, 1, 2]
+    origin = kdray.build(vertices, faces).origin
+    assert mesh_origin(vertices, faces).tolist() == origin.tolist()
+    tree, _ = build_for_camera(vertices, faces, kdray.Camera.look_at((5, -2, 0), (5, -2, 1e5)))
+    assert tree.origin.tolist() == origin.tolist()
