@@ -2,7 +2,8 @@
 
 `mesh(name)` -> kdray.Mesh for names like "bunny" (69,451 triangles), "bunny-x4"
 (each triangle split into 4 once: 277,804), "teapot-x256" (1,617,920), ...
-A suffix -x4^k subdivides k times (midpoint subdivision, deterministic).
+A suffix -x4^k subdivides k times (midpoint subdivision, deterministic); "bunny-1.6M"
+is the bunny subdivided twice and its first 162,928 faces a third time (1,600,000).
 """
 import math
 from pathlib import Path
@@ -26,6 +27,15 @@ def mesh(name):
     """'bunny', 'bunny-x4', 'teapot-x256', ... -> kdray.mesh.Mesh."""
     from kdray.load import load
     from kdray.mesh import Mesh
+    if name == "bunny-1.6M":
+        import trimesh.remesh
+        from kdray.mesh import Mesh
+        b = mesh("bunny")
+        v, f = subdivide(b.vertices, b.faces, 2)
+        extra = (1_600_000 - len(f)) // 3
+        v, f = trimesh.remesh.subdivide(v, f, face_index=np.arange(extra))
+        return Mesh.from_arrays(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64),
+                                name=name)
     base, _, factor = name.partition("-x")
     m = load(SHARED / FILES[base])
     if factor:

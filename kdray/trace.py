@@ -85,6 +85,11 @@ def default_stack_size(tree):
 PACKET = 8
 """Rays per work-item in packet mode (float8 lanes, kernels/packet.cl)."""
 
+RENDER_TILE = (64, 8)
+"""(columns, rows) of the tiles `render` takes pixels in (kernels/render.cl): neighbours
+in both directions are traced one after another and share the tree's nodes in the
+cache. Columns are a multiple of PACKET."""
+
 
 def default_packet(device):
     """Rays per work-item: PACKET on CPU devices, 1 on others.
@@ -206,7 +211,8 @@ class Tracer:
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
         with its kernels: {"program": Program, "trace_rays": Kernel, ...}."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
-                   "BATCH_SIZE": self.batch_size}
+                   "BATCH_SIZE": self.batch_size, "TILE_W": RENDER_TILE[0],
+                   "TILE_H": RENDER_TILE[1]}
         if self.packet > 1:
             defines["PACKET"] = None
             defines["PACKET_STACK_SIZE"] = default_stack_size(self.tree)
@@ -231,8 +237,9 @@ class Tracer:
     # -- launching ---------------------------------------------------------------------
 
     def _launch(self, kernel_name, outputs, n, args, host_out, stats=False):
-        """Run `kernel_name` over n rays writing `host_out` (dict output -> host array of
-        n rows). args: the kernel's arguments between the tree and the counter."""
+        """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
+        slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
+        args: the kernel's arguments between the tree and the counter."""
         cl = _device._cl()
         if n == 0:
             return
@@ -366,8 +373,9 @@ class Tracer:
         if w < 1 or h < 1:
             raise KdrayError(f"camera size must be at least 1x1, got {w}x{h}")
         n = w * h
-        if n >= 1 << 32:
-            raise KdrayError(f"{w}x{h} pixels are too many for one render (at most 2^32 - 1)")
+        if n >= 1 << 32 or _tile_slots(w, min(h, max(1, MAX_RAYS_PER_LAUNCH // w))) >= 1 << 32:
+            raise KdrayError(f"{w}x{h} pixels are too many for one render (at most 2^32 - 1, "
+                             f"rows padded to {RENDER_TILE[0]} columns)")
         _check_host_memory(n * _host_bytes_per_pixel(aovs), f"a {w}x{h} render of {', '.join(aovs)}")
         outputs = []
         if {"depth", "distance", "position"} & set(aovs):
@@ -382,10 +390,14 @@ class Tracer:
         out = {k: np.empty(shapes[k], _OUTPUT_WIDTH[k][1]) for k in outputs}
         M, eye = self._camera_constants(camera)
         camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]).astype(np.float32))
-        for start in range(0, n, MAX_RAYS_PER_LAUNCH):
-            stop = min(n, start + MAX_RAYS_PER_LAUNCH)
-            self._launch("render_camera", tuple(outputs), stop - start,
-                         (camera_buf, np.uint32(w), np.uint32(start), np.uint32(stop - start)),
+        # launches of whole rows, MAX_RAYS_PER_LAUNCH pixels or one row at most
+        rows_per_launch = max(1, MAX_RAYS_PER_LAUNCH // w)
+        for row0 in range(0, h, rows_per_launch):
+            n_rows = min(h - row0, rows_per_launch)
+            start, stop = row0 * w, (row0 + n_rows) * w
+            slots = _tile_slots(w, n_rows)
+            self._launch("render_camera", tuple(outputs), slots,
+                         (camera_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
                          {k: v[start:stop] for k, v in out.items()})
 
         images = {}
@@ -410,6 +422,12 @@ class Tracer:
             elif name == "id":
                 images[name] = out["ID"].reshape(h, w)
         return images
+
+
+def _tile_slots(width, n_rows):
+    """Slots of the render kernel's tiling of `n_rows` rows: whole RENDER_TILE tiles."""
+    tw, th = RENDER_TILE
+    return -(-width // tw) * tw * (-(-n_rows // th) * th)
 
 
 def _host_bytes_per_pixel(aovs):

@@ -74,9 +74,10 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
 }
 
 #ifdef PACKET
-/* Trace rays k0 .. k0 + count - 1 (count <= KD_PACKET) as one packet and store them. */
-void trace_and_store(uint k0, uint count, const float3 *o, const float3 *d, float t_min,
-                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS)
+/* Trace rays o[l] + t d[l], l < count <= KD_PACKET, as one packet and store ray l's
+ * outputs at index idx[l]. */
+void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
+                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx)
 {
     KdF8 ox, oy, oz, dx, dy, dz;
     KdI8 on;
@@ -99,32 +100,32 @@ void trace_and_store(uint k0, uint count, const float3 *o, const float3 *d, floa
 #endif
     for (uint l = 0; l < count; l++) {
 #ifdef STATS
-        vstore4((uint4)(sx.s[l], sy.s[l], sz.s[l], sw.s[l]), k0 + l, out_stats);
+        vstore4((uint4)(sx.s[l], sy.s[l], sz.s[l], sw.s[l]), idx[l], out_stats);
 #endif
         Hit hit;
         hit.t = t_l.s[l];
         hit.u = u_l.s[l];
         hit.v = v_l.s[l];
         hit.tri = tri_l.s[l];
-        store_hit(k0 + l, &hit, tris, tri_ids, KD_OUTPUT_PASS);
+        store_hit(idx[l], &hit, tris, tri_ids, KD_OUTPUT_PASS);
     }
 }
 #define KD_RAYS_PER_ITEM KD_PACKET
 #else
-/* Trace ray k0 (count = 1) and store it. */
-void trace_and_store(uint k0, uint count, const float3 *o, const float3 *d, float t_min,
-                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS)
+/* Trace ray o[0] + t d[0] (count = 1) and store its outputs at index idx[0]. */
+void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
+                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx)
 {
     Hit hit;
 #ifdef STATS
     uint4 stats = (uint4)(0u);
     trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o[0], d[0], t_min, t_max, &hit,
               &stats);
-    vstore4(stats, k0, out_stats);
+    vstore4(stats, idx[0], out_stats);
 #else
     trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o[0], d[0], t_min, t_max, &hit);
 #endif
-    store_hit(k0, &hit, tris, tri_ids, KD_OUTPUT_PASS);
+    store_hit(idx[0], &hit, tris, tri_ids, KD_OUTPUT_PASS);
 }
 #define KD_RAYS_PER_ITEM 1
 #endif
@@ -163,23 +164,37 @@ void trace_rays(KD_TREE_ARGS,
                 break;
             uint count = min((uint)KD_RAYS_PER_ITEM, n_rays - k0);
             float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
+            uint idx[KD_RAYS_PER_ITEM];
             for (uint l = 0; l < count; l++) {
                 o[l] = vload3(k0 + l, origins);
                 d[l] = vload3(k0 + l, directions);
+                idx[l] = k0 + l;
             }
-            trace_and_store(k0, count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS);
+            trace_and_store(count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, idx);
         }
     }
 }
 
-/* Primary rays of pixels pixel_offset .. pixel_offset + n_pixels - 1 (row-major, row
- * length `width`), written to outputs 0 .. n_pixels - 1.
+/* Primary rays of the pixels in rows row0 .. row0 + n_rows - 1 (row length `width`),
+ * written to outputs 0 .. n_rows * width - 1 (row-major, from row0).
  * camera: 12 floats, M = R K^-1 row-major (9), then the eye relative to the tree's
  * origin (3). Pixel (i, j) (column, row): direction M [i + 0.5, j + 0.5, 1], not
- * normalized, so t is the z-depth. */
+ * normalized, so t is the z-depth.
+ *
+ * Pixels are taken in tiles of TILE_W x TILE_H (tiles row-major, rows within a tile;
+ * a batch is best one tile), so the rays a group traces one after another are
+ * neighbours in both directions and find the tree's nodes in the cache. Slots of the
+ * tiling past the image's right or bottom edge are skipped. TILE_W is a multiple of
+ * the rays per work-item, so a packet is 8 neighbours in one row. */
+#ifndef TILE_W
+#define TILE_W 64
+#endif
+#ifndef TILE_H
+#define TILE_H 8
+#endif
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
 void render_camera(KD_TREE_ARGS, __global const float *camera,
-                   uint width, uint pixel_offset, uint n_pixels,
+                   uint width, uint row0, uint n_rows,
                    __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
     float3 bmin = vload3(0, bounds);
@@ -188,28 +203,38 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
     float3 m1 = vload3(1, camera);
     float3 m2 = vload3(2, camera);
     float3 eye = vload3(3, camera);
+    uint tiles_x = (width + TILE_W - 1u) / TILE_W;
+    uint tiles_y = (n_rows + TILE_H - 1u) / TILE_H;
+    uint n_slots = tiles_x * tiles_y * (TILE_W * TILE_H);   /* < 2^32: checked on the host */
     __local uint batch;
     for (;;) {
         uint start = fetch_batch(&batch, counter);
-        if (start >= n_pixels)           /* the same for the whole group */
+        if (start >= n_slots)            /* the same for the whole group */
             break;
         for (uint j = get_local_id(0) * KD_RAYS_PER_ITEM; j < BATCH_SIZE;
              j += LOCAL_SIZE * KD_RAYS_PER_ITEM) {
-            uint k0 = start + j;
-            if (k0 >= n_pixels)
+            uint slot = start + j;
+            if (slot >= n_slots)
                 break;
-            uint count = min((uint)KD_RAYS_PER_ITEM, n_pixels - k0);
+            uint tile = slot / (TILE_W * TILE_H);
+            uint in_tile = slot % (TILE_W * TILE_H);
+            uint col0 = (tile % tiles_x) * TILE_W + in_tile % TILE_W;
+            uint row = (tile / tiles_x) * TILE_H + in_tile / TILE_W;   /* from row0 */
+            if (row >= n_rows || col0 >= width)
+                continue;
+            uint count = min((uint)KD_RAYS_PER_ITEM, width - col0);
+            float y = (float)(row0 + row) + 0.5f;
             float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
+            uint idx[KD_RAYS_PER_ITEM];
             for (uint l = 0; l < count; l++) {
-                uint pixel = pixel_offset + k0 + l;
-                float x = (float)(pixel % width) + 0.5f;
-                float y = (float)(pixel / width) + 0.5f;
+                float x = (float)(col0 + l) + 0.5f;
+                idx[l] = row * width + col0 + l;
                 o[l] = eye;
                 d[l] = (float3)(m0.x * x + m0.y * y + m0.z,
                                 m1.x * x + m1.y * y + m1.z,
                                 m2.x * x + m2.y * y + m2.z);
             }
-            trace_and_store(k0, count, o, d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS);
+            trace_and_store(count, o, d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, idx);
         }
     }
 }

@@ -671,6 +671,29 @@ def test_render_rays_match_host_rays():
     assert np.allclose(z, hits.t[same], rtol=RTOL_T)
 
 
+@pytest.mark.parametrize("packet", [1, 8])
+def test_render_tiles_cover_every_pixel(monkeypatch, packet):
+    """render takes pixels in 64 x 8 tiles: sizes that no tile, packet or launch fits
+    (1 x 1, a width of 65, rows split over several launches, one row per launch) give
+    every pixel exactly its own ray: outputs poisoned first, equal to trace(camera_rays)."""
+    import kdray.trace
+    tree = mesh_tree("spot.obj", "sah")
+    tr = tracer(tree, packet=packet)
+    tr._poison_outputs = True
+    for (w, h), max_rays in [((1, 1), None), ((7, 3), None), ((65, 9), None),
+                             ((130, 17), 600), ((97, 23), 50)]:
+        if max_rays:
+            monkeypatch.setattr(kdray.trace, "MAX_RAYS_PER_LAUNCH", max_rays)
+        cam = camera_for(tree, w, h)
+        images = tr.render(cam, aovs=("depth", "id", "bary"))
+        hits = tr.trace(*tr.camera_rays(cam))
+        assert np.array_equal(images["depth"].ravel(), hits.t), (w, h)
+        assert np.array_equal(images["id"].ravel(), hits.prim), (w, h)
+        assert np.array_equal(images["bary"].reshape(-1, 2), np.stack([hits.u, hits.v], 1))
+        monkeypatch.undo()
+    tr._poison_outputs = False
+
+
 def test_render_aovs():
     tree = mesh_tree("teapot.obj", "sah")
     cam = camera_for(tree, 64, 48)
