@@ -5,10 +5,13 @@
     tree = kdray.build(mesh.vertices, mesh.faces)   # SAH k-d tree (KdTree)
     tracer = kdray.Tracer(tree)                     # owns its OpenCL context
     hits = tracer.trace(origins, directions)        # t, prim, u, v, normal
-    images = tracer.render(kdray.Camera.look_at(eye, target), aovs=("depth", "id"))
+    camera = kdray.Camera.look_at(eye, target)
+    images = tracer.render(camera, aovs=("depth", "id"))
+    tree, n_left_out = kdray.cull.build_for_camera(mesh.vertices, mesh.faces, camera)  # seen part
 
 The public API is what this module exports, nothing else.
 """
+from . import cull
 from .build import build
 from .camera import Camera
 from .errors import (CameraError, DeviceError, KdrayError, KernelBuildError, MeshError,
@@ -20,6 +23,6 @@ from .tree import BuildParams, KdTree
 
 __version__ = "0.1.0"
 
-__all__ = ["load", "build", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera",
+__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera",
            "KdrayError", "MeshError", "TreeError", "TreeFileError", "DeviceError",
            "KernelBuildError", "CameraError", "OutputError"]
