@@ -142,6 +142,8 @@ class Tracer:
                              f"got {stack_size!r}")
         self.tree = tree
         self.stack_size = int(stack_size)
+        # packets keep a full stack (no restarts): the tree's depth + 1 entries
+        self.packet_stack_size = default_stack_size(tree)
         self.context, self.device = _device.create_context(device)
         self.queue = cl.CommandQueue(self.context)
         self.packet = int(default_packet(self.device) if packet is None else packet)
@@ -215,7 +217,7 @@ class Tracer:
                    "TILE_H": RENDER_TILE[1]}
         if self.packet > 1:
             defines["PACKET"] = None
-            defines["PACKET_STACK_SIZE"] = default_stack_size(self.tree)
+            defines["PACKET_STACK_SIZE"] = self.packet_stack_size
         for name in outputs:
             defines[f"OUT_{name}"] = None
         if stats:
