@@ -1,23 +1,33 @@
-"""SAH k-d tree build speed, memory and tree statistics from ~10k to 1.6M triangles.
+"""SAH k-d tree build speed, memory and tree statistics from ~10k to 6M triangles,
+beside Open3D's build (Embree's BVH) of the same mesh.
 
-usage: python bench/bench_build.py [--max-tris N] [--repeat 3]
+usage: python bench/bench_build.py [--max-tris N] [--repeat 3] [--threads T] [--no-open3d]
 
 Meshes (deterministic): the Stanford bunny cut by a horizontal plane into its lowest
 10k / 20k / 40k triangles, the whole bunny (69,451), the bunny subdivided once
-(277,804) and twice (1,111,216), and twice plus a third time on its first 162,928
-faces (1,600,000).
+(277,804) and twice (1,111,216), twice plus a third time on its first 162,928 faces
+(1,600,000), three times (4,444,864), and three times plus a fourth time on its first
+518,378 faces (5,999,998).
 
 Each size runs in its own subprocess: it loads the mesh, builds a tiny mesh first so
 the numba kernels are compiled (or loaded from the on-disk cache), resets the peak
-RSS counter (/proc/self/clear_refs), then builds `--repeat` times (1 for sizes over
-500k) and reports the fastest. Columns:
+RSS counter (/proc/self/clear_refs), then builds `--repeat` times (once for meshes
+of about 1M triangles and more) and reports the fastest. The whole run takes about
+4 minutes on 2 cores and needs ~2 GiB at 6M. Columns:
 
-  build s      wall time of kdray.build (warm)
+  build s      wall time of kdray.build (warm), `--threads` threads (default: all CPUs)
+  cpu s        CPU time of that build, all threads together
   peak MiB     the process's peak resident memory during the builds (VmHWM), mesh
                and Python included; base MiB is the resident memory before them
+  B/tri        (peak - base) / triangles: the build's memory per triangle in bytes
   t/(n lg n)   build time / (n log2 n), relative to the smallest size: flat = O(n log n)
   ns/node      build time per tree node: the work per node does not grow with n; the
                tree has relatively more nodes on small meshes (max_depth = 8 + 1.3 log2 n)
+  O3D s        Open3D's RaycastingScene on the same mesh, in the same process after
+               kdray's builds: add_triangles plus a cast of one ray (Open3D builds its
+               Embree BVH at the first cast; `kdray.bench.open3d_scene`), fastest of
+               `--repeat`; n/a when Open3D is not installed. Embree's build is multi-threaded.
+  x O3D        build s / O3D s
 """
 import argparse
 import json
@@ -33,7 +43,10 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
-SIZES = ["bunny-10k", "bunny-20k", "bunny-40k", "bunny", "bunny-x4", "bunny-x16", "bunny-1.6M"]
+SIZES = ["bunny-10k", "bunny-20k", "bunny-40k", "bunny", "bunny-x4", "bunny-x16", "bunny-1.6M",
+         "bunny-x64", "bunny-6M"]
+PARTIAL = {"bunny-1.6M": (2, 1_600_000), "bunny-6M": (3, 6_000_000)}
+"""name -> (whole subdivisions, then the first faces subdivided once more up to ~this many)."""
 
 
 def make_mesh(name):
@@ -45,10 +58,11 @@ def make_mesh(name):
         height = m.vertices[m.faces].mean(axis=1)[:, 1]
         faces = m.faces[np.sort(np.argsort(height, kind="stable")[:keep])]
         return m.vertices, faces
-    if name == "bunny-1.6M":
+    if name in PARTIAL:
         import trimesh.remesh
-        v, f = subdivide(bench_mesh("bunny").vertices, bench_mesh("bunny").faces, 2)
-        extra = (1_600_000 - len(f)) // 3
+        times, target = PARTIAL[name]
+        v, f = subdivide(bench_mesh("bunny").vertices, bench_mesh("bunny").faces, times)
+        extra = (target - len(f)) // 3                    # each subdivided face adds 3
         v, f = trimesh.remesh.subdivide(v, f, face_index=np.arange(extra))
         return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
     m = bench_mesh(name)
@@ -63,7 +77,24 @@ def proc_status(field):
     return float("nan")
 
 
-def child(path, repeat):
+def open3d_seconds(vertices, faces, repeat):
+    """Fastest Open3D RaycastingScene build (add_triangles + one ray), or None."""
+    try:
+        import open3d  # noqa: F401
+    except ImportError:
+        return None
+    from types import SimpleNamespace
+    from kdray.bench import open3d_scene
+    mesh = SimpleNamespace(vertices=vertices, faces=faces)
+    best = math.inf
+    for _ in range(repeat):
+        scene, seconds = open3d_scene(mesh)
+        del scene
+        best = min(best, seconds)
+    return best
+
+
+def child(path, repeat, threads, with_open3d):
     """Build one mesh; print one JSON line."""
     import kdray
     data = np.load(path)
@@ -75,37 +106,47 @@ def child(path, repeat):
             f.write("5")
     except OSError:
         pass
+    kw = {} if threads is None else dict(threads=threads)
     best = math.inf
+    cpu = math.inf
     tree = None
     for _ in range(repeat):
         del tree
-        t0 = time.perf_counter()
-        tree = kdray.build(vertices, faces)
-        best = min(best, time.perf_counter() - t0)
+        t0, c0 = time.perf_counter(), time.process_time()
+        tree = kdray.build(vertices, faces, **kw)
+        seconds = time.perf_counter() - t0
+        if seconds < best:
+            best, cpu = seconds, time.process_time() - c0
     peak = proc_status("VmHWM")                                  # before stats() allocates
     s = tree.stats()
-    print(json.dumps(dict(n=len(tree.triangles), seconds=best, peak_mib=peak,
+    n = len(tree.triangles)
+    del tree
+    o3d = open3d_seconds(vertices, faces, repeat) if with_open3d else None
+    print(json.dumps(dict(n=n, seconds=best, cpu=cpu, peak_mib=peak,
                           base_mib=base, nodes=s["nodes"], leaves=s["leaves"],
                           empty=s["empty_leaves"], depth=s["max_leaf_depth"],
-                          refs=s["refs_per_triangle"], sah=s["sah_cost"])))
+                          refs=s["refs_per_triangle"], sah=s["sah_cost"], open3d=o3d)))
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--max-tris", type=int, default=2_000_000, help="skip meshes larger than this")
+    ap.add_argument("--max-tris", type=int, default=7_000_000, help="skip meshes larger than this")
     ap.add_argument("--repeat", type=int, default=3, help="builds per size (the fastest counts)")
+    ap.add_argument("--threads", type=int, default=None, help="kdray.build threads (default: all CPUs)")
+    ap.add_argument("--no-open3d", action="store_true", help="leave out Open3D's build")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        child(args.child, args.repeat)
+        child(args.child, args.repeat, args.threads, not args.no_open3d)
         return
 
     # compile once up front so that no size pays for it
     subprocess.run([sys.executable, "-c", "import numpy as np, kdray; "
                     "kdray.build(np.eye(3), np.array([[0, 1, 2]]))"], check=True)
     rows = []
-    print(f"{'mesh':<12}{'n':>10}{'build s':>9}{'peak MiB':>10}{'base MiB':>10}{'nodes':>11}"
-          f"{'leaves':>10}{'empty':>10}{'depth':>6}{'refs/tri':>9}{'SAH':>8}{'t/(n lg n)':>11}{'ns/node':>9}")
+    print(f"{'mesh':<12}{'n':>10}{'build s':>9}{'cpu s':>8}{'peak MiB':>10}{'base MiB':>10}{'B/tri':>7}"
+          f"{'nodes':>12}{'leaves':>11}{'empty':>11}{'depth':>6}{'refs/tri':>9}{'SAH':>8}"
+          f"{'t/(n lg n)':>11}{'ns/node':>9}{'O3D s':>8}{'x O3D':>7}")
     with tempfile.TemporaryDirectory() as tmp:
         for name in SIZES:
             vertices, faces = make_mesh(name)
@@ -115,15 +156,21 @@ def main():
             np.savez(path, vertices=vertices, faces=faces)
             del vertices, faces
             repeat = args.repeat if os.path.getsize(path) < 40e6 else 1
-            out = subprocess.run([sys.executable, __file__, "--child", path, "--repeat", str(repeat)],
-                                 check=True, capture_output=True, text=True).stdout
+            cmd = [sys.executable, __file__, "--child", path, "--repeat", str(repeat)]
+            if args.threads is not None:
+                cmd += ["--threads", str(args.threads)]
+            if args.no_open3d:
+                cmd.append("--no-open3d")
+            out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             r = json.loads(out.strip().splitlines()[-1])
             r["norm"] = r["seconds"] / (r["n"] * math.log2(r["n"]))
             rows.append(r)
-            print(f"{name:<12}{r['n']:>10,}{r['seconds']:>9.3f}{r['peak_mib']:>10.0f}{r['base_mib']:>10.0f}"
-                  f"{r['nodes']:>11,}{r['leaves']:>10,}{r['empty']:>10,}{r['depth']:>6}{r['refs']:>9.2f}"
-                  f"{r['sah']:>8.0f}{r['norm'] / rows[0]['norm']:>11.2f}{1e9 * r['seconds'] / r['nodes']:>9.0f}",
-                  flush=True)
+            per_tri = (r["peak_mib"] - r["base_mib"]) * 2 ** 20 / r["n"]
+            o3d = f"{r['open3d']:>8.3f}{r['seconds'] / r['open3d']:>7.1f}" if r["open3d"] else f"{'n/a':>8}{'n/a':>7}"
+            print(f"{name:<12}{r['n']:>10,}{r['seconds']:>9.3f}{r['cpu']:>8.2f}{r['peak_mib']:>10.0f}"
+                  f"{r['base_mib']:>10.0f}{per_tri:>7.0f}{r['nodes']:>12,}{r['leaves']:>11,}{r['empty']:>11,}"
+                  f"{r['depth']:>6}{r['refs']:>9.2f}{r['sah']:>8.0f}{r['norm'] / rows[0]['norm']:>11.2f}"
+                  f"{1e9 * r['seconds'] / r['nodes']:>9.0f}{o3d}", flush=True)
 
 
 if __name__ == "__main__":
