@@ -27,7 +27,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
-from kdray.trace import _OUTPUT_WIDTH, _host_bytes_per_pixel  # noqa: E402
+from kdray.trace import _OUTPUT_WIDTH, _host_bytes_per_pixel, kernel_outputs  # noqa: E402
 
 AOV_SETS = [("depth",), ("depth", "normal"), ("depth", "bary"), ("depth", "id"),
             ("depth", "normal", "bary", "id"), ("distance",), ("position",)]
@@ -41,17 +41,6 @@ def median_time(f, repeat):
         f()
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
-
-
-def kernel_outputs(aovs):
-    """The kernel outputs Tracer.render compiles in for an AOV set."""
-    out = []
-    if {"depth", "distance", "position"} & set(aovs):
-        out.append("T")
-    for aov, name in (("bary", "UV"), ("normal", "NORMAL"), ("id", "ID")):
-        if aov in aovs:
-            out.append(name)
-    return out
 
 
 def outputs(tracer, camera, repeat):

@@ -116,22 +116,9 @@ def _build_mesh(mesh, path, params, builder=None, *args):
         raise MeshError(f"{path}: {e}") from None
 
 
-KERNEL_OUTPUTS = ("T", "UV", "NORMAL", "ID")
-"""The kernels' outputs (-D OUT_<name>), as kdray.trace names them."""
-
-
-def kernel_outputs(aovs):
-    """The kernel outputs `Tracer.render` compiles in for `aovs`: depth, distance and
-    position need T, bary UV, normal NORMAL, id ID (kdray.trace.Tracer.render)."""
-    need = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "normal": "NORMAL",
-            "id": "ID"}
-    wanted = {need[a] for a in aovs}
-    return tuple(name for name in KERNEL_OUTPUTS if name in wanted)
-
-
 def _log_left_out(tree, tracer, n_culled, from_file, outputs):
     """-v: what the render left out: triangles, kernel outputs, stack entries."""
-    from .trace import default_stack_size
+    from .trace import KERNEL_OUTPUTS, default_stack_size
     n_input, n_kept = tree.n_input_tris, len(tree.tri_ids)
     if from_file:
         log.info("the tree holds %d of %d input triangles (the others are degenerate, or were "
@@ -146,6 +133,9 @@ def _log_left_out(tree, tracer, n_culled, from_file, outputs):
     log.info("kernel outputs: %s; not computed: %s", ", ".join(outputs), ", ".join(skipped) or "none")
     log.info("stack size: %d entries (tree depth %d; default %d)", tracer.stack_size, tree.depth,
              default_stack_size(tree))
+    if tracer.packet > 1:
+        log.info("packets of %d rays per work-item, packet stack %d entries", tracer.packet,
+                 tracer.packet_stack_size)
 
 
 def _print_stats(stats, seconds=None):
@@ -243,7 +233,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
     """Render SCENE's depth, normal, barycentric and id images to an EXR file."""
     from .camera import Camera
     from .images import write_exr, write_preview
-    from .trace import Tracer, parse_aovs
+    from .trace import Tracer, kernel_outputs, parse_aovs
     from .tree import KdTree
     params = _build_kwargs(kw)
     aovs = parse_aovs(aov)

@@ -48,7 +48,7 @@ _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
 larger than any triangle id): a test can then see any element the kernel missed."""
 
-_OUTPUTS = ("T", "UV", "NORMAL", "ID", "STATS")
+_OUTPUTS = ("T", "UV", "NORMAL", "ID", "STATS")   # kernel argument order
 _OUTPUT_WIDTH = {"T": (1, np.float32), "UV": (2, np.float32), "NORMAL": (3, np.float32),
                  "ID": (1, np.uint32), "STATS": (4, np.uint32)}
 
@@ -379,15 +379,7 @@ class Tracer:
             raise KdrayError(f"{w}x{h} pixels are too many for one render (at most 2^32 - 1, "
                              f"rows padded to {RENDER_TILE[0]} columns)")
         _check_host_memory(n * _host_bytes_per_pixel(aovs), f"a {w}x{h} render of {', '.join(aovs)}")
-        outputs = []
-        if {"depth", "distance", "position"} & set(aovs):
-            outputs.append("T")
-        if "bary" in aovs:
-            outputs.append("UV")
-        if "normal" in aovs:
-            outputs.append("NORMAL")
-        if "id" in aovs:
-            outputs.append("ID")
+        outputs = kernel_outputs(aovs)
         shapes = {"T": (n,), "UV": (n, 2), "NORMAL": (n, 3), "ID": (n,)}
         out = {k: np.empty(shapes[k], _OUTPUT_WIDTH[k][1]) for k in outputs}
         M, eye = self._camera_constants(camera)
@@ -424,6 +416,21 @@ class Tracer:
             elif name == "id":
                 images[name] = out["ID"].reshape(h, w)
         return images
+
+
+KERNEL_OUTPUTS = ("T", "UV", "NORMAL", "ID")
+"""What a kernel can compute and store per ray (kernels/render.cl, -D OUT_<name>)."""
+
+_AOV_OUTPUT = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "normal": "NORMAL",
+               "id": "ID"}
+
+
+def kernel_outputs(aovs):
+    """The kernel outputs `Tracer.render` compiles in for `aovs` (names from AOVS), in
+    KERNEL_OUTPUTS order: depth, distance and position need T, bary UV, normal NORMAL,
+    id ID. The others are neither computed nor stored."""
+    wanted = {_AOV_OUTPUT[a] for a in parse_aovs(aovs)}
+    return tuple(name for name in KERNEL_OUTPUTS if name in wanted)
 
 
 def _tile_slots(width, n_rows):
