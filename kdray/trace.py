@@ -10,6 +10,7 @@ Arrays returned::
     Hits.t       (N,) float32     ray parameter in units of |direction|; +inf on a miss
     Hits.prim    (N,) uint32      input triangle id; 0xFFFFFFFF on a miss
     Hits.u, .v   (N,) float32     P = (1 - u - v) v0 + u v1 + v v2; 0 on a miss
+                                  (strided views of one (N, 2) array)
     Hits.normal  (N, 3) float32   unit geometric normal (v1 - v0) x (v2 - v0); 0 on a miss
 
 Precision far from the scene's origin: the tree's float32 data is relative to its
@@ -336,8 +337,9 @@ class Tracer:
                          (o_buf, d_buf, np.uint32(stop - start), np.float32(t_min),
                           np.float32(t_max)),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats)
-        hits = Hits(t=out["T"], prim=out["ID"], u=np.ascontiguousarray(out["UV"][:, 0]),
-                    v=np.ascontiguousarray(out["UV"][:, 1]), normal=out["NORMAL"])
+        # u and v are views of the kernel's interleaved (N, 2) output: no copies
+        hits = Hits(t=out["T"], prim=out["ID"], u=out["UV"][:, 0], v=out["UV"][:, 1],
+                    normal=out["NORMAL"])
         return hits, out.get("STATS")
 
     # -- cameras -------------------------------------------------------------------------
