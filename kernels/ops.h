@@ -36,6 +36,27 @@ bool kd_any8(int8 m)
     return (b.x | b.y) != 0;
 }
 
+float3 kd_cross(float3 a, float3 b)
+{
+    return (float3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+
+/* v / |v| for v != 0, scaled by its largest component first so that tiny and huge
+ * vectors neither underflow nor overflow (as normalize() does) */
+float3 kd_normalize(float3 v)
+{
+    float m = kd_max(kd_abs(v.x), kd_max(kd_abs(v.y), kd_abs(v.z)));
+    v = v / m;
+    return v / sqrt(v.x * v.x + v.y * v.y + v.z * v.z);
+}
+
+/* Element i of an array of 3-float rows (vload3(i, p)) */
+float3 kd_load3(__global const float *p, size_t i)
+{
+    p += 3 * i;
+    return (float3)(p[0], p[1], p[2]);
+}
+
 /* Triangle i's vertices from 9 floats each, without vload3 */
 float3 kd_vertex(__global const float *tris, uint i, uint k)
 {

@@ -57,16 +57,19 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
     out_t[k] = found ? hit->t : INFINITY;
 #endif
 #ifdef OUT_UV
-    vstore2(found ? (float2)(hit->u, hit->v) : (float2)(0.0f, 0.0f), k, out_uv);
+    out_uv[2 * (size_t)k] = found ? hit->u : 0.0f;
+    out_uv[2 * (size_t)k + 1] = found ? hit->v : 0.0f;
 #endif
 #ifdef OUT_NORMAL
     float3 normal = (float3)(0.0f, 0.0f, 0.0f);
     if (found) {
-        __global const float *p = tris + 9 * (size_t)hit->tri;
-        float3 p0 = vload3(0, p);
-        normal = normalize(cross(vload3(1, p) - p0, vload3(2, p) - p0));
+        float3 p0 = kd_vertex(tris, hit->tri, 0);
+        normal = kd_normalize(kd_cross(kd_vertex(tris, hit->tri, 1) - p0,
+                                       kd_vertex(tris, hit->tri, 2) - p0));
     }
-    vstore3(normal, k, out_normal);
+    out_normal[3 * (size_t)k] = normal.x;
+    out_normal[3 * (size_t)k + 1] = normal.y;
+    out_normal[3 * (size_t)k + 2] = normal.z;
 #endif
 #ifdef OUT_ID
     out_id[k] = found ? tri_ids[hit->tri] : KD_NO_HIT;
@@ -166,8 +169,8 @@ void trace_rays(KD_TREE_ARGS,
             float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
             uint idx[KD_RAYS_PER_ITEM];
             for (uint l = 0; l < count; l++) {
-                o[l] = vload3(k0 + l, origins);
-                d[l] = vload3(k0 + l, directions);
+                o[l] = kd_load3(origins, k0 + l);
+                d[l] = kd_load3(directions, k0 + l);
                 idx[l] = k0 + l;
             }
             trace_and_store(count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, idx);
