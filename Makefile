@@ -15,6 +15,8 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
+	@echo "compiling the tree builder (numba, once per install: about half a minute)"
+	$(BIN)/python -c "import kdray; kdray.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])"
 	rm -f $(VENV)/.installed-*
 	touch $@
 

@@ -41,7 +41,7 @@ from .errors import MeshError, OutputError, ParameterError
 BUILD_KEYS = {"K_T": float, "K_I": float, "empty_bonus": float, "max_depth": int, "leaf_size": int}
 KERNEL_KEYS = {"stack": int, "local": int, "batch": int}
 
-DEFAULT_SETTINGS = ("kdray", "kdray:K_T=20", "kdray:empty_bonus=1", "kdray:stack=1",
+DEFAULT_SETTINGS = ("kdray", "kdray:K_T=15", "kdray:empty_bonus=1", "kdray:stack=1",
                     "open3d", "embreex")
 """Open3D and embreex are left out of the default list (with a note) when not installed."""
 

@@ -305,7 +305,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
 @click.option("--settings", default=None,
               help="Comma-separated: kdray[:KEY=VALUE...] (K_T, K_I, empty_bonus, max_depth, "
                    "leaf_size, stack, local, batch), open3d, embreex. "
-                   "[default: kdray,kdray:K_T=20,kdray:empty_bonus=1,kdray:stack=1, open3d and embreex if installed]")
+                   "[default: kdray,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1, open3d and embreex if installed]")
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False), help="PNG plot of depth error against Mrays/s.")
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), help="Also write the table as CSV.")
 @click.option("--device", default=None, help="OpenCL device, PYOPENCL_CTX syntax (e.g. 0:0).")

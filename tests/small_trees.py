@@ -19,7 +19,7 @@ def two_leaf_tree():
                   tri_ids=np.array([0, 2], dtype=np.uint32),
                   origin=np.array([1e6, -2.5, 0.125]),
                   bounds=np.array([[-2, -1, 0], [2, 1, 0.5]], dtype=np.float32),
-                  n_input_tris=3, depth=1, params=BuildParams(max_depth=4))
+                  n_input_tris=3, depth=1, params=BuildParams(K_T=15.0, max_depth=4))
 
 
 def single_leaf_tree(triangles, origin=(0.0, 0.0, 0.0)):

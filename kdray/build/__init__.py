@@ -33,8 +33,9 @@ __all__ = ["build"]
 log = logging.getLogger(__name__)
 
 
-def build(vertices, faces, *, K_T=15.0, K_I=20.0, empty_bonus=0.8, max_depth=0, leaf_size=1,
-          origin=None, threads=None):
+def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
+          empty_bonus=BuildParams.empty_bonus, max_depth=BuildParams.max_depth,
+          leaf_size=BuildParams.leaf_size, origin=None, threads=None):
     """Build a KdTree over a triangle mesh.
 
     vertices : (n, 3) float-like (read as float64);  faces : (m, 3) int.
