@@ -7,7 +7,7 @@ SCENE ?= scenes/cornell.obj
 CAMERA ?= scenes/cornell.json
 OUT ?= out
 
-.PHONY: install render test test-long bench bench-deps bench-build bench-trace golden clean
+.PHONY: install render test test-long bench bench-all bench-deps bench-build bench-trace golden clean
 
 install: $(STAMP)
 
@@ -45,10 +45,21 @@ bench-deps: $(STAMP)
 bench-trace: bench-deps
 	$(BIN)/python bench/bench_trace.py
 
-# `kdray bench`: error against run time for kdray's settings, Open3D and embreex.
+# Speed against Open3D and embreex on the same rays (1024x1024, the bunny and a
+# 1.6M-triangle mesh, with the ratios of issue 6's two workflows), then `kdray bench`:
+# error against run time for kdray's settings, Open3D and embreex.
+BENCH_MESHES ?= bunny,bunny-1.6M
 bench: bench-deps
 	mkdir -p $(OUT)
+	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
 	$(BIN)/kdray bench --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
+
+# Everything in BENCHMARKS.md: the above, build scaling to 6M triangles, what leaving
+# out saves, and the cold start.
+bench-all: bench
+	$(BIN)/python bench/bench_build.py
+	$(BIN)/python bench/bench_leave_out.py
+	$(BIN)/python bench/bench_cold.py
 
 # Regenerate the golden images on purpose (review the diff before committing).
 golden: $(STAMP)
