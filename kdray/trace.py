@@ -20,6 +20,7 @@ rounded to float32, so a scene at 1e6 traces as accurately as one at 0.
 The kernels are compiled once per option set (outputs, stack size, work sizes) and
 kept on the Tracer; the kernels compute and store only the outputs asked for.
 """
+import concurrent.futures
 import dataclasses
 import logging
 import os
@@ -44,6 +45,9 @@ DEFAULT_AOVS = ("depth", "normal", "bary", "id")
 MAX_RAYS_PER_LAUNCH = 1 << 22
 """Rays per kernel launch: bounds device memory per launch (at most 52 bytes a ray,
 about 220 MB) and keeps the 32-bit batch counter far from overflow."""
+
+_CONVERT_CHUNK = 1 << 18
+"""Rays per chunk when `trace` converts large ray arrays to float32 on threads."""
 
 _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
@@ -301,11 +305,25 @@ class Tracer:
         if o.shape != d.shape:
             raise KdrayError(f"origins {o.shape} and directions {d.shape} must both be (N, 3)")
         # o - origin in float64, rounded to float32 on the way out (buffered: no
-        # float64 temporary of the whole array)
+        # float64 temporary of the whole array); large arrays in chunks on threads
+        # (numpy releases the GIL), the same arithmetic element by element
         o32 = np.empty(o.shape, dtype=np.float32)
-        with np.errstate(over="ignore", invalid="ignore"):
-            np.subtract(o, self._origin, out=o32, dtype=np.float64, casting="unsafe")
-            d32 = np.ascontiguousarray(d, dtype=np.float32)
+        d32 = np.empty(d.shape, dtype=np.float32)
+
+        def convert(rows):
+            shifted = np.empty((len(o32[rows]), 3))
+            with np.errstate(over="ignore", invalid="ignore"):
+                for k in range(3):       # by column: numpy's loops over rows of 3 are slow
+                    np.subtract(o[rows, k], self._origin[k], out=shifted[:, k])
+                np.copyto(o32[rows], shifted, casting="unsafe")
+                np.copyto(d32[rows], d[rows], casting="unsafe")
+
+        chunks = [slice(i, i + _CONVERT_CHUNK) for i in range(0, len(d), _CONVERT_CHUNK)]
+        if len(chunks) > 1:
+            with concurrent.futures.ThreadPoolExecutor(min(len(chunks), os.cpu_count() or 1)) as pool:
+                list(pool.map(convert, chunks))
+        elif chunks:
+            convert(chunks[0])
         return o32, d32
 
     def trace(self, origins, directions, t_min=0.0, t_max=np.inf):
