@@ -29,7 +29,7 @@ import logging
 import numpy as np
 
 from .build import build
-from .build.prepare import prepare
+from .build.prepare import mesh_origin, prepare
 from .mesh import check_arrays
 
 log = logging.getLogger(__name__)
@@ -117,18 +117,6 @@ def scene_box(vertices, faces):
     prep = prepare(vertices, faces)
     return (prep.origin + prep.bounds[0].astype(np.float64),
             prep.origin + prep.bounds[1].astype(np.float64))
-
-
-def mesh_origin(vertices, faces):
-    """(3,) float64: the builder's default origin, the centre of the box of the finite
-    vertices the faces use (kdray.build.prepare's rule), or None when there is none."""
-    used = np.zeros(len(vertices), dtype=bool)
-    used[faces.ravel()] = True
-    used &= np.isfinite(vertices).all(axis=1)
-    if not used.any():
-        return None
-    pts = vertices[used]
-    return 0.5 * (pts.min(axis=0) + pts.max(axis=0))
 
 
 def build_for_camera(vertices, faces, camera, **build_params):

@@ -187,8 +187,8 @@ void trace_rays(KD_TREE_ARGS,
  * Pixels are taken in tiles of TILE_W x TILE_H (tiles row-major, rows within a tile;
  * a batch is best one tile), so the rays a group traces one after another are
  * neighbours in both directions and find the tree's nodes in the cache. Slots of the
- * tiling past the image's right or bottom edge are skipped. TILE_W is a multiple of
- * the rays per work-item, so a packet is 8 neighbours in one row. */
+ * tiling past the image's right or bottom edge are skipped. With PACKET a packet is a
+ * block of 4 x 2 pixels of a tile (TILE_W a multiple of 4, TILE_H of 2). */
 #ifndef TILE_W
 #define TILE_W 64
 #endif
@@ -221,22 +221,39 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
                 break;
             uint tile = slot / (TILE_W * TILE_H);
             uint in_tile = slot % (TILE_W * TILE_H);
-            uint col0 = (tile % tiles_x) * TILE_W + in_tile % TILE_W;
-            uint row = (tile / tiles_x) * TILE_H + in_tile / TILE_W;   /* from row0 */
-            if (row >= n_rows || col0 >= width)
-                continue;
-            uint count = min((uint)KD_RAYS_PER_ITEM, width - col0);
-            float y = (float)(row0 + row) + 0.5f;
+            uint tile_col = (tile % tiles_x) * TILE_W;
+            uint tile_row = (tile / tiles_x) * TILE_H;           /* from row0 */
+#ifdef PACKET
+            /* a packet is a block of 4 x 2 pixels (closer together than a row of 8) */
+            uint block = in_tile / KD_PACKET;
+            uint col0 = tile_col + (block % (TILE_W / 4u)) * 4u;
+            uint row0_b = tile_row + (block / (TILE_W / 4u)) * 2u;
+#else
+            uint col0 = tile_col + in_tile % TILE_W;
+            uint row0_b = tile_row + in_tile / TILE_W;
+#endif
             float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
             uint idx[KD_RAYS_PER_ITEM];
-            for (uint l = 0; l < count; l++) {
-                float x = (float)(col0 + l) + 0.5f;
-                idx[l] = row * width + col0 + l;
-                o[l] = eye;
-                d[l] = (float3)(m0.x * x + m0.y * y + m0.z,
-                                m1.x * x + m1.y * y + m1.z,
-                                m2.x * x + m2.y * y + m2.z);
+            uint count = 0;                  /* the block's pixels inside the image */
+            for (uint l = 0; l < KD_RAYS_PER_ITEM; l++) {
+#ifdef PACKET
+                uint col = col0 + l % 4u, row = row0_b + l / 4u;
+#else
+                uint col = col0, row = row0_b;
+#endif
+                if (col >= width || row >= n_rows)
+                    continue;
+                float x = (float)col + 0.5f;
+                float y = (float)(row0 + row) + 0.5f;
+                idx[count] = row * width + col;
+                o[count] = eye;
+                d[count] = (float3)(m0.x * x + m0.y * y + m0.z,
+                                    m1.x * x + m1.y * y + m1.z,
+                                    m2.x * x + m2.y * y + m2.z);
+                count++;
             }
+            if (count == 0)
+                continue;
             trace_and_store(count, o, d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, idx);
         }
     }

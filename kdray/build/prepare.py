@@ -29,6 +29,21 @@ class Prepared:
     n_input_tris: int
 
 
+def mesh_origin(vertices, faces):
+    """(3,) float64: the builder's default origin, the centre of the float64 box of the
+    finite vertices the faces use; None when there is none.
+
+    vertices : (n, 3) float64;  faces : (m, 3) int, valid indices (check_arrays).
+    """
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.ravel()] = True
+    used &= np.isfinite(vertices).all(axis=1)
+    if not used.any():
+        return None
+    pts = vertices[used]
+    return 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+
+
 def prepare(vertices, faces, origin=None):
     """Validate mesh arrays and make the kept float32 triangles; raises MeshError.
 
@@ -41,15 +56,10 @@ def prepare(vertices, faces, origin=None):
     if m >= layout.MAX_NODES:
         raise MeshError(f"{m} triangles; a tree holds fewer than {layout.MAX_NODES}")
 
-    # Origin: centre of the float64 box of the (finite) vertices the faces use.
-    used = np.zeros(len(v), dtype=bool)
-    used[f.ravel()] = True
-    used &= np.isfinite(v).all(axis=1)
-    if not used.any():
-        raise MeshError("no triangles left after removing degenerate ones (no finite vertex)")
     if origin is None:
-        pts = v[used]
-        origin = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+        origin = mesh_origin(v, f)
+        if origin is None:
+            raise MeshError("no triangles left after removing degenerate ones (no finite vertex)")
     else:
         origin = np.asarray(origin, dtype=np.float64)
         if origin.shape != (3,) or not np.isfinite(origin).all():
