@@ -15,8 +15,13 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
+	@# one tiny build (the one-thread path) and one of 20,000 triangles (the threaded
+	@# path): every numba function compiled into kdray/build/__pycache__
 	@echo "compiling the tree builder (numba, once per install: about half a minute)"
-	$(BIN)/python -c "import kdray; kdray.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])"
+	$(BIN)/python -c "import numpy as np, kdray; r = np.random.default_rng(0); \
+	  kdray.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]); \
+	  kdray.build((r.random((20000, 1, 3)) + 0.01 * r.random((20000, 3, 3))).reshape(-1, 3), \
+	              np.arange(60000).reshape(-1, 3))"
 	rm -f $(VENV)/.installed-*
 	touch $@
 
