@@ -17,9 +17,7 @@ usage: python bench/bench_leave_out.py [--mesh bunny] [--size 1024] [--repeat 7]
 """
 import argparse
 import os
-import statistics
 import sys
-import time
 
 import numpy as np
 
@@ -27,20 +25,11 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
+from kdray.bench import timed  # noqa: E402
 from kdray.trace import _OUTPUT_WIDTH, _host_bytes_per_pixel, kernel_outputs  # noqa: E402
 
 AOV_SETS = [("depth",), ("depth", "normal"), ("depth", "bary"), ("depth", "id"),
             ("depth", "normal", "bary", "id"), ("distance",), ("position",)]
-
-
-def median_time(f, repeat):
-    f()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        f()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def outputs(tracer, camera, repeat):
@@ -48,7 +37,7 @@ def outputs(tracer, camera, repeat):
     print(f"{'AOVs':<28} {'kernel outputs':<18} {'device B/px':>11} {'host B/px':>9} {'render s':>9}")
     full = None
     for aovs in AOV_SETS:
-        s = median_time(lambda: tracer.render(camera, aovs=aovs), repeat)
+        s = timed(lambda: tracer.render(camera, aovs=aovs), repeat)[0]
         outs = kernel_outputs(aovs)
         device = sum(_OUTPUT_WIDTH[o][0] * 4 for o in outs)
         host = _host_bytes_per_pixel(aovs)
@@ -69,7 +58,7 @@ def stack(tree, camera, repeat):
             else:
                 tracer = kdray.Tracer(tree, packet=8)
                 tracer.packet_stack_size = size
-            s = median_time(lambda: tracer.render(camera, aovs=("depth",)), repeat)
+            s = timed(lambda: tracer.render(camera, aovs=("depth",)), repeat)[0]
             kind = "packet" if packet == 8 else "single"
             print(f"{kind:<8} {size:>7} {size * entry_bytes:>9} {s:>9.4f}", flush=True)
 
@@ -86,9 +75,9 @@ def degenerate(m, repeat):
     zero_area[n // 2:, 2] = len(v) + np.arange(n - n // 2)
     faces = np.concatenate([m.faces, zero_area])
     clean = kdray.build(m.vertices, m.faces)
-    s_clean = median_time(lambda: kdray.build(m.vertices, m.faces), repeat)
+    s_clean = timed(lambda: kdray.build(m.vertices, m.faces), repeat)[0]
     dirty = kdray.build(verts, faces)
-    s_dirty = median_time(lambda: kdray.build(verts, faces), repeat)
+    s_dirty = timed(lambda: kdray.build(verts, faces), repeat)[0]
     same = (np.array_equal(clean.nodes, dirty.nodes) and np.array_equal(clean.leaf_tris, dirty.leaf_tris)
             and np.array_equal(clean.triangles, dirty.triangles))
     left = dirty.n_input_tris - len(dirty.tri_ids)

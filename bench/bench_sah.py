@@ -13,7 +13,6 @@ triangles are tested 8 lanes at a time.
 """
 import argparse
 import os
-import statistics
 import sys
 import time
 
@@ -23,16 +22,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
-
-
-def median_time(f, repeat):
-    f()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        f()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+from kdray.bench import timed  # noqa: E402
 
 
 def main():
@@ -55,14 +45,13 @@ def main():
             camera = kdray.Camera.frame(lo, hi, args.size, args.size)
             o, d = camera.rays()
             tracer = kdray.Tracer(tree)
-            render_s = median_time(lambda: tracer.render(camera, aovs=("depth",)), args.repeat)
-            trace_s = median_time(lambda: tracer.trace(o, d), args.repeat)
+            render_s = timed(lambda: tracer.render(camera, aovs=("depth",)), args.repeat)[0]
+            trace_s = timed(lambda: tracer.trace(o, d), args.repeat)[0]
             _, stats = tracer._trace(o, d, stats=True)
             per_ray = stats.mean(axis=0)
             print(f"{name:<12} {k_t:>5g} {build_s:>8.3f} {len(tree.nodes):>10} {len(tree.leaf_tris):>10} "
                   f"{render_s:>9.4f} {trace_s:>8.4f} {per_ray[0]:>9.2f} {per_ray[1]:>10.2f} "
                   f"{per_ray[2]:>9.2f}", flush=True)
-            del tracer, tree
 
 
 if __name__ == "__main__":
