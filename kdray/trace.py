@@ -111,7 +111,9 @@ def default_work_sizes(device, packet=1):
 
     CPU (PoCL): a work-group runs on one thread, its work-items one after another, and
     a traversal loop does not vectorize across them; small groups keep the per-group
-    barrier cheap and many groups (4 per core) balance the load through the counter.
+    barrier cheap and many groups (4 per core) balance the load through the counter; a
+    batch is 8 rounds of the group (with packets, 512 rays: one 64 x 8 render tile).
+    Sizes from 1 to 16 work-items measured the same within noise (BENCHMARKS.md).
     GPU: 64 work-items (two warps / one wavefront), batches of 4 rays each, and about
     one full device of resident groups.
     """

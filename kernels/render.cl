@@ -11,10 +11,12 @@
  * work-items one after another between barriers).
  *
  * Options (-D): LOCAL_SIZE (work-group size, required), BATCH_SIZE (a multiple of it,
- * times 8 with PACKET), STACK_SIZE (see traverse.cl); PACKET: each work-item traces 8
- * consecutive rays as a float8 packet (packet.cl; for CPU devices), else one ray; outputs, each only when asked: OUT_T (t, +inf on a
- * miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on a miss),
- * OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
+ * times 8 with PACKET), STACK_SIZE (see traverse.cl), TILE_W and TILE_H (render_camera's
+ * tiles); PACKET: each work-item traces 8 rays as a float8 packet (packet.cl, with
+ * PACKET_STACK_SIZE; for CPU devices): 8 consecutive rays of trace_rays, a 4 x 2 block
+ * of pixels of render_camera; else one ray. Outputs, each only when asked: OUT_T (t,
+ * +inf on a miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on
+ * a miss), OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
  * Output buffers that are not compiled in may be passed as NULL.
  */
 #pragma OPENCL FP_CONTRACT OFF
