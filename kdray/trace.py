@@ -376,13 +376,19 @@ class Tracer:
         """The rays `render` traces, computed on the host with the kernel's float32
         arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c)."""
-        M, eye = self._camera_constants(camera)
+        eye = self._camera_constants(camera)[1]
+        d = np.stack(self._camera_directions(camera), axis=1)
+        origins = np.broadcast_to(eye.astype(np.float64) + self._origin, d.shape)
+        return origins, d
+
+    def _camera_directions(self, camera):
+        """The kernel's float32 ray directions of every pixel, row-major: a list of
+        three (H*W,) float32 arrays (x, y, z components)."""
+        M, _ = self._camera_constants(camera)
         w, h = int(camera.width), int(camera.height)
         x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
         y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
-        d = np.stack([M[r, 0] * x + M[r, 1] * y + M[r, 2] for r in range(3)], axis=1)
-        origins = np.broadcast_to(eye.astype(np.float64) + self._origin, d.shape)
-        return origins, d
+        return [M[r, 0] * x + M[r, 1] * y + M[r, 2] for r in range(3)]
 
     def render(self, camera, aovs=DEFAULT_AOVS):
         """Primary-ray images of `camera` (kdray.Camera: width, height, K, cam_to_world).
@@ -418,19 +424,24 @@ class Tracer:
 
         images = {}
         if "distance" in aovs or "position" in aovs:
-            origins, d = self.camera_rays(camera)
-            t = out["T"].astype(np.float64)[:, None]
+            # float64 from the kernel's float32 rays, column by column (numpy's loops
+            # over rows of 3 are slow): |d| = sqrt((dx^2 + dy^2) + dz^2), p = o + t d
+            d = [c.astype(np.float64) for c in self._camera_directions(camera)]
+            t = out["T"].astype(np.float64)
         for name in aovs:
             if name == "depth":
                 images[name] = out["T"].reshape(h, w)
             elif name == "distance":
-                dist = t[:, 0] * np.linalg.norm(d.astype(np.float64), axis=1)
+                dist = t * np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
                 images[name] = dist.astype(np.float32).reshape(h, w)
             elif name == "position":
+                eye = self._camera_constants(camera)[1].astype(np.float64) + self._origin
+                p = np.empty((n, 3), dtype=np.float32)
                 with np.errstate(invalid="ignore"):
-                    p = origins + t * d.astype(np.float64)
-                p[~np.isfinite(t[:, 0])] = np.nan
-                images[name] = p.astype(np.float32).reshape(h, w, 3)
+                    for k in range(3):
+                        p[:, k] = eye[k] + t * d[k]
+                p[~np.isfinite(t)] = np.nan
+                images[name] = p.reshape(h, w, 3)
             elif name == "normal":
                 images[name] = out["NORMAL"].reshape(h, w, 3)
             elif name == "bary":
