@@ -4,7 +4,7 @@
  *
  * Why: PoCL runs a work-item's data-dependent loop scalar, one eighth of an AVX2 core
  * (pocl-notes.md); the same loop on float8 lanes runs at full width. Coherent rays
- * (a row of 8 pixels) share almost every node, so a packet costs about one ray.
+ * (a 4 x 2 block of pixels) share most nodes, so a packet costs little more than a ray.
  *
  * Each lane makes exactly the decisions the scalar traversal (traverse.cl) makes for
  * its ray: the same t_split, slack, child ranges and early exit, and its triangle
@@ -13,9 +13,10 @@
  * (t, index), triangle.cl), a lane's result equals the scalar kernel's bit for bit.
  *
  * A lane leaves the packet and is traced again by the scalar kernel when it cannot
- * follow the packet's order: at a node where its near child is not the packet's
- * (origins on different sides of the plane), when it lies in a split plane (t_split
- * NaN: the scalar kernel's passes handle it), or when the packet's stack is full.
+ * follow the packet's order: at a node where it needs both children and its near child
+ * is not the packet's (origins on different sides of the plane; a lane needing one
+ * child goes along whatever the order), when it lies in a split plane (t_split NaN: the
+ * scalar kernel's passes handle it), or when the packet's stack is full.
  *
  * The packet's stack is a plain one of PACKET_STACK_SIZE entries (node, ranges, lanes):
  * the Tracer makes it the tree's depth + 1, so it is never full on a valid tree.
