@@ -45,26 +45,15 @@ sys.path.insert(0, HERE)
 
 SIZES = ["bunny-10k", "bunny-20k", "bunny-40k", "bunny", "bunny-x4", "bunny-x16", "bunny-1.6M",
          "bunny-x64", "bunny-6M"]
-PARTIAL = {"bunny-1.6M": (2, 1_600_000), "bunny-6M": (3, 6_000_000)}
-"""name -> (whole subdivisions, then the first faces subdivided once more up to ~this many)."""
-
-
 def make_mesh(name):
     """name -> (vertices (n,3) float64, faces (m,3) int64)."""
-    from meshes import mesh as bench_mesh, subdivide
+    from meshes import mesh as bench_mesh
     if name.startswith("bunny-") and name.endswith("k"):
         m = bench_mesh("bunny")
         keep = int(name[len("bunny-"):-1]) * 1000
         height = m.vertices[m.faces].mean(axis=1)[:, 1]
         faces = m.faces[np.sort(np.argsort(height, kind="stable")[:keep])]
         return m.vertices, faces
-    if name in PARTIAL:
-        import trimesh.remesh
-        times, target = PARTIAL[name]
-        v, f = subdivide(bench_mesh("bunny").vertices, bench_mesh("bunny").faces, times)
-        extra = (target - len(f)) // 3                    # each subdivided face adds 3
-        v, f = trimesh.remesh.subdivide(v, f, face_index=np.arange(extra))
-        return np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)
     m = bench_mesh(name)
     return m.vertices, m.faces
 

@@ -3,7 +3,8 @@
 `mesh(name)` -> kdray.Mesh for names like "bunny" (69,451 triangles), "bunny-x4"
 (each triangle split into 4 once: 277,804), "teapot-x256" (1,617,920), ...
 A suffix -x4^k subdivides k times (midpoint subdivision, deterministic); "bunny-1.6M"
-is the bunny subdivided twice and its first 162,928 faces a third time (1,600,000).
+is the bunny subdivided twice and its first 162,928 faces a third time (1,600,000),
+"bunny-6M" three times and then part of a fourth (5,999,998): PARTIAL.
 """
 import math
 from pathlib import Path
@@ -13,6 +14,11 @@ import numpy as np
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 FILES = {"bunny": "stanford-bunny.obj", "fandisk": "fandisk.obj", "teapot": "teapot.obj",
          "spot": "spot.obj"}
+
+
+PARTIAL = {"bunny-1.6M": (2, 1_600_000), "bunny-6M": (3, 6_000_000)}
+"""name -> (whole subdivisions of the bunny, then its first faces subdivided once more
+up to about this many triangles)."""
 
 
 def subdivide(vertices, faces, times):
@@ -27,12 +33,12 @@ def mesh(name):
     """'bunny', 'bunny-x4', 'teapot-x256', ... -> kdray.mesh.Mesh."""
     from kdray.load import load
     from kdray.mesh import Mesh
-    if name == "bunny-1.6M":
+    if name in PARTIAL:
         import trimesh.remesh
-        from kdray.mesh import Mesh
+        times, target = PARTIAL[name]
         b = mesh("bunny")
-        v, f = subdivide(b.vertices, b.faces, 2)
-        extra = (1_600_000 - len(f)) // 3
+        v, f = subdivide(b.vertices, b.faces, times)
+        extra = (target - len(f)) // 3                    # each subdivided face adds 3
         v, f = trimesh.remesh.subdivide(v, f, face_index=np.arange(extra))
         return Mesh.from_arrays(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64),
                                 name=name)
