@@ -140,17 +140,7 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
         return;
 
     /* The bound on t's rounding error (triangle.cl) */
-    float8 max_zu = kd_max8(kd_abs8(Az), kd_max8(kd_abs8(Bz), kd_abs8(Cz)));
-    float8 max_z = kd_abs8(r->Sz) * max_zu;
-    float8 max_x = kd_max8(kd_abs8(Ax), kd_max8(kd_abs8(Bx), kd_abs8(Cx)));
-    float8 max_y = kd_max8(kd_abs8(Ay), kd_max8(kd_abs8(By), kd_abs8(Cy)));
-    float8 max_e = kd_max8(kd_abs8(U), kd_max8(kd_abs8(V), kd_abs8(W)));
-    float8 delta_z = KD_GAMMA(3) * max_z;
-    float8 delta_x = KD_GAMMA(5) * (max_x + max_zu);
-    float8 delta_y = KD_GAMMA(5) * (max_y + max_zu);
-    float8 delta_e = 2.0f * (KD_GAMMA(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
-    float8 delta_t = 3.0f * (KD_GAMMA(3) * max_e * max_z + delta_e * max_z + delta_z * max_e)
-                     / det_abs;
+    KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, r->Sz, det_abs, delta_t)
     int8 doubt = cand & !(t > delta_t);
     if (kd_any8(doubt)) {
         KdI8 doubt_l, ok_l;

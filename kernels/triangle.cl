@@ -59,6 +59,27 @@ RayShear ray_shear(float3 d)
     return s;
 }
 
+/* The bound on t's rounding error (pbrt-v4, after Woop et al.; the reasoning is at
+ * its use in intersect_triangle), written once for float, double and float8: declares
+ * `delta_t` of type T from the sheared coordinates Ax .. Cz and edge functions U, V, W
+ * in scope, the shear's Sz and |det|. ABS, MAX and GAMMA are the type's absolute
+ * value, maximum and gamma(n); the operations and their order are the same for all. */
+#define KD_T_ERROR_BOUND(T, ABS, MAX, GAMMA, Sz, det_abs, delta_t)                          \
+    T delta_t;                                                                             \
+    {                                                                                      \
+        T max_zu = MAX(ABS(Az), MAX(ABS(Bz), ABS(Cz)));                                    \
+        T max_z = ABS(Sz) * max_zu;                                                        \
+        T max_x = MAX(ABS(Ax), MAX(ABS(Bx), ABS(Cx)));                                     \
+        T max_y = MAX(ABS(Ay), MAX(ABS(By), ABS(Cy)));                                     \
+        T max_e = MAX(ABS(U), MAX(ABS(V), ABS(W)));                                        \
+        T delta_z = GAMMA(3) * max_z;                                                      \
+        T delta_x = GAMMA(5) * (max_x + max_zu);                                           \
+        T delta_y = GAMMA(5) * (max_y + max_zu);                                           \
+        T delta_e = (T)(2) * (GAMMA(2) * max_x * max_y + delta_y * max_x + delta_x * max_y); \
+        delta_t = (T)(3) * (GAMMA(3) * max_e * max_z + delta_e * max_z + delta_z * max_e)   \
+                  / (det_abs);                                                             \
+    }
+
 #ifdef cl_khr_fp64
 #define KD_GAMMA_D(n) ((double)(n) * 0x1p-53 / (1.0 - (double)(n) * 0x1p-53))
 
@@ -83,17 +104,7 @@ bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, fl
     if (det == 0.0)
         return false;
     double t = (U * (Sz * Az) + V * (Sz * Bz) + W * (Sz * Cz)) / det;
-    double max_zu = fmax(fabs(Az), fmax(fabs(Bz), fabs(Cz)));
-    double max_z = fabs(Sz) * max_zu;
-    double max_x = fmax(fabs(Ax), fmax(fabs(Bx), fabs(Cx)));
-    double max_y = fmax(fabs(Ay), fmax(fabs(By), fabs(Cy)));
-    double max_e = fmax(fabs(U), fmax(fabs(V), fabs(W)));
-    double delta_z = KD_GAMMA_D(3) * max_z;
-    double delta_x = KD_GAMMA_D(5) * (max_x + max_zu);
-    double delta_y = KD_GAMMA_D(5) * (max_y + max_zu);
-    double delta_e = 2.0 * (KD_GAMMA_D(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
-    double delta_t = 3.0 * (KD_GAMMA_D(3) * max_e * max_z + delta_e * max_z + delta_z * max_e)
-                     / fabs(det);
+    KD_T_ERROR_BOUND(double, fabs, fmax, KD_GAMMA_D, Sz, fabs(det), delta_t)
     return t > delta_t;
 }
 #endif
@@ -161,17 +172,7 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
      * of each step: the shear (x, y, with |Sx|, |Sy| <= 1 times the unscaled z, in
      * units of length), the edge functions (e), then T (scaled z, in units of t).
      * pbrt adds the scaled z to x and y, which is only right for |d| near 1. */
-    float max_zu = kd_max(kd_abs(Az), kd_max(kd_abs(Bz), kd_abs(Cz)));
-    float max_z = kd_abs(s->Sz) * max_zu;
-    float max_x = kd_max(kd_abs(Ax), kd_max(kd_abs(Bx), kd_abs(Cx)));
-    float max_y = kd_max(kd_abs(Ay), kd_max(kd_abs(By), kd_abs(Cy)));
-    float max_e = kd_max(kd_abs(U), kd_max(kd_abs(V), kd_abs(W)));
-    float delta_z = KD_GAMMA(3) * max_z;
-    float delta_x = KD_GAMMA(5) * (max_x + max_zu);
-    float delta_y = KD_GAMMA(5) * (max_y + max_zu);
-    float delta_e = 2.0f * (KD_GAMMA(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
-    float delta_t = 3.0f * (KD_GAMMA(3) * max_e * max_z + delta_e * max_z + delta_z * max_e)
-                    / det_abs;
+    KD_T_ERROR_BOUND(float, kd_abs, kd_max, KD_GAMMA, s->Sz, det_abs, delta_t)
     if (!(t > delta_t)) {
         /* The bound is a worst case; grazing hits of thin triangles reach it while
          * their t is fine. Decide again in double, whose bound is 2^29 times smaller:
