@@ -53,7 +53,10 @@ _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
 larger than any triangle id): a test can then see any element the kernel missed."""
 
-_OUTPUTS = ("T", "UV", "NORMAL", "ID", "STATS")   # kernel argument order
+KERNEL_OUTPUTS = ("T", "UV", "NORMAL", "ID")
+"""What a kernel can compute and store per ray (kernels/render.cl, -D OUT_<name>)."""
+
+_OUTPUTS = KERNEL_OUTPUTS + ("STATS",)   # the kernels' output arguments, in order
 _OUTPUT_WIDTH = {"T": (1, np.float32), "UV": (2, np.float32), "NORMAL": (3, np.float32),
                  "ID": (1, np.uint32), "STATS": (4, np.uint32)}
 
@@ -450,9 +453,6 @@ class Tracer:
                 images[name] = out["ID"].reshape(h, w)
         return images
 
-
-KERNEL_OUTPUTS = ("T", "UV", "NORMAL", "ID")
-"""What a kernel can compute and store per ray (kernels/render.cl, -D OUT_<name>)."""
 
 _AOV_OUTPUT = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "normal": "NORMAL",
                "id": "ID"}
