@@ -204,6 +204,45 @@ def test_origin_is_centre_of_the_used_vertices():
     check_tree(tree, v, f)
 
 
+def numpy_prepare(v, f, origin):
+    """The builder's triangles in numpy (the oracle for prepare's numba pass):
+    (triangles (k, 3, 3) float32, tri_ids (k,) uint32, bounds (2, 3) float32)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        tri = (v[f] - origin).astype(np.float32)
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    keep = np.isfinite(tri).all(axis=(1, 2)) & (cross != 0).any(axis=1)
+    tri = tri[keep]
+    return tri, np.flatnonzero(keep).astype(np.uint32), np.stack([tri.min((0, 1)), tri.max((0, 1))])
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_prepare_matches_numpy(seed):
+    # Degenerate, non-finite, float32-overflowing and tiny triangles among ordinary ones.
+    from kdray.build.prepare import prepare
+    rng = np.random.default_rng(seed)
+    v, f = soup(rng, 3000, 0.02)
+    v = np.vstack([v, [[np.nan, 0, 0], [np.inf, 1, 1], [1e39, 0, 0], [1e-30, 0, 0], [0, 1e-30, 0]]])
+    n = len(v)
+    f = np.vstack([f, rng.integers(0, n, size=(500, 3)), rng.integers(n - 5, n, size=(50, 3)),
+                   np.repeat(rng.integers(0, n, size=(50, 1)), 3, axis=1)])
+    f = f[rng.permutation(len(f))]
+    for origin in (np.array([0.3, -7.0, 1e38]), None):
+        if origin is None:                  # the 1e39 vertex would move the origin to 5e38
+            f = f[~(f == n - 3).any(axis=1)]
+        pts = v[np.unique(f)]
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        p = prepare(v, f, origin)
+        o = 0.5 * (pts.min(0) + pts.max(0)) if origin is None else origin
+        np.testing.assert_array_equal(p.origin, o)
+        tri, ids, bounds = numpy_prepare(v, f, o)
+        assert 0 < len(ids) < len(f)
+        assert p.triangles.dtype == np.float32 and p.tri_ids.dtype == np.uint32
+        assert p.triangles.tobytes() == tri.tobytes()
+        assert p.tri_ids.tobytes() == ids.tobytes()
+        assert p.bounds.dtype == np.float32 and p.bounds.tobytes() == bounds.tobytes()
+        assert p.n_input_tris == len(f)
+
+
 @pytest.mark.parametrize("v,f,match", [
     (np.zeros((3, 3)), np.array([[0, 1, 2]]), "no triangles left"),
     (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2.0]]), np.array([[0, 1, 2]]), "no triangles left"),
