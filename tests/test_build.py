@@ -393,6 +393,38 @@ def brute_force_sah(boxes, box, K_T, K_I, lam):
     return best
 
 
+@pytest.mark.parametrize("threads,room", [(1, 0), (1, 100000), (2, 0), (3, 100000)])
+def test_root_events_are_sorted_keys(threads, room):
+    # The radix sort on position and type == numpy's sort of the whole keys, whatever
+    # the threads and scratch: shared positions, planar triangles, +-0, negative values.
+    from kdray.build.events import END, PLANAR, START
+
+    def key(x, kind, t):                     # the key layout of events.py, in numpy
+        b = (x + np.float32(0.0)).view(np.uint32).astype(np.uint64)
+        b = np.where(b >= 2 ** 31, np.uint64(2 ** 32 - 1) - b, b + np.uint64(2 ** 31))
+        return (b << np.uint64(32)) | (np.uint64(kind) << np.uint64(30)) | t.astype(np.uint64)
+
+    rng = np.random.default_rng(21)
+    n = 20000
+    tri = (np.round(rng.normal(size=(n, 3, 3)) * 50) / 8).astype(np.float32)
+    tri[: n // 5, :, 1] = np.float32(-0.25)
+    tri[n // 5: n // 4, :, 2] = np.float32(-0.0)
+    tri[n // 4: n // 3, :, 0] = np.float32(0.0)
+    tri[-100:] *= np.float32(1e30)
+    keys, counts = sorted_root_events(tri, room=room, threads=threads)
+    assert len(keys) == counts.sum() + room
+    start = 0
+    t = np.arange(n)
+    for k in range(3):
+        lo, hi = tri[:, :, k].min(axis=1), tri[:, :, k].max(axis=1)
+        flat = lo == hi
+        expected = np.concatenate([key(lo[flat], PLANAR, t[flat]), key(lo[~flat], START, t[~flat]),
+                                   key(hi[~flat], END, t[~flat])])
+        assert counts[k] == len(expected)
+        np.testing.assert_array_equal(keys[start:start + counts[k]], np.sort(expected))
+        start += counts[k]
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_sweep_finds_the_cheapest_plane(seed):
     rng = np.random.default_rng(seed)

@@ -75,7 +75,8 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
     params = params.resolved(len(mesh.triangles))
     # The events are the builder's event stack, with room to grow (about twice the root's).
     nodes, leaf_tris, depth = build_nodes(
-        mesh.triangles, *sorted_root_events(mesh.triangles, room=6 * len(mesh.triangles) + 64),
+        mesh.triangles, *sorted_root_events(mesh.triangles, room=6 * len(mesh.triangles) + 64,
+                                           threads=int(threads)),
         mesh.bounds.astype(np.float64),
         params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size,
         threads=int(threads))
