@@ -173,6 +173,9 @@ class Tracer:
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")
         self._programs = {}
         self._poison_outputs = False
+        # packets: how a leaf is tested (kernels/packet.cl, kd_packet_leaf): None = by
+        # the kernel's rule; tests set 0 (triangle by triangle) or inf (ray by ray)
+        self._lane_ratio = None
         # A CPU device works on host memory: buffers over numpy arrays need no copies
         self._zero_copy = _device.is_cpu(self.device)
         self._upload(tree)
@@ -228,6 +231,8 @@ class Tracer:
         if self.packet > 1:
             defines["PACKET"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
+            if self._lane_ratio is not None:
+                defines["KD_LANE_RATIO"] = f"{min(float(self._lane_ratio), 1e30):.9e}f"
         for name in outputs:
             defines[f"OUT_{name}"] = None
         if stats:

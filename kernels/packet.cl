@@ -69,38 +69,49 @@ typedef struct {
     uint8 tri;                           /* its triangle index, KD_NO_HIT while none */
 } KdPacketHit;
 
-/* Component k of p for each lane (k per lane: 0, 1, 2). */
-float8 kd_pick8(float3 p, int8 k)
+/* Where the 8 (ray, triangle) pairs of a test come from, for the rare lanes decided
+ * again in double: the packet's rays and one triangle (lane < 0: p0, p1, p2), or
+ * lane `lane`'s ray and 8 triangles (q: 9 vectors, v0 x y z, v1 x y z, v2 x y z). */
+typedef struct {
+    const KdPacket *r;
+    int lane;
+    float3 p0, p1, p2;
+    const KdF8 *q;
+} KdPairs;
+
+/* Lane l's shear and origin. */
+void kd_lane_shear(const KdPacket *r, uint l, RayShear *s, float3 *o)
 {
-    return kd_select8(kd_select8((float8)(p.x), (float8)(p.y), k == 1), (float8)(p.z), k == 2);
+    KdI8 kx, ky, kz;
+    KdF8 Sx, Sy, Sz, ox, oy, oz;
+    kx.v = r->kx; ky.v = r->ky; kz.v = r->kz;
+    Sx.v = r->Sx; Sy.v = r->Sy; Sz.v = r->Sz;
+    ox.v = r->o[0]; oy.v = r->o[1]; oz.v = r->o[2];
+    s->kx = (uint)kx.s[l]; s->ky = (uint)ky.s[l]; s->kz = (uint)kz.s[l];
+    s->Sx = Sx.s[l]; s->Sy = Sy.s[l]; s->Sz = Sz.s[l];
+    *o = (float3)(ox.s[l], oy.s[l], oz.s[l]);
 }
 
-/* The test of triangle.cl for every lane in `act` (-1 = on) against triangle `tri`
- * (p0, p1, p2); lanes where it hits before their best hit take it. */
-void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uint tri,
-                         int8 act, KdPacketHit *h)
+/* The test of triangle.cl on 8 (ray, triangle) pairs, one per lane, for the lanes in
+ * `act`: the vertices P along each lane's shear axes (kx, ky, kz), the ray's origin
+ * along them and its shear constants, its range (t_min, t_max) and best hit so far
+ * (best_t, best_tri), the triangle's index tri8. Returns the lanes that hit before
+ * their best, with t, V, W and det (u = V / det, v = W / det). */
+int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, float8 P1z,
+                   float8 P2x, float8 P2y, float8 P2z,
+                   float8 okx, float8 oky, float8 okz, float8 Sx, float8 Sy, float8 Sz,
+                   float8 t_min, float8 t_max, float8 best_t, uint8 best_tri, uint8 tri8,
+                   int8 act, const KdPairs *src,
+                   float8 *t_out, float8 *V_out, float8 *W_out, float8 *det_out)
 {
-    float8 P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
-    if (r->uniform) {
-        P0x = (float8)(kd_comp(p0, r->ukx)); P0y = (float8)(kd_comp(p0, r->uky));
-        P0z = (float8)(kd_comp(p0, r->ukz));
-        P1x = (float8)(kd_comp(p1, r->ukx)); P1y = (float8)(kd_comp(p1, r->uky));
-        P1z = (float8)(kd_comp(p1, r->ukz));
-        P2x = (float8)(kd_comp(p2, r->ukx)); P2y = (float8)(kd_comp(p2, r->uky));
-        P2z = (float8)(kd_comp(p2, r->ukz));
-    } else {
-        P0x = kd_pick8(p0, r->kx); P0y = kd_pick8(p0, r->ky); P0z = kd_pick8(p0, r->kz);
-        P1x = kd_pick8(p1, r->kx); P1y = kd_pick8(p1, r->ky); P1z = kd_pick8(p1, r->kz);
-        P2x = kd_pick8(p2, r->kx); P2y = kd_pick8(p2, r->ky); P2z = kd_pick8(p2, r->kz);
-    }
     /* Vertices relative to the ray origins, sheared (intersect_triangle's steps) */
-    float8 Az = P0z - r->okz, Bz = P1z - r->okz, Cz = P2z - r->okz;
-    float8 Ax = (P0x - r->okx) - r->Sx * Az;
-    float8 Ay = (P0y - r->oky) - r->Sy * Az;
-    float8 Bx = (P1x - r->okx) - r->Sx * Bz;
-    float8 By = (P1y - r->oky) - r->Sy * Bz;
-    float8 Cx = (P2x - r->okx) - r->Sx * Cz;
-    float8 Cy = (P2y - r->oky) - r->Sy * Cz;
+    float8 Az = P0z - okz, Bz = P1z - okz, Cz = P2z - okz;
+    float8 Ax = (P0x - okx) - Sx * Az;
+    float8 Ay = (P0y - oky) - Sy * Az;
+    float8 Bx = (P1x - okx) - Sx * Bz;
+    float8 By = (P1y - oky) - Sy * Bz;
+    float8 Cx = (P2x - okx) - Sx * Cz;
+    float8 Cy = (P2y - oky) - Sy * Cz;
 
     float8 U = Cx * By - Cy * Bx;
     float8 V = Ax * Cy - Ay * Cx;
@@ -128,42 +139,85 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
     int8 cand = act & (((U >= 0.0f) & (V >= 0.0f) & (W >= 0.0f))
                        | ((U <= 0.0f) & (V <= 0.0f) & (W <= 0.0f)));
     if (!kd_any8(cand))
-        return;
+        return cand;
     float8 det = U + V + W;
-    float8 T = U * (r->Sz * Az) + V * (r->Sz * Bz) + W * (r->Sz * Cz);
+    float8 T = U * (Sz * Az) + V * (Sz * Bz) + W * (Sz * Cz);
     float8 det_abs = kd_abs8(det);
     float8 t = T / det;
-    uint8 tri8 = (uint8)(tri);
-    cand &= (det != 0.0f) & (t > r->t_min) & (t < r->t_max)
-            & ((t < h->t) | ((t == h->t) & as_int8(tri8 < h->tri)));
+    cand &= (det != 0.0f) & (t > t_min) & (t < t_max)
+            & ((t < best_t) | ((t == best_t) & as_int8(tri8 < best_tri)));
     if (!kd_any8(cand))
-        return;
+        return cand;
 
     /* The bound on t's rounding error (triangle.cl) */
-    KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, r->Sz, det_abs, delta_t)
+    KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, Sz, det_abs, delta_t)
     int8 doubt = cand & !(t > delta_t);
     if (kd_any8(doubt)) {
         KdI8 doubt_l, ok_l;
         doubt_l.v = doubt;
         ok_l.v = (int8)(0);
 #ifdef cl_khr_fp64
-        KdI8 kx, ky, kz;
-        KdF8 Sx, Sy, Sz, ox, oy, oz;
-        kx.v = r->kx; ky.v = r->ky; kz.v = r->kz;
-        Sx.v = r->Sx; Sy.v = r->Sy; Sz.v = r->Sz;
-        ox.v = r->o[0]; oy.v = r->o[1]; oz.v = r->o[2];
+        RayShear s;
+        float3 o;
+        if (src->lane >= 0)
+            kd_lane_shear(src->r, (uint)src->lane, &s, &o);
         for (uint l = 0; l < KD_PACKET; l++) {
             if (!doubt_l.s[l])
                 continue;
-            RayShear sl;
-            sl.kx = (uint)kx.s[l]; sl.ky = (uint)ky.s[l]; sl.kz = (uint)kz.s[l];
-            sl.Sx = Sx.s[l]; sl.Sy = Sy.s[l]; sl.Sz = Sz.s[l];
-            float3 ol = (float3)(ox.s[l], oy.s[l], oz.s[l]);
-            ok_l.s[l] = kd_t_certified_double(&sl, ol, p0, p1, p2) ? -1 : 0;
+            if (src->lane < 0) {
+                kd_lane_shear(src->r, l, &s, &o);
+                ok_l.s[l] = kd_t_certified_double(&s, o, src->p0, src->p1, src->p2) ? -1 : 0;
+            } else {
+                const KdF8 *q = src->q;
+                float3 p0 = (float3)(q[0].s[l], q[1].s[l], q[2].s[l]);
+                float3 p1 = (float3)(q[3].s[l], q[4].s[l], q[5].s[l]);
+                float3 p2 = (float3)(q[6].s[l], q[7].s[l], q[8].s[l]);
+                ok_l.s[l] = kd_t_certified_double(&s, o, p0, p1, p2) ? -1 : 0;
+            }
         }
 #endif
         cand &= ~doubt | ok_l.v;
     }
+    *t_out = t;
+    *V_out = V;
+    *W_out = W;
+    *det_out = det;
+    return cand;
+}
+
+/* Component k of p for each lane (k per lane: 0, 1, 2). */
+float8 kd_pick8(float3 p, int8 k)
+{
+    return kd_select8(kd_select8((float8)(p.x), (float8)(p.y), k == 1), (float8)(p.z), k == 2);
+}
+
+/* Every lane in `act` against triangle `tri` (p0, p1, p2); lanes where it hits before
+ * their best hit take it. */
+void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uint tri,
+                         int8 act, KdPacketHit *h)
+{
+    float8 P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
+    if (r->uniform) {
+        P0x = (float8)(kd_comp(p0, r->ukx)); P0y = (float8)(kd_comp(p0, r->uky));
+        P0z = (float8)(kd_comp(p0, r->ukz));
+        P1x = (float8)(kd_comp(p1, r->ukx)); P1y = (float8)(kd_comp(p1, r->uky));
+        P1z = (float8)(kd_comp(p1, r->ukz));
+        P2x = (float8)(kd_comp(p2, r->ukx)); P2y = (float8)(kd_comp(p2, r->uky));
+        P2z = (float8)(kd_comp(p2, r->ukz));
+    } else {
+        P0x = kd_pick8(p0, r->kx); P0y = kd_pick8(p0, r->ky); P0z = kd_pick8(p0, r->kz);
+        P1x = kd_pick8(p1, r->kx); P1y = kd_pick8(p1, r->ky); P1z = kd_pick8(p1, r->kz);
+        P2x = kd_pick8(p2, r->kx); P2y = kd_pick8(p2, r->ky); P2z = kd_pick8(p2, r->kz);
+    }
+    KdPairs src;
+    src.r = r; src.lane = -1; src.p0 = p0; src.p1 = p1; src.p2 = p2; src.q = 0;
+    uint8 tri8 = (uint8)(tri);
+    float8 t, V, W, det;
+    int8 cand = kd_test_pairs(P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z,
+                              r->okx, r->oky, r->okz, r->Sx, r->Sy, r->Sz, r->t_min, r->t_max,
+                              h->t, h->tri, tri8, act, &src, &t, &V, &W, &det);
+    if (!kd_any8(cand))
+        return;
     h->t = kd_select8(h->t, t, cand);
     h->V = kd_select8(h->V, V, cand);
     h->W = kd_select8(h->W, W, cand);
@@ -171,12 +225,103 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
     h->tri = kd_select8u(h->tri, tri8, cand);
 }
 
-/* Leaf: every lane in `act` tests the leaf's triangles. */
+/* Lane l's ray against up to 8 triangles at once, the lanes of q in `valid` (indices
+ * tri8): the pairs and arithmetic of kd_packet_intersect with rays and triangles
+ * swapped. Lane l of h takes the first hit in the order (t, index). */
+void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int8 valid,
+                       KdPacketHit *h)
+{
+    KdI8 kx, ky, kz;
+    KdF8 okx, oky, okz, Sx, Sy, Sz, t_min, t_max, ht;
+    KdU8 htri;
+    kx.v = r->kx; ky.v = r->ky; kz.v = r->kz;
+    okx.v = r->okx; oky.v = r->oky; okz.v = r->okz;
+    Sx.v = r->Sx; Sy.v = r->Sy; Sz.v = r->Sz;
+    t_min.v = r->t_min; t_max.v = r->t_max;
+    ht.v = h->t; htri.v = h->tri;
+    uint ax = (uint)kx.s[l], ay = (uint)ky.s[l], az = (uint)kz.s[l];
+    KdPairs src;
+    src.r = r; src.lane = (int)l; src.q = q;
+    float8 t, V, W, det;
+    int8 cand = kd_test_pairs(q[ax].v, q[ay].v, q[az].v, q[3 + ax].v, q[3 + ay].v, q[3 + az].v,
+                              q[6 + ax].v, q[6 + ay].v, q[6 + az].v,
+                              (float8)(okx.s[l]), (float8)(oky.s[l]), (float8)(okz.s[l]),
+                              (float8)(Sx.s[l]), (float8)(Sy.s[l]), (float8)(Sz.s[l]),
+                              (float8)(t_min.s[l]), (float8)(t_max.s[l]),
+                              (float8)(ht.s[l]), (uint8)(htri.s[l]), tri8, valid, &src,
+                              &t, &V, &W, &det);
+    if (!kd_any8(cand))
+        return;
+    /* the first candidate in the order (t, index); each one is before lane l's best */
+    KdI8 c;
+    KdF8 tl, Vl, Wl, dl, hV, hW, hd;
+    KdU8 il;
+    c.v = cand; tl.v = t; Vl.v = V; Wl.v = W; dl.v = det; il.v = tri8;
+    uint best = KD_PACKET;
+    for (uint j = 0; j < KD_PACKET; j++)
+        if (c.s[j] && (best == KD_PACKET || kd_before(tl.s[j], il.s[j], tl.s[best], il.s[best])))
+            best = j;
+    hV.v = h->V; hW.v = h->W; hd.v = h->det;
+    ht.s[l] = tl.s[best]; hV.s[l] = Vl.s[best]; hW.s[l] = Wl.s[best]; hd.s[l] = dl.s[best];
+    htri.s[l] = il.s[best];
+    h->t = ht.v; h->V = hV.v; h->W = hW.v; h->det = hd.v; h->tri = htri.v;
+}
+
+/* The number of lanes set in mask m. */
+uint kd_count8(int8 m)
+{
+    uint8 b = as_uint8(m) >> 31;
+    uint4 a = b.lo + b.hi;
+    uint2 c = a.lo + a.hi;
+    return c.x + c.y;
+}
+
+#ifndef KD_LANE_RATIO
+#define KD_LANE_RATIO 0.7f
+#endif
+
+/* Leaf: every lane in `act` tests the leaf's triangles. Where few lanes reach a leaf
+ * (most leaves, once triangles are smaller than a packet's footprint) the leaf is
+ * tested ray by ray against 8 triangles at a time: a * ceil(n / 8) tests of 8 lanes
+ * instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for gathering the
+ * triangles. The pairs and their arithmetic are the same either way. */
 void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const float *tris,
                     const KdPacket *r, int8 act, KdPacketHit *h KD_PSTATS_PARAM)
 {
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
+    uint a = kd_count8(act);
+    if ((float)(a * ((count + KD_PACKET - 1) / KD_PACKET)) < KD_LANE_RATIO * (float)count) {
+        KdI8 act_l;
+        act_l.v = act;
+        for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
+            uint m = min(count - i0, (uint)KD_PACKET);
+            KdF8 q[9];
+            KdU8 tri8;
+            KdI8 valid;
+            for (uint j = 0; j < KD_PACKET; j++) {
+                /* lanes past the leaf's end repeat its first triangle, switched off */
+                uint tri = leaf_tris[first + i0 + (j < m ? j : 0u)];
+                __global const float *p = tris + 9 * (size_t)tri;
+                for (uint c = 0; c < 9; c++)
+                    q[c].s[j] = p[c];
+                tri8.s[j] = tri;
+                valid.s[j] = j < m ? -1 : 0;
+            }
+            for (uint l = 0; l < KD_PACKET; l++) {
+                if (!act_l.s[l])
+                    continue;
+#ifdef STATS
+                KdU8 z;
+                z.v = (*pstats).z;
+                z.s[l] += m;
+                (*pstats).z = z.v;
+#endif
+                kd_lane_intersect(r, l, q, tri8.v, valid.v, h);
+            }
+        }
+        return;
+    }
     for (uint i = 0; i < count; i++) {
         uint tri = leaf_tris[first + i];
         KD_PSTAT(z, act);

@@ -443,14 +443,19 @@ def packet_rays(tree, camera_size=67):
 
 
 @pytest.mark.parametrize("kind", ["median", "sah"])
-def test_packets_equal_single_rays(kind):
+@pytest.mark.parametrize("leaf", ["rule", "by triangle", "by ray"])
+def test_packets_equal_single_rays(kind, leaf):
     """Packets of 8 rays in float8 lanes (CPU default) give bit for bit what one ray per
     work-item gives, for coherent and incoherent rays, rays the packet hands to the
     scalar kernel (split planes, diverging origins) and invalid rays; also with t_min
-    and t_max, for a camera render, and with a packet count that leaves lanes empty."""
+    and t_max, for a camera render, and with a packet count that leaves lanes empty.
+    Leaves tested by the kernel's rule, always triangle by triangle (8 rays against one
+    triangle) and always ray by ray (one ray against 8 triangles) agree."""
     tree = deep_tree() if kind == "median" else mesh_tree("teapot.obj", "sah")
     o, d = packet_rays(tree)
-    single, packed = tracer(tree, packet=1), tracer(tree, packet=8)
+    single = tracer(tree, packet=1)
+    packed = Tracer(tree, packet=8)
+    packed._lane_ratio = {"rule": None, "by triangle": 0.0, "by ray": np.inf}[leaf]
     for t_min, t_max in [(0.0, np.inf), (surface_t_min(tree), np.inf), (0.3, 2.5)]:
         a = single.trace(o, d, t_min=t_min, t_max=t_max)
         b = packed.trace(o, d, t_min=t_min, t_max=t_max)
