@@ -178,6 +178,9 @@ class Tracer:
         self._lane_ratio = None
         # A CPU device works on host memory: buffers over numpy arrays need no copies
         self._zero_copy = _device.is_cpu(self.device)
+        # float64 rays shifted and rounded in the kernel (`_rays`): no host pass, and
+        # on a CPU device no copy either
+        self._rays_in_kernel = self._zero_copy and _device.has_fp64(self.device)
         self._upload(tree)
 
     # -- set-up ----------------------------------------------------------------------
@@ -222,12 +225,17 @@ class Tracer:
         self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)
         self._origin = np.asarray(tree.origin, dtype=np.float64)
 
-    def program(self, outputs, stats=False):
+    def program(self, outputs, stats=False, rays_double=False):
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
-        with its kernels: {"program": Program, "trace_rays": Kernel, ...}."""
+        with its kernels: {"program": Program, "trace_rays": Kernel, ...}. rays_double:
+        trace_rays takes float64 rays in world coordinates (render.cl, RAYS_DOUBLE)."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
                    "BATCH_SIZE": self.batch_size, "TILE_W": RENDER_TILE[0],
                    "TILE_H": RENDER_TILE[1]}
+        if rays_double:
+            defines["RAYS_DOUBLE"] = None
+            for axis, value in zip("XYZ", self._origin):
+                defines[f"KD_ORIGIN_{axis}"] = f"({float(value).hex()})"
         if self.packet > 1:
             defines["PACKET"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
@@ -253,14 +261,14 @@ class Tracer:
 
     # -- launching ---------------------------------------------------------------------
 
-    def _launch(self, kernel_name, outputs, n, args, host_out, stats=False):
+    def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_double=False):
         """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
         slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
         args: the kernel's arguments between the tree and the counter."""
         cl = _device._cl()
         if n == 0:
             return
-        kernel = self.program(outputs, stats)[kernel_name]
+        kernel = self.program(outputs, stats, rays_double)[kernel_name]
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
@@ -305,15 +313,24 @@ class Tracer:
     # -- rays ----------------------------------------------------------------------------
 
     def _rays(self, origins, directions):
-        """(origins relative to the tree's origin, directions), (N, 3) float32 each."""
-        o = np.asarray(origins, dtype=np.float64)
+        """The rays as trace_rays takes them: (o, d, o_step, rays_double).
+
+        On a CPU device with float64 (`_rays_in_kernel`) float64 rays go to the kernel
+        as they are (no copy when C-contiguous), which shifts and rounds them itself;
+        else o (M, 3) float32 relative to the tree's origin and d (N, 3) float32. M is
+        N, or 1 with o_step 0 when all rays share one (3,) origin."""
         d = np.asarray(directions)
         if d.ndim != 2 or d.shape[1] != 3:
             raise KdrayError(f"directions must be an (N, 3) array, got shape {d.shape}")
+        o = np.asarray(origins)
         if o.shape == (3,):
-            o = np.broadcast_to(o, d.shape)
-        if o.shape != d.shape:
+            o = o.reshape(1, 3)
+        elif o.shape != d.shape:
             raise KdrayError(f"origins {o.shape} and directions {d.shape} must both be (N, 3)")
+        o_step = 0 if len(o) == 1 and len(d) != 1 else 1
+        if self._rays_in_kernel and o.dtype == np.float64 and d.dtype == np.float64:
+            return np.ascontiguousarray(o), np.ascontiguousarray(d), o_step, True
+        o = o.astype(np.float64, copy=False)
         # o - origin in float64, rounded to float32 on the way out (buffered: no
         # float64 temporary of the whole array); large arrays in chunks on threads
         # (numpy releases the GIL), the same arithmetic element by element
@@ -321,20 +338,24 @@ class Tracer:
         d32 = np.empty(d.shape, dtype=np.float32)
 
         def convert(rows):
-            shifted = np.empty((len(o32[rows]), 3))
             with np.errstate(over="ignore", invalid="ignore"):
-                for k in range(3):       # by column: numpy's loops over rows of 3 are slow
-                    np.subtract(o[rows, k], self._origin[k], out=shifted[:, k])
-                np.copyto(o32[rows], shifted, casting="unsafe")
+                if o_step:
+                    shifted = np.empty((len(o32[rows]), 3))
+                    for k in range(3):   # by column: numpy's loops over rows of 3 are slow
+                        np.subtract(o[rows, k], self._origin[k], out=shifted[:, k])
+                    np.copyto(o32[rows], shifted, casting="unsafe")
                 np.copyto(d32[rows], d[rows], casting="unsafe")
 
+        if not o_step:
+            with np.errstate(over="ignore", invalid="ignore"):
+                np.copyto(o32, o - self._origin, casting="unsafe")
         chunks = [slice(i, i + _CONVERT_CHUNK) for i in range(0, len(d), _CONVERT_CHUNK)]
         if len(chunks) > 1:
             with concurrent.futures.ThreadPoolExecutor(min(len(chunks), os.cpu_count() or 1)) as pool:
                 list(pool.map(convert, chunks))
         elif chunks:
             convert(chunks[0])
-        return o32, d32
+        return o32, d32, o_step, False
 
     def trace(self, origins, directions, t_min=0.0, t_max=np.inf):
         """Nearest hit of every ray o + t d with t_min < t < t_max.
@@ -351,7 +372,7 @@ class Tracer:
         t_min, t_max = float(t_min), float(t_max)
         if not (t_min >= 0.0 and t_max >= t_min):
             raise KdrayError(f"need 0 <= t_min <= t_max, got t_min={t_min}, t_max={t_max}")
-        o, d = self._rays(origins, directions)
+        o, d, o_step, rays_double = self._rays(origins, directions)
         n = len(d)
         out = {"T": np.empty(n, np.float32), "UV": np.empty((n, 2), np.float32),
                "NORMAL": np.empty((n, 3), np.float32), "ID": np.empty(n, np.uint32)}
@@ -359,12 +380,13 @@ class Tracer:
             out["STATS"] = np.empty((n, 4), np.uint32)
         for start in range(0, n, MAX_RAYS_PER_LAUNCH):
             stop = min(n, start + MAX_RAYS_PER_LAUNCH)
-            o_buf = self._input_buffer(o[start:stop])
+            o_buf = self._input_buffer(o[start:stop] if o_step else o)
             d_buf = self._input_buffer(d[start:stop])
             self._launch("trace_rays", ("T", "UV", "NORMAL", "ID"), stop - start,
-                         (o_buf, d_buf, np.uint32(stop - start), np.float32(t_min),
-                          np.float32(t_max)),
-                         {k: v[start:stop] for k, v in out.items()}, stats=stats)
+                         (o_buf, d_buf, np.uint32(o_step), np.uint32(stop - start),
+                          np.float32(t_min), np.float32(t_max)),
+                         {k: v[start:stop] for k, v in out.items()}, stats=stats,
+                         rays_double=rays_double)
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
         hits = Hits(t=out["T"], prim=out["ID"], u=out["UV"][:, 0], v=out["UV"][:, 1],
                     normal=out["NORMAL"])

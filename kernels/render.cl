@@ -1,6 +1,6 @@
 /* kernels/render.cl: kdray's kernel entry points.
  *
- *   trace_rays     rays from buffers (origins, directions: 3 floats each)
+ *   trace_rays     rays from buffers (origins, directions: 3 floats or doubles each)
  *   render_camera  primary rays of a pinhole camera, generated here
  *
  * Both are persistent: the host launches about enough work-groups to fill the device,
@@ -148,11 +148,35 @@ uint fetch_batch(__local uint *slot, __global volatile uint *counter)
     return start;
 }
 
-/* Nearest hits of n_rays rays; origins relative to the tree's origin. */
+/* The rays' input type: float, origins relative to the tree's origin (the host
+ * converted them), or with RAYS_DOUBLE the caller's double rays in world coordinates,
+ * converted here as the host would: (float)(o - KD_ORIGIN_*), (float)d, each one
+ * rounding to nearest (KD_ORIGIN_X, _Y, _Z: the tree's origin, exact double literals). */
+#ifdef RAYS_DOUBLE
+#define KD_RAY_T double
+float3 kd_ray_origin(__global const double *p, size_t i)
+{
+    p += 3 * i;
+    return (float3)((float)(p[0] - KD_ORIGIN_X), (float)(p[1] - KD_ORIGIN_Y),
+                    (float)(p[2] - KD_ORIGIN_Z));
+}
+float3 kd_ray_direction(__global const double *p, size_t i)
+{
+    p += 3 * i;
+    return (float3)((float)p[0], (float)p[1], (float)p[2]);
+}
+#else
+#define KD_RAY_T float
+float3 kd_ray_origin(__global const float *p, size_t i) { return kd_load3(p, i); }
+float3 kd_ray_direction(__global const float *p, size_t i) { return kd_load3(p, i); }
+#endif
+
+/* Nearest hits of n_rays rays: origin k * o_step (o_step 1, or 0 for one origin shared
+ * by all rays) and direction k of each ray k. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
 void trace_rays(KD_TREE_ARGS,
-                __global const float *origins, __global const float *directions,
-                uint n_rays, float t_min, float t_max,
+                __global const KD_RAY_T *origins, __global const KD_RAY_T *directions,
+                uint o_step, uint n_rays, float t_min, float t_max,
                 __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
     float3 bmin = vload3(0, bounds);
@@ -171,8 +195,8 @@ void trace_rays(KD_TREE_ARGS,
             float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
             uint idx[KD_RAYS_PER_ITEM];
             for (uint l = 0; l < count; l++) {
-                o[l] = kd_load3(origins, k0 + l);
-                d[l] = kd_load3(directions, k0 + l);
+                o[l] = kd_ray_origin(origins, (size_t)(k0 + l) * o_step);
+                d[l] = kd_ray_direction(directions, k0 + l);
                 idx[l] = k0 + l;
             }
             trace_and_store(count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, idx);

@@ -470,6 +470,33 @@ def test_packets_equal_single_rays(kind, leaf):
         assert np.array_equal(ra[name], rb[name], equal_nan=True), name
 
 
+@pytest.mark.parametrize("packet", [1, 8])
+def test_rays_converted_in_the_kernel(packet):
+    """float64 rays shifted and rounded by trace_rays (RAYS_DOUBLE) give bit for bit what
+    the host's conversion gives: rays near and far (1e6) from the tree's origin, one
+    shared (3,) origin, NaN/inf and overflowing components, float32 input."""
+    v, f = mesh("teapot.obj")
+    shift = np.array([1e6, -3e5, 7.25e5])
+    tree = sah_tree(v + shift, f)
+    o, d = random_rays(tree, 2003, seed=29)      # world coordinates, near the teapot
+    o, d = o.copy(), d.copy()
+    o[5], d[6], d[7, 1], o[8, 2] = np.nan, np.inf, 1e300, -1e300
+    in_kernel = tracer(tree, packet=packet)
+    assert in_kernel._rays_in_kernel
+    on_host = Tracer(tree, packet=packet)
+    on_host._rays_in_kernel = False
+    eye = tree.origin + np.array([0.1, -2.0, 0.3])
+    with np.errstate(over="ignore"):
+        cases = [(o, d), (eye, d), (o.astype(np.float32), d), (list(eye), d.astype(np.float32)),
+                 (o[:1], d[:1]), (o[:0], d[:0])]
+    for k, (oo, dd) in enumerate(cases):
+        assert in_kernel._rays(oo, dd)[3] == (k in (0, 1, 4, 5))
+        a, b = in_kernel.trace(oo, dd, t_min=1e-3), on_host.trace(oo, dd, t_min=1e-3)
+        for field in ("t", "prim", "u", "v", "normal"):
+            assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), (k, field)
+    assert np.count_nonzero(in_kernel.trace(o, d).hit) > 0.2 * len(d)
+
+
 def test_packet_stats_count_the_same_work():
     """On coherent camera rays a packet's lanes visit the nodes and leaves the single
     rays visit (lanes are masked to their own), and restarts never happen."""
