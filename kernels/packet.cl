@@ -295,7 +295,7 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
         KdI8 act_l;
         act_l.v = act;
         for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
-            uint m = min(count - i0, (uint)KD_PACKET);
+            uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
             KdF8 q[9];
             KdU8 tri8;
             KdI8 valid;
