@@ -296,18 +296,21 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
         act_l.v = act;
         for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
             uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
+            /* lanes past the leaf's end hold zeros and stay off */
             KdF8 q[9];
+            for (uint c = 0; c < 9; c++)
+                q[c].v = (float8)(0.0f);
             KdU8 tri8;
-            KdI8 valid;
-            for (uint j = 0; j < KD_PACKET; j++) {
-                /* lanes past the leaf's end repeat its first triangle, switched off */
-                uint tri = leaf_tris[first + i0 + (j < m ? j : 0u)];
+            tri8.v = (uint8)(KD_NO_HIT);
+            for (uint j = 0; j < m; j++) {
+                uint tri = leaf_tris[first + i0 + j];
                 __global const float *p = tris + 9 * (size_t)tri;
                 for (uint c = 0; c < 9; c++)
                     q[c].s[j] = p[c];
                 tri8.s[j] = tri;
-                valid.s[j] = j < m ? -1 : 0;
             }
+            KdI8 valid;
+            valid.v = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)((int)m);
             for (uint l = 0; l < KD_PACKET; l++) {
                 if (!act_l.s[l])
                     continue;
