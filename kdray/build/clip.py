@@ -23,7 +23,7 @@ _MAX_VERTS = 16          # a triangle clipped by 6 planes has at most 9 vertices
 
 @njit(cache=True)
 def polygon_scratch():
-    """Scratch buffers for `clip_split`: (3, 16, 3) float64 (two polygons, boxes)."""
+    """Scratch buffers for `clip_split`: (3, 16, 3) float64 (two polygons; the third row unused)."""
     return np.empty((3, _MAX_VERTS, 3), dtype=np.float64)
 
 
@@ -152,56 +152,51 @@ def clip_split(tri, t, box, axis, pos, poly, out_left, out_right):
         return False, False
     plane_l = pos + tol                  # the left side keeps x <= plane_l
     plane_r = pos - tol                  # the right side keeps x >= plane_r
-    # Box accumulators in scratch rows poly[2, 0:4] (left lo, left hi, right lo, right hi).
-    for c in range(3):
-        poly[2, 0, c] = np.inf
-        poly[2, 1, c] = -np.inf
-        poly[2, 2, c] = np.inf
-        poly[2, 3, c] = -np.inf
+    # Box accumulators: left (l*) and right (r*) lo and hi, in registers.
+    llo0 = llo1 = llo2 = rlo0 = rlo1 = rlo2 = np.inf
+    lhi0 = lhi1 = lhi2 = rhi0 = rhi1 = rhi2 = -np.inf
     for i in range(n):
         j = i + 1 if i + 1 < n else 0
+        a0 = poly[src, i, 0]
+        a1 = poly[src, i, 1]
+        a2 = poly[src, i, 2]
         xa = poly[src, i, axis]
         xb = poly[src, j, axis]
         if xa <= plane_l:
-            _grow(poly, 0, poly[src, i, 0], poly[src, i, 1], poly[src, i, 2])
+            llo0, llo1, llo2 = min(llo0, a0), min(llo1, a1), min(llo2, a2)
+            lhi0, lhi1, lhi2 = max(lhi0, a0), max(lhi1, a1), max(lhi2, a2)
         if xa >= plane_r:
-            _grow(poly, 2, poly[src, i, 0], poly[src, i, 1], poly[src, i, 2])
+            rlo0, rlo1, rlo2 = min(rlo0, a0), min(rlo1, a1), min(rlo2, a2)
+            rhi0, rhi1, rhi2 = max(rhi0, a0), max(rhi1, a1), max(rhi2, a2)
         # A crossing of either plane lies on both sides (plane_r <= x <= plane_l).
         for side in range(2):
             plane = plane_l if side == 0 else plane_r
             if (xa < plane) != (xb < plane):
                 s = (plane - xa) / (xb - xa)
-                y0 = poly[src, i, 0] + s * (poly[src, j, 0] - poly[src, i, 0])
-                y1 = poly[src, i, 1] + s * (poly[src, j, 1] - poly[src, i, 1])
-                y2 = poly[src, i, 2] + s * (poly[src, j, 2] - poly[src, i, 2])
+                y0 = a0 + s * (poly[src, j, 0] - a0)
+                y1 = a1 + s * (poly[src, j, 1] - a1)
+                y2 = a2 + s * (poly[src, j, 2] - a2)
                 if axis == 0:
                     y0 = plane
                 elif axis == 1:
                     y1 = plane
                 else:
                     y2 = plane
-                _grow(poly, 0, y0, y1, y2)
-                _grow(poly, 2, y0, y1, y2)
-    left_ok = poly[2, 0, 0] <= poly[2, 1, 0]
-    right_ok = poly[2, 2, 0] <= poly[2, 3, 0]
+                llo0, llo1, llo2 = min(llo0, y0), min(llo1, y1), min(llo2, y2)
+                lhi0, lhi1, lhi2 = max(lhi0, y0), max(lhi1, y1), max(lhi2, y2)
+                rlo0, rlo1, rlo2 = min(rlo0, y0), min(rlo1, y1), min(rlo2, y2)
+                rhi0, rhi1, rhi2 = max(rhi0, y0), max(rhi1, y1), max(rhi2, y2)
+    left_ok = llo0 <= lhi0
+    right_ok = rlo0 <= rhi0
     for k in range(3):
         b_lo = box[0, k]
         b_hi = box[1, k]
+        l_lo = llo0 if k == 0 else (llo1 if k == 1 else llo2)
+        l_hi = lhi0 if k == 0 else (lhi1 if k == 1 else lhi2)
+        r_lo = rlo0 if k == 0 else (rlo1 if k == 1 else rlo2)
+        r_hi = rhi0 if k == 0 else (rhi1 if k == 1 else rhi2)
         if left_ok:
-            left_ok = _store(tri, t, poly[2, 0, k], poly[2, 1, k], b_lo,
-                             pos if k == axis else b_hi, tol, out_left, k)
+            left_ok = _store(tri, t, l_lo, l_hi, b_lo, pos if k == axis else b_hi, tol, out_left, k)
         if right_ok:
-            right_ok = _store(tri, t, poly[2, 2, k], poly[2, 3, k],
-                              pos if k == axis else b_lo, b_hi, tol, out_right, k)
+            right_ok = _store(tri, t, r_lo, r_hi, pos if k == axis else b_lo, b_hi, tol, out_right, k)
     return left_ok, right_ok
-
-
-@njit(cache=True)
-def _grow(poly, row, y0, y1, y2):
-    """Grow the box in scratch rows poly[2, row:row + 2] by the point (y0, y1, y2)."""
-    poly[2, row, 0] = min(poly[2, row, 0], y0)
-    poly[2, row + 1, 0] = max(poly[2, row + 1, 0], y0)
-    poly[2, row, 1] = min(poly[2, row, 1], y1)
-    poly[2, row + 1, 1] = max(poly[2, row + 1, 1], y1)
-    poly[2, row, 2] = min(poly[2, row, 2], y2)
-    poly[2, row + 1, 2] = max(poly[2, row + 1, 2], y2)
