@@ -425,6 +425,59 @@ def test_root_events_are_sorted_keys(threads, room):
         start += counts[k]
 
 
+def plain_sweep(keys, counts, n, box, K_T, K_I, lam):
+    """Every plane evaluated in turn, in Python floats (IEEE double, as numba's): the
+    sweep without the block bounds. Returns best_split's tuple."""
+    area = 2.0 * sum((box[1, k] - box[0, k]) * (box[1, (k + 1) % 3] - box[0, (k + 1) % 3])
+                     for k in range(3))
+    best = (np.inf, -1, np.float32(0.0), 0, 0, 0)
+    start = 0
+    for k in range(3):
+        run = keys[start:start + counts[k]].astype(np.uint64)
+        start += counts[k]
+        pos = (run >> np.uint64(32)).astype(np.int64)
+        kind = ((run >> np.uint64(30)) & np.uint64(3)).astype(np.int64)
+        lo, hi = float(box[0, k]), float(box[1, k])
+        e1 = box[1, (k + 1) % 3] - box[0, (k + 1) % 3]
+        e2 = box[1, (k + 2) % 3] - box[0, (k + 2) % 3]
+        cap = 2.0 * e1 * e2 * (1.0 / area)
+        perim = 2.0 * (e1 + e2) * (1.0 / area)
+        n_left, n_right = 0, n
+        for p in np.unique(pos):
+            at = kind[pos == p]
+            p_end, p_planar, p_start = (at == 0).sum(), (at == 1).sum(), (at == 2).sum()
+            n_right -= p_end + p_planar
+            x = float(position_value(np.uint64(p)))
+            if lo < x < hi:
+                pl, pr = cap + (x - lo) * perim, cap + (hi - x) * perim
+                for side, nl, nr in ((0, n_left + p_planar, n_right), (1, n_left, n_right + p_planar)):
+                    if side == 1 and p_planar == 0:
+                        continue
+                    c = K_T + K_I * (pl * nl + pr * nr)
+                    if nl == 0 or nr == 0:
+                        c *= lam
+                    if c < best[0]:
+                        best = (c, k, np.float32(x), side, nl, nr)
+            n_left += p_start + p_planar
+    return best
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_sweep_equals_plain_sweep(seed):
+    # The block bounds only skip planes that cannot win: the same choice, to the bit.
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(2, 700))
+    tri = rng.random((n, 3, 3)) * rng.random(3)
+    tri = (np.round(tri * rng.choice([8, 64, 4096])) / 8).astype(np.float32)
+    tri[: n // 5, :, int(rng.integers(3))] = tri[0, 0, 0]
+    keys, counts = sorted_root_events(tri)
+    box = np.stack([tri.min(axis=(0, 1)), tri.max(axis=(0, 1))]).astype(np.float64)
+    K_T, K_I, lam = [(100.0, 20.0, 0.8), (15.0, 20.0, 1.0), (1.0, 80.0, 0.5)][seed % 3]
+    got = best_split(keys, 0, counts, n, box, K_T, K_I, lam)
+    want = plain_sweep(keys, counts, n, box, K_T, K_I, lam)
+    assert got[0] == want[0] and tuple(got[1:]) == tuple(want[1:])
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_sweep_finds_the_cheapest_plane(seed):
     rng = np.random.default_rng(seed)

@@ -8,6 +8,9 @@ the split axis (errata 4), not by its vertices:
     PLANAR before / after the plane -> that side; PLANAR at it -> the side SAH chose
     everything else                 -> both: a straddler
 
+Hot loops index with unsigned integers: numba then leaves out its negative-index
+test, which otherwise keeps LLVM from vectorizing them.
+
 One linear pass per axis moves the events of one-sided triangles to their child,
 still sorted. Straddlers are re-clipped to each child's box (`clip.clip_split`),
 their few new events are sorted and merged in. No node sorts all its events, so the
@@ -19,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from .clip import clip_split
-from .events import END, START, box_events, key_bits, key_kind, key_prim, sort_range
+from .events import END, START, box_events, key_bits, key_kind, key_uprim, sort_range
 
 ON_LEFT = np.int8(1)
 ON_RIGHT = np.int8(2)
@@ -36,11 +39,11 @@ def classify(buf, start, count, split_bits, planar_left, side, strad):
     and the straddlers, in event order, to strad. Returns their number.
     """
     stop = start + count
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):
         key = buf[i]
         bits = key_bits(key)
         kind = key_kind(key)
-        prim = key_prim(key)
+        prim = key_uprim(key)
         if kind == START:                   # START comes before its END in the run
             side[prim] = ON_RIGHT if bits >= split_bits else ON_BOTH
         elif kind == END:
@@ -54,12 +57,12 @@ def classify(buf, start, count, split_bits, planar_left, side, strad):
             else:
                 side[prim] = ON_LEFT if planar_left else ON_RIGHT
     n = 0
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):
         key = buf[i]
         if key_bits(key) >= split_bits:
             break
         if key_kind(key) == START:
-            prim = key_prim(key)
+            prim = key_uprim(key)
             if side[prim] == ON_BOTH:
                 strad[n] = prim
                 n += 1
@@ -88,11 +91,11 @@ def split_runs(buf, off, counts, side, left, right, left_runs, right_runs):
     for k in range(3):
         left_runs[k, 0] = wl
         right_runs[k, 0] = wr
-        for i in range(start, start + counts[k]):
+        for i in range(np.uint64(start), np.uint64(start + counts[k])):
             key = buf[i]
-            s = side[key_prim(key)]
-            left[wl] = key
-            right[wr] = key
+            s = side[key_uprim(key)]
+            left[np.uint64(wl)] = key
+            right[np.uint64(wr)] = key
             wl += s == ON_LEFT
             wr += s == ON_RIGHT
         left_runs[k, 1] = wl - left_runs[k, 0]
@@ -100,10 +103,10 @@ def split_runs(buf, off, counts, side, left, right, left_runs, right_runs):
         start += counts[k]
     # Triangles per side: one START or PLANAR each in the x run.
     n_left = 0
-    for i in range(left_runs[0, 1]):
+    for i in range(np.uint64(left_runs[0, 1])):
         n_left += key_kind(left[i]) != END
     n_right = 0
-    for i in range(right_runs[0, 1]):
+    for i in range(np.uint64(right_runs[0, 1])):
         n_right += key_kind(right[i]) != END
     return n_left, n_right
 
@@ -143,11 +146,11 @@ def merge_runs(a, a_runs, b, b_runs, out, w, counts):
         w0 = w
         for j in range(b_runs[k, 0], b_runs[k, 0] + b_runs[k, 1]):
             key = b[j]
-            while i < i_end and a[i] < key:
-                out[w] = a[i]
+            while i < i_end and a[np.uint64(i)] < key:
+                out[np.uint64(w)] = a[np.uint64(i)]
                 i += 1
                 w += 1
-            out[w] = key
+            out[np.uint64(w)] = key
             w += 1
         w = _copy(a, i, i_end, out, w)
         counts[k] = w - w0
@@ -162,7 +165,7 @@ def _copy(src, start, stop, dst, w):
     if n >= 64:
         dst[w:w + n] = src[start:stop]
         return w + n
-    for i in range(start, stop):
-        dst[w] = src[i]
+    for i in range(np.uint64(start), np.uint64(stop)):
+        dst[np.uint64(w)] = src[i]
         w += 1
     return w

@@ -74,6 +74,12 @@ def key_prim(key):
 
 
 @njit(cache=True)
+def key_uprim(key):
+    """The key's triangle index as a uint64 (for indexing: no negative-index test)."""
+    return key & _PRIM_MASK
+
+
+@njit(cache=True)
 def box_events(lo, hi, prim, out, w):
     """Write the events of one triangle's box [lo, hi] on one axis at out[w:];
     return the new write position."""

@@ -16,7 +16,10 @@ Numba-compiled (`cache=True`; the first call compiles).
 import numpy as np
 from numba import njit
 
-from .events import PLANAR, START, key_bits, key_kind, position_bits, position_value
+from .events import END, PLANAR, START, key_bits, key_kind, position_bits, position_value
+
+SWEEP_BLOCK = 16
+"""Events per block of the sweep's bound test (`best_split`)."""
 
 LEFT = 0
 """Planar triangles at the chosen plane go to the below (left) child..."""
@@ -44,6 +47,14 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus):
     n_left, n_right triangles on each side); axis is -1 and cost inf when no plane
     lies strictly inside the box.
     Ties keep the first found: lower axis, lower position, planar triangles left.
+
+    The events go in blocks of about SWEEP_BLOCK (whole positions). Once a cost is
+    known, a block is first bounded from below: its first position's P_L, its last
+    position's P_R, the left count before it and the right count after it (both
+    counts only grow inside the block; lambda if either is zero). Every operation of
+    the cost is monotone under rounding, so each plane in the block costs, in
+    float64, at least the bound: a block whose bound is not below the best cost is
+    only counted, and the result is exactly that of evaluating every plane.
     """
     ext0 = box[1, 0] - box[0, 0]
     ext1 = box[1, 1] - box[0, 1]
@@ -71,38 +82,69 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus):
         perim = 2.0 * (e1 + e2) * inv_area          # dP / dx
         n_left = 0
         n_right = n_tris
-        # Per event, branch-free: END and PLANAR leave the right side at once, PLANAR
-        # and START join the left after the position's planes are evaluated.
-        p_planar = 0
-        p_start = 0
-        for i in range(start, end):
-            key = buf[i]
-            kind = key_kind(key)
-            n_right -= kind != START
-            p_planar += kind == PLANAR
-            p_start += kind == START
-            bits = key_bits(key)
-            if i + 1 < end and key_bits(buf[i + 1]) == bits:
-                continue                            # more events at this position
-            # Errata 2: N_P = p_planar; N_R -= p_planar + p_end (done); evaluate; N_L += ...
-            if lo_bits < bits and bits < hi_bits:
-                x = np.float64(position_value(bits))
-                p_left = cap + (x - lo) * perim
-                p_right = cap + (hi - x) * perim
-                # planar triangles on the left
-                n_l = n_left + p_planar
-                c = sah_cost(p_left, p_right, n_l, n_right, K_T, K_I, empty_bonus)
-                if c < best_cost:
-                    best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), LEFT
-                    best_left, best_right = n_l, n_right
-                if p_planar > 0:                    # ... and on the right
-                    n_r = n_right + p_planar
-                    c = sah_cost(p_left, p_right, n_left, n_r, K_T, K_I, empty_bonus)
+        i = start
+        while i < end:
+            # A block of about SWEEP_BLOCK events, ending where the position changes.
+            j = min(i + SWEEP_BLOCK, end)
+            last_bits = key_bits(buf[j - 1])
+            while j < end and key_bits(buf[j]) == last_bits:
+                j += 1
+            if best_cost < np.inf:
+                # The block's lower bound: no plane in it can cost less (see above).
+                # (kind: END 0, PLANAR 1, START 2; unsigned indices: numba then adds no
+                # negative-index test, and the loop vectorizes: ~5x faster)
+                b_planar = 0
+                b_start = 0
+                for q in range(np.uint64(i), np.uint64(j)):
+                    kind = key_kind(buf[q])
+                    b_planar += kind & 1
+                    b_start += kind >> 1
+                n_right_after = n_right - (j - i - b_start)      # END and PLANAR leave
+                x_first = np.float64(position_value(key_bits(buf[i])))
+                x_last = np.float64(position_value(last_bits))
+                bound = sah_cost(cap + (x_first - lo) * perim, cap + (hi - x_last) * perim,
+                                 n_left, n_right_after, K_T, K_I, empty_bonus)
+                if bound >= best_cost:
+                    n_left += b_start + b_planar
+                    n_right = n_right_after
+                    i = j
+                    continue
+            while i < j:
+                # Count the events at this position (one group of equal position bits).
+                key = buf[np.uint64(i)]
+                bits = key_bits(key)
+                p_end = 0
+                p_planar = 0
+                p_start = 0
+                while True:
+                    kind = key_kind(key)
+                    p_end += kind == END
+                    p_planar += kind == PLANAR
+                    p_start += kind == START
+                    i += 1
+                    if i >= j:
+                        break
+                    key = buf[np.uint64(i)]
+                    if key_bits(key) != bits:
+                        break
+                # Errata 2: N_P = p_planar; N_R -= p_planar + p_end; evaluate; N_L += ...
+                n_right -= p_end + p_planar
+                if lo_bits < bits and bits < hi_bits:
+                    x = np.float64(position_value(bits))
+                    p_left = cap + (x - lo) * perim
+                    p_right = cap + (hi - x) * perim
+                    # planar triangles on the left
+                    n_l = n_left + p_planar
+                    c = sah_cost(p_left, p_right, n_l, n_right, K_T, K_I, empty_bonus)
                     if c < best_cost:
-                        best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), RIGHT
-                        best_left, best_right = n_left, n_r
-            n_left += p_start + p_planar
-            p_planar = 0
-            p_start = 0
+                        best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), LEFT
+                        best_left, best_right = n_l, n_right
+                    if p_planar > 0:                    # ... and on the right
+                        n_r = n_right + p_planar
+                        c = sah_cost(p_left, p_right, n_left, n_r, K_T, K_I, empty_bonus)
+                        if c < best_cost:
+                            best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), RIGHT
+                            best_left, best_right = n_left, n_r
+                n_left += p_start + p_planar
         start = end
     return best_cost, best_axis, best_pos, best_side, best_left, best_right
