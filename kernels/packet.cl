@@ -277,7 +277,7 @@ uint kd_count8(int8 m)
 }
 
 #ifndef KD_LANE_RATIO
-#define KD_LANE_RATIO 0.7f
+#define KD_LANE_RATIO 0.5f
 #endif
 
 /* Leaf: every lane in `act` tests the leaf's triangles. Where few lanes reach a leaf
