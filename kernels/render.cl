@@ -79,6 +79,38 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
 }
 
 #ifdef PACKET
+/* Trace the packet of rays (ox, oy, oz) + t (dx, dy, dz) and store the outputs of each
+ * lane l in `on` at index idx[l]. */
+void trace_packet_and_store(KdF8 ox, KdF8 oy, KdF8 oz, KdF8 dx, KdF8 dy, KdF8 dz, KdI8 on,
+                            float t_min, float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS,
+                            const uint *idx)
+{
+    KdF8 t_l, u_l, v_l;
+    KdU8 tri_l;
+#ifdef STATS
+    KdU8 sx, sy, sz, sw;
+    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, on.v, ox.v, oy.v, oz.v,
+                 dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
+                 &sx, &sy, &sz, &sw);
+#else
+    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, on.v, ox.v, oy.v, oz.v,
+                 dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
+#endif
+    for (uint l = 0; l < KD_PACKET; l++) {
+        if (!on.s[l])
+            continue;
+#ifdef STATS
+        vstore4((uint4)(sx.s[l], sy.s[l], sz.s[l], sw.s[l]), idx[l], out_stats);
+#endif
+        Hit hit;
+        hit.t = t_l.s[l];
+        hit.u = u_l.s[l];
+        hit.v = v_l.s[l];
+        hit.tri = tri_l.s[l];
+        store_hit(idx[l], &hit, tris, tri_ids, KD_OUTPUT_PASS);
+    }
+}
+
 /* Trace rays o[l] + t d[l], l < count <= KD_PACKET, as one packet and store ray l's
  * outputs at index idx[l]. */
 void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
@@ -92,28 +124,8 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
         dx.s[l] = d[j].x; dy.s[l] = d[j].y; dz.s[l] = d[j].z;
         on.s[l] = l < count ? -1 : 0;
     }
-    KdF8 t_l, u_l, v_l;
-    KdU8 tri_l;
-#ifdef STATS
-    KdU8 sx, sy, sz, sw;
-    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, on.v, ox.v, oy.v, oz.v,
-                 dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
-                 &sx, &sy, &sz, &sw);
-#else
-    trace_packet(nodes, n_nodes, leaf_tris, tris, bmin, bmax, on.v, ox.v, oy.v, oz.v,
-                 dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
-#endif
-    for (uint l = 0; l < count; l++) {
-#ifdef STATS
-        vstore4((uint4)(sx.s[l], sy.s[l], sz.s[l], sw.s[l]), idx[l], out_stats);
-#endif
-        Hit hit;
-        hit.t = t_l.s[l];
-        hit.u = u_l.s[l];
-        hit.v = v_l.s[l];
-        hit.tri = tri_l.s[l];
-        store_hit(idx[l], &hit, tris, tri_ids, KD_OUTPUT_PASS);
-    }
+    trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
+                           KD_OUTPUT_PASS, idx);
 }
 #define KD_RAYS_PER_ITEM KD_PACKET
 #else
@@ -250,37 +262,46 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
             uint tile_col = (tile % tiles_x) * TILE_W;
             uint tile_row = (tile / tiles_x) * TILE_H;           /* from row0 */
 #ifdef PACKET
-            /* a packet is a block of 4 x 2 pixels (closer together than a row of 8) */
+            /* a packet is a block of 4 x 2 pixels (closer together than a row of 8),
+             * its rays made in vectors with the arithmetic of the one-ray case below */
             uint block = in_tile / KD_PACKET;
             uint col0 = tile_col + (block % (TILE_W / 4u)) * 4u;
             uint row0_b = tile_row + (block / (TILE_W / 4u)) * 2u;
-#else
-            uint col0 = tile_col + in_tile % TILE_W;
-            uint row0_b = tile_row + in_tile / TILE_W;
-#endif
-            float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
-            uint idx[KD_RAYS_PER_ITEM];
-            uint count = 0;                  /* the block's pixels inside the image */
-            for (uint l = 0; l < KD_RAYS_PER_ITEM; l++) {
-#ifdef PACKET
-                uint col = col0 + l % 4u, row = row0_b + l / 4u;
-#else
-                uint col = col0, row = row0_b;
-#endif
-                if (col >= width || row >= n_rows)
-                    continue;
-                float x = (float)col + 0.5f;
-                float y = (float)(row0 + row) + 0.5f;
-                idx[count] = row * width + col;
-                o[count] = eye;
-                d[count] = (float3)(m0.x * x + m0.y * y + m0.z,
-                                    m1.x * x + m1.y * y + m1.z,
-                                    m2.x * x + m2.y * y + m2.z);
-                count++;
-            }
-            if (count == 0)
+            if (col0 >= width || row0_b >= n_rows)
                 continue;
-            trace_and_store(count, o, d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, idx);
+            float x0 = (float)col0 + 0.5f, x1 = (float)(col0 + 1u) + 0.5f;
+            float x2 = (float)(col0 + 2u) + 0.5f, x3 = (float)(col0 + 3u) + 0.5f;
+            float y0 = (float)(row0 + row0_b) + 0.5f, y1 = (float)(row0 + row0_b + 1u) + 0.5f;
+            float8 x = (float8)(x0, x1, x2, x3, x0, x1, x2, x3);
+            float8 y = (float8)(y0, y0, y0, y0, y1, y1, y1, y1);
+            KdF8 ox, oy, oz, dx, dy, dz;
+            ox.v = (float8)(eye.x); oy.v = (float8)(eye.y); oz.v = (float8)(eye.z);
+            dx.v = m0.x * x + m0.y * y + m0.z;
+            dy.v = m1.x * x + m1.y * y + m1.z;
+            dz.v = m2.x * x + m2.y * y + m2.z;
+            KdI8 on;
+            uint idx[KD_PACKET];
+            for (uint l = 0; l < KD_PACKET; l++) {
+                uint col = col0 + l % 4u, row = row0_b + l / 4u;
+                on.s[l] = col < width && row < n_rows ? -1 : 0;
+                idx[l] = row * width + col;
+            }
+            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, 0.0f, INFINITY, KD_TREE_PASS,
+                                   KD_OUTPUT_PASS, idx);
+#else
+            uint col = tile_col + in_tile % TILE_W;
+            uint row = tile_row + in_tile / TILE_W;
+            if (col >= width || row >= n_rows)
+                continue;
+            float x = (float)col + 0.5f;
+            float y = (float)(row0 + row) + 0.5f;
+            uint idx = row * width + col;
+            float3 o = eye;
+            float3 d = (float3)(m0.x * x + m0.y * y + m0.z,
+                                m1.x * x + m1.y * y + m1.z,
+                                m2.x * x + m2.y * y + m2.z);
+            trace_and_store(1, &o, &d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, &idx);
+#endif
         }
     }
 }
