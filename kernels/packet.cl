@@ -97,6 +97,7 @@ void kd_lane_shear(const KdPacket *r, uint l, RayShear *s, float3 *o)
  * along them and its shear constants, its range (t_min, t_max) and best hit so far
  * (best_t, best_tri), the triangle's index tri8. Returns the lanes that hit before
  * their best, with t, V, W and det (u = V / det, v = W / det). */
+__attribute__((always_inline))  /* a call passes its vectors through memory */
 int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, float8 P1z,
                    float8 P2x, float8 P2y, float8 P2z,
                    float8 okx, float8 oky, float8 okz, float8 Sx, float8 Sy, float8 Sz,
@@ -193,6 +194,7 @@ float8 kd_pick8(float3 p, int8 k)
 
 /* Every lane in `act` against triangle `tri` (p0, p1, p2); lanes where it hits before
  * their best hit take it. */
+__attribute__((always_inline))
 void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uint tri,
                          int8 act, KdPacketHit *h)
 {
@@ -228,6 +230,7 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
 /* Lane l's ray against up to 8 triangles at once, the lanes of q in `valid` (indices
  * tri8): the pairs and arithmetic of kd_packet_intersect with rays and triangles
  * swapped. Lane l of h takes the first hit in the order (t, index). */
+__attribute__((always_inline))
 void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int8 valid,
                        KdPacketHit *h)
 {
@@ -285,6 +288,7 @@ uint kd_count8(int8 m)
  * tested ray by ray against 8 triangles at a time: a * ceil(n / 8) tests of 8 lanes
  * instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for gathering the
  * triangles. The pairs and their arithmetic are the same either way. */
+__attribute__((always_inline))
 void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const float *tris,
                     const KdPacket *r, int8 act, KdPacketHit *h KD_PSTATS_PARAM)
 {
