@@ -134,7 +134,7 @@ def radix_sort_events(keys, start, stop, tmp, tmp_start):
     """
     n = stop - start
     hist = np.zeros((3, 4096), dtype=np.int64)
-    for i in range(start, stop):
+    for i in range(np.uint64(start), np.uint64(stop)):
         key = keys[i]
         hist[0, (key >> np.uint64(30)) & np.uint64(0x7FF)] += 1
         hist[1, (key >> np.uint64(41)) & np.uint64(0x7FF)] += 1
@@ -158,10 +158,10 @@ def radix_sort_events(keys, start, stop, tmp, tmp_start):
             total += hist[d, b]
         if skip:
             continue
-        for i in range(src_start, src_start + n):
+        for i in range(np.uint64(src_start), np.uint64(src_start + n)):
             key = src[i]
             b = (key >> shift) & mask
-            dst[pos[b]] = key
+            dst[np.uint64(pos[b])] = key
             pos[b] += 1
         src, dst = dst, src
         src_start, dst_start = dst_start, src_start
