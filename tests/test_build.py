@@ -476,6 +476,12 @@ def test_sweep_equals_plain_sweep(seed):
     got = best_split(keys, 0, counts, n, box, K_T, K_I, lam)
     want = plain_sweep(keys, counts, n, box, K_T, K_I, lam)
     assert got[0] == want[0] and tuple(got[1:]) == tuple(want[1:])
+    if want[1] >= 0:
+        # max_cost: a plane that costs exactly that is still found, none below it is
+        capped = best_split(keys, 0, counts, n, box, K_T, K_I, lam, want[0])
+        assert capped[0] == want[0] and tuple(capped[1:]) == tuple(want[1:])
+        none = best_split(keys, 0, counts, n, box, K_T, K_I, lam, np.nextafter(want[0], 0))
+        assert none[1] == -1 and none[0] == np.inf
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -38,14 +38,17 @@ def sah_cost(p_left, p_right, n_left, n_right, K_T, K_I, empty_bonus):
 
 
 @njit(cache=True)
-def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus):
+def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np.inf):
     """Sweep the node's three sorted event runs.
 
     buf[off:] : the node's events (x run, y run, z run; `counts` (3,) long);
-    n_tris : triangles in the node;  box : (2, 3) float64 (float32 values).
+    n_tris : triangles in the node;  box : (2, 3) float64 (float32 values);
+    max_cost : only planes that cost at most this are looked for (the builder passes
+    the leaf's cost K_I * n_tris: a dearer plane makes a leaf anyway; then most blocks
+    of a node that becomes a leaf are only counted).
     Returns (cost, axis, position float32, side LEFT/RIGHT for planar triangles,
     n_left, n_right triangles on each side); axis is -1 and cost inf when no plane
-    lies strictly inside the box.
+    lies strictly inside the box or none costs at most max_cost.
     Ties keep the first found: lower axis, lower position, planar triangles left.
 
     The events go in blocks of about SWEEP_BLOCK (whole positions). Once a cost is
@@ -60,14 +63,14 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus):
     ext1 = box[1, 1] - box[0, 1]
     ext2 = box[1, 2] - box[0, 2]
     area = 2.0 * (ext0 * ext1 + ext1 * ext2 + ext2 * ext0)
-    best_cost = np.inf
+    best_cost = np.nextafter(max_cost, np.inf)      # c < best_cost: c <= max_cost
     best_axis = -1
     best_pos = np.float32(0.0)
     best_side = LEFT
     best_left = 0
     best_right = 0
     if not area > 0.0:
-        return best_cost, best_axis, best_pos, best_side, best_left, best_right
+        return np.inf, best_axis, best_pos, best_side, best_left, best_right
     inv_area = 1.0 / area
     start = off
     for k in range(3):
@@ -147,4 +150,6 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus):
                             best_left, best_right = n_left, n_r
                 n_left += p_start + p_planar
         start = end
+    if best_axis < 0:
+        best_cost = np.inf
     return best_cost, best_axis, best_pos, best_side, best_left, best_right

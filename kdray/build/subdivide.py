@@ -190,10 +190,9 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
 
         axis = -1
         if n > leaf_size and depth < max_depth:
+            # errata 6: no lambda on the leaf; a plane dearer than the leaf is not made
             cost, axis, pos, planar_side, n_below, n_above = best_split(
-                buf, off, node_counts, n, box, K_T, K_I, empty_bonus)
-            if axis >= 0 and cost > K_I * n:            # errata 6: no lambda on the leaf
-                axis = -1
+                buf, off, node_counts, n, box, K_T, K_I, empty_bonus, K_I * n)
             if axis >= 0 and n_below + n_above > budget:  # out of references
                 axis = -1
 
