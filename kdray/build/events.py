@@ -174,8 +174,7 @@ def sorted_root_events(tri, room=0, threads=1):
     """Events of the root node, each axis's run sorted (the build's only full sort).
 
     tri : (m, 3, 3) float32;  room : int, unused keys to leave after the events (the
-    builder's event stack grows there: `subdivide.subdivide`; the sort uses up to e of
-    them as scratch, else allocates its own);  threads : the three axes are made and
+    builder's event stack grows there: `subdivide.subdivide`);  threads : the three axes are made and
     sorted on up to this many threads (the numba functions release the GIL).
     Returns (keys (e + room,) uint64, counts (3,) int64): keys[:e] are the x run, then
     y, then z, `counts` long.
@@ -193,7 +192,9 @@ def sorted_root_events(tri, room=0, threads=1):
     counts = np.array(run([(axis_event_count, tri, k) for k in range(3)]), dtype=np.int64)
     e = int(counts.sum())
     keys = np.empty(e + room, dtype=np.uint64)
-    tmp, tmp_start = (keys, e) if room >= e else (np.empty(e, dtype=np.uint64), 0)
+    # Scratch of its own, freed on return: sorting in the room would make it resident
+    # before the build needs it (+37 B a triangle at the build's peak, 1.6M triangles).
+    tmp, tmp_start = np.empty(e, dtype=np.uint64), 0
     start = np.r_[0, np.cumsum(counts)]
 
     def axis(k):
