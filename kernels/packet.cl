@@ -95,14 +95,15 @@ void kd_lane_shear(const KdPacket *r, uint l, RayShear *s, float3 *o)
 /* The test of triangle.cl on 8 (ray, triangle) pairs, one per lane, for the lanes in
  * `act`: the vertices P along each lane's shear axes (kx, ky, kz), the ray's origin
  * along them and its shear constants, its range (t_min, t_max) and best hit so far
- * (best_t, best_tri), the triangle's index tri8. Returns the lanes that hit before
- * their best, with t, V, W and det (u = V / det, v = W / det). */
+ * (best_t, best_tri), the triangle's index tri8 (tri_ids: input ids, for ties).
+ * Returns the lanes that hit before their best, with t, V, W and det (u = V / det,
+ * v = W / det). */
 __attribute__((always_inline))  /* a call passes its vectors through memory */
 int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, float8 P1z,
                    float8 P2x, float8 P2y, float8 P2z,
                    float8 okx, float8 oky, float8 okz, float8 Sx, float8 Sy, float8 Sz,
                    float8 t_min, float8 t_max, float8 best_t, uint8 best_tri, uint8 tri8,
-                   int8 act, const KdPairs *src,
+                   __global const uint *tri_ids, int8 act, const KdPairs *src,
                    float8 *t_out, float8 *V_out, float8 *W_out, float8 *det_out)
 {
     /* Vertices relative to the ray origins, sheared (intersect_triangle's steps) */
@@ -145,8 +146,19 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
     float8 T = U * (Sz * Az) + V * (Sz * Bz) + W * (Sz * Cz);
     float8 det_abs = kd_abs8(det);
     float8 t = T / det;
-    cand &= (det != 0.0f) & (t > t_min) & (t < t_max)
-            & ((t < best_t) | ((t == best_t) & as_int8(tri8 < best_tri)));
+    cand &= (det != 0.0f) & (t > t_min) & (t < t_max);
+    int8 tie = cand & (t == best_t);     /* rare: compare input ids (kd_before) */
+    cand &= t < best_t;
+    if (kd_any8(tie)) {
+        KdI8 tie_l, win;
+        KdU8 a, b;
+        tie_l.v = tie; a.v = tri8; b.v = best_tri;
+        win.v = (int8)(0);
+        for (uint l = 0; l < KD_PACKET; l++)
+            if (tie_l.s[l] && tri_ids[a.s[l]] < tri_ids[b.s[l]])
+                win.s[l] = -1;
+        cand |= win.v;
+    }
     if (!kd_any8(cand))
         return cand;
 
@@ -196,7 +208,7 @@ float8 kd_pick8(float3 p, int8 k)
  * their best hit take it. */
 __attribute__((always_inline))
 void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uint tri,
-                         int8 act, KdPacketHit *h)
+                         __global const uint *tri_ids, int8 act, KdPacketHit *h)
 {
     float8 P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
     if (r->uniform) {
@@ -217,7 +229,7 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
     float8 t, V, W, det;
     int8 cand = kd_test_pairs(P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z,
                               r->okx, r->oky, r->okz, r->Sx, r->Sy, r->Sz, r->t_min, r->t_max,
-                              h->t, h->tri, tri8, act, &src, &t, &V, &W, &det);
+                              h->t, h->tri, tri8, tri_ids, act, &src, &t, &V, &W, &det);
     if (!kd_any8(cand))
         return;
     h->t = kd_select8(h->t, t, cand);
@@ -232,7 +244,7 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
  * swapped. Lane l of h takes the first hit in the order (t, index). */
 __attribute__((always_inline))
 void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int8 valid,
-                       KdPacketHit *h)
+                       __global const uint *tri_ids, KdPacketHit *h)
 {
     KdI8 kx, ky, kz;
     KdF8 okx, oky, okz, Sx, Sy, Sz, t_min, t_max, ht;
@@ -251,7 +263,7 @@ void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int
                               (float8)(okx.s[l]), (float8)(oky.s[l]), (float8)(okz.s[l]),
                               (float8)(Sx.s[l]), (float8)(Sy.s[l]), (float8)(Sz.s[l]),
                               (float8)(t_min.s[l]), (float8)(t_max.s[l]),
-                              (float8)(ht.s[l]), (uint8)(htri.s[l]), tri8, valid, &src,
+                              (float8)(ht.s[l]), (uint8)(htri.s[l]), tri8, tri_ids, valid, &src,
                               &t, &V, &W, &det);
     if (!kd_any8(cand))
         return;
@@ -262,7 +274,7 @@ void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int
     c.v = cand; tl.v = t; Vl.v = V; Wl.v = W; dl.v = det; il.v = tri8;
     uint best = KD_PACKET;
     for (uint j = 0; j < KD_PACKET; j++)
-        if (c.s[j] && (best == KD_PACKET || kd_before(tl.s[j], il.s[j], tl.s[best], il.s[best])))
+        if (c.s[j] && (best == KD_PACKET || kd_before(tl.s[j], il.s[j], tl.s[best], il.s[best], tri_ids)))
             best = j;
     hV.v = h->V; hW.v = h->W; hd.v = h->det;
     ht.s[l] = tl.s[best]; hV.s[l] = Vl.s[best]; hW.s[l] = Wl.s[best]; hd.s[l] = dl.s[best];
@@ -289,7 +301,7 @@ uint kd_count8(int8 m)
  * instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for gathering the
  * triangles. The pairs and their arithmetic are the same either way. */
 __attribute__((always_inline))
-void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const float *tris,
+void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const float *tris, __global const uint *tri_ids,
                     const KdPacket *r, int8 act, KdPacketHit *h KD_PSTATS_PARAM)
 {
     uint count = kd_n_prims(leaf);
@@ -324,7 +336,7 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
                 z.s[l] += m;
                 (*pstats).z = z.v;
 #endif
-                kd_lane_intersect(r, l, q, tri8.v, valid.v, h);
+                kd_lane_intersect(r, l, q, tri8.v, valid.v, tri_ids, h);
             }
         }
         return;
@@ -333,7 +345,7 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
         uint tri = leaf_tris[first + i];
         KD_PSTAT(z, act);
         kd_packet_intersect(r, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
-                            kd_vertex(tris, tri, 2), tri, act, h);
+                            kd_vertex(tris, tri, 2), tri, tri_ids, act, h);
     }
 }
 
@@ -341,7 +353,7 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
  * lane. Lanes that must be traced by the scalar kernel instead are or-ed into
  * *fallback (and their hit is left as it is). */
 void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
-                        __global const uint *leaf_tris, __global const float *tris,
+                        __global const uint *leaf_tris, __global const float *tris, __global const uint *tri_ids,
                         const KdPacket *r, int8 act, float8 t_enter, float8 t_exit,
                         KdPacketHit *h, int8 *fallback KD_PSTATS_PARAM)
 {
@@ -425,7 +437,7 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
             if (++leaves > max_leaves)
                 return;
             KD_PSTAT(y, act);
-            kd_packet_leaf(n, leaf_tris, tris, r, act, h KD_PSTATS_ARG);
+            kd_packet_leaf(n, leaf_tris, tris, tri_ids, r, act, h KD_PSTATS_ARG);
             /* lanes whose hit is final are done (traverse.cl, kd_hit_final) */
             live &= ~(act & (h->t < t_max_cur * (1.0f - KD_T_SLACK)));
         }
@@ -467,7 +479,7 @@ float8 kd_comp8(float8 x, float8 y, float8 z, int8 k)
  * scene box. Writes t (t_max on a miss), u, v (0 on a miss) and tri (KD_NO_HIT on a
  * miss) per lane, and with STATS per-lane counts. */
 void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uint *leaf_tris,
-                  __global const float *tris, float3 bmin, float3 bmax, int8 on,
+                  __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax, int8 on,
                   float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz,
                   float t_min, float t_max,
                   float8 *t_out, float8 *u_out, float8 *v_out, uint8 *tri_out
@@ -532,7 +544,7 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uin
     KdPacketStats *pstats = &ps;
 #endif
     if (kd_any8(on))
-        kd_packet_traverse(nodes, 2u * n_nodes + 2u, leaf_tris, tris, &r, on, t_enter, t_exit,
+        kd_packet_traverse(nodes, 2u * n_nodes + 2u, leaf_tris, tris, tri_ids, &r, on, t_enter, t_exit,
                            &h, &fallback.v KD_PSTATS_ARG);
 
     KdF8 t_l, u_l, v_l;
@@ -556,11 +568,11 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uin
             float3 d = (float3)(dxl.s[l], dyl.s[l], dzl.s[l]);
 #ifdef STATS
             uint4 more = (uint4)(0u);
-            trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o, d, t_min, t_max, &hit, &more);
+            trace_ray(nodes, n_nodes, leaf_tris, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit, &more);
             stat_x->s[l] += more.x; stat_y->s[l] += more.y;
             stat_z->s[l] += more.z; stat_w->s[l] += more.w;
 #else
-            trace_ray(nodes, n_nodes, leaf_tris, tris, bmin, bmax, o, d, t_min, t_max, &hit);
+            trace_ray(nodes, n_nodes, leaf_tris, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit);
 #endif
             t_l.s[l] = hit.t;
             u_l.s[l] = hit.u;

@@ -12,8 +12,8 @@
  * Hit convention: P = (1 - u - v) v0 + u v1 + v v2, u = V / det, v = W / det,
  * t = T / det in units of |direction|; a hit needs t_min < t < t_max, t larger than
  * the bound on its own rounding error (so t = 0 never counts, even rounded), and
- * (t, tri) before the best hit so far in the order "smaller t, then lower triangle
- * index" (kd_before). Whether a triangle is hit therefore depends on the ray and the
+ * (t, tri) before the best hit so far in the order "smaller t, then lower input id of
+ * the triangle" (kd_before). Whether a triangle is hit therefore depends on the ray and the
  * triangle alone, and the nearest hit does not depend on the order triangles are
  * tested in: a packet, a scalar traversal and a tree over fewer triangles agree.
  */
@@ -109,10 +109,11 @@ bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, fl
 }
 #endif
 
-/* (t, tri) comes before (t_best, tri_best): nearer, or as near with a lower index. */
-bool kd_before(float t, uint tri, float t_best, uint tri_best)
+/* (t, tri) comes before (t_best, tri_best): nearer, or as near with a lower input id
+ * (tri_ids: the device's triangle order is the tree's leaf order, not the input's). */
+bool kd_before(float t, uint tri, float t_best, uint tri_best, __global const uint *tri_ids)
 {
-    return t < t_best || (t == t_best && tri < tri_best);
+    return t < t_best || (t == t_best && tri_ids[tri] < tri_ids[tri_best]);
 }
 
 /* Intersect the ray (o, shear) with triangle `tri` (p0, p1, p2), all relative to the
@@ -120,7 +121,7 @@ bool kd_before(float t, uint tri, float t_best, uint tri_best)
  * tri_best), write t, u, v and return true. */
 bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2, uint tri,
                         float t_min, float t_max, float t_best, uint tri_best,
-                        float *t_out, float *u_out, float *v_out)
+                        __global const uint *tri_ids, float *t_out, float *u_out, float *v_out)
 {
     /* Vertices relative to the ray origin */
     float3 A = p0 - o;
@@ -163,7 +164,7 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     float T = U * (s->Sz * Az) + V * (s->Sz * Bz) + W * (s->Sz * Cz);
     float det_abs = kd_abs(det);
     float t = T / det;
-    if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best)))
+    if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best, tri_ids)))
         return false;
 
     /* t must exceed a conservative bound on its own rounding error (pbrt-v4, after

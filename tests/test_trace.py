@@ -471,6 +471,26 @@ def test_packets_equal_single_rays(kind, leaf):
 
 
 @pytest.mark.parametrize("packet", [1, 8])
+def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet, monkeypatch):
+    """The device keeps triangles in leaf order (trace.leaf_order); a tie in t still goes
+    to the lowest input id, whatever that order: every triangle of the teapot twice
+    (coincident copies, ids i and i + m), traced with the device order reversed."""
+    import kdray.trace
+    v, f = mesh("teapot.obj")
+    m = len(f)
+    tree = sah_tree(v, np.concatenate([f, f]))
+    o, d = random_rays(tree, 1999, seed=31)
+    base = Tracer(tree, packet=packet).trace(o, d)
+    assert np.count_nonzero(base.hit) > 0.2 * len(d)
+    assert np.all(base.prim[base.hit] < m)
+    monkeypatch.setattr(kdray.trace, "leaf_order",
+                        lambda leaf_tris, n: np.arange(n, dtype=np.intp)[::-1].copy())
+    reversed_order = Tracer(tree, packet=packet).trace(o, d)
+    for field in ("t", "prim", "u", "v", "normal"):
+        assert np.array_equal(getattr(base, field), getattr(reversed_order, field)), field
+
+
+@pytest.mark.parametrize("packet", [1, 8])
 def test_rays_converted_in_the_kernel(packet):
     """float64 rays shifted and rounded by trace_rays (RAYS_DOUBLE) give bit for bit what
     the host's conversion gives: rays near and far (1e6) from the tree's origin, one
