@@ -246,22 +246,22 @@ __attribute__((always_inline))
 void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int8 valid,
                        __global const uint *tri_ids, KdPacketHit *h)
 {
-    KdI8 kx, ky, kz;
-    KdF8 okx, oky, okz, Sx, Sy, Sz, t_min, t_max, ht;
+    RayShear s;
+    float3 o;
+    kd_lane_shear(r, l, &s, &o);
+    KdF8 t_min, t_max, ht;
     KdU8 htri;
-    kx.v = r->kx; ky.v = r->ky; kz.v = r->kz;
-    okx.v = r->okx; oky.v = r->oky; okz.v = r->okz;
-    Sx.v = r->Sx; Sy.v = r->Sy; Sz.v = r->Sz;
     t_min.v = r->t_min; t_max.v = r->t_max;
     ht.v = h->t; htri.v = h->tri;
-    uint ax = (uint)kx.s[l], ay = (uint)ky.s[l], az = (uint)kz.s[l];
+    uint ax = s.kx, ay = s.ky, az = s.kz;
     KdPairs src;
     src.r = r; src.lane = (int)l; src.q = q;
     float8 t, V, W, det;
     int8 cand = kd_test_pairs(q[ax].v, q[ay].v, q[az].v, q[3 + ax].v, q[3 + ay].v, q[3 + az].v,
                               q[6 + ax].v, q[6 + ay].v, q[6 + az].v,
-                              (float8)(okx.s[l]), (float8)(oky.s[l]), (float8)(okz.s[l]),
-                              (float8)(Sx.s[l]), (float8)(Sy.s[l]), (float8)(Sz.s[l]),
+                              (float8)(kd_comp(o, ax)), (float8)(kd_comp(o, ay)),
+                              (float8)(kd_comp(o, az)),
+                              (float8)(s.Sx), (float8)(s.Sy), (float8)(s.Sz),
                               (float8)(t_min.s[l]), (float8)(t_max.s[l]),
                               (float8)(ht.s[l]), (uint8)(htri.s[l]), tri8, tri_ids, valid, &src,
                               &t, &V, &W, &det);

@@ -17,7 +17,8 @@
  * of pixels of render_camera; else one ray. Outputs, each only when asked: OUT_T (t,
  * +inf on a miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on
  * a miss), OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
- * Output buffers that are not compiled in may be passed as NULL.
+ * Output buffers that are not compiled in may be passed as NULL. RAYS_DOUBLE (with
+ * KD_ORIGIN_X, _Y, _Z): trace_rays reads double rays in world coordinates.
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"
