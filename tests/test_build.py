@@ -484,6 +484,34 @@ def test_sweep_equals_plain_sweep(seed):
         assert none[1] == -1 and none[0] == np.inf
 
 
+@pytest.mark.parametrize("seed", range(8))
+def test_small_runs_equal_plain_sweep(seed):
+    # Runs of at most sah.SMALL_RUN events take a path of their own: many small nodes
+    # (either side of the threshold) with shared positions, planar triangles and flat
+    # boxes, at an offset in a buffer with other keys around, and max_cost.
+    rng = np.random.default_rng(300 + seed)
+    for trial in range(60):
+        n = int(rng.integers(1, 70))
+        tri = rng.random((n, 3, 3))
+        tri = (np.round(tri * rng.choice([2, 4, 16, 1024])) / 8).astype(np.float32)
+        if trial % 3 == 0:
+            tri[: int(rng.integers(0, n + 1)), :, int(rng.integers(3))] = tri[0, 0, 0]
+        if trial % 7 == 0:
+            tri[..., int(rng.integers(3))] = np.float32(0.25)      # a flat box
+        keys, counts = sorted_root_events(tri)
+        pad = int(rng.integers(0, 5))
+        buf = np.concatenate([keys[::-1][:pad], keys, keys[:pad]])
+        box = np.stack([tri.min(axis=(0, 1)), tri.max(axis=(0, 1))]).astype(np.float64)
+        K_T, K_I, lam = [(100.0, 20.0, 0.8), (15.0, 20.0, 1.0), (1.0, 80.0, 0.5)][trial % 3]
+        want = plain_sweep(keys, counts, n, box, K_T, K_I, lam)
+        for max_cost in (np.inf, want[0], np.nextafter(want[0], 0), K_I * n):
+            got = best_split(buf, pad, counts, n, box, K_T, K_I, lam, max_cost)
+            if want[0] <= max_cost:
+                assert got[0] == want[0] and tuple(got[1:]) == tuple(want[1:])
+            else:
+                assert got[1] == -1 and got[0] == np.inf
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_sweep_finds_the_cheapest_plane(seed):
     rng = np.random.default_rng(seed)
