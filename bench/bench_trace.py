@@ -4,7 +4,8 @@ usage: python bench/bench_trace.py [--meshes bunny,teapot-x256] [--size 1024]
                                    [--repeat 5] [--sample 20000] [--device SPEC]
 
 For each mesh: build time, then for 1024 x 1024 primary rays of a framing camera
-(warm, median of --repeat runs):
+(warm, median of --repeat rounds; kdray's and Open3D's methods run round-robin, one
+call each per round, so that the machine's drift hits them alike):
   kdray render depth   Tracer.render(camera, ["depth"]): rays made on the device
   kdray render default Tracer.render(camera) with depth, normal, bary, id
   kdray trace          Tracer.trace(origins, directions) from numpy to numpy
@@ -13,7 +14,8 @@ For each mesh: build time, then for 1024 x 1024 primary rays of a framing camera
   open3d numpy         numpy rays -> tensor -> cast_rays -> numpy
   embreex              trimesh's embreex front end, numpy to numpy (if installed)
 and the ratios of the two workflows of issue 6: kdray render depth / open3d pinhole
-depth and kdray trace / open3d numpy (>= 1: kdray is faster).
+depth and kdray trace / open3d numpy (>= 1: kdray is faster), each the median of the
+per-round ratios of Open3D's time to kdray's.
 Accuracy on --sample random pixels against a float64 reference (the input mesh in
 float64, candidates from kdray's tree): hit/miss disagreements, relative depth error
 (99th percentile and max, over rays both hit).
@@ -30,7 +32,9 @@ from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
 from kdray import reference  # noqa: E402
-from kdray.bench import embreex_hits, open3d_cast, open3d_scene, timed  # noqa: E402
+from kdray.trace import DEFAULT_AOVS  # noqa: E402
+from kdray.bench import (embreex_hits, median_ratio, open3d_cast, open3d_scene,  # noqa: E402
+                         round_robin)
 
 
 def accuracy(t, prim, ref_t, ref_prim, sample):
@@ -48,29 +52,30 @@ def accuracy(t, prim, ref_t, ref_prim, sample):
     }
 
 
-def open3d_runs(m, o, d, camera, repeat):
+def open3d_calls(m, o, d, camera):
+    """Open3D's methods as zero-argument calls returning (t, prim or None), and its
+    build seconds; ({}, None) without Open3D."""
     try:
         import open3d as o3d
     except ImportError as e:
         print(f"# open3d left out: {e}", flush=True)
-        return []
+        return {}, None
     scene, build = open3d_scene(m)
     rays = o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32))
-    cast_s, _ = timed(lambda: scene.cast_rays(rays), repeat)
-    np_s, (t, prim, _) = timed(lambda: open3d_cast(scene, o, d), repeat)
-    # a depth image from intrinsics and a pose: Open3D makes the rays itself (its pixel
-    # convention differs by half a pixel, so its accuracy is the numpy row's)
     K = o3d.core.Tensor(np.asarray(camera.K, dtype=np.float64))
     w2c = o3d.core.Tensor(np.linalg.inv(np.asarray(camera.cam_to_world, dtype=np.float64)))
+
+    def cast():
+        r = scene.cast_rays(rays)
+        return r["t_hit"].numpy(), r["primitive_ids"].numpy()
 
     def pinhole():
         r = o3d.t.geometry.RaycastingScene.create_rays_pinhole(K, w2c, int(camera.width),
                                                                int(camera.height))
-        return scene.cast_rays(r)["t_hit"].numpy()
+        return scene.cast_rays(r)["t_hit"].numpy().ravel(), None
 
-    pin_s, _ = timed(pinhole, repeat)
-    return [("open3d pinhole depth", build, pin_s, t, prim), ("open3d cast", build, cast_s, t, prim),
-            ("open3d numpy", build, np_s, t, prim)]
+    return {"open3d pinhole depth": pinhole, "open3d cast": cast,
+            "open3d numpy": lambda: open3d_cast(scene, o, d)[:2]}, build
 
 
 def embreex_runs(m, o, d, repeat):
@@ -93,7 +98,7 @@ def main():
     args = ap.parse_args()
     n_rays = args.size * args.size
     rng = np.random.default_rng(0)
-    print(f"# {n_rays} primary rays ({args.size}x{args.size}), median of {args.repeat} warm runs")
+    print(f"# {n_rays} primary rays ({args.size}x{args.size}), median of {args.repeat} warm rounds")
     header = f"{'mesh':<12} {'tris':>9} {'method':<22} {'build s':>8} {'trace s':>8} {'Mrays/s':>8} " \
              f"{'disagree':>8} {'prim!=':>6} {'depth p99':>10} {'depth max':>10}"
     print(header)
@@ -109,16 +114,23 @@ def main():
         sample = rng.choice(n_rays, size=min(args.sample, n_rays), replace=False)
         ref = reference.traverse(tree, o[sample], d[sample], triangles64=m.triangles)
         tracer = kdray.Tracer(tree, device=args.device)
-        runs = []
-        s, img = timed(lambda: tracer.render(camera, aovs=("depth",)), args.repeat)
-        runs.append(("kdray render depth", build_s, s, img["depth"].ravel(), None))
-        s, img = timed(lambda: tracer.render(camera), args.repeat)
-        runs.append(("kdray render default", build_s, s, img["depth"].ravel(), img["id"].ravel()))
-        s, hits = timed(lambda: tracer.trace(o, d), args.repeat)
-        runs.append(("kdray trace", build_s, s, hits.t, hits.prim))
-        runs += open3d_runs(m, o, d, camera, args.repeat)
+
+        def render(aovs):
+            img = tracer.render(camera, aovs=aovs)
+            return img["depth"].ravel(), img["id"].ravel() if "id" in img else None
+
+        def trace():
+            hits = tracer.trace(o, d)
+            return hits.t, hits.prim
+
+        calls = {"kdray render depth": lambda: render(("depth",)),
+                 "kdray render default": lambda: render(DEFAULT_AOVS),
+                 "kdray trace": trace}
+        theirs, o3d_build = open3d_calls(m, o, d, camera)
+        seconds, results = round_robin({**calls, **theirs}, args.repeat)
+        runs = [(method, build_s if method.startswith("kdray") else o3d_build,
+                 float(np.median(seconds[method])), *results[method]) for method in seconds]
         runs += embreex_runs(m, o, d, args.repeat)
-        speed = {method: n_rays / s / 1e6 for method, _, s, _, _ in runs}
         for method, b, s, t, prim in runs:
             if prim is None:
                 prim = np.where(np.isfinite(t), 0, -1)
@@ -132,8 +144,9 @@ def main():
         # the issue's two workflows, kdray against Open3D (>= 1 means kdray is faster)
         for ours, theirs in [("kdray render depth", "open3d pinhole depth"),
                              ("kdray trace", "open3d numpy")]:
-            if theirs in speed:
-                print(f"# {name}: {ours} / {theirs} = {speed[ours] / speed[theirs]:.2f}", flush=True)
+            if theirs in seconds:
+                print(f"# {name}: {ours} / {theirs} = {median_ratio(seconds[theirs], seconds[ours]):.2f}"
+                      f" (median of {len(seconds[ours])} rounds)", flush=True)
 
 
 if __name__ == "__main__":

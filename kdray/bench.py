@@ -125,6 +125,32 @@ def timed(fn, repeat):
     return float(np.median(times)), result
 
 
+def round_robin(fns, repeat):
+    """Time several calls side by side: one warm-up call each, then `repeat` rounds
+    that call each once (the order reversed every other round), so that drift in the
+    machine's speed (seen here: +-20 % over minutes) hits them alike.
+
+    fns : {name: zero-argument callable}. Returns ({name: (repeat,) float64 seconds},
+    {name: the last call's result}); compare two of them by the median of their
+    per-round ratios (`median_ratio`).
+    """
+    results = {name: fn() for name, fn in fns.items()}
+    seconds = {name: [] for name in fns}
+    names = list(fns)
+    for r in range(max(1, repeat)):
+        for name in (names if r % 2 == 0 else names[::-1]):
+            t0 = time.perf_counter()
+            results[name] = fns[name]()
+            seconds[name].append(time.perf_counter() - t0)
+    return {name: np.array(s) for name, s in seconds.items()}, results
+
+
+def median_ratio(slower, faster):
+    """Median over rounds of slower / faster seconds (`round_robin`): > 1 means the
+    second is faster by that factor."""
+    return float(np.median(np.asarray(slower) / np.asarray(faster)))
+
+
 def unit_normals(triangles):
     """(n, 3) float64 unit (v1 - v0) x (v2 - v0) of (n, 3, 3) triangles."""
     tri = np.asarray(triangles, dtype=np.float64)
