@@ -11,23 +11,26 @@ Meshes (deterministic): the Stanford bunny cut by a horizontal plane into its lo
 
 Each size runs in its own subprocess: it loads the mesh, builds a tiny mesh first so
 the numba kernels are compiled (or loaded from the on-disk cache), resets the peak
-RSS counter (/proc/self/clear_refs), then builds `--repeat` times (once for meshes
-of about 1M triangles and more) and reports the fastest. The whole run takes about
-4 minutes on 2 cores and needs ~2 GiB at 6M. Columns:
+RSS counter (/proc/self/clear_refs) and builds once for the memory columns; then
+`--repeat` rounds each build the mesh with kdray and with Open3D, in turns (the order
+reversed every other round), so that the machine's drift in speed (+-20 % over
+minutes here) hits both alike. The whole run takes about 6 minutes on 2 cores and
+needs ~3 GiB at 6M. Columns:
 
-  build s      wall time of kdray.build (warm), `--threads` threads (default: all CPUs)
+  build s      wall time of kdray.build (warm: fastest of the rounds), `--threads`
+               threads (default: all CPUs)
   cpu s        CPU time of that build, all threads together
-  peak MiB     the process's peak resident memory during the builds (VmHWM), mesh
-               and Python included; base MiB is the resident memory before them
+  peak MiB     the process's peak resident memory during the first build (VmHWM), mesh
+               and Python included; base MiB is the resident memory before it
   B/tri        (peak - base) / triangles: the build's memory per triangle in bytes
   t/(n lg n)   build time / (n log2 n), relative to the smallest size: flat = O(n log n)
   ns/node      build time per tree node: the work per node does not grow with n; the
                tree has relatively more nodes on small meshes (max_depth = 8 + 1.3 log2 n)
-  O3D s        Open3D's RaycastingScene on the same mesh, in the same process after
-               kdray's builds: add_triangles plus a cast of one ray (Open3D builds its
-               Embree BVH at the first cast; `kdray.bench.open3d_scene`), fastest of
-               `--repeat`; n/a when Open3D is not installed. Embree's build is multi-threaded.
-  x O3D        build s / O3D s
+  O3D s        Open3D's RaycastingScene on the same mesh, in the same process, in turns
+               with kdray's builds: add_triangles plus a cast of one ray (Open3D builds
+               its Embree BVH at the first cast; `kdray.bench.open3d_scene`), fastest of
+               the rounds; n/a when Open3D is not installed. Embree's build is multi-threaded.
+  x O3D        kdray's build time / Open3D's: the median of the rounds' ratios
 """
 import argparse
 import json
@@ -37,6 +40,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -66,55 +70,55 @@ def proc_status(field):
     return float("nan")
 
 
-def open3d_seconds(vertices, faces, repeat):
-    """Fastest Open3D RaycastingScene build (add_triangles + one ray), or None."""
-    try:
-        import open3d  # noqa: F401
-    except ImportError:
-        return None
-    from types import SimpleNamespace
-    from kdray.bench import open3d_scene
-    mesh = SimpleNamespace(vertices=vertices, faces=faces)
-    best = math.inf
-    for _ in range(repeat):
-        scene, seconds = open3d_scene(mesh)
-        del scene
-        best = min(best, seconds)
-    return best
-
-
 def child(path, repeat, threads, with_open3d):
     """Build one mesh; print one JSON line."""
     import kdray
     data = np.load(path)
     vertices, faces = data["vertices"], data["faces"]
     kdray.build(np.eye(3), np.array([[0, 1, 2]]))              # compile / load the kernels
+    kw = {} if threads is None else dict(threads=threads)
+    # Memory: the first build, alone (Open3D's scene would count towards the peak).
     base = proc_status("VmRSS")
     try:
         with open("/proc/self/clear_refs", "w") as f:           # reset VmHWM
             f.write("5")
     except OSError:
         pass
-    kw = {} if threads is None else dict(threads=threads)
-    best = math.inf
-    cpu = math.inf
-    tree = None
-    for _ in range(repeat):
-        del tree
-        t0, c0 = time.perf_counter(), time.process_time()
-        tree = kdray.build(vertices, faces, **kw)
-        seconds = time.perf_counter() - t0
-        if seconds < best:
-            best, cpu = seconds, time.process_time() - c0
+    tree = kdray.build(vertices, faces, **kw)
     peak = proc_status("VmHWM")                                  # before stats() allocates
     s = tree.stats()
     n = len(tree.triangles)
     del tree
-    o3d = open3d_seconds(vertices, faces, repeat) if with_open3d else None
-    print(json.dumps(dict(n=n, seconds=best, cpu=cpu, peak_mib=peak,
+
+    # Time: kdray and Open3D in turns, so that the machine's drift hits both alike.
+    open3d_scene = None
+    if with_open3d:
+        try:
+            import open3d  # noqa: F401
+            from kdray.bench import open3d_scene
+        except ImportError:
+            pass
+    mesh = SimpleNamespace(vertices=vertices, faces=faces)
+    kd, cpu, o3d = [], [], []
+    for r in range(repeat):
+        for who in (("kdray", "open3d") if r % 2 == 0 else ("open3d", "kdray")):
+            if who == "kdray":
+                t0, c0 = time.perf_counter(), time.process_time()
+                tree = kdray.build(vertices, faces, **kw)
+                kd.append(time.perf_counter() - t0)
+                cpu.append(time.process_time() - c0)
+                del tree
+            elif open3d_scene is not None:
+                scene, seconds = open3d_scene(mesh)
+                o3d.append(seconds)
+                del scene
+    best = int(np.argmin(kd))
+    print(json.dumps(dict(n=n, seconds=kd[best], cpu=cpu[best], peak_mib=peak,
                           base_mib=base, nodes=s["nodes"], leaves=s["leaves"],
                           empty=s["empty_leaves"], depth=s["max_leaf_depth"],
-                          refs=s["refs_per_triangle"], sah=s["sah_cost"], open3d=o3d)))
+                          refs=s["refs_per_triangle"], sah=s["sah_cost"],
+                          open3d=min(o3d) if o3d else None,
+                          ratio=float(np.median(np.array(kd) / np.array(o3d))) if o3d else None)))
 
 
 def main():
@@ -144,8 +148,7 @@ def main():
             path = os.path.join(tmp, "mesh.npz")
             np.savez(path, vertices=vertices, faces=faces)
             del vertices, faces
-            repeat = args.repeat if os.path.getsize(path) < 40e6 else 1
-            cmd = [sys.executable, __file__, "--child", path, "--repeat", str(repeat)]
+            cmd = [sys.executable, __file__, "--child", path, "--repeat", str(args.repeat)]
             if args.threads is not None:
                 cmd += ["--threads", str(args.threads)]
             if args.no_open3d:
@@ -155,7 +158,7 @@ def main():
             r["norm"] = r["seconds"] / (r["n"] * math.log2(r["n"]))
             rows.append(r)
             per_tri = (r["peak_mib"] - r["base_mib"]) * 2 ** 20 / r["n"]
-            o3d = f"{r['open3d']:>8.3f}{r['seconds'] / r['open3d']:>7.1f}" if r["open3d"] else f"{'n/a':>8}{'n/a':>7}"
+            o3d = f"{r['open3d']:>8.3f}{r['ratio']:>7.2f}" if r["open3d"] else f"{'n/a':>8}{'n/a':>7}"
             print(f"{name:<12}{r['n']:>10,}{r['seconds']:>9.3f}{r['cpu']:>8.2f}{r['peak_mib']:>10.0f}"
                   f"{r['base_mib']:>10.0f}{per_tri:>7.0f}{r['nodes']:>12,}{r['leaves']:>11,}{r['empty']:>11,}"
                   f"{r['depth']:>6}{r['refs']:>9.2f}{r['sah']:>8.0f}{r['norm'] / rows[0]['norm']:>11.2f}"
