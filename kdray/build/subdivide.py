@@ -126,7 +126,7 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
 
     # Scratch, grown on demand.
     poly = polygon_scratch()
-    side = np.zeros(tri.shape[0], dtype=np.int8)
+    side = np.empty(tri.shape[0], dtype=np.int8)           # `classify` writes before it reads
     strad = np.empty(max(m, 1), dtype=np.int64)
     left = np.empty(16, dtype=np.uint64)
     right = np.empty(16, dtype=np.uint64)
