@@ -52,15 +52,19 @@ def main():
     ap.add_argument("--mesh", default="bunny")
     ap.add_argument("--builds", type=int, default=200)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--leaf-size", type=int, default=0,
+                    help="build parameter (e.g. 64: nodes of up to 64 triangles are leaves; "
+                         "the difference to 0 is what the small nodes cost)")
     args = ap.parse_args()
     import kdray
     from meshes import mesh as bench_mesh
     m = bench_mesh(args.mesh)
-    kdray.build(m.vertices, m.faces, threads=args.threads)
+    kw = dict(threads=args.threads, leaf_size=args.leaf_size)
+    kdray.build(m.vertices, m.faces, **kw)
     print(f"perf map: {write_perf_map()} functions", flush=True)
     t0 = time.perf_counter()
     for _ in range(args.builds):
-        kdray.build(m.vertices, m.faces, threads=args.threads)
+        kdray.build(m.vertices, m.faces, **kw)
     print(f"{args.mesh}: {(time.perf_counter() - t0) / args.builds:.4f} s a build")
 
 
