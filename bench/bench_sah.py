@@ -4,7 +4,8 @@ usage: python bench/bench_sah.py [--meshes bunny,bunny-1.6M] [--k-t 100,140,160,
                                  [--size 1024] [--repeat 9]
 
 Only the ratio K_T / K_I shapes the tree (K_I stays 20). For each mesh, the trees of
-every K_T are built in turns (--repeat rounds, at least 2; median build time), then a
+every K_T are built in turns (--repeat rounds, a third of them from 1M triangles
+up, at least 2; median build time), then a
 1024 x 1024 depth render of the framing camera and a numpy-to-numpy trace of the same
 rays run in turns over all the trees (--repeat rounds, median), so that the machine's
 drift in speed hits every K_T alike; x K_T0 is the median of the rounds' time ratios
