@@ -8,8 +8,9 @@ usage: python bench/ab_build.py [--base HEAD] [--meshes bunny,bunny-1.6M] [--rou
 
 The base commit's `kdray/` is exported (git archive) into a temporary folder as the
 package `kdray_base` (kdray imports itself relatively, so it runs under that name);
-its numba functions compile there on the first build (about half a minute). Each
-round builds the mesh once with each, the order reversed every other round. Prints,
+its numba functions compile there on the first build (about half a minute). After a
+warm-up build with each, each round builds the mesh once with each, the order
+reversed every other round (`kdray.bench.round_robin`). Prints,
 per mesh, the median and fastest wall time and the median CPU time of each, the
 median of the rounds' time ratios (working tree / base: < 1 means faster), and
 whether the two trees are byte-identical.
@@ -19,7 +20,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 
 import numpy as np
 
@@ -50,33 +50,21 @@ def main():
         sys.path.insert(0, export_base(args.base, tmp))
         import kdray
         import kdray_base
-        builds = {"base": kdray_base.build, "work": kdray.build}
+        from kdray.bench import median_ratio, round_robin
         for name in args.meshes.split(","):
             m = bench_mesh(name)
-            trees = {who: build(m.vertices, m.faces, threads=args.threads)
-                     for who, build in builds.items()}      # compile, warm up
+            build = {who: (lambda f=f: f(m.vertices, m.faces, threads=args.threads))
+                     for who, f in (("base", kdray_base.build), ("work", kdray.build))}
+            wall, cpu, trees = round_robin(build, args.rounds)
             same = trees["base"].to_bytes() == trees["work"].to_bytes()
             del trees
-            wall = {who: [] for who in builds}
-            cpu = {who: [] for who in builds}
-            order = list(builds)
-            for r in range(args.rounds):
-                for who in (order if r % 2 == 0 else order[::-1]):
-                    t0, c0 = time.perf_counter(), time.process_time()
-                    builds[who](m.vertices, m.faces, threads=args.threads)
-                    wall[who].append(time.perf_counter() - t0)
-                    cpu[who].append(time.process_time() - c0)
-            for who in order:
-                w = np.array(wall[who])
+            for who in build:
                 print(f"{name:<12} {who:<5} ({args.base if who == 'base' else 'working tree'}): "
-                      f"wall median {np.median(w):.4f} s, fastest {w.min():.4f} s, "
+                      f"wall median {np.median(wall[who]):.4f} s, fastest {wall[who].min():.4f} s, "
                       f"cpu median {np.median(cpu[who]):.4f} s")
-            ratio = np.array(wall["work"]) / np.array(wall["base"])
-            cpu_ratio = np.array(cpu["work"]) / np.array(cpu["base"])
-            print(f"{name:<12} work / base: wall {np.median(ratio):.3f}, cpu {np.median(cpu_ratio):.3f} "
-                  f"(medians of {args.rounds} rounds); trees {'identical' if same else 'DIFFER'}",
-                  flush=True)
-
+            print(f"{name:<12} work / base: wall {median_ratio(wall['work'], wall['base']):.3f}, "
+                  f"cpu {median_ratio(cpu['work'], cpu['base']):.3f} (medians of {args.rounds} "
+                  f"rounds); trees {'identical' if same else 'DIFFER'}", flush=True)
 
 if __name__ == "__main__":
     main()

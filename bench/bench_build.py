@@ -11,9 +11,10 @@ Meshes (deterministic): the Stanford bunny cut by a horizontal plane into its lo
 
 Each size runs in its own subprocess: it loads the mesh, builds a tiny mesh first so
 the numba kernels are compiled (or loaded from the on-disk cache), resets the peak
-RSS counter (/proc/self/clear_refs) and builds once for the memory columns; then
-`--repeat` rounds each build the mesh with kdray and with Open3D, in turns (the order
-reversed every other round), so that the machine's drift in speed (+-20 % over
+RSS counter (/proc/self/clear_refs) and builds once for the memory columns; then,
+after a warm-up build with each, `--repeat` rounds each build the mesh with kdray and
+with Open3D, in turns (the order reversed every other round;
+`kdray.bench.round_robin`), so that the machine's drift in speed (+-20 % over
 minutes here) hits both alike. The whole run takes about 6 minutes on 2 cores and
 needs ~3 GiB at 6M. Columns:
 
@@ -39,7 +40,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -73,6 +73,7 @@ def proc_status(field):
 def child(path, repeat, threads, with_open3d):
     """Build one mesh; print one JSON line."""
     import kdray
+    from kdray.bench import median_ratio, open3d_scene, round_robin
     data = np.load(path)
     vertices, faces = data["vertices"], data["faces"]
     kdray.build(np.eye(3), np.array([[0, 1, 2]]))              # compile / load the kernels
@@ -90,35 +91,34 @@ def child(path, repeat, threads, with_open3d):
     n = len(tree.triangles)
     del tree
 
-    # Time: kdray and Open3D in turns, so that the machine's drift hits both alike.
-    open3d_scene = None
+    # Time: kdray and Open3D in turns, so that the machine's drift hits both alike;
+    # neither result is kept while the other builds.
+    def kdray_build():
+        kdray.build(vertices, faces, **kw)
+
+    calls = {"kdray": kdray_build}
     if with_open3d:
         try:
             import open3d  # noqa: F401
-            from kdray.bench import open3d_scene
         except ImportError:
             pass
-    mesh = SimpleNamespace(vertices=vertices, faces=faces)
-    kd, cpu, o3d = [], [], []
-    for r in range(repeat):
-        for who in (("kdray", "open3d") if r % 2 == 0 else ("open3d", "kdray")):
-            if who == "kdray":
-                t0, c0 = time.perf_counter(), time.process_time()
-                tree = kdray.build(vertices, faces, **kw)
-                kd.append(time.perf_counter() - t0)
-                cpu.append(time.process_time() - c0)
-                del tree
-            elif open3d_scene is not None:
-                scene, seconds = open3d_scene(mesh)
-                o3d.append(seconds)
-                del scene
+        else:
+            mesh = SimpleNamespace(vertices=vertices, faces=faces)
+
+            def open3d_build():
+                open3d_scene(mesh)
+
+            calls["open3d"] = open3d_build
+    wall, cpu, _ = round_robin(calls, repeat)
+    kd = wall["kdray"]
+    o3d = wall.get("open3d")
     best = int(np.argmin(kd))
-    print(json.dumps(dict(n=n, seconds=kd[best], cpu=cpu[best], peak_mib=peak,
+    print(json.dumps(dict(n=n, seconds=float(kd[best]), cpu=float(cpu["kdray"][best]), peak_mib=peak,
                           base_mib=base, nodes=s["nodes"], leaves=s["leaves"],
                           empty=s["empty_leaves"], depth=s["max_leaf_depth"],
                           refs=s["refs_per_triangle"], sah=s["sah_cost"],
-                          open3d=min(o3d) if o3d else None,
-                          ratio=float(np.median(np.array(kd) / np.array(o3d))) if o3d else None)))
+                          open3d=float(o3d.min()) if o3d is not None else None,
+                          ratio=median_ratio(kd, o3d) if o3d is not None else None)))
 
 
 def main():

@@ -41,7 +41,7 @@ def main():
     for name in args.meshes.split(","):
         m = bench_mesh(name)
         kdray.build(np.eye(3), np.array([[0, 1, 2]]))                  # compile the builder
-        build_s, trees = round_robin(
+        build_s, _, trees = round_robin(
             {k_t: (lambda k_t=k_t: kdray.build(m.vertices, m.faces, K_T=k_t)) for k_t in k_ts},
             max(2, args.repeat if len(m.faces) < 1_000_000 else args.repeat // 3))
         lo, hi = trees[k_ts[0]].origin + trees[k_ts[0]].bounds.astype(np.float64)
@@ -52,7 +52,7 @@ def main():
         for k_t, tracer in tracers.items():
             calls["render", k_t] = lambda t=tracer: t.render(camera, aovs=("depth",))
             calls["trace", k_t] = lambda t=tracer: t.trace(o, d)
-        seconds, _ = round_robin(calls, args.repeat)
+        seconds, _, _ = round_robin(calls, args.repeat)
         for k_t, tracer in tracers.items():
             tree = trees[k_t]
             per_ray = tracer._trace(o, d, stats=True)[1].mean(axis=0)

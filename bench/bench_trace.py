@@ -129,7 +129,7 @@ def main():
                  "kdray render default": lambda: render(DEFAULT_AOVS),
                  "kdray trace": trace}
         open3d, o3d_build = open3d_calls(m, o, d, camera)
-        seconds, results = round_robin({**calls, **open3d}, args.repeat)
+        seconds, _, results = round_robin({**calls, **open3d}, args.repeat)
         runs = [(method, build_s if method.startswith("kdray") else o3d_build,
                  float(np.median(seconds[method])), *results[method]) for method in seconds]
         runs += embreex_runs(m, o, d, args.repeat)

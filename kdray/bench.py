@@ -130,19 +130,23 @@ def round_robin(fns, repeat):
     that call each once (the order reversed every other round), so that drift in the
     machine's speed (seen here: +-20 % over minutes) hits them alike.
 
-    fns : {name: zero-argument callable}. Returns ({name: (repeat,) float64 seconds},
-    {name: the last call's result}); compare two of them by the median of their
+    fns : {name: zero-argument callable}. Returns (wall, cpu, results): {name: (repeat,)
+    float64 wall seconds}, the same for this process's CPU seconds (all threads), and
+    {name: the last call's result}; compare two of them by the median of their
     per-round ratios (`median_ratio`).
     """
     results = {name: fn() for name, fn in fns.items()}
-    seconds = {name: [] for name in fns}
+    wall = {name: [] for name in fns}
+    cpu = {name: [] for name in fns}
     names = list(fns)
     for r in range(max(1, repeat)):
         for name in (names if r % 2 == 0 else names[::-1]):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             results[name] = fns[name]()
-            seconds[name].append(time.perf_counter() - t0)
-    return {name: np.array(s) for name, s in seconds.items()}, results
+            wall[name].append(time.perf_counter() - t0)
+            cpu[name].append(time.process_time() - c0)
+    return ({name: np.array(s) for name, s in wall.items()},
+            {name: np.array(s) for name, s in cpu.items()}, results)
 
 
 def median_ratio(slower, faster):
