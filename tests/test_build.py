@@ -9,6 +9,7 @@ import pytest
 
 from kdray import layout, reference
 from kdray.build import build
+from kdray.build.classify import ON_BOTH, ON_LEFT, ON_RIGHT, classify
 from kdray.build.clip import clip_split, polygon_scratch
 from kdray.build.events import position_bits, position_value, sorted_root_events
 from kdray.build.sah import best_split
@@ -510,6 +511,38 @@ def test_small_runs_equal_plain_sweep(seed):
                 assert got[0] == want[0] and tuple(got[1:]) == tuple(want[1:])
             else:
                 assert got[1] == -1 and got[0] == np.inf
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_classify_follows_the_event_rules(seed):
+    # Each triangle's side from its own extent on the split axis (errata 4): the end
+    # at or before the plane -> left, the start at or after it -> right, flat at the
+    # plane -> the chosen side, else both; straddlers listed in the run's order.
+    # Planes at event positions, between them and outside, runs at an offset.
+    rng = np.random.default_rng(500 + seed)
+    for trial in range(40):
+        n = int(rng.integers(1, 300))
+        tri = (np.round(rng.random((n, 3, 3)) * rng.choice([4, 16, 1024])) / 8).astype(np.float32)
+        tri[: int(rng.integers(0, n + 1)) // 3, :, int(rng.integers(3))] = tri[0, 0, 0]
+        keys, counts = sorted_root_events(tri)
+        axis = int(rng.integers(3))
+        start = int(counts[:axis].sum())
+        lo = tri[:, :, axis].min(axis=1)
+        hi = tri[:, :, axis].max(axis=1)
+        plane = np.float32(rng.choice([rng.choice(lo), rng.choice(hi), rng.random() * 1.2 - 0.1]))
+        planar_left = bool(rng.integers(2))
+        side = np.zeros(n + 5, dtype=np.int8)
+        strad = np.full(n + 1, -1, dtype=np.int64)
+        pad = int(rng.integers(0, 4))
+        buf = np.concatenate([keys[::-1][:pad], keys])
+        n_strad = classify(buf, pad + start, int(counts[axis]), position_bits(plane),
+                           planar_left, side, strad)
+        want = np.where(hi <= plane, ON_LEFT, np.where(lo >= plane, ON_RIGHT, ON_BOTH))
+        flat_at = (lo == plane) & (hi == plane)
+        want[flat_at] = ON_LEFT if planar_left else ON_RIGHT
+        np.testing.assert_array_equal(side[:n], want)
+        order = np.argsort(lo, kind="stable")           # START keys: position, then index
+        np.testing.assert_array_equal(strad[:n_strad], order[want[order] == ON_BOTH])
 
 
 @pytest.mark.parametrize("seed", range(6))

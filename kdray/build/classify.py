@@ -37,36 +37,57 @@ def classify(buf, start, count, split_bits, planar_left, side, strad):
     `position_bits`;  planar_left : where PLANAR-at-the-plane triangles go.
     Writes side[prim] (ON_LEFT / ON_RIGHT / ON_BOTH) for every triangle of the node
     and the straddlers, in event order, to strad. Returns their number.
+
+    The run is sorted by position, so it falls in three ranges (found by bisection):
+    before the plane every START makes its triangle ON_BOTH and every END or PLANAR
+    ON_LEFT (a later END before the plane overrides the START's ON_BOTH); at the plane
+    START -> ON_RIGHT, END -> ON_LEFT, PLANAR -> the chosen side; after it START and
+    PLANAR -> ON_RIGHT while END keeps what its START wrote. The loops before and
+    after the plane have no branch on the events (the kinds come in no order a
+    branch predictor could learn).
     """
     stop = start + count
-    for i in range(np.uint64(start), np.uint64(stop)):
+    at = _first_from(buf, start, stop, split_bits)
+    after = _first_from(buf, at, stop, split_bits + np.uint64(1))
+    for i in range(np.uint64(start), np.uint64(at)):
         key = buf[i]
-        bits = key_bits(key)
+        # END 0, PLANAR 1 -> ON_LEFT 1;  START 2 -> ON_BOTH 3
+        side[key_uprim(key)] = np.int8(1 + (key_kind(key) & 2))
+    for i in range(np.uint64(at), np.uint64(after)):
+        key = buf[i]
         kind = key_kind(key)
         prim = key_uprim(key)
-        if kind == START:                   # START comes before its END in the run
-            side[prim] = ON_RIGHT if bits >= split_bits else ON_BOTH
+        if kind == START:
+            side[prim] = ON_RIGHT
         elif kind == END:
-            if bits <= split_bits:
-                side[prim] = ON_LEFT
+            side[prim] = ON_LEFT
         else:
-            if bits < split_bits:
-                side[prim] = ON_LEFT
-            elif bits > split_bits:
-                side[prim] = ON_RIGHT
-            else:
-                side[prim] = ON_LEFT if planar_left else ON_RIGHT
-    n = 0
-    for i in range(np.uint64(start), np.uint64(stop)):
+            side[prim] = ON_LEFT if planar_left else ON_RIGHT
+    for i in range(np.uint64(after), np.uint64(stop)):
         key = buf[i]
-        if key_bits(key) >= split_bits:
-            break
-        if key_kind(key) == START:
-            prim = key_uprim(key)
-            if side[prim] == ON_BOTH:
-                strad[n] = prim
-                n += 1
+        prim = key_uprim(key)
+        s = side[prim]
+        side[prim] = s if key_kind(key) == END else ON_RIGHT
+    n = 0
+    for i in range(np.uint64(start), np.uint64(at)):
+        key = buf[i]
+        prim = key_uprim(key)
+        strad[n] = prim
+        n += (key_kind(key) == START) & (side[prim] == ON_BOTH)
     return n
+
+
+@njit(cache=True, inline="always")
+def _first_from(buf, lo, hi, bits):
+    """The first index i in [lo, hi) with key_bits(buf[i]) >= bits (hi if none);
+    buf[lo:hi] sorted."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if key_bits(buf[mid]) >= bits:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
 
 
 @njit(cache=True)
