@@ -327,14 +327,15 @@ def test_parameters_change_the_tree():
     assert len(big_leaves.nodes) < len(base.nodes)
 
 
-@pytest.mark.parametrize("task_depth", [1, 3, 6])
-def test_threads_give_the_same_tree(monkeypatch, task_depth):
+@pytest.mark.parametrize("task_depth, stages", [(1, (1,)), (3, (1,)), (6, (1, 2)), (4, ())])
+def test_threads_give_the_same_tree(monkeypatch, task_depth, stages):
     # Subtrees built as tasks on threads and spliced in == the one-thread build.
     subdivide = importlib.import_module("kdray.build.subdivide")   # kdray.build is the function
     v, f = load_shared("fandisk.obj")
     one = build(v, f, threads=1)
     monkeypatch.setattr(subdivide, "MIN_PARALLEL_TRIS", 0)
     monkeypatch.setattr(subdivide, "TASK_DEPTH", task_depth)
+    monkeypatch.setattr(subdivide, "STAGE_DEPTHS", stages)
     many = build(v, f, threads=3)
     assert many.to_bytes() == one.to_bytes()
     assert many.depth == one.depth

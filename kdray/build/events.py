@@ -92,16 +92,15 @@ def box_events(lo, hi, prim, out, w):
 
 
 @njit(cache=True, nogil=True)
-def axis_event_count(tri, k):
-    """The number of root events on axis k: 1 per triangle flat on k, else 2.
-
-    tri : (m, 3, 3) float32;  k : 0, 1 or 2.
-    """
-    c = 0
+def event_counts(tri):
+    """(3,) int64: the number of root events on each axis, 1 per triangle flat on
+    that axis, else 2.  tri : (m, 3, 3) float32."""
+    c = np.zeros(3, dtype=np.int64)
     for t in range(tri.shape[0]):
-        lo = min(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
-        hi = max(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
-        c += 1 if lo == hi else 2
+        for k in range(3):
+            lo = min(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
+            hi = max(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
+            c[k] += 1 if lo == hi else 2
     return c
 
 
@@ -170,12 +169,14 @@ def radix_sort_events(keys, start, stop, tmp, tmp_start):
         keys[start:stop] = src[src_start:src_start + n]
 
 
-def sorted_root_events(tri, room=0, threads=1):
+def sorted_root_events(tri, room=0, threads=1, pool=None):
     """Events of the root node, each axis's run sorted (the build's only full sort).
 
     tri : (m, 3, 3) float32;  room : int, unused keys to leave after the events (the
     builder's event stack grows there: `subdivide.subdivide`);  threads : the three axes are made and
-    sorted on up to this many threads (the numba functions release the GIL).
+    sorted on up to this many threads (the numba functions release the GIL), or on
+    `pool` (a concurrent.futures executor) when one is given (the builder's own:
+    starting threads for each step costs ~0.3 ms a pool).
     Returns (keys (e + room,) uint64, counts (3,) int64): keys[:e] are the x run, then
     y, then z, `counts` long.
 
@@ -184,12 +185,14 @@ def sorted_root_events(tri, room=0, threads=1):
     gives the one sorted order.
     """
     def run(jobs):
+        if pool is not None:
+            return [x.result() for x in [pool.submit(*job) for job in jobs]]
         if threads <= 1:
             return [f(*a) for f, *a in jobs]
-        with concurrent.futures.ThreadPoolExecutor(min(threads, 3)) as pool:
-            return [x.result() for x in [pool.submit(*job) for job in jobs]]
+        with concurrent.futures.ThreadPoolExecutor(min(threads, 3)) as own:
+            return [x.result() for x in [own.submit(*job) for job in jobs]]
 
-    counts = np.array(run([(axis_event_count, tri, k) for k in range(3)]), dtype=np.int64)
+    counts = event_counts(tri)
     e = int(counts.sum())
     keys = np.empty(e + room, dtype=np.uint64)
     # Scratch of its own, freed on return: sorting in the room would make it resident

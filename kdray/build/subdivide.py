@@ -7,11 +7,12 @@ them; the left child is processed next and so becomes node i + 1 (depth-first,
 pbrt layout), the right child waits on the stack with the index of the parent whose
 `above_child` it fills in when it is emitted.
 
-Parallel build (`build_nodes`): the top TASK_DEPTH levels are built first, the
-nodes below them are handed back as tasks (their sorted events, box, depth, budget);
-the tasks' subtrees are built on threads (`subdivide` releases the GIL) and spliced
-into the placeholders (`splice`). A node's subtree depends only on its events, box,
-depth and budget, so the tree is the same, byte for byte, for any number of threads.
+Parallel build (`build_nodes`): the root is split first; its children are tasks
+(their sorted events, box, depth, budget) built on threads (`subdivide` releases the
+GIL) down to TASK_DEPTH, where their nodes are handed on as tasks again; each task's
+subtree is spliced into its placeholder (`splice`). A node's subtree depends only on
+its events, box, depth and budget, so the tree is the same, byte for byte, for any
+number of threads.
 
 `subdivide` is numba-compiled (`cache=True`; the first call compiles).
 """
@@ -39,6 +40,14 @@ TASK_DEPTH = 4
 a few threads busy when the subtrees differ in size (with 8, on 2 threads, the last
 of 7 similar subtrees ran alone for ~15 % of a 1.6M-triangle build; a fourth level
 on one thread costs less than that)."""
+
+TASK_ROOM = 2
+"""A task's slot of keys holds TASK_ROOM times its events (+ 64): room for its event
+stack, so that its subtree is built in place (see `subdivide`'s buf)."""
+
+STAGE_DEPTHS = (1,)
+"""Depths, above TASK_DEPTH, at which the parallel build also hands nodes on as tasks
+(`build_nodes`): the root alone is built before a second thread has work."""
 
 MIN_PARALLEL_TRIS = 20000
 """Meshes with fewer triangles are built on one thread (a build of that size takes a
@@ -77,8 +86,10 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
     leaf_tris are views of larger arrays, not copied here: the caller copies them
     once `buf` is freed); tasks is
     (node (k,) int64 placeholder index, keys (E,) uint64 and key_start (k + 1,) int64
-    their events (keys a view of a larger array: a copy would page-fault ~100 MB at 1.6M
-    triangles on the one thread), counts (k, 3) int64, n (k,) int64, box (k, 2, 3) float64,
+    their slots: task j's events first in keys[key_start[j]:key_start[j + 1]], with
+    room to build it there (TASK_ROOM; keys a view of a larger array: a copy would
+    page-fault ~100 MB at 1.6M triangles on the one thread), counts (k, 3) int64,
+    n (k,) int64, box (k, 2, 3) float64,
     depth (k,) int64, budget (k,) float64), in node order.
     """
     m = n_tris
@@ -104,10 +115,10 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
     top = 1
 
     task_node = np.empty(16, dtype=np.int64)
-    # Room for the tasks' events (a few more than the node's) without copying them as
-    # they grow; untouched room is never resident.
-    task_keys = np.empty(2 * (counts[0] + counts[1] + counts[2]) + 16 if task_depth >= 0 else 16,
-                         dtype=np.uint64)
+    # Room for the tasks' events and their event stacks (TASK_ROOM; the straddlers add
+    # some events) without copying them as they grow; untouched room is never resident.
+    task_keys = np.empty(2 * TASK_ROOM * (counts[0] + counts[1] + counts[2]) + 1024
+                         if task_depth >= 0 else 16, dtype=np.uint64)
     task_start = np.zeros(17, dtype=np.int64)
     task_counts = np.empty((16, 3), dtype=np.int64)
     task_n = np.empty(16, dtype=np.int64)
@@ -175,9 +186,10 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
             task_box = _grow(task_box, k, k + 1)
             task_depth_of = _grow(task_depth_of, k, k + 1)
             task_budget = _grow(task_budget, k, k + 1)
-            task_keys = _grow(task_keys, task_start[k], task_start[k] + node_total)
+            slot = TASK_ROOM * node_total + 64
+            task_keys = _grow(task_keys, task_start[k], task_start[k] + slot)
             task_keys[task_start[k]:task_start[k] + node_total] = buf[off:off + node_total]
-            task_start[k + 1] = task_start[k] + node_total
+            task_start[k + 1] = task_start[k] + slot
             task_node[k] = idx
             task_counts[k] = node_counts
             task_n[k] = n
@@ -283,14 +295,21 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
 
 
 def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_size,
-                threads=1, max_refs_per_tri=MAX_REFS_PER_TRI):
+                threads=1, max_refs_per_tri=MAX_REFS_PER_TRI, pool=None):
     """The tree's nodes from the root's sorted events, on `threads` threads.
 
     tri : (m, 3, 3) float32;  keys, counts : from `events.sorted_root_events` (keys
     are overwritten: pass the only reference to them, so that they are freed early);
     bounds : (2, 3) float64 root box (float32 values);  max_depth : resolved.
+    pool : None or a concurrent.futures executor of `threads` threads to run on.
     Returns (nodes (n, 2) uint32, leaf_tris (r,) uint32, depth of the deepest leaf),
     the same for any `threads`.
+
+    In stages (`STAGE_DEPTHS`): the calling thread splits the root; each child is a
+    task that builds its subtree down to TASK_DEPTH on a pool thread and there hands
+    its own tasks to the pool, so that the second thread starts at depth 1 rather than
+    at TASK_DEPTH (bunny: the levels above TASK_DEPTH are ~15 % of a build).
+    Each task's events run in place in its slot of its parent's `tasks` keys.
     """
     m = tri.shape[0]
     args = (K_T, K_I, empty_bonus, max_depth, leaf_size)
@@ -298,28 +317,40 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     if threads <= 1 or m < MIN_PARALLEL_TRIS or max_depth <= TASK_DEPTH:
         nodes, leaf_tris, depth, _ = subdivide(tri, keys, counts, m, bounds, 0, budget, *args, -1)
         return nodes.copy(), leaf_tris.copy(), depth
-    nodes, leaf_tris, depth, tasks = subdivide(tri, keys, counts, m, bounds, 0, budget, *args,
-                                               TASK_DEPTH)
-    node, task_keys, key_start, task_counts, task_n, task_box, task_depth, task_budget = tasks
-    del keys, tasks
+    stages = sorted({d for d in STAGE_DEPTHS if d < TASK_DEPTH} | {TASK_DEPTH})
 
-    def run(k):
-        e = key_start[k + 1] - key_start[k]
-        buf = np.empty(2 * e + 64, dtype=np.uint64)
-        buf[:e] = task_keys[key_start[k]:key_start[k + 1]]
-        return subdivide(tri, buf, task_counts[k], task_n[k], task_box[k], task_depth[k],
-                         task_budget[k], *args, -1)[:3]
+    def work(pool, buf, counts, n, box, depth0, budget, stage):
+        """subdivide down to stages[stage]; its tasks submitted to `pool` (the next
+        stage). Returns (nodes, leaf_tris, deepest, placeholders (k,), futures [k])."""
+        task_depth = stages[stage] if stage < len(stages) else -1
+        nodes, leaf_tris, deepest, tasks = subdivide(tri, buf, counts, n, box, depth0, budget,
+                                                     *args, task_depth)
+        node, task_keys, key_start, task_counts, task_n, task_box, task_depth_of, task_budget = tasks
+        futures = [None] * len(node)
+        # Largest first, so that the last task to finish is a small one.
+        for k in np.argsort(-np.diff(key_start), kind="stable"):
+            futures[k] = pool.submit(work, pool, task_keys[key_start[k]:key_start[k + 1]],
+                                     task_counts[k], task_n[k], task_box[k], task_depth_of[k],
+                                     task_budget[k], stage + 1)
+        return nodes, leaf_tris, deepest, node, futures
 
-    # Largest first, so that the last task to finish is a small one.
-    order = np.argsort(-np.diff(key_start), kind="stable")
-    with concurrent.futures.ThreadPoolExecutor(threads) as pool:
-        futures = {k: pool.submit(run, k) for k in order}
-        subtrees = [futures[k].result() for k in range(len(node))]
-    del task_keys, futures
-    depth = max([depth] + [d for _, _, d in subtrees])
-    nodes, leaf_tris = splice(nodes, leaf_tris, node, [s[0] for s in subtrees],
-                              [s[1] for s in subtrees])
-    return nodes, leaf_tris, depth
+    def assemble(result):
+        """(nodes, leaf_tris, deepest) of a `work` result with its tasks spliced in."""
+        nodes, leaf_tris, deepest, node, futures = result
+        if not futures:
+            return nodes.copy(), leaf_tris.copy(), deepest
+        subtrees = [assemble(f.result()) for f in futures]
+        deepest = max([deepest] + [d for _, _, d in subtrees])
+        nodes, leaf_tris = splice(nodes, leaf_tris, node, [s[0] for s in subtrees],
+                                  [s[1] for s in subtrees])
+        return nodes, leaf_tris, deepest
+
+    if pool is None:
+        with concurrent.futures.ThreadPoolExecutor(threads) as own:
+            return build_nodes(tri, keys, counts, bounds, *args, threads, max_refs_per_tri, own)
+    root = work(pool, keys, counts, m, bounds, 0, budget, 0)
+    del keys
+    return assemble(root)
 
 
 @njit(cache=True, nogil=True)
