@@ -28,7 +28,7 @@ def check_arrays(vertices, faces):
     if not np.issubdtype(f.dtype, np.integer):
         if not np.issubdtype(f.dtype, np.number) or not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
             raise MeshError("face indices must be integers")
-    f = f.astype(np.int64)
+    f = np.ascontiguousarray(f, dtype=np.int64)         # no copy when it already is
     if f.min() < 0 or f.max() >= len(v):
         bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
         raise MeshError(f"face {bad} has a vertex index out of range (the mesh has {len(v)} vertices)")
@@ -59,7 +59,7 @@ class Mesh:
         if not finite[used].all():
             bad = int(np.flatnonzero(used & ~finite)[0])
             raise MeshError(f"{name}: vertex {bad} is not finite ({v[bad].tolist()})")
-        return cls(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), name=name)
+        return cls(vertices=np.array(v, order="C"), faces=np.array(f, order="C"), name=name)
 
     @property
     def triangles(self):

@@ -216,10 +216,17 @@ def numpy_prepare(v, f, origin):
     return tri, np.flatnonzero(keep).astype(np.uint32), np.stack([tri.min((0, 1)), tri.max((0, 1))])
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_prepare_matches_numpy(seed):
-    # Degenerate, non-finite, float32-overflowing and tiny triangles among ordinary ones.
-    from kdray.build.prepare import prepare
+@pytest.mark.parametrize("seed, threads", [(0, 1), (1, 1), (2, 2), (3, 3)])
+def test_prepare_matches_numpy(seed, threads, monkeypatch):
+    # Degenerate, non-finite, float32-overflowing and tiny triangles among ordinary ones;
+    # on threads, in pieces (each leaves out its own) put back together.
+    import concurrent.futures
+    prepare_module = importlib.import_module("kdray.build.prepare")
+    monkeypatch.setattr(prepare_module, "PARALLEL_FACES", 0)
+    pool = concurrent.futures.ThreadPoolExecutor(threads)
+
+    def prepare(v, f, origin):
+        return prepare_module.prepare(v, f, origin, pool=pool, threads=threads)
     rng = np.random.default_rng(seed)
     v, f = soup(rng, 3000, 0.02)
     v = np.vstack([v, [[np.nan, 0, 0], [np.inf, 1, 1], [1e39, 0, 0], [1e-30, 0, 0], [0, 1e-30, 0]]])

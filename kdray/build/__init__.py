@@ -73,11 +73,11 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
     if int(threads) < 1:
         raise ParameterError(f"threads must be >= 1 (or None), got {threads}")
 
-    mesh = prepare(vertices, faces, origin)
-    params = params.resolved(len(mesh.triangles))
     threads = int(threads)
     # One pool for the whole build (each new pool costs ~0.3 ms to start its threads).
     with concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as pool:
+        mesh = prepare(vertices, faces, origin, pool=pool, threads=threads)
+        params = params.resolved(len(mesh.triangles))
         # The events are the builder's event stack, with room to grow (about twice the root's).
         nodes, leaf_tris, depth = build_nodes(
             mesh.triangles, *sorted_root_events(mesh.triangles, room=6 * len(mesh.triangles) + 64,
