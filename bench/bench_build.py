@@ -13,9 +13,10 @@ Each size runs in its own subprocess: it loads the mesh, builds a tiny mesh firs
 the numba kernels are compiled (or loaded from the on-disk cache), resets the peak
 RSS counter (/proc/self/clear_refs) and builds once for the memory columns; then,
 after a warm-up build with each, `--repeat` rounds each build the mesh with kdray and
-with Open3D, in turns (the order reversed every other round;
-`kdray.bench.round_robin`), so that the machine's drift in speed (+-20 % over
-minutes here) hits both alike. The whole run takes about 6 minutes on 2 cores and
+with Open3D, in turns (the order reversed every other round, each build 0.1 s after
+the one before; `kdray.bench.round_robin`), so that the machine's drift in speed
+(+-20 % over minutes here) hits both alike and neither pays for the other's idle
+worker threads. The whole run takes about 6 minutes on 2 cores and
 needs ~3 GiB at 6M. Columns:
 
   build s      wall time of kdray.build (warm: fastest of the rounds), `--threads`

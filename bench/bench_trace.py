@@ -5,7 +5,8 @@ usage: python bench/bench_trace.py [--meshes bunny,teapot-x256] [--size 1024]
 
 For each mesh: build time, then for 1024 x 1024 primary rays of a framing camera
 (warm, median of --repeat rounds; kdray's and Open3D's methods run round-robin, one
-call each per round, so that the machine's drift hits them alike):
+call each per round, each 0.1 s after the one before, so that the machine's drift
+hits them alike and no call pays for the one before's worker threads):
   kdray render depth   Tracer.render(camera, ["depth"]): rays made on the device
   kdray render default Tracer.render(camera) with depth, normal, bary, id
   kdray trace          Tracer.trace(origins, directions) from numpy to numpy

@@ -125,22 +125,36 @@ def timed(fn, repeat):
     return float(np.median(times)), result
 
 
-def round_robin(fns, repeat):
+ROUND_ROBIN_PAUSE = 0.1
+"""Seconds between two timed calls of `round_robin`: a library's worker threads can
+keep the cores busy for a while after its call returns (Open3D's, Embree's TBB
+workers: a kdray bunny build started right after an Open3D build took 1.05-1.07x as
+long as one started after another kdray build or 0.2 s of quiet, and 1.03x after
+5 ms; Open3D's build was the same after either), so that whichever call comes next
+would pay for them."""
+
+
+def round_robin(fns, repeat, pause=ROUND_ROBIN_PAUSE):
     """Time several calls side by side: one warm-up call each, then `repeat` rounds
     that call each once (the order reversed every other round), so that drift in the
-    machine's speed (seen here: +-20 % over minutes) hits them alike.
+    machine's speed (seen here: +-20 % over minutes) hits them alike. Every call
+    starts `pause` seconds after the one before (ROUND_ROBIN_PAUSE), untimed.
 
     fns : {name: zero-argument callable}. Returns (wall, cpu, results): {name: (repeat,)
     float64 wall seconds}, the same for this process's CPU seconds (all threads), and
     {name: the last call's result}; compare two of them by the median of their
     per-round ratios (`median_ratio`).
     """
-    results = {name: fn() for name, fn in fns.items()}
+    results = {}
+    for name, fn in fns.items():
+        time.sleep(pause)
+        results[name] = fn()
     wall = {name: [] for name in fns}
     cpu = {name: [] for name in fns}
     names = list(fns)
     for r in range(max(1, repeat)):
         for name in (names if r % 2 == 0 else names[::-1]):
+            time.sleep(pause)
             t0, c0 = time.perf_counter(), time.process_time()
             results[name] = fns[name]()
             wall[name].append(time.perf_counter() - t0)

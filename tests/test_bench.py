@@ -1,5 +1,6 @@
 """`kdray bench`: the table, the CSV, the plot and one-line errors (small and fast)."""
 import csv
+import time
 
 import numpy as np
 import pytest
@@ -82,3 +83,21 @@ def test_plot_without_matplotlib_is_a_note(monkeypatch, tmp_path):
     rows = [dict(zip(bench.COLUMNS, ("s", 1, "kdray", 0.1, 0.1, 1.0, 0, 0, 1e-7, 1e-7, 0.0, 0.0)))]
     note = bench.plot(rows, tmp_path / "p.png")
     assert "matplotlib is not installed" in note and not (tmp_path / "p.png").exists()
+
+
+def test_round_robin_turns_and_pauses():
+    # A warm-up call each, then rounds in alternating order; every call after a pause.
+    calls, starts = [], []
+
+    def make(name):
+        def fn():
+            calls.append(name)
+            starts.append(time.perf_counter())
+            return len(calls)
+        return fn
+    wall, cpu, results = bench.round_robin({"a": make("a"), "b": make("b")}, 3, pause=0.02)
+    assert calls == ["a", "b", "a", "b", "b", "a", "a", "b"]
+    assert min(np.diff(starts)) >= 0.02
+    assert results == {"a": 7, "b": 8}
+    assert wall["a"].shape == cpu["b"].shape == (3,)
+    assert bench.median_ratio([2.0, 4.0, 3.0], [1.0, 1.0, 2.0]) == 2.0
