@@ -9,7 +9,8 @@ import pytest
 
 from kdray import layout, reference
 from kdray.build import build
-from kdray.build.classify import ON_BOTH, ON_LEFT, ON_RIGHT, classify
+from kdray.build.classify import (ON_BOTH, ON_LEFT, ON_RIGHT, classify, clip_straddlers,
+                                  split_merge, straddler_events)
 from kdray.build.clip import clip_split, polygon_scratch
 from kdray.build.events import position_bits, position_value, sorted_root_events
 from kdray.build.sah import best_split
@@ -551,6 +552,56 @@ def test_classify_follows_the_event_rules(seed):
         np.testing.assert_array_equal(side[:n], want)
         order = np.argsort(lo, kind="stable")           # START keys: position, then index
         np.testing.assert_array_equal(strad[:n_strad], order[want[order] == ON_BOTH])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_split_merge_gives_each_child_its_sorted_events(seed):
+    # Each child's run on each axis: the one-sided triangles' events and the clipped
+    # straddlers' new ones, sorted; the counts of triangles per side; nothing written
+    # outside the two children's ranges but the one slot past each.
+    rng = np.random.default_rng(700 + seed)
+    for trial in range(30):
+        n = int(rng.integers(2, 400))
+        tri = (np.round(rng.random((n, 3, 3)) * rng.choice([4, 64, 4096])) / 8).astype(np.float32)
+        tri[: int(rng.integers(0, n + 1)) // 4, :, int(rng.integers(3))] = tri[0, 0, 0]
+        keys, counts = sorted_root_events(tri)
+        box = np.stack([tri.min(axis=(0, 1)), tri.max(axis=(0, 1))]).astype(np.float64)
+        axis = int(np.argmax(box[1] - box[0]))
+        pos = np.float32(box[0, axis] + (box[1, axis] - box[0, axis]) * rng.uniform(0.2, 0.8))
+        side = np.zeros(n, dtype=np.int8)
+        strad = np.zeros(n, dtype=np.int64)
+        start = int(counts[:axis].sum())
+        n_strad = classify(keys, start, int(counts[axis]), position_bits(pos), True, side, strad)
+        boxes = [np.zeros((n_strad + 1, 2, 3), np.float32) for _ in range(2)]
+        ok = [np.zeros(n_strad + 1, bool) for _ in range(2)]
+        clip_straddlers(tri, strad, n_strad, box, axis, pos, polygon_scratch(),
+                        boxes[0], boxes[1], ok[0], ok[1])
+        new = [np.zeros(6 * n_strad + 1, np.uint64) for _ in range(2)]
+        runs = [np.zeros((3, 2), np.int64) for _ in range(2)]
+        for c in range(2):
+            straddler_events(strad, n_strad, boxes[c], ok[c], new[c], runs[c])
+        total = int(counts.sum())
+        pad = int(rng.integers(0, 3))
+        w_right = pad
+        w_left = w_right + total + int(runs[1][2].sum()) + 1
+        dst = np.full(w_left + total + int(runs[0][2].sum()) + 1 + pad, 7, dtype=np.uint64)
+        right_counts, left_counts = np.zeros(3, np.int64), np.zeros(3, np.int64)
+        n_left, n_right = split_merge(keys, 0, counts, side, new[0], runs[0], new[1], runs[1],
+                                      dst, w_right, w_left, right_counts, left_counts)
+        run_starts = np.r_[0, np.cumsum(counts)]
+        for c, (w, got_counts, on) in enumerate([(w_left, left_counts, ON_LEFT),
+                                                  (w_right, right_counts, ON_RIGHT)]):
+            for k in range(3):
+                run = keys[run_starts[k]:run_starts[k + 1]]
+                mine = run[side[(run & np.uint64((1 << 30) - 1)).astype(np.intp)] == on]
+                added = new[c][runs[c][k, 0]:runs[c][k].sum()]
+                want = np.sort(np.concatenate([mine, added]))
+                got = dst[w:w + got_counts[k]]
+                np.testing.assert_array_equal(got, want)
+                w += got_counts[k]
+            x_run = dst[w - got_counts.sum():w - got_counts[1:].sum()]
+            assert (n_left, n_right)[c] == np.count_nonzero((x_run >> np.uint64(30)) & np.uint64(3))
+        assert (dst[:pad] == 7).all() and (dst[len(dst) - pad:] == 7).all()
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -11,10 +11,11 @@ the split axis (errata 4), not by its vertices:
 Hot loops index with unsigned integers: numba then leaves out its negative-index
 test, which otherwise keeps LLVM from vectorizing them.
 
-One linear pass per axis moves the events of one-sided triangles to their child,
-still sorted. Straddlers are re-clipped to each child's box (`clip.clip_split`),
-their few new events are sorted and merged in. No node sorts all its events, so the
-whole build is O(n log n) (errata 7).
+Straddlers are re-clipped to each child's box (`clip.clip_split`) and their few
+new events sorted (`straddler_events`); then one linear pass per axis moves the
+events of one-sided triangles to their child, still sorted, with the new events
+merged in on the way (`split_merge`). No node sorts all its events, so the whole
+build is O(n log n) (errata 7).
 
 Numba-compiled (`cache=True`; the first call compiles).
 """
@@ -99,37 +100,77 @@ def clip_straddlers(tri, strad, n, box, axis, pos, poly, left_box, right_box, le
 
 
 @njit(cache=True)
-def split_runs(buf, off, counts, side, left, right, left_runs, right_runs):
-    """Copy the events of one-sided triangles to `left` / `right`, run by run.
+def split_merge(src, off, counts, side, new_left, new_left_runs, new_right, new_right_runs,
+                dst, w_right, w_left, right_counts, left_counts):
+    """Both children's sorted events in one pass over the node's: the events of
+    one-sided triangles, run by run, merged with the straddlers' new events.
 
-    Runs stay sorted. left, right : at least sum(counts) + 1 long (the branch-free
-    copy writes one slot past the end). left_runs, right_runs : (3, 2) int64, written
-    (start, count) per axis. Returns the number of left-only and right-only triangles.
+    src[off:] : the node's runs (counts (3,));  new_left, new_right : the straddlers'
+    events in each child (`straddler_events`; runs (3, 2) start, count);  dst : the
+    buffer the children go to, the right child's runs from w_right and the left
+    child's from w_left (each may write one slot past its end: the branch-free copy
+    writes every event to both children and moves on in one). right_counts,
+    left_counts (3,) are written. Returns the triangles on each side (n_left,
+    n_right: one START or PLANAR each in the x run).
+
+    The straddlers' events are few: the node's events go in stretches up to the next
+    new event of either child (one compare an event), then that child's new events
+    below the next node event are written.
     """
-    wl = 0
-    wr = 0
+    wl = w_left
+    wr = w_right
     start = off
     for k in range(3):
-        left_runs[k, 0] = wl
-        right_runs[k, 0] = wr
-        for i in range(np.uint64(start), np.uint64(start + counts[k])):
-            key = buf[i]
-            s = side[key_uprim(key)]
-            left[np.uint64(wl)] = key
-            right[np.uint64(wr)] = key
-            wl += s == ON_LEFT
-            wr += s == ON_RIGHT
-        left_runs[k, 1] = wl - left_runs[k, 0]
-        right_runs[k, 1] = wr - right_runs[k, 0]
+        wl0 = wl
+        wr0 = wr
+        jl = new_left_runs[k, 0]
+        jl_end = jl + new_left_runs[k, 1]
+        jr = new_right_runs[k, 0]
+        jr_end = jr + new_right_runs[k, 1]
+        # the next new event of each child; all ones (past every key) when none is left
+        next_l = new_left[jl] if jl < jl_end else _NONE
+        next_r = new_right[jr] if jr < jr_end else _NONE
+        i = np.uint64(start)
+        end = np.uint64(start + counts[k])
+        while True:
+            stop_key = min(next_l, next_r)
+            while i < end:
+                key = src[i]
+                if key > stop_key:                  # keys are distinct: > is >=
+                    break
+                s = side[key_uprim(key)]
+                dst[np.uint64(wl)] = key
+                dst[np.uint64(wr)] = key
+                wl += s == ON_LEFT
+                wr += s == ON_RIGHT
+                i += np.uint64(1)
+            key = src[i] if i < end else _NONE
+            if stop_key == _NONE:
+                break
+            while next_l < key:
+                dst[np.uint64(wl)] = next_l
+                wl += 1
+                jl += 1
+                next_l = new_left[jl] if jl < jl_end else _NONE
+            while next_r < key:
+                dst[np.uint64(wr)] = next_r
+                wr += 1
+                jr += 1
+                next_r = new_right[jr] if jr < jr_end else _NONE
+        left_counts[k] = wl - wl0
+        right_counts[k] = wr - wr0
         start += counts[k]
-    # Triangles per side: one START or PLANAR each in the x run.
     n_left = 0
-    for i in range(np.uint64(left_runs[0, 1])):
-        n_left += key_kind(left[i]) != END
+    for i in range(np.uint64(w_left), np.uint64(w_left + left_counts[0])):
+        n_left += key_kind(dst[i]) != END
     n_right = 0
-    for i in range(np.uint64(right_runs[0, 1])):
-        n_right += key_kind(right[i]) != END
+    for i in range(np.uint64(w_right), np.uint64(w_right + right_counts[0])):
+        n_right += key_kind(dst[i]) != END
     return n_left, n_right
+
+
+_NONE = np.uint64(0xFFFFFFFFFFFFFFFF)
+"""Above every event key (positions use at most 32 bits, the key's top bits)."""
 
 
 @njit(cache=True)
@@ -151,42 +192,3 @@ def straddler_events(strad, n, boxes, ok, out, runs):
         runs[k, 1] = w - runs[k, 0]
         sort_range(out, runs[k, 0], w)
     return kept
-
-
-@njit(cache=True)
-def merge_runs(a, a_runs, b, b_runs, out, w, counts):
-    """Merge each axis's run of a and of b (both sorted) into out[w:]; counts (3,) is
-    written with the merged runs' lengths. Returns the new write position.
-
-    b (the straddlers' new events) is short next to a: the loop runs over b, and the
-    a keys after the last b key, often most of them, are copied in one go (`_copy`).
-    """
-    for k in range(3):
-        i = a_runs[k, 0]
-        i_end = i + a_runs[k, 1]
-        w0 = w
-        for j in range(b_runs[k, 0], b_runs[k, 0] + b_runs[k, 1]):
-            key = b[j]
-            while i < i_end and a[np.uint64(i)] < key:
-                out[np.uint64(w)] = a[np.uint64(i)]
-                i += 1
-                w += 1
-            out[np.uint64(w)] = key
-            w += 1
-        w = _copy(a, i, i_end, out, w)
-        counts[k] = w - w0
-    return w
-
-
-@njit(cache=True, inline="always")
-def _copy(src, start, stop, dst, w):
-    """dst[w:w + stop - start] = src[start:stop]; returns w + stop - start. Long blocks
-    as a slice assignment (a memmove), short ones key by key (a slice costs ~50 cycles)."""
-    n = stop - start
-    if n >= 64:
-        dst[w:w + n] = src[start:stop]
-        return w + n
-    for i in range(np.uint64(start), np.uint64(stop)):
-        dst[np.uint64(w)] = src[i]
-        w += 1
-    return w

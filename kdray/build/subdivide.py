@@ -1,11 +1,13 @@
 """The build loop: nodes in depth-first order from an explicit work stack.
 
-The events of pending nodes live in one uint64 buffer used as a stack: the node on
-top of the work stack owns the top of the buffer. Splitting it writes the above
-(right) child's events where the node's were and the below (left) child's after
-them; the left child is processed next and so becomes node i + 1 (depth-first,
-pbrt layout), the right child waits on the stack with the index of the parent whose
-`above_child` it fills in when it is emitted.
+The events of pending nodes live in two uint64 buffers, each used as a stack: a
+node's children go to the other buffer than the node's, the above (right) child's
+events at its top and the below (left) child's after them, in one pass over the
+node's events (`classify.split_merge`: no copy between buffers of its own). The left
+child is processed next and so becomes node i + 1 (depth-first, pbrt layout), the
+right child waits on the stack with the index of the parent whose `above_child` it
+fills in when it is emitted. Taking a node off the work stack frees its buffer's
+top down to the node: everything above it belongs to nodes already built.
 
 Parallel build (`build_nodes`): the root is split first; its children are tasks
 (their sorted events, box, depth, budget) built on threads (`subdivide` releases the
@@ -21,8 +23,7 @@ import concurrent.futures
 import numpy as np
 from numba import njit
 
-from .classify import (classify, clip_straddlers, merge_runs, split_runs,
-                       straddler_events)
+from .classify import classify, clip_straddlers, split_merge, straddler_events
 from .clip import polygon_scratch
 from .events import END, key_kind, key_prim, position_bits, sort_range
 from .sah import LEFT, best_split
@@ -75,8 +76,9 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
 
     tri : (m, 3, 3) float32;  buf (>= e,) uint64, counts (3,) int64 : the node's sorted
     event runs in buf[:e], e = counts.sum() (the root's from `events.sorted_root_events`);
-    buf is used, and overwritten, as the event stack: room for about 2 e keys saves
-    copying it to a larger one (untouched room costs no memory);  n_tris : its triangles;
+    buf is used, and overwritten, as one of the two event stacks (the other, of the
+    same size, is made here): room for about 2 e keys saves copying it to a larger one
+    (untouched room costs no memory);  n_tris : its triangles;
     bounds : (2, 3) float64 its box (float32 values);  depth0 : its depth;  budget0 :
     its reference budget (the root's max_refs_per_tri * m, see MAX_REFS_PER_TRI);
     max_depth : resolved;  task_depth : nodes at this depth (> depth0) are not built
@@ -139,22 +141,25 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
     poly = polygon_scratch()
     side = np.empty(tri.shape[0], dtype=np.int8)           # `classify` writes before it reads
     strad = np.empty(max(m, 1), dtype=np.int64)
-    left = np.empty(16, dtype=np.uint64)
-    right = np.empty(16, dtype=np.uint64)
     new_left = np.empty(16, dtype=np.uint64)
     new_right = np.empty(16, dtype=np.uint64)
     left_box = np.empty((16, 2, 3), dtype=np.float32)
     right_box = np.empty((16, 2, 3), dtype=np.float32)
     left_ok = np.empty(16, dtype=np.bool_)
     right_ok = np.empty(16, dtype=np.bool_)
-    left_runs = np.empty((3, 2), dtype=np.int64)
-    right_runs = np.empty((3, 2), dtype=np.int64)
     new_left_runs = np.empty((3, 2), dtype=np.int64)
     new_right_runs = np.empty((3, 2), dtype=np.int64)
     box = np.empty((2, 3), dtype=np.float64)
     node_counts = np.empty(3, dtype=np.int64)
     right_counts = np.empty(3, dtype=np.int64)
     left_counts = np.empty(3, dtype=np.int64)
+
+    # Two event buffers: a node's children go to the other one than the node's (depth
+    # parity from depth0: buf0 = buf, buf1 of the same size), each a stack whose top
+    # (top_of) falls back to a node's offset when the node is taken off the work stack.
+    buf0 = buf
+    buf1 = np.empty(len(buf), dtype=np.uint64)
+    top_of = np.zeros(2, dtype=np.int64)
 
     while top > 0:
         top -= 1
@@ -167,6 +172,9 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
         depth = st_depth[top]
         parent = st_parent[top]
         budget = st_budget[top]
+        b = (depth - depth0) & 1
+        src = buf0 if b == 0 else buf1
+        top_of[b] = off
 
         idx = n_nodes
         if n_nodes == len(nodes):
@@ -188,7 +196,7 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
             task_budget = _grow(task_budget, k, k + 1)
             slot = TASK_ROOM * node_total + 64
             task_keys = _grow(task_keys, task_start[k], task_start[k] + slot)
-            task_keys[task_start[k]:task_start[k] + node_total] = buf[off:off + node_total]
+            task_keys[task_start[k]:task_start[k] + node_total] = src[off:off + node_total]
             task_start[k + 1] = task_start[k] + slot
             task_node[k] = idx
             task_counts[k] = node_counts
@@ -205,7 +213,7 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
         if n > leaf_size and depth < max_depth:
             # errata 6: no lambda on the leaf; a plane dearer than the leaf is not made
             cost, axis, pos, planar_side, n_below, n_above = best_split(
-                buf, off, node_counts, n, box, K_T, K_I, empty_bonus, K_I * n)
+                src, off, node_counts, n, box, K_T, K_I, empty_bonus, K_I * n)
             if axis >= 0 and n_below + n_above > budget:  # out of references
                 axis = -1
 
@@ -215,8 +223,8 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
                 leaf_tris = _grow(leaf_tris, n_refs, n_refs + n)
             c = 0
             for i in range(off, off + node_counts[0]):
-                if key_kind(buf[i]) != END:
-                    leaf_tris[n_refs + c] = np.uint32(key_prim(buf[i]))
+                if key_kind(src[i]) != END:
+                    leaf_tris[n_refs + c] = np.uint32(key_prim(src[i]))
                     c += 1
             sort_range(leaf_tris, n_refs, n_refs + c)
             nodes[idx, 0] = _LEAF | (np.uint32(c) << _U2)
@@ -232,7 +240,7 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
         run_start = off
         for k in range(axis):
             run_start += node_counts[k]
-        n_strad = classify(buf, run_start, node_counts[axis], position_bits(pos),
+        n_strad = classify(src, run_start, node_counts[axis], position_bits(pos),
                            planar_side == LEFT, side, strad)
 
         if n_strad > len(left_ok):
@@ -244,30 +252,36 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
         clip_straddlers(tri, strad, n_strad, box, axis, pos, poly,
                         left_box, right_box, left_ok, right_ok)
 
-        node_total = node_counts[0] + node_counts[1] + node_counts[2]
-        if node_total + 1 > len(left):
-            size = max(node_total + 1, 2 * len(left))
-            left = np.empty(size, dtype=np.uint64)
-            right = np.empty(size, dtype=np.uint64)
-        n_left, n_right = split_runs(buf, off, node_counts, side, left, right, left_runs, right_runs)
-
         if 6 * n_strad > len(new_left):
             size = max(6 * n_strad, 2 * len(new_left))
             new_left = np.empty(size, dtype=np.uint64)
             new_right = np.empty(size, dtype=np.uint64)
-        n_left += straddler_events(strad, n_strad, left_box, left_ok, new_left, new_left_runs)
-        n_right += straddler_events(strad, n_strad, right_box, right_ok, new_right, new_right_runs)
+        straddler_events(strad, n_strad, left_box, left_ok, new_left, new_left_runs)
+        straddler_events(strad, n_strad, right_box, right_ok, new_right, new_right_runs)
 
-        need = off
-        for k in range(3):
-            need += left_runs[k, 1] + right_runs[k, 1] + new_left_runs[k, 1] + new_right_runs[k, 1]
-        if need > len(buf):
-            buf = _grow(buf, off, need)
-        w = merge_runs(right, right_runs, new_right, new_right_runs, buf, off, right_counts)
-        merge_runs(left, left_runs, new_left, new_left_runs, buf, w, left_counts)
+        # The children in the other buffer: the right one at its top, the left one
+        # after room for every event of the node and the right straddlers' (+1: see
+        # split_merge).
+        node_total = node_counts[0] + node_counts[1] + node_counts[2]
+        b_child = 1 - b
+        w_right = top_of[b_child]
+        w_left = w_right + node_total + new_right_runs[2, 0] + new_right_runs[2, 1] + 1
+        need = w_left + node_total + new_left_runs[2, 0] + new_left_runs[2, 1] + 1
+        if b_child == 0:
+            if need > len(buf0):
+                buf0 = _grow(buf0, w_right, need)
+            dst = buf0
+        else:
+            if need > len(buf1):
+                buf1 = _grow(buf1, w_right, need)
+            dst = buf1
+        n_left, n_right = split_merge(src, off, node_counts, side, new_left, new_left_runs,
+                                      new_right, new_right_runs, dst, w_right, w_left,
+                                      right_counts, left_counts)
+        w = w_left
 
         # Push the right child first, so the left one is emitted next (index idx + 1).
-        st_off[top] = off
+        st_off[top] = w_right
         st_n[top] = n_right
         for k in range(3):
             st_counts[top, k] = right_counts[k]
