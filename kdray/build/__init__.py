@@ -78,9 +78,10 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
     with concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as pool:
         mesh = prepare(vertices, faces, origin, pool=pool, threads=threads)
         params = params.resolved(len(mesh.triangles))
-        # The events are the builder's event stack, with room to grow (about twice the root's).
+        # The events are the builder's two event stacks, with room to grow (about 1.5
+        # times the root's events each; `subdivide.split_keys`).
         nodes, leaf_tris, depth = build_nodes(
-            mesh.triangles, *sorted_root_events(mesh.triangles, room=6 * len(mesh.triangles) + 64,
+            mesh.triangles, *sorted_root_events(mesh.triangles, room=12 * len(mesh.triangles) + 256,
                                                threads=threads, pool=pool),
             mesh.bounds.astype(np.float64),
             params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size,

@@ -42,9 +42,9 @@ a few threads busy when the subtrees differ in size (with 8, on 2 threads, the l
 of 7 similar subtrees ran alone for ~15 % of a 1.6M-triangle build; a fourth level
 on one thread costs less than that)."""
 
-TASK_ROOM = 2
-"""A task's slot of keys holds TASK_ROOM times its events (+ 64): room for its event
-stack, so that its subtree is built in place (see `subdivide`'s buf)."""
+TASK_ROOM = 3
+"""A task's slot of keys holds TASK_ROOM times its events (+ 64): room for its two
+event stacks (`split_keys`), so that its subtree is built in place."""
 
 STAGE_DEPTHS = (1,)
 """Depths, above TASK_DEPTH, at which the parallel build also hands nodes on as tasks
@@ -70,15 +70,15 @@ def _grow(a, used, need):
 
 
 @njit(cache=True, nogil=True)
-def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty_bonus,
-              max_depth, leaf_size, task_depth):
+def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I,
+              empty_bonus, max_depth, leaf_size, task_depth):
     """Build the nodes of the subtree of one node from its sorted events.
 
     tri : (m, 3, 3) float32;  buf (>= e,) uint64, counts (3,) int64 : the node's sorted
     event runs in buf[:e], e = counts.sum() (the root's from `events.sorted_root_events`);
-    buf is used, and overwritten, as one of the two event stacks (the other, of the
-    same size, is made here): room for about 2 e keys saves copying it to a larger one
-    (untouched room costs no memory);  n_tris : its triangles;
+    buf is used, and overwritten, as one of the two event stacks, `other` (uint64, any
+    contents) as the other: room for about 1.5 e keys in each saves copying them to
+    larger ones (untouched room costs no memory);  n_tris : its triangles;
     bounds : (2, 3) float64 its box (float32 values);  depth0 : its depth;  budget0 :
     its reference budget (the root's max_refs_per_tri * m, see MAX_REFS_PER_TRI);
     max_depth : resolved;  task_depth : nodes at this depth (> depth0) are not built
@@ -155,10 +155,10 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
     left_counts = np.empty(3, dtype=np.int64)
 
     # Two event buffers: a node's children go to the other one than the node's (depth
-    # parity from depth0: buf0 = buf, buf1 of the same size), each a stack whose top
-    # (top_of) falls back to a node's offset when the node is taken off the work stack.
+    # parity from depth0: buf0 = buf, buf1 = other), each a stack whose top (top_of)
+    # falls back to a node's offset when the node is taken off the work stack.
     buf0 = buf
-    buf1 = np.empty(len(buf), dtype=np.uint64)
+    buf1 = other
     top_of = np.zeros(2, dtype=np.int64)
 
     while top > 0:
@@ -308,6 +308,16 @@ def subdivide(tri, buf, counts, n_tris, bounds, depth0, budget0, K_T, K_I, empty
     return nodes[:n_nodes], leaf_tris[:n_refs], deepest, tasks
 
 
+def split_keys(keys, counts):
+    """The two event buffers of `subdivide` from one: (keys' first half, its second
+    half) when the events (counts (3,)) fit in the first (`events.sorted_root_events`
+    sorts in the second), else (keys, a new array of its size)."""
+    half = len(keys) // 2
+    if half >= counts.sum():
+        return keys[:half], keys[half:]
+    return keys, np.empty(len(keys), dtype=np.uint64)
+
+
 def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_size,
                 threads=1, max_refs_per_tri=MAX_REFS_PER_TRI, pool=None):
     """The tree's nodes from the root's sorted events, on `threads` threads.
@@ -329,7 +339,8 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     args = (K_T, K_I, empty_bonus, max_depth, leaf_size)
     budget = max_refs_per_tri * m
     if threads <= 1 or m < MIN_PARALLEL_TRIS or max_depth <= TASK_DEPTH:
-        nodes, leaf_tris, depth, _ = subdivide(tri, keys, counts, m, bounds, 0, budget, *args, -1)
+        nodes, leaf_tris, depth, _ = subdivide(tri, *split_keys(keys, counts), counts, m, bounds,
+                                               0, budget, *args, -1)
         return nodes.copy(), leaf_tris.copy(), depth
     stages = sorted({d for d in STAGE_DEPTHS if d < TASK_DEPTH} | {TASK_DEPTH})
 
@@ -337,8 +348,8 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
         """subdivide down to stages[stage]; its tasks submitted to `pool` (the next
         stage). Returns (nodes, leaf_tris, deepest, placeholders (k,), futures [k])."""
         task_depth = stages[stage] if stage < len(stages) else -1
-        nodes, leaf_tris, deepest, tasks = subdivide(tri, buf, counts, n, box, depth0, budget,
-                                                     *args, task_depth)
+        nodes, leaf_tris, deepest, tasks = subdivide(tri, *split_keys(buf, counts), counts, n,
+                                                     box, depth0, budget, *args, task_depth)
         node, task_keys, key_start, task_counts, task_n, task_box, task_depth_of, task_budget = tasks
         futures = [None] * len(node)
         # Largest first, so that the last task to finish is a small one.
