@@ -4,7 +4,7 @@ process: the way to measure a change to the builder on a machine whose speed dri
 more than most changes do).
 
 usage: python bench/ab_build.py [--base HEAD] [--meshes bunny,bunny-1.6M] [--rounds 20]
-                                [--threads 2]
+                                [--threads 2] [--processes]
 
 The base commit's `kdray/` is exported (git archive) into a temporary folder as the
 package `kdray_base` (kdray imports itself relatively, so it runs under that name);
@@ -14,12 +14,22 @@ reversed every other round (`kdray.bench.round_robin`). Prints,
 per mesh, the median and fastest wall time and the median CPU time of each, the
 median of the rounds' time ratios (working tree / base: < 1 means faster), and
 whether the two trees are byte-identical.
+
+--processes: each round builds in two new processes instead, one per version (the
+order reversed every other round), each making a warm-up build and then three timed
+ones (the fastest counts). Slower, but the one way to see changes in memory use: in
+one process the two builders share malloc's free memory, and one's page faults
+become the other's reuse (a change that touched more memory measured 0.97 in one
+process and 1.04 in separate ones).
 """
 import argparse
+import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
+import time
 
 import numpy as np
 
@@ -37,17 +47,75 @@ def export_base(commit, folder):
     return folder
 
 
+def child(who, path, threads):
+    """One process's builds of the mesh at `path` (npz) with `who` (kdray or
+    kdray_base): print {"wall": fastest of three, "cpu": its CPU seconds, "faults":
+    its minor page faults} as JSON."""
+    import importlib
+    build = importlib.import_module(who).build
+    data = np.load(path)
+    v, f = data["vertices"], data["faces"]
+    build(v, f, threads=threads)
+    best = None
+    for _ in range(3):
+        r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+        build(v, f, threads=threads)
+        wall = time.perf_counter() - t0
+        r1 = resource.getrusage(resource.RUSAGE_SELF)
+        run = dict(wall=wall, cpu=r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime,
+                   faults=r1.ru_minflt - r0.ru_minflt)
+        if best is None or wall < best["wall"]:
+            best = run
+    print(json.dumps(best))
+
+
+def in_processes(name, folder, rounds, threads):
+    """--processes: rounds of one new process per version; prints as main does."""
+    from meshes import mesh as bench_mesh
+    m = bench_mesh(name)
+    path = os.path.join(folder, "mesh.npz")
+    np.savez(path, vertices=m.vertices, faces=m.faces)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([folder, ROOT]))
+    runs = {"base": [], "work": []}
+    for r in range(rounds):
+        for who in (("base", "work") if r % 2 == 0 else ("work", "base")):
+            module = "kdray_base" if who == "base" else "kdray"
+            cmd = [sys.executable, __file__, "--child", module, path]
+            if threads is not None:
+                cmd += ["--threads", str(threads)]
+            out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env).stdout
+            runs[who].append(json.loads(out.splitlines()[-1]))
+    for who, label in (("base", "base"), ("work", "working tree")):
+        wall = np.array([x["wall"] for x in runs[who]])
+        print(f"{name:<12} {who:<5} ({label}): wall median {np.median(wall):.4f} s, fastest "
+              f"{wall.min():.4f} s, cpu median {np.median([x['cpu'] for x in runs[who]]):.4f} s, "
+              f"page faults median {int(np.median([x['faults'] for x in runs[who]]))}")
+    ratio = [w["wall"] / b["wall"] for w, b in zip(runs["work"], runs["base"])]
+    cpu = [w["cpu"] / b["cpu"] for w, b in zip(runs["work"], runs["base"])]
+    print(f"{name:<12} work / base: wall {np.median(ratio):.3f}, cpu {np.median(cpu):.3f} "
+          f"(medians of {rounds} rounds of new processes)", flush=True)
+
+
 def main():
+    if len(sys.argv) > 1 and sys.argv[1] == "--child":
+        threads = int(sys.argv[5]) if len(sys.argv) > 5 else None
+        return child(sys.argv[2], sys.argv[3], threads)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", default="HEAD", help="commit to compare with (default HEAD)")
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")
     ap.add_argument("--rounds", type=int, default=20)
     ap.add_argument("--threads", type=int, default=None, help="build threads (default: all CPUs)")
+    ap.add_argument("--processes", action="store_true",
+                    help="each build in a new process (sees memory effects; slower)")
     args = ap.parse_args()
 
     from meshes import mesh as bench_mesh
     with tempfile.TemporaryDirectory() as tmp:
         sys.path.insert(0, export_base(args.base, tmp))
+        if args.processes:
+            for name in args.meshes.split(","):
+                in_processes(name, tmp, args.rounds, args.threads)
+            return
         import kdray
         import kdray_base
         from kdray.bench import median_ratio, round_robin
