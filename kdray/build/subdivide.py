@@ -119,9 +119,10 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
     task_node = np.empty(16, dtype=np.int64)
     # Room for the tasks' events and their event stacks (TASK_ROOM; the straddlers add
     # some events) without copying them as they grow; untouched room is never resident.
-    # The root's own children as tasks (task_depth = depth0 + 1) are copied, without
-    # room, into buf, which then holds nothing else: its pages are already resident (a
-    # new array's pages are faulted in on this one thread: 1.6M triangles, ~19k faults).
+    # The root's own children as tasks (task_depth = depth0 + 1) are copied into buf,
+    # which then holds nothing else, one in each half (each half with the same half of
+    # `other` is then a task's two event stacks): those pages are resident already (a
+    # new array's would be faulted in on this one thread: 1.6M triangles, ~19k faults).
     root_tasks = task_depth == depth0 + 1
     task_keys = np.empty(2 * TASK_ROOM * (counts[0] + counts[1] + counts[2]) + 1024
                          if task_depth > depth0 + 1 else 16, dtype=np.uint64)
@@ -198,7 +199,7 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
             task_box = _grow(task_box, k, k + 1)
             task_depth_of = _grow(task_depth_of, k, k + 1)
             task_budget = _grow(task_budget, k, k + 1)
-            slot = node_total if root_tasks else TASK_ROOM * node_total + 64
+            slot = max(node_total, len(buf0) // 2) if root_tasks else TASK_ROOM * node_total + 64
             if root_tasks and k == 0:
                 task_keys = buf0                # the root's events: no longer needed
             task_keys = _grow(task_keys, task_start[k], task_start[k] + slot)
@@ -339,8 +340,8 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     task that builds its subtree down to TASK_DEPTH on a pool thread and there hands
     its own tasks to the pool, so that the second thread starts at depth 1 rather than
     at TASK_DEPTH (bunny: the levels above TASK_DEPTH are ~15 % of a build).
-    Each task's events run in place in its slot of its parent's `tasks` keys, but for
-    the root's children, which are copied into an array of their own on their thread.
+    Each task's events run in place in its slot of its parent's `tasks` keys; the
+    root's two children each in half of the root's two event buffers (`subdivide`).
     """
     m = tri.shape[0]
     args = (K_T, K_I, empty_bonus, max_depth, leaf_size)
@@ -351,29 +352,28 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
         return nodes.copy(), leaf_tris.copy(), depth
     stages = sorted({d for d in STAGE_DEPTHS if d < TASK_DEPTH} | {TASK_DEPTH})
 
-    def work(pool, buf, counts, n, box, depth0, budget, stage):
-        """subdivide down to stages[stage]; its tasks submitted to `pool` (the next
-        stage). Returns (nodes, leaf_tris, deepest, placeholders (k,), futures [k])."""
+    def work(pool, bufs, counts, n, box, depth0, budget, stage):
+        """subdivide (bufs: its two event buffers) down to stages[stage]; its tasks
+        submitted to `pool` (the next stage). Returns (nodes, leaf_tris, deepest,
+        placeholders (k,), futures [k])."""
         task_depth = stages[stage] if stage < len(stages) else -1
-        nodes, leaf_tris, deepest, tasks = subdivide(tri, *split_keys(buf, counts), counts, n,
-                                                     box, depth0, budget, *args, task_depth)
+        nodes, leaf_tris, deepest, tasks = subdivide(tri, *bufs, counts, n, box, depth0, budget,
+                                                     *args, task_depth)
         node, task_keys, key_start, task_counts, task_n, task_box, task_depth_of, task_budget = tasks
         futures = [None] * len(node)
         # Largest first, so that the last task to finish is a small one.
         for k in np.argsort(-np.diff(key_start), kind="stable"):
-            futures[k] = pool.submit(work if depth0 + 1 < task_depth else task, pool,
-                                     task_keys[key_start[k]:key_start[k + 1]],
-                                     task_counts[k], task_n[k], task_box[k], task_depth_of[k],
-                                     task_budget[k], stage + 1)
+            slot = task_keys[key_start[k]:key_start[k + 1]]
+            if depth0 + 1 == task_depth:        # the root's children: halves of its buffers
+                other = bufs[1][key_start[k]:key_start[k + 1]]
+                if len(other) < len(slot):
+                    other = np.empty(len(slot), dtype=np.uint64)
+                task_bufs = (slot, other)
+            else:
+                task_bufs = split_keys(slot, task_counts[k])
+            futures[k] = pool.submit(work, pool, task_bufs, task_counts[k], task_n[k],
+                                     task_box[k], task_depth_of[k], task_budget[k], stage + 1)
         return nodes, leaf_tris, deepest, node, futures
-
-    def task(pool, keys, *rest):
-        """`work` on a copy of keys with room (TASK_ROOM): the root's children, which
-        `subdivide` hands back without room."""
-        buf = np.empty(TASK_ROOM * len(keys) + 128, dtype=np.uint64)
-        buf[:len(keys)] = keys
-        del keys
-        return work(pool, buf, *rest)
 
     def assemble(result):
         """(nodes, leaf_tris, deepest) of a `work` result with its tasks spliced in."""
@@ -389,7 +389,7 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     if pool is None:
         with concurrent.futures.ThreadPoolExecutor(threads) as own:
             return build_nodes(tri, keys, counts, bounds, *args, threads, max_refs_per_tri, own)
-    root = work(pool, keys, counts, m, bounds, 0, budget, 0)
+    root = work(pool, split_keys(keys, counts), counts, m, bounds, 0, budget, 0)
     del keys
     return assemble(root)
 
