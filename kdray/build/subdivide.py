@@ -124,6 +124,7 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
     # `other` is then a task's two event stacks): those pages are resident already (a
     # new array's would be faulted in on this one thread: 1.6M triangles, ~19k faults).
     root_tasks = task_depth == depth0 + 1
+    in_halves = False                           # the root's children written there
     task_keys = np.empty(2 * TASK_ROOM * (counts[0] + counts[1] + counts[2]) + 1024
                          if task_depth > depth0 + 1 else 16, dtype=np.uint64)
     task_start = np.zeros(17, dtype=np.int64)
@@ -199,12 +200,17 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
             task_box = _grow(task_box, k, k + 1)
             task_depth_of = _grow(task_depth_of, k, k + 1)
             task_budget = _grow(task_budget, k, k + 1)
-            slot = max(node_total, len(buf0) // 2) if root_tasks else TASK_ROOM * node_total + 64
-            if root_tasks and k == 0:
-                task_keys = buf0                # the root's events: no longer needed
-            task_keys = _grow(task_keys, task_start[k], task_start[k] + slot)
-            task_keys[task_start[k]:task_start[k] + node_total] = src[off:off + node_total]
-            task_start[k + 1] = task_start[k] + slot
+            if in_halves:                       # in its half of buf1 already
+                task_keys = buf1
+                task_start[k] = off
+                task_start[k + 1] = len(buf1) // 2 if k == 0 else len(buf1)
+            else:
+                slot = max(node_total, len(buf0) // 2) if root_tasks else TASK_ROOM * node_total + 64
+                if root_tasks and k == 0:
+                    task_keys = buf0            # the root's events: no longer needed
+                task_keys = _grow(task_keys, task_start[k], task_start[k] + slot)
+                task_keys[task_start[k]:task_start[k] + node_total] = src[off:off + node_total]
+                task_start[k + 1] = task_start[k] + slot
             task_node[k] = idx
             task_counts[k] = node_counts
             task_n[k] = n
@@ -274,6 +280,15 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
         w_right = top_of[b_child]
         w_left = w_right + node_total + new_right_runs[2, 0] + new_right_runs[2, 1] + 1
         need = w_left + node_total + new_left_runs[2, 0] + new_left_runs[2, 1] + 1
+        half = len(buf1) // 2
+        if (root_tasks and depth == depth0 and 6 * n_below + 1 <= half
+                and 6 * n_above + 1 <= len(buf1) - half):
+            # The root's children are tasks: each straight into its half of buf1 (at
+            # most 6 events a triangle), the left one first (node order), no copy.
+            in_halves = True
+            w_left = 0
+            w_right = half
+            need = 0
         if b_child == 0:
             if need > len(buf0):
                 buf0 = _grow(buf0, w_right, need)
@@ -365,8 +380,9 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
         for k in np.argsort(-np.diff(key_start), kind="stable"):
             slot = task_keys[key_start[k]:key_start[k + 1]]
             if depth0 + 1 == task_depth:        # the root's children: halves of its buffers
-                other = bufs[1][key_start[k]:key_start[k + 1]]
-                if len(other) < len(slot):
+                spare = bufs[0] if np.may_share_memory(task_keys, bufs[1]) else bufs[1]
+                other = spare[key_start[k]:key_start[k + 1]]
+                if 2 * len(other) < len(slot):     # (any length works; this is room)
                     other = np.empty(len(slot), dtype=np.uint64)
                 task_bufs = (slot, other)
             else:
