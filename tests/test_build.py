@@ -349,6 +349,27 @@ def test_threads_give_the_same_tree(monkeypatch, task_depth, stages):
     assert many.depth == one.depth
 
 
+@pytest.mark.parametrize("room_per_tri, room", [(0, 0), (0, 64), (6, 64), (12, 256)])
+def test_event_room_does_not_change_the_tree(monkeypatch, room_per_tri, room):
+    # However much room the root's events have (none: the two event buffers grow, and
+    # the root's children are copied out; a little: they do not fit in halves), the
+    # nodes are those of the one-thread build with the default room.
+    from kdray.build.prepare import prepare
+    subdivide = importlib.import_module("kdray.build.subdivide")
+    v, f = load_shared("fandisk.obj")
+    mesh = prepare(v, f)
+    m = len(mesh.triangles)
+    params = (140.0, 20.0, 0.8, 24, 1)
+    box = mesh.bounds.astype(np.float64)
+    want = subdivide.build_nodes(mesh.triangles, *sorted_root_events(mesh.triangles, room=12 * m),
+                                 box, *params, threads=1)
+    monkeypatch.setattr(subdivide, "MIN_PARALLEL_TRIS", 0)
+    keys, counts = sorted_root_events(mesh.triangles, room=room_per_tri * m + room)
+    got = subdivide.build_nodes(mesh.triangles, keys, counts, box, *params, threads=2)
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("kw", [dict(K_T=0), dict(K_I=-1), dict(empty_bonus=0), dict(empty_bonus=1.5),
                                 dict(max_depth=-1), dict(leaf_size=-1), dict(K_T=float("nan")),
                                 dict(threads=0)])
