@@ -90,7 +90,8 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
     (node (k,) int64 placeholder index, keys (E,) uint64 and key_start (k + 1,) int64
     their slots: task j's events first in keys[key_start[j]:key_start[j + 1]], with
     room to build it there (TASK_ROOM; keys a view of a larger array: a copy would
-    page-fault ~100 MB at 1.6M triangles on the one thread), counts (k, 3) int64,
+    page-fault ~100 MB at 1.6M triangles on the one thread; for the root's own
+    children, a half of buf or of other, see below), counts (k, 3) int64,
     n (k,) int64, box (k, 2, 3) float64,
     depth (k,) int64, budget (k,) float64), in node order.
     """
@@ -119,12 +120,14 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
     task_node = np.empty(16, dtype=np.int64)
     # Room for the tasks' events and their event stacks (TASK_ROOM; the straddlers add
     # some events) without copying them as they grow; untouched room is never resident.
-    # The root's own children as tasks (task_depth = depth0 + 1) are copied into buf,
-    # which then holds nothing else, one in each half (each half with the same half of
-    # `other` is then a task's two event stacks): those pages are resident already (a
-    # new array's would be faulted in on this one thread: 1.6M triangles, ~19k faults).
+    # The root's own children as tasks (task_depth = depth0 + 1) each get half of
+    # `other` and half of buf as their two event stacks: the split writes them straight
+    # into other's halves when at most 6 events a triangle fit there (in_halves), else
+    # they are copied into buf's halves (buf then holds nothing else). Those pages are
+    # resident already; a new array's would be faulted in on this one thread (1.6M
+    # triangles: ~19k faults, ~45 ms).
     root_tasks = task_depth == depth0 + 1
-    in_halves = False                           # the root's children written there
+    in_halves = False
     task_keys = np.empty(2 * TASK_ROOM * (counts[0] + counts[1] + counts[2]) + 1024
                          if task_depth > depth0 + 1 else 16, dtype=np.uint64)
     task_start = np.zeros(17, dtype=np.int64)
