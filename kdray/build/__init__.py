@@ -28,6 +28,7 @@ from ..errors import ParameterError
 from ..tree import BuildParams, KdTree
 from .events import sorted_root_events
 from .prepare import prepare
+from . import subdivide
 from .subdivide import build_nodes
 
 __all__ = ["build"]
@@ -74,6 +75,12 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         raise ParameterError(f"threads must be >= 1 (or None), got {threads}")
 
     threads = int(threads)
+    try:
+        small = len(faces) < subdivide.MIN_PARALLEL_TRIS
+    except TypeError:                           # not a sequence: prepare says what is wrong
+        small = True
+    if small:
+        threads = 1                             # one thread, no pool
     # One pool for the whole build (each new pool costs ~0.3 ms to start its threads).
     with concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as pool:
         mesh = prepare(vertices, faces, origin, pool=pool, threads=threads)
