@@ -93,7 +93,7 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
     their slots: task j's events first in keys[key_start[j]:key_start[j + 1]], with
     room to build it there (TASK_ROOM; keys a view of a larger array: a copy would
     page-fault ~100 MB at 1.6M triangles on the one thread; for the root's own
-    children, a half of buf or of other, see below), counts (k, 3) int64,
+    children, the halves of other when they fit there, see below), counts (k, 3) int64,
     n (k,) int64, box (k, 2, 3) float64,
     depth (k,) int64, budget (k,) float64), in node order.
     """
@@ -122,16 +122,14 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
     task_node = np.empty(16, dtype=np.int64)
     # Room for the tasks' events and their event stacks (TASK_ROOM; the straddlers add
     # some events) without copying them as they grow; untouched room is never resident.
-    # The root's own children as tasks (task_depth = depth0 + 1) each get half of
-    # `other` and half of buf as their two event stacks: the split writes them straight
-    # into other's halves when at most 6 events a triangle fit there (in_halves), else
-    # they are copied into buf's halves (buf then holds nothing else). Those pages are
-    # resident already; a new array's would be faulted in on this one thread (1.6M
-    # triangles: ~19k faults, ~45 ms).
-    root_tasks = task_depth == depth0 + 1
+    # The root's own children as tasks (task_depth = depth0 + 1) are written straight
+    # into the halves of `other` when at most 6 events a triangle fit there (in_halves;
+    # each half, with the same half of buf, is then a task's two event stacks): those
+    # pages are resident already, a new array's would be faulted in on this one thread
+    # (1.6M triangles: ~19k faults, ~45 ms).
     in_halves = False
     task_keys = np.empty(2 * TASK_ROOM * (counts[0] + counts[1] + counts[2]) + 1024
-                         if task_depth > depth0 + 1 else 16, dtype=np.uint64)
+                         if task_depth >= 0 else 16, dtype=np.uint64)
     task_start = np.zeros(17, dtype=np.int64)
     task_counts = np.empty((16, 3), dtype=np.int64)
     task_n = np.empty(16, dtype=np.int64)
@@ -210,9 +208,7 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
                 task_start[k] = off
                 task_start[k + 1] = len(buf1) // 2 if k == 0 else len(buf1)
             else:
-                slot = max(node_total, len(buf0) // 2) if root_tasks else TASK_ROOM * node_total + 64
-                if root_tasks and k == 0:
-                    task_keys = buf0            # the root's events: no longer needed
+                slot = TASK_ROOM * node_total + 64
                 task_keys = _grow(task_keys, task_start[k], task_start[k] + slot)
                 task_keys[task_start[k]:task_start[k] + node_total] = src[off:off + node_total]
                 task_start[k + 1] = task_start[k] + slot
@@ -286,7 +282,7 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
         w_left = w_right + node_total + new_right_runs[2, 0] + new_right_runs[2, 1] + 1
         need = w_left + node_total + new_left_runs[2, 0] + new_left_runs[2, 1] + 1
         half = len(buf1) // 2
-        if (root_tasks and depth == depth0 and 6 * n_below + 1 <= half
+        if (task_depth == depth0 + 1 and depth == depth0 and 6 * n_below + 1 <= half
                 and 6 * n_above + 1 <= len(buf1) - half):
             # The root's children are tasks: each straight into its half of buf1 (at
             # most 6 events a triangle), the left one first (node order), no copy.
@@ -305,7 +301,6 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
         n_left, n_right = split_merge(src, off, node_counts, side, new_left, new_left_runs,
                                       new_right, new_right_runs, dst, w_right, w_left,
                                       right_counts, left_counts)
-        w = w_left
 
         # Push the right child first, so the left one is emitted next (index idx + 1).
         st_off[top] = w_right
@@ -322,7 +317,7 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
         st_parent[top] = idx
         st_budget[top] = budget * n_above / (n_below + n_above)
         top += 1
-        st_off[top] = w
+        st_off[top] = w_left
         st_n[top] = n_left
         st_depth[top] = depth + 1
         st_parent[top] = -1
@@ -361,7 +356,8 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     its own tasks to the pool, so that the second thread starts at depth 1 rather than
     at TASK_DEPTH (bunny: the levels above TASK_DEPTH are ~15 % of a build).
     Each task's events run in place in its slot of its parent's `tasks` keys; the
-    root's two children each in half of the root's two event buffers (`subdivide`).
+    root's two children, when they fit, each in half of the root's two event buffers
+    (`subdivide`).
     """
     m = tri.shape[0]
     args = (K_T, K_I, empty_bonus, max_depth, leaf_size)
@@ -384,12 +380,10 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
         # Largest first, so that the last task to finish is a small one.
         for k in np.argsort(-np.diff(key_start), kind="stable"):
             slot = task_keys[key_start[k]:key_start[k + 1]]
-            if depth0 + 1 == task_depth:        # the root's children: halves of its buffers
-                spare = bufs[0] if np.may_share_memory(task_keys, bufs[1]) else bufs[1]
-                other = spare[key_start[k]:key_start[k + 1]]
-                if 2 * len(other) < len(slot):     # (any length works; this is room)
-                    other = np.empty(len(slot), dtype=np.uint64)
-                task_bufs = (slot, other)
+            if np.may_share_memory(task_keys, bufs[1]):
+                # the root's children, in the halves of its second buffer: the same
+                # halves of its first (whose events are spent) are their other stacks
+                task_bufs = (slot, bufs[0][key_start[k]:key_start[k + 1]])
             else:
                 task_bufs = split_keys(slot, task_counts[k])
             futures[k] = pool.submit(work, pool, task_bufs, task_counts[k], task_n[k],
