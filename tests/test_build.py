@@ -543,6 +543,15 @@ def test_small_runs_equal_plain_sweep(seed):
                 assert got[1] == -1 and got[0] == np.inf
 
 
+def snapped_soup(rng, n, scales, flat_share):
+    """(n, 3, 3) float32 random triangles on a grid of 1/8 steps (a scale from
+    `scales`), so that positions repeat; up to 1/flat_share of them flat on one axis
+    at one value (planar events)."""
+    tri = (np.round(rng.random((n, 3, 3)) * rng.choice(scales)) / 8).astype(np.float32)
+    tri[: int(rng.integers(0, n + 1)) // flat_share, :, int(rng.integers(3))] = tri[0, 0, 0]
+    return tri
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_classify_follows_the_event_rules(seed):
     # Each triangle's side from its own extent on the split axis (errata 4): the end
@@ -552,8 +561,7 @@ def test_classify_follows_the_event_rules(seed):
     rng = np.random.default_rng(500 + seed)
     for trial in range(40):
         n = int(rng.integers(1, 300))
-        tri = (np.round(rng.random((n, 3, 3)) * rng.choice([4, 16, 1024])) / 8).astype(np.float32)
-        tri[: int(rng.integers(0, n + 1)) // 3, :, int(rng.integers(3))] = tri[0, 0, 0]
+        tri = snapped_soup(rng, n, [4, 16, 1024], flat_share=3)
         keys, counts = sorted_root_events(tri)
         axis = int(rng.integers(3))
         start = int(counts[:axis].sum())
@@ -583,8 +591,7 @@ def test_split_merge_gives_each_child_its_sorted_events(seed):
     rng = np.random.default_rng(700 + seed)
     for trial in range(30):
         n = int(rng.integers(2, 400))
-        tri = (np.round(rng.random((n, 3, 3)) * rng.choice([4, 64, 4096])) / 8).astype(np.float32)
-        tri[: int(rng.integers(0, n + 1)) // 4, :, int(rng.integers(3))] = tri[0, 0, 0]
+        tri = snapped_soup(rng, n, [4, 64, 4096], flat_share=4)
         keys, counts = sorted_root_events(tri)
         box = np.stack([tri.min(axis=(0, 1)), tri.max(axis=(0, 1))]).astype(np.float64)
         axis = int(np.argmax(box[1] - box[0]))
