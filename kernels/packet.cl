@@ -321,6 +321,9 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
             for (uint j = 0; j < m; j++) {
                 uint tri = leaf_tris[first + i0 + j];
                 __global const float *p = tris + 9 * (size_t)tri;
+                /* unrolled, LLVM gathers 4 triangles at a time into SSE vectors (as a
+                 * loop it copied float by float): bunny-1.6M renders 0.86x the time */
+#pragma unroll
                 for (uint c = 0; c < 9; c++)
                     q[c].s[j] = p[c];
                 tri8.s[j] = tri;
