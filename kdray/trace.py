@@ -176,6 +176,10 @@ class Tracer:
         # packets: how a leaf is tested (kernels/packet.cl, kd_packet_leaf): None = by
         # the kernel's rule; tests set 0 (triangle by triangle) or inf (ray by ray)
         self._lane_ratio = None
+        # trace_rays: each work-item takes a run of its group's batch (render.cl,
+        # ITEM_RUNS) on CPUs, where a group's work-items run one after another; on
+        # GPUs every local_size-th packet, for coalesced reads. Tests set both.
+        self._item_runs = _device.is_cpu(self.device)
         # A CPU device works on host memory: buffers over numpy arrays need no copies
         self._zero_copy = _device.is_cpu(self.device)
         # float64 rays shifted and rounded in the kernel (`_rays`): no host pass, and
@@ -241,6 +245,8 @@ class Tracer:
             defines["RAYS_DOUBLE"] = None
             for axis, value in zip("XYZ", self._origin):
                 defines[f"KD_ORIGIN_{axis}"] = f"({float(value).hex()})"
+        if self._item_runs:
+            defines["ITEM_RUNS"] = None
         if self.packet > 1:
             defines["PACKET"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
