@@ -1,0 +1,126 @@
+"""Tracing time of the working tree's kdray against an earlier commit's, in turns: the
+way to measure a change to the kernels or the Tracer on a machine whose speed drifts
+(+-10-20 % over minutes here, more than most changes).
+
+usage: python bench/ab_trace.py [--base HEAD] [--meshes bunny,bunny-1.6M] [--rounds 15]
+                                [--size 1024]
+
+The base commit's `kdray/` and `kernels/` are exported (git archive) into a temporary
+folder. For each mesh the working tree builds the tree once and saves it (tree file
+version 1, which both must read); then two worker processes, one per version, load
+it, make a Tracer and warm up. Each round asks each worker for three timed calls in
+turns, the order of the workers reversed every other round and every call 0.1 s
+after the one before: `render` (depth only), `render` (the default AOVs) and `trace`
+(numpy to numpy, the camera's 1024 x 1024 rays in row-major order). Separate
+processes, so each version has its own memory layout and OpenCL context. Prints each
+version's median times, the median of the rounds' ratios (working tree / base: < 1
+means faster) and whether the two gave bit-identical images and hits.
+"""
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path.insert(0, HERE)
+
+CALLS = ("render depth", "render default", "trace")
+
+
+def export_base(commit, folder):
+    """git archive `commit`'s kdray/ and kernels/ into folder; returns folder."""
+    archive = subprocess.run(["git", "-C", ROOT, "archive", commit, "kdray", "kernels"],
+                             check=True, capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", folder], input=archive, check=True)
+    return folder
+
+
+def worker(tree_path, size, out_path):
+    """Serve timed calls on stdin ("render depth", ...): print each one's seconds.
+    Writes the outputs of one call of each to out_path (npz) first."""
+    import kdray
+    tree = kdray.KdTree.load(tree_path)
+    lo, hi = tree.origin + tree.bounds.astype(np.float64)
+    camera = kdray.Camera.frame(lo, hi, size, size)
+    o, d = camera.rays()
+    tracer = kdray.Tracer(tree)
+    calls = {"render depth": lambda: tracer.render(camera, aovs=("depth",)),
+             "render default": lambda: tracer.render(camera),
+             "trace": lambda: tracer.trace(o, d)}
+    images = calls["render default"]()
+    hits = calls["trace"]()
+    calls["render depth"]()
+    np.savez(out_path, **{f"render {k}": v for k, v in images.items()},
+             **{f"trace {k}": getattr(hits, k) for k in ("t", "prim", "u", "v", "normal")})
+    print("ready", flush=True)
+    for line in sys.stdin:
+        t0 = time.perf_counter()
+        calls[line.strip()]()
+        print(time.perf_counter() - t0, flush=True)
+
+
+def compare(name, folder, base_root, rounds, size):
+    """Both versions on one mesh, in turns; prints the medians and ratios."""
+    import kdray
+    from kdray.bench import ROUND_ROBIN_PAUSE
+    from meshes import mesh as bench_mesh
+    m = bench_mesh(name)
+    tree_path = os.path.join(folder, f"{name}.kdtree")
+    kdray.build(m.vertices, m.faces).save(tree_path)
+    workers = {}
+    for who, root in (("base", base_root), ("work", ROOT)):
+        env = dict(os.environ, PYTHONPATH=root)
+        out = os.path.join(folder, f"{name}-{who}.npz")
+        p = subprocess.Popen([sys.executable, __file__, "--worker", tree_path, str(size), out],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+                             cwd=root)
+        if p.stdout.readline().strip() != "ready":
+            raise SystemExit(f"the {who} worker failed to start")
+        workers[who] = (p, out)
+    a, b = (np.load(workers[who][1]) for who in ("base", "work"))
+    same = sorted(a.files) == sorted(b.files) and all(
+        np.array_equal(a[k], b[k], equal_nan=True) for k in a.files)
+    seconds = {(who, c): [] for who in workers for c in CALLS}
+    for r in range(rounds):
+        for who in (("base", "work") if r % 2 == 0 else ("work", "base")):
+            p = workers[who][0]
+            for c in CALLS:
+                time.sleep(ROUND_ROBIN_PAUSE)
+                p.stdin.write(c + "\n")
+                p.stdin.flush()
+                seconds[who, c].append(float(p.stdout.readline()))
+    for p, _ in workers.values():
+        p.stdin.close()
+        p.wait()
+    for c in CALLS:
+        base, work = np.array(seconds["base", c]), np.array(seconds["work", c])
+        print(f"{name:<12} {c:<15} base {np.median(base):.4f} s, work {np.median(work):.4f} s, "
+              f"work / base {np.median(work / base):.3f} (median of {rounds} rounds)", flush=True)
+    print(f"{name:<12} outputs {'identical' if same else 'DIFFER'}", flush=True)
+
+
+def main():
+    if len(sys.argv) > 1 and sys.argv[1] == "--worker":
+        return worker(sys.argv[2], int(sys.argv[3]), sys.argv[4])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", default="HEAD", help="commit to compare with (default HEAD)")
+    ap.add_argument("--meshes", default="bunny,bunny-1.6M")
+    ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--size", type=int, default=1024)
+    args = ap.parse_args()
+    sys.path.insert(0, ROOT)
+    with tempfile.TemporaryDirectory() as tmp:
+        base_root = os.path.join(tmp, "base")
+        os.mkdir(base_root)
+        export_base(args.base, base_root)
+        for name in args.meshes.split(","):
+            compare(name, tmp, base_root, args.rounds, args.size)
+
+
+if __name__ == "__main__":
+    main()
