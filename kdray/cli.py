@@ -133,6 +133,8 @@ def _log_left_out(tree, tracer, n_culled, from_file, outputs):
     log.info("kernel outputs: %s; not computed: %s", ", ".join(outputs), ", ".join(skipped) or "none")
     log.info("stack size: %d entries (tree depth %d; default %d)", tracer.stack_size, tree.depth,
              default_stack_size(tree))
+    log.info("tree on the device: %.1f MiB (%d nodes, %d triangle copies)",
+             tracer.device_bytes / 2**20, len(tree.nodes), len(tree.leaf_tris))
     if tracer.packet > 1:
         log.info("packets of %d rays per work-item, packet stack %d entries", tracer.packet,
                  tracer.packet_stack_size)

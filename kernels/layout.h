@@ -7,11 +7,14 @@
  *                  bits 2-31: interior: above_child (node index; below child is i + 1)
  *                             leaf: n_prims (triangles listed in the leaf)
  *   data   uint32  interior: float32 bits of the split position (relative to the origin)
- *                  leaf: leaf_offset, first index into leaf_tris
+ *                  leaf: leaf_offset, its first triangle on the device
  *
- * Leaf triangle list: leaf_tris[leaf_offset .. leaf_offset + n_prims), uint32 indices
- * into the triangle array (9 float32 each: v0 xyz, v1 xyz, v2 xyz, relative to the
- * tree's origin); tri_ids[i] is triangle i's index in the input.
+ * Triangles on the device: one copy per leaf reference, in the tree's leaf_tris order,
+ * so that a leaf's triangles are tris[leaf_offset .. leaf_offset + n_prims) (9 float32
+ * each: v0 xyz, v1 xyz, v2 xyz, relative to the tree's origin), with no index list to
+ * read first; tri_ids[i] is copy i's triangle's index in the input (kdray/trace.py,
+ * device_triangles). A triangle in several leaves has several copies, alike bit for
+ * bit, so a hit does not depend on the copy found.
  */
 #ifndef KDRAY_LAYOUT_H
 #define KDRAY_LAYOUT_H
@@ -35,7 +38,7 @@ uint kd_leaf_offset(KdNode n) { return n.data; }
 typedef struct {
     float t;                             /* ray parameter, in units of |direction| */
     float u, v;                          /* weights of v1 and v2 */
-    uint tri;                            /* index into the tree's triangles, or KD_NO_HIT */
+    uint tri;                            /* index into the device's triangle copies, or KD_NO_HIT */
 } Hit;
 
 #endif

@@ -301,7 +301,7 @@ uint kd_count8(int8 m)
  * instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for gathering the
  * triangles. The pairs and their arithmetic are the same either way. */
 __attribute__((always_inline))
-void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const float *tris, __global const uint *tri_ids,
+void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
                     const KdPacket *r, int8 act, KdPacketHit *h KD_PSTATS_PARAM)
 {
     uint count = kd_n_prims(leaf);
@@ -319,7 +319,7 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
             KdU8 tri8;
             tri8.v = (uint8)(KD_NO_HIT);
             for (uint j = 0; j < m; j++) {
-                uint tri = leaf_tris[first + i0 + j];
+                uint tri = first + i0 + j;
                 __global const float *p = tris + 9 * (size_t)tri;
                 /* unrolled, LLVM gathers 4 triangles at a time into SSE vectors (as a
                  * loop it copied float by float): bunny-1.6M renders 0.86x the time */
@@ -345,7 +345,7 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
         return;
     }
     for (uint i = 0; i < count; i++) {
-        uint tri = leaf_tris[first + i];
+        uint tri = first + i;
         KD_PSTAT(z, act);
         kd_packet_intersect(r, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
                             kd_vertex(tris, tri, 2), tri, tri_ids, act, h);
@@ -356,7 +356,7 @@ void kd_packet_leaf(KdNode leaf, __global const uint *leaf_tris, __global const 
  * lane. Lanes that must be traced by the scalar kernel instead are or-ed into
  * *fallback (and their hit is left as it is). */
 void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
-                        __global const uint *leaf_tris, __global const float *tris, __global const uint *tri_ids,
+                        __global const float *tris, __global const uint *tri_ids,
                         const KdPacket *r, int8 act, float8 t_enter, float8 t_exit,
                         KdPacketHit *h, int8 *fallback KD_PSTATS_PARAM)
 {
@@ -440,7 +440,7 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
             if (++leaves > max_leaves)
                 return;
             KD_PSTAT(y, act);
-            kd_packet_leaf(n, leaf_tris, tris, tri_ids, r, act, h KD_PSTATS_ARG);
+            kd_packet_leaf(n, tris, tri_ids, r, act, h KD_PSTATS_ARG);
             /* lanes whose hit is final are done (traverse.cl, kd_hit_final) */
             live &= ~(act & (h->t < t_max_cur * (1.0f - KD_T_SLACK)));
         }
@@ -481,7 +481,7 @@ float8 kd_comp8(float8 x, float8 y, float8 z, int8 k)
  * t_min < t < t_max, as trace_ray gives them, for the lanes in `on`; bmin, bmax: the
  * scene box. Writes t (t_max on a miss), u, v (0 on a miss) and tri (KD_NO_HIT on a
  * miss) per lane, and with STATS per-lane counts. */
-void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uint *leaf_tris,
+void trace_packet(__global const KdNode *nodes, uint n_nodes, 
                   __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax, int8 on,
                   float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz,
                   float t_min, float t_max,
@@ -547,7 +547,7 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uin
     KdPacketStats *pstats = &ps;
 #endif
     if (kd_any8(on))
-        kd_packet_traverse(nodes, 2u * n_nodes + 2u, leaf_tris, tris, tri_ids, &r, on, t_enter, t_exit,
+        kd_packet_traverse(nodes, 2u * n_nodes + 2u, tris, tri_ids, &r, on, t_enter, t_exit,
                            &h, &fallback.v KD_PSTATS_ARG);
 
     KdF8 t_l, u_l, v_l;
@@ -571,11 +571,11 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes, __global const uin
             float3 d = (float3)(dxl.s[l], dyl.s[l], dzl.s[l]);
 #ifdef STATS
             uint4 more = (uint4)(0u);
-            trace_ray(nodes, n_nodes, leaf_tris, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit, &more);
+            trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit, &more);
             stat_x->s[l] += more.x; stat_y->s[l] += more.y;
             stat_z->s[l] += more.z; stat_w->s[l] += more.w;
 #else
-            trace_ray(nodes, n_nodes, leaf_tris, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit);
+            trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit);
 #endif
             t_l.s[l] = hit.t;
             u_l.s[l] = hit.u;

@@ -36,19 +36,17 @@
 #endif
 
 #define KD_TREE_ARGS                                                                     \
-    __global const KdNode *nodes, __global const uint *leaf_tris,                        \
-    __global const float *tris, __global const uint *tri_ids, __global const float *bounds, \
-    uint n_nodes
+    __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
+    __global const float *bounds, uint n_nodes
 
 #define KD_OUTPUT_ARGS                                                                   \
     __global float *out_t, __global float *out_uv, __global float *out_normal,           \
     __global uint *out_id, __global uint *out_stats
 
 #define KD_TREE_PARAMS                                                                   \
-    __global const KdNode *nodes, __global const uint *leaf_tris,                        \
-    __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax,   \
-    uint n_nodes
-#define KD_TREE_PASS nodes, leaf_tris, tris, tri_ids, bmin, bmax, n_nodes
+    __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
+    float3 bmin, float3 bmax, uint n_nodes
+#define KD_TREE_PASS nodes, tris, tri_ids, bmin, bmax, n_nodes
 #define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
 
 /* Write ray k's outputs: only those compiled in. */
@@ -90,11 +88,11 @@ void trace_packet_and_store(KdF8 ox, KdF8 oy, KdF8 oz, KdF8 dx, KdF8 dy, KdF8 dz
     KdU8 tri_l;
 #ifdef STATS
     KdU8 sx, sy, sz, sw;
-    trace_packet(nodes, n_nodes, leaf_tris, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
+    trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
                  &sx, &sy, &sz, &sw);
 #else
-    trace_packet(nodes, n_nodes, leaf_tris, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
+    trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
 #endif
     for (uint l = 0; l < KD_PACKET; l++) {
@@ -137,11 +135,11 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
     Hit hit;
 #ifdef STATS
     uint4 stats = (uint4)(0u);
-    trace_ray(nodes, n_nodes, leaf_tris, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit,
+    trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit,
               &stats);
     vstore4(stats, idx[0], out_stats);
 #else
-    trace_ray(nodes, n_nodes, leaf_tris, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit);
+    trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit);
 #endif
     store_hit(idx[0], &hit, tris, tri_ids, KD_OUTPUT_PASS);
 }

@@ -62,16 +62,16 @@ bool kd_slab(float o, float d, float lo, float hi, float *t0, float *t1)
     return true;
 }
 
-/* Test every triangle of a leaf, keeping the first hit with t_min < t < t_max in the
- * order (t, triangle index). */
-void kd_intersect_leaf(KdNode leaf, __global const uint *leaf_tris, __global const float *tris, __global const uint *tri_ids,
+/* Test every triangle of a leaf (the copies tris[leaf_offset ..], layout.h), keeping
+ * the first hit with t_min < t < t_max in the order (t, input id). */
+void kd_intersect_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
                        const RayShear *shear, float3 o, float t_min, float t_max,
                        Hit *hit KD_STATS_PARAM)
 {
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
     for (uint i = 0; i < count; i++) {
-        uint tri = leaf_tris[first + i];
+        uint tri = first + i;
         float t, u, v;
         KD_STAT(z);
         if (intersect_triangle(shear, o, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
@@ -107,7 +107,7 @@ bool kd_hit_final(float t_hit, float t_exit)
  * *in_plane. Returns when the nearest hit is certain or every leaf has been visited.
  * max_leaves: a bound no correct traversal reaches (each leaf once, plus one revisit
  * per restart), so that a corrupt tree cannot hang the device. */
-void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, __global const uint *leaf_tris,
+void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, 
                       __global const float *tris, __global const uint *tri_ids, const RayShear *shear,
                       float3 o, float3 d, float t_min, float t_max, float t_enter, float t_exit,
                       uint side, uint *in_plane, Hit *hit KD_STATS_PARAM)
@@ -197,7 +197,7 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, __global co
         } else {
             /* Leaf: test its triangles; a hit at or before the leaf's exit is final */
             KD_STAT(y);
-            kd_intersect_leaf(n, leaf_tris, tris, tri_ids, shear, o, t_min, t_max, hit KD_STATS_ARG);
+            kd_intersect_leaf(n, tris, tri_ids, shear, o, t_min, t_max, hit KD_STATS_ARG);
             last_leaf = node;
             if (kd_hit_final(hit->t, t_max_cur))
                 break;
@@ -230,7 +230,7 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, __global co
 /* Nearest hit of the ray o + t d with t_min < t < t_max, coordinates relative to the
  * tree's origin; bmin, bmax: the scene box; n_nodes: the tree's node count. Returns whether it hit; *hit holds the hit
  * (tri = KD_NO_HIT and t = t_max on a miss). */
-bool trace_ray(__global const KdNode *nodes, uint n_nodes, __global const uint *leaf_tris,
+bool trace_ray(__global const KdNode *nodes, uint n_nodes, 
                __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax,
                float3 o, float3 d, float t_min, float t_max, Hit *hit KD_STATS_PARAM)
 {
@@ -256,7 +256,7 @@ bool trace_ray(__global const KdNode *nodes, uint n_nodes, __global const uint *
     uint done = 1u;                      /* passes run, one bit per side mask */
     uint side = 0;
     for (;;) {
-        kd_traverse_pass(nodes, 2u * n_nodes + 2u, leaf_tris, tris, tri_ids, &shear, o, d, t_min, t_max,
+        kd_traverse_pass(nodes, 2u * n_nodes + 2u, tris, tri_ids, &shear, o, d, t_min, t_max,
                          t_enter, t_exit, side, &in_plane, hit KD_STATS_ARG);
         /* Next side mask made only of in-plane axes, not yet run */
         side = 0;

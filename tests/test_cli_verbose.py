@@ -36,7 +36,12 @@ def test_verbose_reports_outputs_stack_and_left_out(tmp_path):
                                "-o", tmp_path / "c.exr")
     assert code == 0, err
     mesh = kdray.load(scene)
-    depth = kdray.build(mesh.vertices, mesh.faces).depth
+    tree = kdray.build(mesh.vertices, mesh.faces)
+    depth = tree.depth
+    copies = len(tree.leaf_tris)
+    mib = (8 * len(tree.nodes) + 40 * copies) / 2**20
+    assert f"kdray: tree on the device: {mib:.1f} MiB ({len(tree.nodes)} nodes, {copies} triangle " \
+           f"copies)\n" in err
     assert "kdray: triangles left out as degenerate: 0 of 32\n" in err
     assert "kdray: kernel outputs: T, NORMAL; not computed: UV, ID\n" in err
     assert f"kdray: stack size: {depth + 1} entries (tree depth {depth}; default {depth + 1})\n" in err

@@ -3,11 +3,13 @@ shapes: a single leaf, median and random splits (tests/trees.py) and kdray.build
 trees. Hits must agree ray by ray; where they differ the difference must be a tie or a
 ray grazing an edge, checked in float64 on the triangles themselves."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 import trees
-from kdray import layout
+from kdray import layout, trace
 from kdray.errors import KdrayError
 from conftest import shared_mesh_arrays
 from kdray.reference import brute_force
@@ -477,12 +479,25 @@ def test_packets_equal_single_rays(kind, leaf):
         assert np.array_equal(ra[name], rb[name], equal_nan=True), name
 
 
+def reversed_leaves(tree):
+    """The same tree with every leaf's triangle list reversed (a valid tree, the same
+    hits): the device's copies of each leaf then come in the other order."""
+    leaf = layout.is_leaf(tree.nodes)
+    n = layout.n_prims(tree.nodes)[leaf].astype(np.int64)
+    off = layout.leaf_offset(tree.nodes)[leaf].astype(np.int64)
+    start, count = np.repeat(off, n), np.repeat(n, n)
+    at = start + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    leaf_tris = tree.leaf_tris.copy()
+    leaf_tris[at] = tree.leaf_tris[2 * start + count - 1 - at]
+    return dataclasses.replace(tree, leaf_tris=leaf_tris)
+
+
 @pytest.mark.parametrize("packet", [1, 8])
-def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet, monkeypatch):
-    """The device keeps triangles in leaf order (trace.leaf_order); a tie in t still goes
-    to the lowest input id, whatever that order: every triangle of the teapot twice
-    (coincident copies, ids i and i + m), traced with the device order reversed."""
-    import kdray.trace
+def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet):
+    """The device keeps a copy of each triangle per leaf, in the leaves' order
+    (trace.device_triangles); a tie in t still goes to the lowest input id, whatever
+    that order: every triangle of the teapot twice (coincident copies, ids i and i + m),
+    traced with every leaf's list reversed."""
     v, f = mesh("teapot.obj")
     m = len(f)
     tree = sah_tree(v, np.concatenate([f, f]))
@@ -490,11 +505,29 @@ def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet, monkeypatch)
     base = Tracer(tree, packet=packet).trace(o, d)
     assert np.count_nonzero(base.hit) > 0.2 * len(d)
     assert np.all(base.prim[base.hit] < m)
-    monkeypatch.setattr(kdray.trace, "leaf_order",
-                        lambda leaf_tris, n: np.arange(n, dtype=np.intp)[::-1].copy())
-    reversed_order = Tracer(tree, packet=packet).trace(o, d)
+    flipped = reversed_leaves(tree)
+    flipped.validate()
+    ids = [trace.device_triangles(t)[1].astype(np.int64) for t in (tree, flipped)]
+    for a, b in zip(ids, ids[1:]):      # the copy of i + m comes first where i came first
+        assert np.any((a[:-1] + m == a[1:]) & (b[:-1] == b[1:] + m))
+    reversed_order = Tracer(flipped, packet=packet).trace(o, d)
     for field in ("t", "prim", "u", "v", "normal"):
         assert np.array_equal(getattr(base, field), getattr(reversed_order, field)), field
+
+
+def test_device_triangles_are_each_leafs_run():
+    """device_triangles: leaf i's triangles are copies [leaf_offset, leaf_offset +
+    n_prims) of the tree's, with their input ids."""
+    v, f = mesh("teapot.obj")
+    tree = sah_tree(v, f)
+    tris, ids = trace.device_triangles(tree)
+    assert tris.dtype == np.float32 and ids.dtype == np.uint32
+    assert len(tris) == len(ids) == len(tree.leaf_tris) > len(tree.triangles)
+    leaf = layout.is_leaf(tree.nodes)
+    for n, off in zip(layout.n_prims(tree.nodes)[leaf], layout.leaf_offset(tree.nodes)[leaf]):
+        listed = tree.leaf_tris[off:off + n]
+        assert np.array_equal(tris[off:off + n], tree.triangles[listed])
+        assert np.array_equal(ids[off:off + n], tree.tri_ids[listed])
 
 
 @pytest.mark.parametrize("packet", [1, 8])
