@@ -386,7 +386,7 @@ def test_two_separated_triangles_are_split_apart():
     # triangle per side: C = 15 + 20 (P_L + P_R) = 15 + 20 (6/18 + 14/18) < 40 = 20 * 2.
     v = np.array([[0, 0, 0], [1, 1, 0], [0, 1, 1], [3, 0, 0], [4, 1, 0], [3, 1, 1]], float)
     f = np.array([[0, 1, 2], [3, 4, 5]])
-    tree = build(v, f, K_T=15.0, K_I=20.0)                # W&H's costs (the default K_T is 140)
+    tree = build(v, f, K_T=15.0, K_I=20.0)                # W&H's costs (the default K_T is 170)
     tree.validate()
     assert len(tree.nodes) == 3
     assert layout.split_axis(tree.nodes)[0] == 0
