@@ -12,7 +12,8 @@
  *
  * Options (-D): LOCAL_SIZE (work-group size, required), BATCH_SIZE (a multiple of it,
  * times 8 with PACKET), STACK_SIZE (see traverse.cl), TILE_W and TILE_H (render_camera's
- * tiles), ITEM_RUNS (trace_rays' work-items take runs of a batch; for CPU devices); PACKET: each work-item traces 8 rays as a float8 packet (packet.cl, with
+ * tiles), ITEM_RUNS (trace_rays' work-items take runs of a batch; for CPU devices);
+ * PACKET: each work-item traces 8 rays as a float8 packet (packet.cl, with
  * PACKET_STACK_SIZE; for CPU devices): 8 consecutive rays of trace_rays, a 4 x 2 block
  * of pixels of render_camera; else one ray. Outputs, each only when asked: OUT_T (t,
  * +inf on a miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on
