@@ -140,6 +140,8 @@ class Tracer:
     local_size, batch_size, groups : work-group size, rays a group takes at a time
         (a multiple of local_size * packet) and work-groups launched; defaults per
         device kind (`default_work_sizes`).
+
+    device_bytes : bytes of the tree on the device (`device_sizes`).
     """
 
     def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
@@ -205,8 +207,7 @@ class Tracer:
         outputs) more than its global memory."""
         name = self.device.name.strip()
         largest = int(self.device.max_mem_alloc_size)
-        refs = len(tree.leaf_tris)       # device_triangles: a copy per leaf reference
-        sizes = {"nodes": tree.nodes.nbytes, "triangles": 36 * refs, "triangle ids": 4 * refs}
+        sizes = device_sizes(tree)
         for what, nbytes in sizes.items():
             if nbytes > largest:
                 raise DeviceError(f"the tree's {what} ({nbytes / 2**20:.0f} MiB) do not fit in "
@@ -220,14 +221,12 @@ class Tracer:
     def _upload(self, tree):
         cl = _device._cl()
         self._check_fits(tree)
+        self.device_bytes = sum(device_sizes(tree).values())
         self._n_nodes = len(tree.nodes)
         self._nodes = self._buffer(np.asarray(tree.nodes, dtype=np.uint32).reshape(-1, 2))
         tris, tri_ids = device_triangles(tree)
         self._tris = self._buffer(tris.reshape(-1))
         self._tri_ids = self._buffer(tri_ids)
-        self.device_bytes = int(tree.nodes.nbytes + tris.nbytes + tri_ids.nbytes)
-        """Bytes of the tree on the device: nodes, a triangle copy and its id per leaf
-        reference (device_triangles)."""
         self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))
         self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)
         self._origin = np.asarray(tree.origin, dtype=np.float64)
@@ -494,13 +493,20 @@ _AOV_OUTPUT = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "no
                "id": "ID"}
 
 
+def device_sizes(tree):
+    """Bytes of each of the tree's device buffers: {"nodes", "triangles", "triangle
+    ids": int}, the last two with a copy per leaf reference (`device_triangles`)."""
+    refs = len(tree.leaf_tris)
+    return {"nodes": int(tree.nodes.nbytes), "triangles": 36 * refs, "triangle ids": 4 * refs}
+
+
 def device_triangles(tree):
     """The triangles as the kernels read them: (tris (n_refs, 3, 3) float32, tri_ids
     (n_refs,) uint32), one copy per entry of tree.leaf_tris, in that order, so that a
     leaf's triangles are tris[leaf_offset : leaf_offset + n_prims] (kernels/layout.h).
 
     A leaf is read in one run, with no index list to read first (bunny-1.6M: render
-    and trace in 0.95x the time), for 40 bytes a reference instead of 4 a reference
+    and trace in 0.95-0.97x the time), for 40 bytes a reference instead of 4 a reference
     and 40 a triangle (bunny-1.6M: 1.88 references a triangle, 120 MB instead of 77).
     The copies of a triangle are alike and keep its input id, so ties still go to the
     lowest input id (kd_before) and a hit does not depend on the copy found."""
