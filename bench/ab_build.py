@@ -39,11 +39,16 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 
 
-def export_base(commit, folder):
-    """git archive `commit`'s kdray/ into folder/kdray_base; returns folder."""
-    archive = subprocess.run(["git", "-C", ROOT, "archive", commit, "kdray"], check=True,
+def git_export(commit, folder, paths):
+    """git archive `commit`'s `paths` (folders of the repository) into folder."""
+    archive = subprocess.run(["git", "-C", ROOT, "archive", commit, *paths], check=True,
                              capture_output=True).stdout
     subprocess.run(["tar", "-x", "-C", folder], input=archive, check=True)
+
+
+def export_base(commit, folder):
+    """git archive `commit`'s kdray/ into folder/kdray_base; returns folder."""
+    git_export(commit, folder, ["kdray"])
     os.rename(os.path.join(folder, "kdray"), os.path.join(folder, "kdray_base"))
     return folder
 

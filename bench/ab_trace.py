@@ -2,11 +2,12 @@
 way to measure a change to the kernels or the Tracer on a machine whose speed drifts
 (+-10-20 % over minutes here, more than most changes).
 
-usage: python bench/ab_trace.py [--base HEAD] [--meshes bunny,bunny-1.6M] [--rounds 15]
-                                [--size 1024]
+usage: python bench/ab_trace.py [--base HEAD] [--work COMMIT] [--meshes bunny,bunny-1.6M]
+                                [--rounds 15] [--size 1024]
 
 The base commit's `kdray/` and `kernels/` are exported (git archive) into a temporary
-folder. For each mesh the working tree builds the tree once and saves it (tree file
+folder, and with --work another commit's too (so that a past change can be measured
+against its parent: --base C~1 --work C); without it "work" is the working tree. For each mesh the working tree builds the tree once and saves it (tree file
 version 1, which both must read); then two worker processes, one per version, load
 it, make a Tracer and warm up. Each round asks each worker for three timed calls in
 turns, the order of the workers reversed every other round and every call 0.1 s
@@ -28,16 +29,9 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
+from ab_build import git_export  # noqa: E402
 
 CALLS = ("render depth", "render default", "trace")
-
-
-def export_base(commit, folder):
-    """git archive `commit`'s kdray/ and kernels/ into folder; returns folder."""
-    archive = subprocess.run(["git", "-C", ROOT, "archive", commit, "kdray", "kernels"],
-                             check=True, capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", folder], input=archive, check=True)
-    return folder
 
 
 def worker(tree_path, size, out_path):
@@ -64,7 +58,7 @@ def worker(tree_path, size, out_path):
         print(time.perf_counter() - t0, flush=True)
 
 
-def compare(name, folder, base_root, rounds, size):
+def compare(name, folder, base_root, work_root, rounds, size):
     """Both versions on one mesh, in turns; prints the medians and ratios."""
     import kdray
     from kdray.bench import ROUND_ROBIN_PAUSE
@@ -73,7 +67,7 @@ def compare(name, folder, base_root, rounds, size):
     tree_path = os.path.join(folder, f"{name}.kdtree")
     kdray.build(m.vertices, m.faces).save(tree_path)
     workers = {}
-    for who, root in (("base", base_root), ("work", ROOT)):
+    for who, root in (("base", base_root), ("work", work_root)):
         env = dict(os.environ, PYTHONPATH=root)
         out = os.path.join(folder, f"{name}-{who}.npz")
         p = subprocess.Popen([sys.executable, __file__, "--worker", tree_path, str(size), out],
@@ -109,17 +103,22 @@ def main():
         return worker(sys.argv[2], int(sys.argv[3]), sys.argv[4])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", default="HEAD", help="commit to compare with (default HEAD)")
+    ap.add_argument("--work", default=None, help="commit to measure (default: the working tree)")
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")
     ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--size", type=int, default=1024)
     args = ap.parse_args()
     sys.path.insert(0, ROOT)
     with tempfile.TemporaryDirectory() as tmp:
-        base_root = os.path.join(tmp, "base")
-        os.mkdir(base_root)
-        export_base(args.base, base_root)
+        roots = {}
+        for who, commit in (("base", args.base), ("work", args.work)):
+            roots[who] = ROOT
+            if commit is not None:
+                roots[who] = os.path.join(tmp, who)
+                os.mkdir(roots[who])
+                git_export(commit, roots[who], ["kdray", "kernels"])
         for name in args.meshes.split(","):
-            compare(name, tmp, base_root, args.rounds, args.size)
+            compare(name, tmp, roots["base"], roots["work"], args.rounds, args.size)
 
 
 if __name__ == "__main__":
