@@ -179,7 +179,7 @@ class Tracer:
         # the kernel's rule; tests set 0 (triangle by triangle) or inf (ray by ray)
         self._lane_ratio = None
         # trace_rays: each work-item takes a run of its group's batch (render.cl,
-        # ITEM_RUNS) on CPUs, where a group's work-items run one after another; on
+        # item_runs) on CPUs, where a group's work-items run one after another; on
         # GPUs every local_size-th packet, for coalesced reads. Tests set both.
         self._item_runs = _device.is_cpu(self.device)
         # A CPU device works on host memory: buffers over numpy arrays need no copies
@@ -242,8 +242,6 @@ class Tracer:
             defines["RAYS_DOUBLE"] = None
             for axis, value in zip("XYZ", self._origin):
                 defines[f"KD_ORIGIN_{axis}"] = f"({float(value).hex()})"
-        if self._item_runs:
-            defines["ITEM_RUNS"] = None
         if self.packet > 1:
             defines["PACKET"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
@@ -392,7 +390,7 @@ class Tracer:
             d_buf = self._input_buffer(d[start:stop])
             self._launch("trace_rays", ("T", "UV", "NORMAL", "ID"), stop - start,
                          (o_buf, d_buf, np.uint32(o_step), np.uint32(stop - start),
-                          np.float32(t_min), np.float32(t_max)),
+                          np.float32(t_min), np.float32(t_max), np.uint32(self._item_runs)),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
                          rays_double=rays_double)
         # u and v are views of the kernel's interleaved (N, 2) output: no copies

@@ -12,8 +12,7 @@
  *
  * Options (-D): LOCAL_SIZE (work-group size, required), BATCH_SIZE (a multiple of it,
  * times 8 with PACKET), STACK_SIZE (see traverse.cl), TILE_W and TILE_H (render_camera's
- * tiles), ITEM_RUNS (trace_rays' work-items take runs of a batch; for CPU devices);
- * PACKET: each work-item traces 8 rays as a float8 packet (packet.cl, with
+ * tiles); PACKET: each work-item traces 8 rays as a float8 packet (packet.cl, with
  * PACKET_STACK_SIZE; for CPU devices): 8 consecutive rays of trace_rays, a 4 x 2 block
  * of pixels of render_camera; else one ray. Outputs, each only when asked: OUT_T (t,
  * +inf on a miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on
@@ -183,37 +182,34 @@ float3 kd_ray_origin(__global const float *p, size_t i) { return kd_load3(p, i);
 float3 kd_ray_direction(__global const float *p, size_t i) { return kd_load3(p, i); }
 #endif
 
-/* The slots of a batch a work-item takes: with ITEM_RUNS (CPU devices) one run of
- * BATCH_SIZE / LOCAL_SIZE in a row, so that a group, whose work-items PoCL runs one
- * after another, reads its rays and writes their outputs in order (in turns: the
- * bunny's trace takes 0.70x the time, bunny-1.6M's 0.88x); else every LOCAL_SIZE-th
- * packet, so that neighbouring work-items read neighbouring rays (coalesced on a GPU). */
-#ifdef ITEM_RUNS
-#define KD_ITEM_FIRST (get_local_id(0) * (BATCH_SIZE / LOCAL_SIZE))
-#define KD_ITEM_END ((get_local_id(0) + 1u) * (BATCH_SIZE / LOCAL_SIZE))
-#define KD_ITEM_STEP KD_RAYS_PER_ITEM
-#else
-#define KD_ITEM_FIRST (get_local_id(0) * KD_RAYS_PER_ITEM)
-#define KD_ITEM_END BATCH_SIZE
-#define KD_ITEM_STEP (LOCAL_SIZE * KD_RAYS_PER_ITEM)
-#endif
-
 /* Nearest hits of n_rays rays: origin k * o_step (o_step 1, or 0 for one origin shared
- * by all rays) and direction k of each ray k. */
+ * by all rays) and direction k of each ray k.
+ *
+ * The slots of a batch a work-item takes: with item_runs (CPU devices) one run of
+ * BATCH_SIZE / LOCAL_SIZE in a row, so that a group, whose work-items PoCL runs one
+ * after another, reads its rays and writes their outputs in order (bunny-1.6M's trace
+ * 0.89x the time, the bunny's 0.77x); else every LOCAL_SIZE-th packet, so that
+ * neighbouring work-items read neighbouring rays (coalesced on a GPU). A kernel
+ * argument, not a -D option, so that one program serves both and render_camera is
+ * compiled the same either way. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
 void trace_rays(KD_TREE_ARGS,
                 __global const KD_RAY_T *origins, __global const KD_RAY_T *directions,
-                uint o_step, uint n_rays, float t_min, float t_max,
+                uint o_step, uint n_rays, float t_min, float t_max, uint item_runs,
                 __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
     float3 bmin = vload3(0, bounds);
     float3 bmax = vload3(1, bounds);
+    uint run = BATCH_SIZE / LOCAL_SIZE;
+    uint first = get_local_id(0) * (item_runs ? run : KD_RAYS_PER_ITEM);
+    uint end = item_runs ? first + run : BATCH_SIZE;
+    uint step = item_runs ? KD_RAYS_PER_ITEM : LOCAL_SIZE * KD_RAYS_PER_ITEM;
     __local uint batch;
     for (;;) {
         uint start = fetch_batch(&batch, counter);
         if (start >= n_rays)             /* the same for the whole group */
             break;
-        for (uint j = KD_ITEM_FIRST; j < KD_ITEM_END; j += KD_ITEM_STEP) {
+        for (uint j = first; j < end; j += step) {
             uint k0 = start + j;
             if (k0 >= n_rays)
                 break;
