@@ -19,6 +19,8 @@
 #ifndef KDRAY_LAYOUT_H
 #define KDRAY_LAYOUT_H
 
+#include "inline.h"
+
 #define KD_LEAF 3u
 #define KD_NO_HIT 0xFFFFFFFFu          /* id written on a miss */
 
@@ -27,12 +29,12 @@ typedef struct __attribute__((aligned(8))) {
     uint data;                           /* 4 bytes: split (float bits) or leaf_offset */
 } KdNode;                                /* 8 bytes */
 
-uint kd_split_axis(KdNode n) { return n.flags & 3u; }
-bool kd_is_leaf(KdNode n) { return (n.flags & 3u) == KD_LEAF; }
-uint kd_above_child(KdNode n) { return n.flags >> 2; }
-uint kd_n_prims(KdNode n) { return n.flags >> 2; }
-float kd_split(KdNode n) { return as_float(n.data); }
-uint kd_leaf_offset(KdNode n) { return n.data; }
+KD_INLINE uint kd_split_axis(KdNode n) { return n.flags & 3u; }
+KD_INLINE bool kd_is_leaf(KdNode n) { return (n.flags & 3u) == KD_LEAF; }
+KD_INLINE uint kd_above_child(KdNode n) { return n.flags >> 2; }
+KD_INLINE uint kd_n_prims(KdNode n) { return n.flags >> 2; }
+KD_INLINE float kd_split(KdNode n) { return as_float(n.data); }
+KD_INLINE uint kd_leaf_offset(KdNode n) { return n.data; }
 
 /* The nearest hit found so far; private to a work-item, never stored as a struct. */
 typedef struct {

@@ -11,24 +11,30 @@
 #ifndef KDRAY_OPS_H
 #define KDRAY_OPS_H
 
-float kd_abs(float x) { return as_float(as_uint(x) & 0x7FFFFFFFu); }
-float kd_max(float a, float b) { return a > b ? a : b; }
-float kd_min(float a, float b) { return a < b ? a : b; }
+#include "inline.h"
+
+KD_INLINE float kd_abs(float x) { return as_float(as_uint(x) & 0x7FFFFFFFu); }
+KD_INLINE float kd_max(float a, float b) { return a > b ? a : b; }
+KD_INLINE float kd_min(float a, float b) { return a < b ? a : b; }
 /* min(max(x, lo), hi) */
-float kd_clamp(float x, float lo, float hi) { return kd_min(kd_max(x, lo), hi); }
-bool kd_isnan(float x) { return x != x; }
+KD_INLINE float kd_clamp(float x, float lo, float hi) { return kd_min(kd_max(x, lo), hi); }
+KD_INLINE bool kd_isnan(float x) { return x != x; }
 /* no component is infinite or NaN (x - x is 0 only for finite x) */
+KD_INLINE
 bool kd_finite3(float3 v) { return v.x - v.x == 0.0f && v.y - v.y == 0.0f && v.z - v.z == 0.0f; }
 
-float8 kd_abs8(float8 x) { return as_float8(as_uint8(x) & (uint8)(0x7FFFFFFFu)); }
+KD_INLINE float8 kd_abs8(float8 x) { return as_float8(as_uint8(x) & (uint8)(0x7FFFFFFFu)); }
 /* lanes of b where mask m is set, else of a (select(a, b, m)) */
+KD_INLINE
 float8 kd_select8(float8 a, float8 b, int8 m) { return as_float8((as_int8(a) & ~m) | (as_int8(b) & m)); }
-int8 kd_select8i(int8 a, int8 b, int8 m) { return (a & ~m) | (b & m); }
+KD_INLINE int8 kd_select8i(int8 a, int8 b, int8 m) { return (a & ~m) | (b & m); }
+KD_INLINE
 uint8 kd_select8u(uint8 a, uint8 b, int8 m) { return (a & ~as_uint8(m)) | (b & as_uint8(m)); }
-float8 kd_max8(float8 a, float8 b) { return kd_select8(b, a, a > b); }
-float8 kd_min8(float8 a, float8 b) { return kd_select8(b, a, a < b); }
-float8 kd_clamp8(float8 x, float8 lo, float8 hi) { return kd_min8(kd_max8(x, lo), hi); }
+KD_INLINE float8 kd_max8(float8 a, float8 b) { return kd_select8(b, a, a > b); }
+KD_INLINE float8 kd_min8(float8 a, float8 b) { return kd_select8(b, a, a < b); }
+KD_INLINE float8 kd_clamp8(float8 x, float8 lo, float8 hi) { return kd_min8(kd_max8(x, lo), hi); }
 /* some lane of mask m is set */
+KD_INLINE
 bool kd_any8(int8 m)
 {
     int4 a = m.lo | m.hi;
@@ -36,6 +42,7 @@ bool kd_any8(int8 m)
     return (b.x | b.y) != 0;
 }
 
+KD_INLINE
 float3 kd_cross(float3 a, float3 b)
 {
     return (float3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
@@ -43,6 +50,7 @@ float3 kd_cross(float3 a, float3 b)
 
 /* v / |v| for v != 0, scaled by its largest component first so that tiny and huge
  * vectors neither underflow nor overflow (as normalize() does) */
+KD_INLINE
 float3 kd_normalize(float3 v)
 {
     float m = kd_max(kd_abs(v.x), kd_max(kd_abs(v.y), kd_abs(v.z)));
@@ -51,6 +59,7 @@ float3 kd_normalize(float3 v)
 }
 
 /* Element i of an array of 3-float rows (vload3(i, p)) */
+KD_INLINE
 float3 kd_load3(__global const float *p, size_t i)
 {
     p += 3 * i;
@@ -58,6 +67,7 @@ float3 kd_load3(__global const float *p, size_t i)
 }
 
 /* Triangle i's vertices from 9 floats each, without vload3 */
+KD_INLINE
 float3 kd_vertex(__global const float *tris, uint i, uint k)
 {
     __global const float *p = tris + 9 * (size_t)i + 3 * k;

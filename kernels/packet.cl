@@ -80,6 +80,7 @@ typedef struct {
 } KdPairs;
 
 /* Lane l's shear and origin. */
+KD_INLINE
 void kd_lane_shear(const KdPacket *r, uint l, RayShear *s, float3 *o)
 {
     KdI8 kx, ky, kz;
@@ -98,7 +99,7 @@ void kd_lane_shear(const KdPacket *r, uint l, RayShear *s, float3 *o)
  * (best_t, best_tri), the triangle's index tri8 (tri_ids: input ids, for ties).
  * Returns the lanes that hit before their best, with t, V, W and det (u = V / det,
  * v = W / det). */
-__attribute__((always_inline))  /* a call passes its vectors through memory */
+KD_INLINE  /* a call would pass its vectors through memory */
 int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, float8 P1z,
                    float8 P2x, float8 P2y, float8 P2z,
                    float8 okx, float8 oky, float8 okz, float8 Sx, float8 Sy, float8 Sz,
@@ -199,6 +200,7 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
 }
 
 /* Component k of p for each lane (k per lane: 0, 1, 2). */
+KD_INLINE
 float8 kd_pick8(float3 p, int8 k)
 {
     return kd_select8(kd_select8((float8)(p.x), (float8)(p.y), k == 1), (float8)(p.z), k == 2);
@@ -206,7 +208,7 @@ float8 kd_pick8(float3 p, int8 k)
 
 /* Every lane in `act` against triangle `tri` (p0, p1, p2); lanes where it hits before
  * their best hit take it. */
-__attribute__((always_inline))
+KD_INLINE
 void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uint tri,
                          __global const uint *tri_ids, int8 act, KdPacketHit *h)
 {
@@ -242,7 +244,7 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
 /* Lane l's ray against up to 8 triangles at once, the lanes of q in `valid` (indices
  * tri8): the pairs and arithmetic of kd_packet_intersect with rays and triangles
  * swapped. Lane l of h takes the first hit in the order (t, index). */
-__attribute__((always_inline))
+KD_INLINE
 void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int8 valid,
                        __global const uint *tri_ids, KdPacketHit *h)
 {
@@ -283,6 +285,7 @@ void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int
 }
 
 /* The number of lanes set in mask m. */
+KD_INLINE
 uint kd_count8(int8 m)
 {
     uint8 b = as_uint8(m) >> 31;
@@ -300,7 +303,7 @@ uint kd_count8(int8 m)
  * tested ray by ray against 8 triangles at a time: a * ceil(n / 8) tests of 8 lanes
  * instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for gathering the
  * triangles. The pairs and their arithmetic are the same either way. */
-__attribute__((always_inline))
+KD_INLINE
 void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
                     const KdPacket *r, int8 act, KdPacketHit *h KD_PSTATS_PARAM)
 {
@@ -353,6 +356,7 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
 /* Front-to-back traversal of the packet's lanes in `act` over [t_enter, t_exit] per
  * lane. Lanes that must be traced by the scalar kernel instead are or-ed into
  * *fallback (and their hit is left as it is). */
+KD_INLINE
 void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
                         __global const float *tris, __global const uint *tri_ids,
                         const KdPacket *r, int8 act, float8 t_enter, float8 t_exit,
@@ -459,6 +463,7 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
 
 /* One axis of trace_ray's box clip (kd_slab) for every lane: t0, t1 narrowed where d
  * is not zero; returns the lanes still inside. */
+KD_INLINE
 int8 kd_slab8(float8 o, float8 d, float lo, float hi, float8 *t0, float8 *t1)
 {
     int8 flat = d == 0.0f;
@@ -470,6 +475,7 @@ int8 kd_slab8(float8 o, float8 d, float lo, float hi, float8 *t0, float8 *t1)
 }
 
 /* Component k (per lane: 0, 1, 2) of the vector (x, y, z) per lane. */
+KD_INLINE
 float8 kd_comp8(float8 x, float8 y, float8 z, int8 k)
 {
     return kd_select8(kd_select8(x, y, k == 1), z, k == 2);
@@ -479,6 +485,7 @@ float8 kd_comp8(float8 x, float8 y, float8 z, int8 k)
  * t_min < t < t_max, as trace_ray gives them, for the lanes in `on`; bmin, bmax: the
  * scene box. Writes t (t_max on a miss), u, v (0 on a miss) and tri (KD_NO_HIT on a
  * miss) per lane, and with STATS per-lane counts. */
+KD_INLINE
 void trace_packet(__global const KdNode *nodes, uint n_nodes,
                   __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax, int8 on,
                   float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz,

@@ -50,6 +50,7 @@
 #define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
 
 /* Write ray k's outputs: only those compiled in. */
+KD_INLINE
 void store_hit(uint k, const Hit *hit, __global const float *tris, __global const uint *tri_ids,
                KD_OUTPUT_ARGS)
 {
@@ -80,6 +81,7 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
 #ifdef PACKET
 /* Trace the packet of rays (ox, oy, oz) + t (dx, dy, dz) and store the outputs of each
  * lane l in `on` at index idx[l]. */
+KD_INLINE
 void trace_packet_and_store(KdF8 ox, KdF8 oy, KdF8 oz, KdF8 dx, KdF8 dy, KdF8 dz, KdI8 on,
                             float t_min, float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS,
                             const uint *idx)
@@ -112,6 +114,7 @@ void trace_packet_and_store(KdF8 ox, KdF8 oy, KdF8 oz, KdF8 dx, KdF8 dy, KdF8 dz
 
 /* Trace rays o[l] + t d[l], l < count <= KD_PACKET, as one packet and store ray l's
  * outputs at index idx[l]. */
+KD_INLINE
 void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
                      float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx)
 {
@@ -129,6 +132,7 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
 #define KD_RAYS_PER_ITEM KD_PACKET
 #else
 /* Trace ray o[0] + t d[0] (count = 1) and store its outputs at index idx[0]. */
+KD_INLINE
 void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
                      float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx)
 {
@@ -149,6 +153,7 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
 /* The first ray of the group's next batch. Work-item 0 takes BATCH_SIZE rays from the
  * global counter; every work-item of the group must call this the same number of
  * times (the barriers are in uniform control flow). */
+KD_INLINE
 uint fetch_batch(__local uint *slot, __global volatile uint *counter)
 {
     if (get_local_id(0) == 0)
@@ -165,12 +170,14 @@ uint fetch_batch(__local uint *slot, __global volatile uint *counter)
  * rounding to nearest (KD_ORIGIN_X, _Y, _Z: the tree's origin, exact double literals). */
 #ifdef RAYS_DOUBLE
 #define KD_RAY_T double
+KD_INLINE
 float3 kd_ray_origin(__global const double *p, size_t i)
 {
     p += 3 * i;
     return (float3)((float)(p[0] - KD_ORIGIN_X), (float)(p[1] - KD_ORIGIN_Y),
                     (float)(p[2] - KD_ORIGIN_Z));
 }
+KD_INLINE
 float3 kd_ray_direction(__global const double *p, size_t i)
 {
     p += 3 * i;
@@ -178,8 +185,8 @@ float3 kd_ray_direction(__global const double *p, size_t i)
 }
 #else
 #define KD_RAY_T float
-float3 kd_ray_origin(__global const float *p, size_t i) { return kd_load3(p, i); }
-float3 kd_ray_direction(__global const float *p, size_t i) { return kd_load3(p, i); }
+KD_INLINE float3 kd_ray_origin(__global const float *p, size_t i) { return kd_load3(p, i); }
+KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd_load3(p, i); }
 #endif
 
 /* Nearest hits of n_rays rays: origin k * o_step (o_step 1, or 0 for one origin shared

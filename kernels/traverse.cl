@@ -51,6 +51,7 @@
 /* Clip [t0, t1] to one slab of a box. A ray parallel to the slab (d = +-0) is inside
  * it or not: it never computes 0 / 0. Divides like the split planes do, so a plane
  * and a box face through one point give the same t. Returns false on a miss. */
+KD_INLINE
 bool kd_slab(float o, float d, float lo, float hi, float *t0, float *t1)
 {
     if (d == 0.0f)
@@ -64,6 +65,7 @@ bool kd_slab(float o, float d, float lo, float hi, float *t0, float *t1)
 
 /* Test every triangle of a leaf (the copies tris[leaf_offset ..], layout.h), keeping
  * the first hit with t_min < t < t_max in the order (t, input id). */
+KD_INLINE
 void kd_intersect_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
                        const RayShear *shear, float3 o, float t_min, float t_max,
                        Hit *hit KD_STATS_PARAM)
@@ -97,6 +99,7 @@ void kd_intersect_leaf(KdNode leaf, __global const float *tris, __global const u
  * every leaf after it in the order starts at a plane crossed at t_exit or later (as
  * rounded, within the slack), so it cannot hold a nearer hit, nor one as near with a
  * lower index (a hit exactly on the plane is looked for on the other side too). */
+KD_INLINE
 bool kd_hit_final(float t_hit, float t_exit)
 {
     return t_hit < t_exit * (1.0f - KD_T_SLACK);
@@ -107,6 +110,7 @@ bool kd_hit_final(float t_hit, float t_exit)
  * *in_plane. Returns when the nearest hit is certain or every leaf has been visited.
  * max_leaves: a bound no correct traversal reaches (each leaf once, plus one revisit
  * per restart), so that a corrupt tree cannot hang the device. */
+KD_INLINE
 void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves, 
                       __global const float *tris, __global const uint *tri_ids, const RayShear *shear,
                       float3 o, float3 d, float t_min, float t_max, float t_enter, float t_exit,
@@ -230,6 +234,7 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves,
 /* Nearest hit of the ray o + t d with t_min < t < t_max, coordinates relative to the
  * tree's origin; bmin, bmax: the scene box; n_nodes: the tree's node count. Returns whether it hit; *hit holds the hit
  * (tri = KD_NO_HIT and t = t_max on a miss). */
+KD_INLINE
 bool trace_ray(__global const KdNode *nodes, uint n_nodes, 
                __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax,
                float3 o, float3 d, float t_min, float t_max, Hit *hit KD_STATS_PARAM)

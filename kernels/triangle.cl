@@ -30,7 +30,7 @@
 #define KD_GAMMA(n) ((float)(n) * 0x1p-24f / (1.0f - (float)(n) * 0x1p-24f))
 
 /* Component k (0, 1, 2) of v, without indexing a private array. */
-float kd_comp(float3 v, uint k) { return k == 0u ? v.x : (k == 1u ? v.y : v.z); }
+KD_INLINE float kd_comp(float3 v, uint k) { return k == 0u ? v.x : (k == 1u ? v.y : v.z); }
 
 /* Per-ray constants of the shear. */
 typedef struct {
@@ -38,6 +38,7 @@ typedef struct {
     float Sx, Sy, Sz;                    /* d[kx] / d[kz], d[ky] / d[kz], 1 / d[kz] */
 } RayShear;
 
+KD_INLINE
 RayShear ray_shear(float3 d)
 {
     RayShear s;
@@ -83,11 +84,12 @@ RayShear ray_shear(float3 d)
 #ifdef cl_khr_fp64
 #define KD_GAMMA_D(n) ((double)(n) * 0x1p-53 / (1.0 - (double)(n) * 0x1p-53))
 
-double kd_comp_d(double3 v, uint k) { return k == 0u ? v.x : (k == 1u ? v.y : v.z); }
+KD_INLINE double kd_comp_d(double3 v, uint k) { return k == 0u ? v.x : (k == 1u ? v.y : v.z); }
 
 /* The test's t recomputed in double from the same float inputs (the ray's shear
  * constants taken as exact), with the same error bound in double's unit roundoff:
  * true when t > bound, i.e. t is certainly positive. */
+KD_INLINE
 bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2)
 {
     double3 od = convert_double3(o);
@@ -111,6 +113,7 @@ bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, fl
 
 /* (t, tri) comes before (t_best, tri_best): nearer, or as near with a lower input id
  * (tri_ids: the device's triangle order is the tree's leaf order, not the input's). */
+KD_INLINE
 bool kd_before(float t, uint tri, float t_best, uint tri_best, __global const uint *tri_ids)
 {
     return t < t_best || (t == t_best && tri_ids[tri] < tri_ids[tri_best]);
@@ -119,6 +122,7 @@ bool kd_before(float t, uint tri, float t_best, uint tri_best, __global const ui
 /* Intersect the ray (o, shear) with triangle `tri` (p0, p1, p2), all relative to the
  * tree's origin. On a hit with t_min < t < t_max that comes before (t_best,
  * tri_best), write t, u, v and return true. */
+KD_INLINE
 bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2, uint tri,
                         float t_min, float t_max, float t_best, uint tri_best,
                         __global const uint *tri_ids, float *t_out, float *u_out, float *v_out)
