@@ -43,8 +43,9 @@ AOVS = ("depth", "distance", "normal", "bary", "id", "position")
 DEFAULT_AOVS = ("depth", "normal", "bary", "id")
 
 MAX_RAYS_PER_LAUNCH = 1 << 22
-"""Rays per kernel launch: bounds device memory per launch (at most 52 bytes a ray,
-about 220 MB) and keeps the 32-bit batch counter far from overflow."""
+"""Rays per kernel launch at most: keeps the 32-bit batch counter far from overflow and
+a launch's buffers (at most 92 bytes a ray) near 400 MB. Smaller devices take fewer
+rays a launch (`rays_per_launch`)."""
 
 _CONVERT_CHUNK = 1 << 18
 """Rays per chunk when `trace` converts large ray arrays to float32 on threads."""
@@ -85,9 +86,17 @@ class Hits:
                     self.normal[index])
 
 
+STACK_SIZES = (8, 16, 32, MAX_DEPTH_LIMIT)
+"""The stack sizes a Tracer compiles by default: every tree whose depth + 1 fits in one
+of them shares its program (a program build takes seconds on some runtimes), for at
+most twice the private memory a ray needs."""
+
+
 def default_stack_size(tree):
-    """tree.depth + 1 entries (a ray never needs more), at least 1, at most 64."""
-    return int(min(max(int(tree.depth) + 1, 1), MAX_DEPTH_LIMIT))
+    """The smallest of STACK_SIZES that holds tree.depth + 1 entries (a ray never needs
+    more): 8, 16, 32 or 64."""
+    need = int(tree.depth) + 1
+    return next((size for size in STACK_SIZES if size >= need), MAX_DEPTH_LIMIT)
 
 
 PACKET = 8
@@ -203,8 +212,9 @@ class Tracer:
 
     def _check_fits(self, tree):
         """DeviceError when the tree cannot live on the device: one buffer larger than
-        the device's largest allocation, or all of them (plus a launch's rays and
-        outputs) more than its global memory."""
+        the device's largest allocation, or all of them with one ray's launch buffers
+        more than its global memory. Launches are sized to what is left
+        (`_launch_size`)."""
         name = self.device.name.strip()
         largest = int(self.device.max_mem_alloc_size)
         sizes = device_sizes(tree)
@@ -212,11 +222,23 @@ class Tracer:
             if nbytes > largest:
                 raise DeviceError(f"the tree's {what} ({nbytes / 2**20:.0f} MiB) do not fit in "
                                   f"one buffer on {name} (at most {largest / 2**20:.0f} MiB)")
-        need = sum(sizes.values()) + MAX_RAYS_PER_LAUNCH * 52
+        need = sum(sizes.values()) + max(_RAY_BYTES.values())
         have = int(self.device.global_mem_size)
         if need > have:
-            raise DeviceError(f"the tree and a launch's rays need {need / 2**20:.0f} MiB on {name}, "
+            raise DeviceError(f"the tree needs {need / 2**20:.0f} MiB on {name}, "
                               f"which has {have / 2**20:.0f} MiB")
+
+    def _launch_size(self, widths, what="ray", cap=None):
+        """Rays (or rows of pixels) a launch takes: `rays_per_launch` for this device and
+        tree. widths: bytes per ray (row) of each of the launch's buffers. DeviceError
+        when not even one `what` fits."""
+        n = rays_per_launch(int(self.device.global_mem_size), int(self.device.max_mem_alloc_size),
+                            self.device_bytes, widths, cap)
+        if n < 1:
+            raise DeviceError(f"one {what}'s buffers ({sum(widths)} bytes) do not fit beside the "
+                              f"tree ({self.device_bytes / 2**20:.0f} MiB) on "
+                              f"{self.device.name.strip()}")
+        return n
 
     def _upload(self, tree):
         cl = _device._cl()
@@ -240,8 +262,6 @@ class Tracer:
                    "TILE_H": RENDER_TILE[1]}
         if rays_double:
             defines["RAYS_DOUBLE"] = None
-            for axis, value in zip("XYZ", self._origin):
-                defines[f"KD_ORIGIN_{axis}"] = f"({float(value).hex()})"
         if self.packet > 1:
             defines["PACKET"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
@@ -384,13 +404,19 @@ class Tracer:
                "NORMAL": np.empty((n, 3), np.float32), "ID": np.empty(n, np.uint32)}
         if stats:
             out["STATS"] = np.empty((n, 4), np.uint32)
-        for start in range(0, n, MAX_RAYS_PER_LAUNCH):
-            stop = min(n, start + MAX_RAYS_PER_LAUNCH)
+        ray_t = _RAY_BYTES["double" if rays_double else "float"]
+        widths = [ray_t] * (1 + o_step) + [_OUTPUT_WIDTH[k][0] * 4 for k in out]
+        per_launch = self._launch_size(widths)
+        for start in range(0, n, per_launch):
+            stop = min(n, start + per_launch)
             o_buf = self._input_buffer(o[start:stop] if o_step else o)
             d_buf = self._input_buffer(d[start:stop])
+            # with double rays the kernel takes the tree's origin and shifts them itself
+            origin = tuple(np.float64(x) for x in self._origin) if rays_double else ()
             self._launch("trace_rays", ("T", "UV", "NORMAL", "ID"), stop - start,
                          (o_buf, d_buf, np.uint32(o_step), np.uint32(stop - start),
-                          np.float32(t_min), np.float32(t_max), np.uint32(self._item_runs)),
+                          np.float32(t_min), np.float32(t_max), np.uint32(self._item_runs),
+                          *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
                          rays_double=rays_double)
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
@@ -448,8 +474,11 @@ class Tracer:
         out = {k: np.empty(shapes[k], _OUTPUT_WIDTH[k][1]) for k in outputs}
         M, eye = self._camera_constants(camera)
         camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]).astype(np.float32))
-        # launches of whole rows, MAX_RAYS_PER_LAUNCH pixels or one row at most
-        rows_per_launch = max(1, MAX_RAYS_PER_LAUNCH // w)
+        # launches of whole rows: as many as fit on the device, MAX_RAYS_PER_LAUNCH
+        # pixels or one row at most
+        rows_per_launch = self._launch_size([w * _OUTPUT_WIDTH[k][0] * 4 for k in outputs],
+                                            what=f"row of {w} pixels",
+                                            cap=max(1, MAX_RAYS_PER_LAUNCH // w))
         for row0 in range(0, h, rows_per_launch):
             n_rows = min(h - row0, rows_per_launch)
             start, stop = row0 * w, (row0 + n_rows) * w
@@ -489,6 +518,22 @@ class Tracer:
 
 _AOV_OUTPUT = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "normal": "NORMAL",
                "id": "ID"}
+
+
+_RAY_BYTES = {"float": 12, "double": 24}
+"""Bytes of a ray's origin or direction as trace_rays reads it."""
+
+
+def rays_per_launch(global_mem, max_alloc, tree_bytes, widths, cap=None):
+    """How many rays a launch takes: at most `cap` (default MAX_RAYS_PER_LAUNCH), and
+    so many that the tree's buffers (tree_bytes) and the launch's (widths: bytes per
+    ray of each buffer, a list of ints) fit in global_mem, and each launch buffer in
+    max_alloc (the device's largest allocation). 0 when not one ray fits. A "ray" may
+    be a row of pixels: widths and cap are then per row."""
+    cap = MAX_RAYS_PER_LAUNCH if cap is None else cap
+    free = global_mem - tree_bytes
+    n = min(cap, free // max(sum(widths), 1), max_alloc // max(max(widths), 1))
+    return max(int(n), 0)
 
 
 def device_sizes(tree):

@@ -17,8 +17,8 @@
  * of pixels of render_camera; else one ray. Outputs, each only when asked: OUT_T (t,
  * +inf on a miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on
  * a miss), OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
- * Output buffers that are not compiled in may be passed as NULL. RAYS_DOUBLE (with
- * KD_ORIGIN_X, _Y, _Z): trace_rays reads double rays in world coordinates.
+ * Output buffers that are not compiled in may be passed as NULL. RAYS_DOUBLE:
+ * trace_rays reads double rays in world coordinates (and takes the tree's origin).
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"
@@ -166,16 +166,18 @@ uint fetch_batch(__local uint *slot, __global volatile uint *counter)
 
 /* The rays' input type: float, origins relative to the tree's origin (the host
  * converted them), or with RAYS_DOUBLE the caller's double rays in world coordinates,
- * converted here as the host would: (float)(o - KD_ORIGIN_*), (float)d, each one
- * rounding to nearest (KD_ORIGIN_X, _Y, _Z: the tree's origin, exact double literals). */
+ * converted here as the host would: (float)(o - origin), (float)d, each one rounding
+ * to nearest. The tree's origin is a kernel argument (KD_ORIGIN_PARAMS), not a -D
+ * option, so that one program serves every tree. */
 #ifdef RAYS_DOUBLE
 #define KD_RAY_T double
+#define KD_ORIGIN_PARAMS , double origin_x, double origin_y, double origin_z
+#define KD_RAY_ORIGIN(p, i) kd_ray_origin(p, i, (double3)(origin_x, origin_y, origin_z))
 KD_INLINE
-float3 kd_ray_origin(__global const double *p, size_t i)
+float3 kd_ray_origin(__global const double *p, size_t i, double3 origin)
 {
     p += 3 * i;
-    return (float3)((float)(p[0] - KD_ORIGIN_X), (float)(p[1] - KD_ORIGIN_Y),
-                    (float)(p[2] - KD_ORIGIN_Z));
+    return (float3)((float)(p[0] - origin.x), (float)(p[1] - origin.y), (float)(p[2] - origin.z));
 }
 KD_INLINE
 float3 kd_ray_direction(__global const double *p, size_t i)
@@ -185,7 +187,8 @@ float3 kd_ray_direction(__global const double *p, size_t i)
 }
 #else
 #define KD_RAY_T float
-KD_INLINE float3 kd_ray_origin(__global const float *p, size_t i) { return kd_load3(p, i); }
+#define KD_ORIGIN_PARAMS
+#define KD_RAY_ORIGIN(p, i) kd_load3(p, i)
 KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd_load3(p, i); }
 #endif
 
@@ -202,8 +205,8 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
 void trace_rays(KD_TREE_ARGS,
                 __global const KD_RAY_T *origins, __global const KD_RAY_T *directions,
-                uint o_step, uint n_rays, float t_min, float t_max, uint item_runs,
-                __global volatile uint *counter, KD_OUTPUT_ARGS)
+                uint o_step, uint n_rays, float t_min, float t_max, uint item_runs
+                KD_ORIGIN_PARAMS, __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
     float3 bmin = vload3(0, bounds);
     float3 bmax = vload3(1, bounds);
@@ -224,7 +227,7 @@ void trace_rays(KD_TREE_ARGS,
             float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
             uint idx[KD_RAYS_PER_ITEM];
             for (uint l = 0; l < count; l++) {
-                o[l] = kd_ray_origin(origins, (size_t)(k0 + l) * o_step);
+                o[l] = KD_RAY_ORIGIN(origins, (size_t)(k0 + l) * o_step);
                 d[l] = kd_ray_direction(directions, k0 + l);
                 idx[l] = k0 + l;
             }

@@ -571,12 +571,30 @@ def test_packet_stats_count_the_same_work():
 
 
 def test_default_stack_size():
+    """depth + 1 entries rounded up to 8, 16, 32 or 64: few program variants."""
+    from types import SimpleNamespace
     tree = deep_tree()
-    assert tracer(tree).stack_size == default_stack_size(tree) == tree.depth + 1
+    assert tracer(tree).stack_size == default_stack_size(tree) == 32 >= tree.depth + 1
+    sizes = [default_stack_size(SimpleNamespace(depth=depth)) for depth in (0, 7, 8, 15, 16, 31, 32, 63)]
+    assert sizes == [8, 8, 16, 16, 32, 32, 64, 64]
     with pytest.raises(KdrayError):
         Tracer(tree, stack_size=0)
     with pytest.raises(KdrayError):
         Tracer(tree, stack_size=65)
+
+
+def test_rays_per_launch():
+    """Launches are sized to the device's memory left beside the tree, each buffer to
+    its largest allocation, at most MAX_RAYS_PER_LAUNCH rays; 0 when not one ray fits."""
+    from kdray.trace import MAX_RAYS_PER_LAUNCH, rays_per_launch
+    MiB = 2**20
+    widths = [12, 12, 4, 8, 12, 4]                      # float o, d; T, UV, NORMAL, ID
+    assert rays_per_launch(64 * 2**30, 16 * 2**30, 100 * MiB, widths) == MAX_RAYS_PER_LAUNCH
+    n = rays_per_launch(128 * MiB, 128 * MiB, 10 * MiB, widths)
+    assert n == (118 * MiB) // 52
+    assert rays_per_launch(128 * MiB, MiB, 10 * MiB, widths) == MiB // 12
+    assert rays_per_launch(128 * MiB, 128 * MiB, 128 * MiB - 51, widths) == 0
+    assert rays_per_launch(128 * MiB, 128 * MiB, 0, [640 * 4], cap=7) == 7
 
 
 # -- precision far from the origin --------------------------------------------------------
