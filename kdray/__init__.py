@@ -11,6 +11,13 @@
 
 The public API is what this module exports, nothing else.
 """
+# First: OpenCL runtimes installed with pip become visible to pyopencl's loader before
+# anything lists platforms, and Intel's runtime's TBB is loaded before a library that
+# bundles an older one (Open3D) can be (kdray.runtimes says why).
+from .runtimes import register_runtimes as _register_runtimes
+
+_register_runtimes()
+
 from . import cull
 from .build import build
 from .camera import Camera

@@ -12,7 +12,7 @@ import time
 import click
 import numpy as np
 
-from .errors import KdrayError, MeshError, OutputError
+from .errors import DeviceError, KdrayError, MeshError, OutputError
 
 log = logging.getLogger("kdray")
 
@@ -202,10 +202,14 @@ def info(tree_file, check):
 
 @cli.command()
 def devices():
-    """List the OpenCL platforms and devices kdray can use."""
-    from .device import list_devices
-    for line in list_devices():
+    """List the OpenCL platforms and devices, each probed (works or fails, and why), and
+    the default; exit code 1 when no device works."""
+    from .device import device_table
+    table = device_table()
+    for line in table.lines():
         click.echo(line)
+    if table.default is None:
+        raise DeviceError(table.error)
 
 
 @cli.command()
@@ -226,7 +230,8 @@ def devices():
 @click.option("--preview", type=click.Path(dir_okay=False), help="Also write an 8-bit PNG for people.")
 @click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
               help="Render from this dumped tree instead of building one.")
-@click.option("--device", default=None, help="OpenCL device, PYOPENCL_CTX syntax (e.g. 0:0).")
+@click.option("--device", default=None,
+              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
 @click.option("--cull", is_flag=True,
               help="Build the tree of only the triangles the camera can see (same images).")
 @build_options
@@ -310,7 +315,8 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
                    "[default: kdray,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1, open3d and embreex if installed]")
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False), help="PNG plot of depth error against Mrays/s.")
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), help="Also write the table as CSV.")
-@click.option("--device", default=None, help="OpenCL device, PYOPENCL_CTX syntax (e.g. 0:0).")
+@click.option("--device", default=None,
+              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
 @click.option("--offset", type=float, default=0.0, show_default=True,
               help="Move scene and camera by D along (1,1,1) (precision far from the origin).")
 def bench(scenes, size, repeat, sample, settings, plot_file, csv_file, device, offset):

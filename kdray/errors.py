@@ -40,3 +40,10 @@ class OutputError(KdrayError):
 
 class ParameterError(KdrayError, ValueError):
     """An option or argument out of its range (a build parameter, a work size)."""
+
+
+def one_line(text):
+    """The first non-blank line of `text` (str or an exception), stripped, for messages
+    that must be one line; "unknown error" when there is none."""
+    lines = [ln.strip() for ln in str(text).splitlines() if ln.strip()]
+    return lines[0] if lines else "unknown error"

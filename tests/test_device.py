@@ -1,0 +1,346 @@
+"""Device choice: every device probed, the default never a simulator, a broken device
+skipped by the default and refused when named, and Intel's CPU runtime registered (and
+its TBB conflict with Open3D reported). Failures are made on real devices with probe
+sources that do not build or give a wrong answer there; only the default order is
+checked on stand-ins for devices."""
+import logging
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from kdray import device as kdevice
+from kdray import runtimes as kruntimes
+from kdray.errors import DeviceError
+from test_cli import run
+
+cl = pytest.importorskip("pyopencl")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def all_devices():
+    """[("i:j", device)] of every device of every platform."""
+    return kdevice._entries(kdevice._platforms())
+
+
+@pytest.fixture(autouse=True)
+def no_pyopencl_ctx(monkeypatch):
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+
+
+def one_line(text):
+    return len([ln for ln in str(text).splitlines() if ln.strip()]) == 1
+
+
+# ---------------------------------------------------------------- real devices
+
+def test_probe_works_on_every_device():
+    for spec, device in all_devices():
+        result = kdevice.probe(device)
+        assert result.works == (result.reason == "") and (result.works or one_line(result.reason))
+        # PoCL 3.0 cannot build for AMD Zen 5 ("unknown target CPU 'generic'")
+        assert result.works or "unknown target CPU" in result.reason, (spec, result)
+        assert result.seconds >= 0
+        assert kdevice.probe(device) is result                 # cached per process
+
+
+def test_default_is_a_working_device_and_never_a_simulator():
+    default = kdevice.choose_device(None)
+    assert not kdevice.is_simulator(default) and kdevice.probe(default).works
+    order = kdevice.working_devices()
+    assert order[0][1] == default
+    kinds = [kdevice.device_kind(d) for _, d, _ in order]
+    assert "simulator" not in kinds or kinds.index("simulator") == len(kinds) - kinds.count("simulator")
+    assert all(not kdevice.is_simulator(d) for _, d, _ in kdevice.working_devices(False))
+    for spec, device, impl in order:
+        assert kdevice.choose_device(spec) == device and impl == kdevice.implementation(device)
+
+
+def test_simulators_are_chosen_only_by_name():
+    sims = [d for _, d in all_devices() if kdevice.is_simulator(d)]
+    if not sims:
+        pytest.skip("no simulator (Oclgrind) installed")
+    assert kdevice.device_kind(sims[0]) == "simulator"
+    assert kdevice.choose_device("oclgrind") == sims[0]
+
+
+def test_implementation_names_choose_platforms():
+    for spec, device in all_devices():
+        impl = kdevice.implementation(device)
+        if kdevice.probe(device).works and impl in ("pocl", "intel", "oclgrind"):
+            assert kdevice.choose_device(impl).platform == device.platform
+
+
+def test_devices_command_lists_every_device_probed(capsys):
+    code, out, err = run(capsys, "devices")
+    assert code == 0, err
+    lines = out.splitlines()
+    for spec, device in all_devices():
+        line = next(ln for ln in lines if ln.strip().startswith(f"--device {spec} "))
+        assert device.name.strip() in line
+        assert kdevice.device_kind(device) in line
+        assert ": works (probe " in line or ": fails: " in line
+        assert "_is_bitfield" not in line
+    default = kdevice.choose_device(None)
+    spec = next(s for s, d in all_devices() if d == default)
+    assert lines[-1].startswith(f"default: --device {spec} ")
+
+
+# ---------------------------------------------------------------- broken devices (by probe source)
+
+def _probe_with(source, device):
+    """The probe of `device` with another probe source."""
+    real = kdevice.PROBE_SOURCE
+    kdevice.PROBE_SOURCE = source
+    try:
+        return kdevice.probe(device)
+    finally:
+        kdevice.PROBE_SOURCE = real
+
+
+def _breaking_source(target, others):
+    """A probe source that fails to build on `target` and works on `others`, or None."""
+    words = target.version.split()
+    version = words[1].replace(".", "") + "0" if len(words) > 1 else "0"
+    conditions = ["defined(cl_intel_required_subgroup_size)", "defined(__x86_64__)",
+                  "defined(__SPIR__)", "defined(__NV_CL_C_VERSION)", "defined(__AMD__)",
+                  f"__OPENCL_VERSION__ == {version}"]
+    for cond in conditions:
+        source = f"#if {cond}\n#error kdray test: broken on purpose\n#endif\n" + kdevice.PROBE_SOURCE
+        if not _probe_with(source, target).works and all(_probe_with(source, d).works for d in others):
+            return source
+    return None
+
+
+@pytest.fixture
+def broken_default(monkeypatch):
+    """(spec, device, fallback device): a probe source breaks the default device only."""
+    order = [(s, d) for s, d, _ in kdevice.working_devices(include_simulators=False)]
+    if len(order) < 2:
+        pytest.skip("needs two working non-simulator devices")
+    (spec, target), (_, fallback) = order[0], order[1]
+    source = _breaking_source(target, [d for _, d in order[1:]])
+    if source is None:
+        pytest.skip(f"no preprocessor condition tells {target.name} from the others")
+    monkeypatch.setattr(kdevice, "PROBE_SOURCE", source)
+    return spec, target, fallback
+
+
+def test_default_skips_a_broken_device_and_says_why(broken_default, caplog, capsys):
+    spec, target, fallback = broken_default
+    caplog.set_level(logging.INFO, logger="kdray.device")
+    assert kdevice.choose_device(None) == fallback
+    skipped = [r.getMessage() for r in caplog.records if r.getMessage().startswith("skipping")]
+    assert any(f"--device {spec} " in m and "broken on purpose" in m for m in skipped), skipped
+    code, out, err = run(capsys, "devices")
+    assert code == 0, err
+    line = next(ln for ln in out.splitlines() if ln.strip().startswith(f"--device {spec} "))
+    assert ": fails: the probe kernel does not build: " in line and "broken on purpose" in line
+
+
+def test_a_broken_device_named_explicitly_is_refused(broken_default, capsys, monkeypatch, tmp_path):
+    spec, target, _ = broken_default
+    with pytest.raises(DeviceError) as e:
+        kdevice.choose_device(spec)
+    message = str(e.value)
+    assert one_line(message) and target.name.strip() in message and "broken on purpose" in message
+    assert kdevice.remedy(target) in message
+    monkeypatch.setenv("PYOPENCL_CTX", spec)
+    with pytest.raises(DeviceError):
+        kdevice.create_context(None)
+    from conftest import SCENES
+    code, _, err = run(capsys, "render", SCENES / "sphere.obj", "-o", tmp_path / "o.exr",
+                       "--device", spec)
+    assert code == 1 and one_line(err) and "broken on purpose" in err
+
+
+def test_a_wrong_answer_is_a_failure():
+    spec, device, _ = kdevice.working_devices()[0]
+    source = kdevice.PROBE_SOURCE
+    result = _probe_with(source.replace("s += (float)k;", "s += (float)k + 1.0f;"), device)
+    assert not result.works
+    assert result.reason == ("wrong answer from the probe kernel: the loop's sum of work-item 1 "
+                             "is 2.0, expected 1.0")
+    result = _probe_with(source.replace("atomic_add(&counter[1], i);", ""), device)
+    assert "atomic_add's counters are [16, 0], expected [16, 120]" in result.reason
+    result = _probe_with(source.replace("kdray_probe", "other"), device)
+    assert result.reason.startswith("the probe kernel fails to run: ")
+    assert kdevice.probe(device).works
+
+
+def test_no_working_device_is_one_line_naming_each(monkeypatch, capsys):
+    monkeypatch.setattr(kdevice, "PROBE_SOURCE", "#error kdray test: broken everywhere\n")
+    with pytest.raises(DeviceError) as e:
+        kdevice.choose_device(None)
+    message = str(e.value)
+    assert one_line(message) and message.startswith("no OpenCL device works: ")
+    for spec, device in all_devices():
+        if not kdevice.is_simulator(device):
+            assert f"(--device {spec}) fails: " in message and kdevice.remedy(device) in message
+    code, out, err = run(capsys, "devices")
+    assert code == 1 and one_line(err) and "no OpenCL device works" in err
+    assert out.count(": fails: ") == len(all_devices()) and "default: none" in out
+
+
+# ---------------------------------------------------------------- order, names, registration
+
+def fake(platform, type_bits, name="dev"):
+    return SimpleNamespace(name=name, type=type_bits, platform=SimpleNamespace(name=platform))
+
+
+def test_default_order_gpus_cpus_by_runtime_others_simulators_last(monkeypatch):
+    T = cl.device_type
+    monkeypatch.setattr(kdevice, "CPU_RUNTIME_ORDER", ("intel", "pocl"))
+    devices = [fake("Oclgrind", T.ALL), fake("Portable Computing Language", T.CPU),
+               fake("Some FPGA", T.ACCELERATOR), fake("Intel(R) OpenCL", T.CPU),
+               fake("Clover", T.CPU), fake("NVIDIA CUDA", T.GPU)]
+    order = [d.platform.name for _, d in kdevice._ordered(list(enumerate(devices)))]
+    assert order == ["NVIDIA CUDA", "Intel(R) OpenCL", "Portable Computing Language", "Clover",
+                     "Some FPGA", "Oclgrind"]
+    assert [kdevice.implementation(d) for d in devices] == [
+        "oclgrind", "pocl", "some fpga", "intel", "clover", "nvidia"]
+    assert [kdevice.device_kind(d) for d in devices] == [
+        "simulator", "CPU", "accelerator", "CPU", "CPU", "GPU"]
+    assert "intel-opencl-rt" in kdevice.remedy(devices[1])
+    assert kdevice.remedy(fake("Clover", T.CPU)) == kdevice.OTHER_REMEDY
+
+
+def test_intel_library_paths():
+    assert kruntimes.intel_library("/env", windows=False) == Path("/env/lib/libintelocl.so")
+    assert kruntimes.intel_library("/env", windows=True) == Path("/env/Library/bin/intelocl64.dll")
+    lib = r"C:\env\Library\bin\intelocl64.dll"
+    assert kruntimes.windows_icd_filenames(None, lib) == lib
+    assert kruntimes.windows_icd_filenames(r"C:\gpu.dll", lib) == rf"C:\gpu.dll;{lib}"
+    assert kruntimes.windows_icd_filenames(rf"C:\gpu.dll;{lib};", lib) == rf"C:\gpu.dll;{lib}"
+
+
+def test_sync_icd_writes_refreshes_and_removes(tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="kdray.runtimes")
+    lib = tmp_path / "lib" / "libintelocl.so"
+    folder = tmp_path / "libs"
+    folder.mkdir()
+    icd = folder / kruntimes.ICD_NAME
+    assert kruntimes.sync_icd(lib, folder) == "absent" and not icd.exists()
+    lib.parent.mkdir()
+    lib.write_bytes(b"")
+    assert kruntimes.sync_icd(lib, folder) == "written" and icd.read_text() == f"{lib}\n"
+    assert kruntimes.sync_icd(lib, folder) == "current"
+    icd.write_text("/opt/anaconda1anaconda2anaconda3/lib/libintelocl.so\n")
+    assert kruntimes.sync_icd(lib, folder) == "written" and icd.read_text() == f"{lib}\n"
+    assert sorted(p.name for p in folder.iterdir()) == [kruntimes.ICD_NAME]   # no temporary left
+    lib.unlink()
+    assert kruntimes.sync_icd(lib, folder) == "removed" and not icd.exists()
+    lib.write_bytes(b"")
+    not_a_folder = tmp_path / "file"
+    not_a_folder.write_text("")
+    assert kruntimes.sync_icd(lib, not_a_folder).startswith("failed: cannot write")
+    assert any("is not registered" in r.getMessage() for r in caplog.records)
+
+
+MAPS = """\
+55d0c0a00000-55d0c0a21000 r--p 00000000 08:01 1234  /usr/bin/python3.11
+7f10a0000000-7f10a0100000 r-xp 00000000 08:01 2345  /env/lib/python3.11/site-packages/open3d/libtbb.so.12
+7f10a0100000-7f10a0200000 r--p 00100000 08:01 2345  /env/lib/python3.11/site-packages/open3d/libtbb.so.12
+7f10a0300000-7f10a0400000 r-xp 00000000 08:01 3456  /env/lib/libtbbmalloc.so.2
+7f10a0500000-7f10a0600000 r-xp 00000000 08:01 4567  /env/lib/libtbb.so.12
+7f10a0700000-7f10a0701000 rw-p 00000000 00:00 0
+7ffd5e1f0000-7ffd5e211000 rw-p 00000000 00:00 0     [stack]
+7f10a0800000-7f10a0900000 r-xp 00000000 08:01 5678  /tmp/a dir/libtbb_debug.so.12.20 (deleted)
+"""
+
+
+def test_tbb_maps_parsing():
+    assert kruntimes.loaded_tbbs(MAPS) == ["/env/lib/python3.11/site-packages/open3d/libtbb.so.12",
+                                         "/env/lib/libtbb.so.12", "/tmp/a dir/libtbb_debug.so.12.20"]
+    assert kruntimes.foreign_tbb(MAPS, "/env/lib") == "/env/lib/python3.11/site-packages/open3d/libtbb.so.12"
+    own = "".join(ln + "\n" for ln in MAPS.splitlines() if "open3d" not in ln and "tmp" not in ln)
+    assert kruntimes.foreign_tbb(own, "/env/lib") is None
+    assert kruntimes.loaded_tbbs("") == [] and kruntimes.foreign_tbb("", "/env/lib") is None
+
+
+def test_reasons_for_a_missing_intel_platform(tmp_path, monkeypatch):
+    import _ctypes
+    broken = tmp_path / "lib" / "libintelocl.so"
+    broken.parent.mkdir()
+    broken.write_bytes(b"not a shared object")
+    lib = Path(_ctypes.__file__)                  # a shared object that loads
+    folder = tmp_path / "libs"
+    folder.mkdir()
+    monkeypatch.delenv("OCL_ICD_VENDORS", raising=False)
+    monkeypatch.setattr(kruntimes, "_own_maps", lambda: MAPS)
+    assert kruntimes._intel_missing_reason(broken) == (
+        "Intel's CPU runtime is installed but cannot load: /env/lib/python3.11/site-packages/"
+        "open3d/libtbb.so.12 was loaded first (Open3D bundles an older TBB); import kdray "
+        "before open3d")
+    monkeypatch.setattr(kruntimes, "_own_maps", lambda: "")
+    reason = kruntimes._intel_missing_reason(broken)                  # dlopen's own words
+    assert reason.startswith("Intel's CPU runtime is installed but cannot load: ") and \
+        str(broken) in reason
+    monkeypatch.setenv("OCL_ICD_VENDORS", "/somewhere")
+    assert "OCL_ICD_VENDORS is set" in kruntimes._intel_missing_reason(lib)
+    monkeypatch.delenv("OCL_ICD_VENDORS")
+    monkeypatch.setattr(kruntimes, "_icd_folder", lambda: None)
+    assert "system's OpenCL loader" in kruntimes._intel_missing_reason(lib)
+    monkeypatch.setattr(kruntimes, "_icd_folder", lambda: folder)
+    assert "kdray could not write" in kruntimes._intel_missing_reason(lib)
+    (folder / kruntimes.ICD_NAME).write_text(f"{lib}\n")
+    monkeypatch.setattr(kruntimes, "_process_start", lambda: 0.0)
+    assert "listed before kdray registered it" in kruntimes._intel_missing_reason(lib)
+    monkeypatch.setattr(kruntimes, "_process_start", lambda: 4e9)
+    assert "OCL_ICD_DEBUG=15" in kruntimes._intel_missing_reason(lib)
+
+
+# ---------------------------------------------------------------- Open3D and Intel's TBB
+
+def _python(code):
+    """(exit code, stdout, stderr) of a fresh `python -c code` in the repository."""
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
+                          text=True, cwd=ROOT, timeout=120)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+OPEN3D_AND_KDRAY = """
+    import open3d as o3d
+    box = o3d.t.geometry.TriangleMesh.from_legacy(o3d.geometry.TriangleMesh.create_box())
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(box)
+    rays = o3d.core.Tensor([[0.5, 0.5, -1, 0, 0, 1]], dtype=o3d.core.Dtype.Float32)
+    print("open3d", float(scene.cast_rays(rays)["t_hit"].numpy()[0]))
+    from kdray import device
+    print("\\n".join(device.list_devices()))
+    if RENDER:
+        mesh = kdray.load("scenes/sphere.obj")
+        tracer = kdray.Tracer(kdray.build(mesh.vertices, mesh.faces), device="intel")
+        camera = kdray.Camera.look_at((0, 0, 3), (0, 0, 0), width=8, height=8)
+        hit = tracer.render(camera, aovs=("id",))["id"] != 0xFFFFFFFF
+        print("kdray", tracer.device.platform.name, int(hit.sum()))
+"""
+
+needs_open3d_and_intel = pytest.mark.skipif(
+    subprocess.run([sys.executable, "-c", "import open3d"], capture_output=True, timeout=120).returncode != 0
+    or not kruntimes.intel_library().is_file(), reason="needs open3d and Intel's CPU runtime")
+
+
+@needs_open3d_and_intel
+def test_kdray_before_open3d_both_work_on_intel():
+    code, out, err = _python("import kdray\nRENDER = True\n" + textwrap.dedent(OPEN3D_AND_KDRAY))
+    assert code == 0, err
+    assert "open3d 0.99999" in out and "not loaded" not in out
+    assert "kdray Intel(R) OpenCL " in out and not out.endswith(" 0\n")
+
+
+@needs_open3d_and_intel
+def test_open3d_before_kdray_names_the_tbb_conflict():
+    code, out, err = _python("import open3d\nimport kdray\nRENDER = False\n"
+                             + textwrap.dedent(OPEN3D_AND_KDRAY))
+    assert code == 0, err
+    assert "open3d 0.99999" in out
+    lines = out.splitlines()
+    line = next(ln for ln in lines if ln.startswith("not loaded: Intel(R) OpenCL"))
+    assert "cannot load: " in line and "open3d/libtbb.so.12 was loaded first (Open3D bundles an " \
+        "older TBB); import kdray before open3d" in line
+    assert lines[-1].startswith("default: --device ") and "Intel" not in lines[-1]   # fell back
