@@ -2,13 +2,13 @@
  *
  * Rule: every function that is not a __kernel is declared KD_INLINE, so that no call
  * survives into the compiled kernel. Intel's CPU OpenCL compiler (2026.2) runs a
- * work-group's work-items in SIMD lanes, and when a call it did not inline takes a
- * pointer to a private struct (a Hit *, a const RayShear *, or a struct returned by
- * value, which is a hidden pointer), the vectorized call addresses the lanes' copies
- * wrongly: work-items read other work-items' results or garbage, and hits are lost at
- * every local size from 16 up. Inlined, the struct lives in each lane's registers and
- * the compiler is right. GPU compilers inline everything anyway; PoCL gives the same
- * answers either way.
+ * work-group's work-items in SIMD lanes and makes SIMD variants of the functions it
+ * does not inline; in those, an argument or return value of a 3-element vector type
+ * (float3, int3, ...) is packed 12 bytes a lane but read at 16 bytes a lane
+ * (sizeof(float3)), so lane k gets lane 4k/3's value or garbage: hits were lost at
+ * every local size from 16 up. tests/repros/intel_cpu_vec3_call.py shows it with a
+ * 7-line kernel. Inlined, nothing is passed and the compiler is right. GPU compilers
+ * inline everything anyway; PoCL gives the same answers either way.
  */
 #ifndef KDRAY_INLINE_H
 #define KDRAY_INLINE_H
