@@ -24,11 +24,10 @@ KD_INLINE
 bool kd_finite3(float3 v) { return v.x - v.x == 0.0f && v.y - v.y == 0.0f && v.z - v.z == 0.0f; }
 
 KD_INLINE float8 kd_abs8(float8 x) { return as_float8(as_uint8(x) & (uint8)(0x7FFFFFFFu)); }
-/* lanes of b where mask m is set, else of a (select(a, b, m)); the integer ones as
- * OpenCL's vector ternary: Oclgrind 21.10 gets them wrong written with & and |
- * (tests/repros/oclgrind_vector_select.py) */
-KD_INLINE
-float8 kd_select8(float8 a, float8 b, int8 m) { return as_float8((as_int8(a) & ~m) | (as_int8(b) & m)); }
+/* lanes of b where mask m is set, else of a (select(a, b, m)), as OpenCL's vector
+ * ternary: Oclgrind 21.10 gets the same select written with & and | wrong, in the
+ * packets' shear axes and barycentrics (tests/repros/oclgrind_vector_select.py) */
+KD_INLINE float8 kd_select8(float8 a, float8 b, int8 m) { return m ? b : a; }
 KD_INLINE int8 kd_select8i(int8 a, int8 b, int8 m) { return m ? b : a; }
 KD_INLINE uint8 kd_select8u(uint8 a, uint8 b, int8 m) { return m ? b : a; }
 KD_INLINE float8 kd_max8(float8 a, float8 b) { return kd_select8(b, a, a > b); }

@@ -1,4 +1,8 @@
-"""Shared fixtures: paths to the shared meshes and the project's scenes."""
+"""Shared fixtures: paths to the shared meshes and the project's scenes, and the OpenCL
+implementations the kernel tests run on."""
+import dataclasses
+import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -27,3 +31,129 @@ def shared_mesh_arrays(name):
     from kdray.load import load
     m = load(shared_mesh(name))
     return m.vertices, m.faces
+
+
+# -- the OpenCL implementations the kernel tests run on ----------------------------------
+#
+# Tests that take the `runtime` fixture run once on each OpenCL implementation that
+# works here (PoCL, Intel's CPU runtime, Oclgrind, a GPU's driver: the first working
+# device of each), the others on kdray's default device (PYOPENCL_CTX chooses another).
+# KDRAY_TEST_RUNTIMES (comma-separated implementation names, e.g. "pocl,oclgrind")
+# narrows the set. Oclgrind simulates a device and checks every access: its tests keep
+# their cases small, and anything it reports (invalid accesses, data races, work-group
+# divergence at barriers) fails the test. Its check of uninitialised values
+# (OCLGRIND_UNINITIALIZED) is off: Oclgrind 21.10 crashes in it on kdray's kernels; so
+# is its check of API calls (OCLGRIND_CHECK_API), which flags pyopencl's query of an
+# NVIDIA-only device property.
+
+_OCLGRIND_LOG = Path(tempfile.mkdtemp(prefix="kdray-oclgrind-")) / "oclgrind.log"
+# read by Oclgrind when it starts, so before any test lists the OpenCL platforms
+os.environ.setdefault("OCLGRIND_LOG", str(_OCLGRIND_LOG))
+os.environ.setdefault("OCLGRIND_DATA_RACES", "1")
+
+
+@dataclasses.dataclass(frozen=True)
+class Runtime:
+    """One OpenCL implementation to test on: name ("pocl", "intel", "oclgrind", ...),
+    spec (the --device string of its first working device), description, simulator
+    (bool: keep the case small)."""
+    name: str
+    spec: str
+    description: str
+    simulator: bool
+
+    def small(self, n_cpu, n_simulator):
+        """A case size: n_simulator on a simulator, else n_cpu."""
+        return n_simulator if self.simulator else n_cpu
+
+
+_RUNTIMES = None
+_OUTCOMES = {}           # test id -> (Runtime, "passed" | "failed" | "skipped")
+
+
+def runtimes():
+    """[Runtime] of every OpenCL implementation that works here (its devices' probes),
+    narrowed by KDRAY_TEST_RUNTIMES; found once per session."""
+    global _RUNTIMES
+    if _RUNTIMES is None:
+        from kdray import device
+        found = {}
+        try:
+            entries = device.working_devices(include_simulators=True)
+        except device.DeviceError:
+            entries = []
+        for spec, dev, name in entries:
+            found.setdefault(name, Runtime(name, spec, device.describe(dev), device.is_simulator(dev)))
+        wanted = os.environ.get("KDRAY_TEST_RUNTIMES", "").strip()
+        if wanted:
+            names = [w.strip() for w in wanted.split(",") if w.strip()]
+            found = {n: found[n] for n in names if n in found}
+        _RUNTIMES = list(found.values())
+    return _RUNTIMES
+
+
+def pytest_generate_tests(metafunc):
+    if "runtime" in metafunc.fixturenames:
+        present = runtimes()
+        metafunc.parametrize("runtime", present or [None], ids=[r.name for r in present] or ["none"],
+                             indirect=True)
+
+
+@pytest.fixture
+def runtime(request):
+    """The Runtime a test runs on (see runtimes()); on Oclgrind, fails the test when
+    Oclgrind reports anything while it runs."""
+    rt = request.param
+    if rt is None:
+        pytest.skip("no working OpenCL implementation")
+    log = Path(os.environ["OCLGRIND_LOG"])
+    before = log.stat().st_size if log.exists() else 0
+    yield rt
+    if rt.name == "oclgrind" and log.exists() and log.stat().st_size > before:
+        with open(log, encoding="utf-8", errors="replace") as f:
+            f.seek(before)
+            report = f.read()
+        pytest.fail(f"Oclgrind reported:\n{report[:4000]}", pytrace=False)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Record the outcome of every test that ran on a Runtime (a failure in any phase,
+    such as Oclgrind's report at teardown, makes it failed)."""
+    outcome = yield
+    report = outcome.get_result()
+    rt = getattr(item, "callspec", None) and item.callspec.params.get("runtime")
+    if not isinstance(rt, Runtime):
+        return
+    previous = _OUTCOMES.get(item.nodeid, (rt, None))[1]
+    if report.failed:
+        _OUTCOMES[item.nodeid] = (rt, "failed")
+    elif report.skipped:
+        _OUTCOMES[item.nodeid] = (rt, "skipped")
+    elif report.when == "call" and previous is None:
+        _OUTCOMES[item.nodeid] = (rt, "passed")
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Which OpenCL implementations the kernel tests covered, which were not (and why),
+    and the default device the other tests ran on."""
+    if not _OUTCOMES:
+        return
+    from kdray import device
+    tr = terminalreporter
+    tr.section("OpenCL implementations covered")
+    by_runtime = {}
+    for rt, status in _OUTCOMES.values():
+        by_runtime.setdefault(rt, []).append(status)
+    for rt, statuses in by_runtime.items():
+        counts = ", ".join(f"{statuses.count(s)} {s}" for s in ("passed", "failed", "skipped")
+                           if statuses.count(s))
+        tr.write_line(f"{rt.name:<9} {counts}: {rt.description}")
+    try:
+        tr.write_line(f"other kernel tests: the default device, "
+                      f"{device.describe(device.choose_device(None))}")
+        for line in device.list_devices():
+            if "fails:" in line or line.startswith("not loaded"):
+                tr.write_line(f"not covered: {line.strip()}")
+    except device.DeviceError as e:
+        tr.write_line(f"no default device: {e}")

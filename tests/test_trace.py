@@ -368,26 +368,6 @@ def test_every_output_written(n):
         check_hits(hits, tree, o, d)
 
 
-def test_work_sizes_do_not_change_results():
-    """Local size, batch size, group count and the slots each work-item takes (runs of
-    the batch on CPUs, every local_size-th packet on GPUs) change the schedule, never
-    the answer; poisoned outputs are all written either way."""
-    tree = mesh_tree("teapot.obj", "sah")
-    o, d = random_rays(tree, 20_011, seed=8)
-    base = tracer(tree).trace(o, d)
-    for packet, local, batch, groups in [(1, 1, 1, 1), (1, 4, 12, 3), (1, 64, 64, 2),
-                                         (8, 1, 8, 1), (8, 4, 96, 3), (8, 16, 128, 5)]:
-        for item_runs in (True, False):
-            tr = Tracer(tree, packet=packet, local_size=local, batch_size=batch, groups=groups)
-            tr._item_runs = item_runs
-            tr._poison_outputs = True
-            other = tr.trace(o, d)
-            assert np.array_equal(other.prim, base.prim)
-            assert np.array_equal(other.t, base.t)
-            for field in ("u", "v", "normal"):
-                assert np.array_equal(getattr(other, field), getattr(base, field)), field
-
-
 # -- short stack and restart -------------------------------------------------------------
 
 def deep_tree():

@@ -1,0 +1,133 @@
+"""The kernels on every OpenCL implementation present (the `runtime` fixture, conftest.py):
+the same answer as the float64 oracle, and bit for bit the same answer at every work
+size GPUs and CPUs use, with packets and without, at every stack size, for rays and for
+camera renders. Ray counts are multiples of no work size; outputs are poisoned first.
+
+Intel's CPU runtime runs a work-group's work-items in SIMD lanes, as GPUs do: a kernel
+that is right on PoCL (work-items one after another) can be wrong there
+(tests/repros/intel_cpu_vec3_call.py). Oclgrind runs the GPU path (one ray a work-item,
+interleaved slots, copied buffers) on small cases and fails a test on any invalid
+access, data race or divergent barrier it sees. Scenes come from scenes/ and from
+random triangles, so these tests need nothing outside the repository."""
+import numpy as np
+import pytest
+
+import trees
+from conftest import SCENES
+from test_trace import camera_for, check_hits, random_rays, soup, split_plane_rays
+from kdray.load import load
+from kdray.trace import PACKET, Tracer
+
+# (rays per work-item, local size, batch size, groups): one item at a time, odd sizes,
+# the sizes GPUs use (32: a warp, 64: a wavefront, 128, 256), the same with packets
+WORK_SIZES = [(1, 1, 1, 1), (1, 4, 12, 3), (1, 16, 64, 4), (1, 32, 64, 2), (1, 64, 256, 2),
+              (1, 128, 256, 2), (1, 256, 512, 1),
+              (8, 1, 8, 1), (8, 4, 96, 3), (8, 16, 128, 5), (8, 32, 256, 2), (8, 64, 512, 2),
+              (8, 128, 1024, 1), (8, 256, 2048, 1)]
+
+_TREES = {}
+
+
+def scene_tree(name):
+    """A tree of a scene: "sphere" (scenes/sphere.obj, 1,280 triangles, SAH), "cornell"
+    (32 triangles, SAH) or "soup" (300 random triangles of mixed sizes with exact ties,
+    median splits 18 deep: many leaves and deep stacks)."""
+    if name not in _TREES:
+        if name == "soup":
+            v, f = soup(5)
+            _TREES[name] = trees.split_tree(v, f, max_depth=18, leaf_size=4)
+        else:
+            from kdray.build import build
+            mesh = load(SCENES / f"{name}.obj")
+            _TREES[name] = build(mesh.vertices, mesh.faces)
+    return _TREES[name]
+
+
+def rays(runtime, tree, n_cpu, n_simulator, seed):
+    """Random rays (most from outside towards the scene, some inside) and rays in the
+    tree's split planes: n_cpu of them on a CPU or GPU, n_simulator on a simulator."""
+    n = runtime.small(n_cpu, n_simulator)
+    o, d = random_rays(tree, n - n // 10, seed=seed, inside=0.3)
+    o2, d2 = split_plane_rays(tree, n // 10, seed=seed + 1)
+    return np.concatenate([o, o2]), np.concatenate([d, d2])
+
+
+def same_hits(a, b):
+    for field in ("t", "prim", "u", "v", "normal"):
+        assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+
+
+@pytest.mark.parametrize("scene", ["sphere", "soup"])
+def test_matches_the_oracle(runtime, scene):
+    """The default configuration of each implementation agrees with float64 brute force
+    (ties and float32 grazes of edges allowed, as everywhere in test_trace)."""
+    tree = scene_tree(scene)
+    o, d = random_rays(tree, runtime.small(3001, 301), seed=21)
+    hits = Tracer(tree, device=runtime.spec).trace(o, d)
+    assert check_hits(hits, tree, o, d) > len(o) // 4
+
+
+@pytest.mark.parametrize("scene", ["sphere", "soup"])
+def test_work_sizes_do_not_change_results(runtime, scene):
+    """Local size, batch size, group count, packets and the slots each work-item takes
+    (runs of the batch, as on CPUs, or every local_size-th packet, as on GPUs) change
+    the schedule, never the answer: bit for bit the result of one ray at a time, with
+    every poisoned output written. Sizes the device cannot take are left out."""
+    tree = scene_tree(scene)
+    o, d = rays(runtime, tree, 4001, 307, seed=22)
+    base = Tracer(tree, device=runtime.spec, packet=1, local_size=1, batch_size=1,
+                  groups=1).trace(o, d)
+    assert base.hit.sum() > len(o) // 4
+    tried = 0
+    for packet, local, batch, groups in WORK_SIZES:
+        tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=1, batch_size=packet,
+                    groups=1)
+        if local > tr.device.max_work_group_size:
+            continue
+        if runtime.simulator and local in (16, 128):
+            continue        # Oclgrind is slow: 32, 64 and 256 stand for the GPU sizes
+        orders = (False,) if runtime.simulator else (True, False)
+        for item_runs in orders:
+            tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local,
+                        batch_size=batch, groups=groups)
+            tr._item_runs = item_runs
+            tr._poison_outputs = True
+            same_hits(tr.trace(o, d), base)
+            tried += 1
+    assert tried >= (len(WORK_SIZES) - 4 if runtime.simulator else 2 * len(WORK_SIZES) - 4)
+
+
+def test_stack_sizes_do_not_change_results(runtime):
+    """A short stack of 1, 2 or 4 entries restarts (counted by the STATS build) and
+    gives the full stack's hits bit for bit; packets give them too."""
+    tree = scene_tree("soup")
+    assert tree.depth >= 12
+    o, d = rays(runtime, tree, 2001, 211, seed=23)
+    results = {}
+    for size in (1, 2, 4, 32):
+        results[size] = Tracer(tree, device=runtime.spec, stack_size=size, packet=1)._trace(
+            o, d, stats=True)
+    restarts = {size: int(stats[:, 3].sum()) for size, (_, stats) in results.items()}
+    assert restarts[1] > restarts[4] > 0 and restarts[32] == 0
+    for size in (1, 2, 4):
+        same_hits(results[size][0], results[32][0])
+    same_hits(Tracer(tree, device=runtime.spec, packet=PACKET).trace(o, d), results[32][0])
+
+
+@pytest.mark.parametrize("scene", ["cornell", "sphere"])
+def test_render_is_trace_of_the_camera_rays(runtime, scene):
+    """A render (pixels in tiles, packets of 4 x 2 pixels on CPUs) writes every pixel,
+    poisoned first, with the hit of its own ray; on Oclgrind, a device of 128 MiB, the
+    launches are sized to its memory. Sizes that fit no tile or packet."""
+    tree = scene_tree(scene)
+    tr = Tracer(tree, device=runtime.spec)
+    tr._poison_outputs = True
+    w, h = runtime.small((131, 67), (29, 11))
+    cam = camera_for(tree, w, h)
+    images = tr.render(cam, aovs=("depth", "normal", "bary", "id"))
+    hits = tr.trace(*tr.camera_rays(cam))
+    assert np.array_equal(images["depth"].ravel(), hits.t)
+    assert np.array_equal(images["id"].ravel(), hits.prim)
+    assert np.array_equal(images["bary"].reshape(-1, 2), np.stack([hits.u, hits.v], 1))
+    assert np.array_equal(images["normal"].reshape(-1, 3), hits.normal)
+    assert (images["id"] != 0xFFFFFFFF).sum() > w * h // 10
