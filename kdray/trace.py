@@ -121,11 +121,14 @@ def default_packet(device):
 def default_work_sizes(device, packet=1):
     """(local_size, batch_size, groups) for a device and rays per work-item.
 
-    CPU (PoCL): a work-group runs on one thread, its work-items one after another, and
-    a traversal loop does not vectorize across them; small groups keep the per-group
-    barrier cheap and many groups (4 per core) balance the load through the counter; a
-    batch is 8 rounds of the group (with packets, 512 rays: one 64 x 8 render tile).
-    Sizes from 1 to 16 work-items measured the same within noise (BENCHMARKS.md).
+    CPU (PoCL, Intel's runtime): a work-group runs on one thread, its work-items one
+    after another, and a traversal loop does not vectorize across them; small groups
+    keep the per-group barrier cheap and many groups (4 per core) balance the load
+    through the counter; a batch is 8 rounds of the group (with packets, 512 rays: one
+    64 x 8 render tile). On PoCL sizes from 1 to 16 work-items measured the same within
+    noise; Intel's runtime vectorizes groups of 16 and more across work-items, and then
+    single rays in lockstep take 6-12x the time and packets 23-32x
+    (bench/tune_work_sizes.py, BENCHMARKS.md).
     GPU: 64 work-items (two warps / one wavefront), batches of 4 rays each, and about
     one full device of resident groups.
     """
@@ -141,7 +144,8 @@ class Tracer:
     """A KdTree uploaded to one OpenCL device.
 
     tree : KdTree
-    device : None (prefer a GPU, else the CPU) or a PYOPENCL_CTX-style string "0:1"
+    device : None (the first working device: a GPU, else the best CPU runtime; see
+        kdray.device.choose_device) or a PYOPENCL_CTX-style string ("0:1", "intel", "pocl")
     stack_size : short-stack entries (1..64); default `default_stack_size(tree)`.
         Results do not depend on it; smaller stacks restart more often.
     packet : rays per work-item, 1 or PACKET (8: float8 packets); default
