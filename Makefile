@@ -7,7 +7,7 @@ SCENE ?= scenes/cornell.obj
 CAMERA ?= scenes/cornell.json
 OUT ?= out
 
-.PHONY: install render test test-long bench bench-all bench-deps bench-build bench-trace golden clean
+.PHONY: install render test test-runtimes test-long bench bench-all bench-deps bench-build bench-trace golden clean
 
 install: $(STAMP)
 
@@ -30,9 +30,23 @@ render: $(STAMP)
 	mkdir -p $(OUT)
 	$(BIN)/kdray render $(SCENE) --camera $(CAMERA) -o $(OUT)/cornell.exr --preview $(OUT)/cornell.png
 
-# The test suite (about 10 minutes at most on 2 cores); long checks are `make test-long`.
+# The test suite (under 10 minutes on 2 cores): tests/test_runtimes.py on every OpenCL
+# implementation that works here, the rest on the default device; the summary says
+# which were covered. Long checks are `make test-long`.
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"
+
+# The whole matrix: every kernel test on each working CPU or GPU implementation in turn
+# (PYOPENCL_CTX), and Oclgrind's small cases (tests/test_runtimes.py).
+KERNEL_TESTS ?= tests/test_trace.py tests/test_build.py tests/test_accuracy.py tests/test_golden.py \
+	tests/test_cull.py tests/test_device_layout.py tests/test_runtimes.py
+test-runtimes: $(STAMP)
+	@set -e; for rt in $$($(BIN)/python -c "from kdray.device import working_devices; \
+	  print(' '.join(dict.fromkeys(i for _, _, i in working_devices(include_simulators=False))))"); do \
+	  echo "== kernel tests on $$rt"; \
+	  PYOPENCL_CTX=$$rt KDRAY_TEST_RUNTIMES=$$rt $(BIN)/python -m pytest -q -m "not slow" $(KERNEL_TESTS); \
+	done
+	@echo "== Oclgrind's cases"; KDRAY_TEST_RUNTIMES=oclgrind $(BIN)/python -m pytest -q tests/test_runtimes.py
 
 test-long: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
