@@ -126,3 +126,36 @@ def test_a_corrupt_cache_entry_is_reported_with_what_to_remove(tmp_path, kernels
     shutil.rmtree(cache)
     code, out = build_in_new_process(cache, kernels)
     assert code == 0 and "render_camera" in out, out
+
+
+INTEL_BUILD = """
+import kdray.device as dev
+context, _ = dev.create_context("intel")
+defines = {"STACK_SIZE": 8, "LOCAL_SIZE": 8, "BATCH_SIZE": 64, "OUT_T": None}
+program = dev.build_program(context, "render.cl", defines)
+print("served from the cache:", program._build_duration_info[1])
+"""
+
+
+def _intel_works():
+    try:
+        kdevice.choose_device("intel")
+    except kdevice.DeviceError:
+        return False
+    return True
+
+
+@pytest.mark.skipif(not _intel_works(), reason="no working Intel CPU runtime")
+def test_intel_builds_are_served_by_pyopencl_cache(tmp_path):
+    """Intel's CPU runtime keeps no compiled programs of its own (a build takes seconds
+    there); pyopencl's binary cache (in XDG_CACHE_HOME/pyopencl) serves a second process."""
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path))
+    outputs = []
+    for _ in range(2):
+        proc = subprocess.run([sys.executable, "-c", INTEL_BUILD], capture_output=True,
+                              text=True, env=env, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        outputs.append(proc.stdout)
+    assert "served from the cache: False" in outputs[0]
+    assert "served from the cache: True" in outputs[1]
+    assert any((tmp_path / "pyopencl").rglob("*"))
