@@ -272,18 +272,9 @@ def _run_probe(device, source):
     except cl.Error as e:
         return one_line(f"cannot create a context and queue: {e}")
     options = _precision_options(device) + (["-DKDRAY_PROBE_FP64"] if has_fp64(device) else [])
-    program = cl.Program(context, source)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", cl.CompilerWarning)
-            program = program.build(options=options)
-    except cl.Error as e:
-        # pyopencl's message holds the build log; for drivers without a compiler cache
-        # of their own it also saves the source in a temporary file, of no use here
-        saved = re.search(r"\(source saved as (.+?\.cl)\)", str(e))
-        if saved and os.path.dirname(saved.group(1)) == tempfile.gettempdir():
-            with contextlib.suppress(OSError):
-                os.remove(saved.group(1))
+        program = _build(cl.Program(context, source), options)
+    except cl.Error as e:           # pyopencl's message holds the build log
         return "the probe kernel does not build: " + _first_error(str(e), e)
     xyz = np.arange(3 * n, dtype=np.float32)
     out = np.zeros(4 * n, dtype=np.float32)
@@ -611,10 +602,7 @@ def build_program(context, source_name, defines=None):
     options = build_options(device, defines or {})
     program = cl.Program(context, source)
     try:
-        with warnings.catch_warnings():
-            # PoCL and some drivers print harmless notes; the log is kept on errors.
-            warnings.simplefilter("ignore", cl.CompilerWarning)
-            program = program.build(options=options)
+        program = _build(program, options)
     except cl.Error as e:
         build_log = _build_log(program, device) or str(e)
         first = _first_error(build_log, e)
@@ -630,6 +618,24 @@ def build_program(context, source_name, defines=None):
             f"the driver's compiler cache is probably corrupt; remove it ({_driver_cache(device)}) "
             f"and run again")
     return program
+
+
+def _build(program, options):
+    """program.build(options) (a pyopencl Program), without the harmless notes PoCL and
+    some drivers print; on failure removes the copy of the source pyopencl saves in the
+    temporary folder for drivers without a compiler cache (of no use here; the error
+    holds the build log) and raises the cl.Error."""
+    cl = _cl()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", cl.CompilerWarning)
+            return program.build(options=options)
+    except cl.Error as e:
+        saved = re.search(r"\(source saved as (.+?\.cl)\)", str(e))
+        if saved and os.path.dirname(saved.group(1)) == tempfile.gettempdir():
+            with contextlib.suppress(OSError):
+                os.remove(saved.group(1))
+        raise
 
 
 def _driver_cache(device):
