@@ -127,7 +127,7 @@ def default_work_sizes(device, packet=1):
     through the counter; a batch is 8 rounds of the group (with packets, 512 rays: one
     64 x 8 render tile). On PoCL sizes from 1 to 16 work-items measured the same within
     noise; Intel's runtime vectorizes groups of 16 and more across work-items, and then
-    single rays in lockstep take 6-12x the time and packets 23-32x
+    both single rays in lockstep and packets are several times slower
     (bench/tune_work_sizes.py, BENCHMARKS.md).
     GPU: 64 work-items (two warps / one wavefront), batches of 4 rays each, and about
     one full device of resident groups.
@@ -533,8 +533,8 @@ _AOV_OUTPUT = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "no
 PAGE = 4096
 """Alignment of the host arrays kdray gives a CPU device: Intel's CPU runtime uses a
 CL_MEM_USE_HOST_PTR array in place only when it starts on a page, and copies it at
-every launch otherwise (the bunny's 1024 x 1024 float64 trace: 0.092 s with the rays
-as numpy allocated them, 0.056 s page-aligned, 0.070 s copied to pages first)."""
+every launch otherwise, which costs more than a copy to pages first (BENCHMARKS.md,
+issue 16)."""
 
 
 def page_aligned_empty(shape, dtype):
