@@ -2,7 +2,7 @@
 and of the runs after it, when the on-disk caches are warm.
 
     .venv/bin/python bench/bench_cold.py                       # scenes/cornell.obj, 640x480
-    .venv/bin/python bench/bench_cold.py ../shared/meshes/stanford-bunny.obj --warm 5
+    .venv/bin/python bench/bench_cold.py scenes/sphere.obj --warm 5
 
 Each run is `python -X importtime -m kdray.cli -v render SCENE` in a fresh process.
 "Cold" runs get empty caches of their own: numba's compiled builder (NUMBA_CACHE_DIR;

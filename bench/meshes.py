@@ -1,4 +1,5 @@
-"""Benchmark meshes: the shared real meshes and deterministic subdivisions of them.
+"""Benchmark meshes: the real meshes the tests use (tests/data/meshes, gzipped) and
+deterministic subdivisions of them.
 
 `mesh(name)` -> kdray.Mesh for names like "bunny" (69,451 triangles), "bunny-x4"
 (each triangle split into 4 once: 277,804), "teapot-x256" (1,617,920), ...
@@ -6,12 +7,14 @@ A suffix -x4^k subdivides k times (midpoint subdivision, deterministic); "bunny-
 is the bunny subdivided twice and its first 162,928 faces a third time (1,600,000),
 "bunny-6M" three times and then part of a fourth (5,999,998): PARTIAL.
 """
+import gzip
 import math
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+MESHES = Path(__file__).resolve().parents[1] / "tests" / "data" / "meshes"
 FILES = {"bunny": "stanford-bunny.obj", "fandisk": "fandisk.obj", "teapot": "teapot.obj",
          "spot": "spot.obj"}
 
@@ -43,7 +46,10 @@ def mesh(name):
         return Mesh.from_arrays(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64),
                                 name=name)
     base, _, factor = name.partition("-x")
-    m = load(SHARED / FILES[base])
+    with tempfile.TemporaryDirectory() as folder:    # kdray.load reads a mesh file
+        path = Path(folder) / FILES[base]
+        path.write_bytes(gzip.decompress((MESHES / f"{FILES[base]}.gz").read_bytes()))
+        m = load(path)
     if factor:
         times = round(math.log(int(factor), 4))
         if 4 ** times != int(factor):

@@ -1,6 +1,7 @@
-"""Shared fixtures: paths to the shared meshes and the project's scenes, and the OpenCL
-implementations the kernel tests run on."""
+"""Shared fixtures: the real meshes the tests use (vendored), the project's scenes, and
+the OpenCL implementations the kernel tests run on."""
 import dataclasses
+import gzip
 import os
 import tempfile
 from pathlib import Path
@@ -9,14 +10,21 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED_MESHES = ROOT.parent / "shared" / "meshes"
+MESHES = ROOT / "tests" / "data" / "meshes"
+"""The real meshes the tests use, gzipped OBJ files (provenance: its README.md)."""
 SCENES = ROOT / "scenes"
 
+_UNPACKED = Path(tempfile.mkdtemp(prefix="kdray-meshes-"))
 
-def shared_mesh(name):
-    path = SHARED_MESHES / name
+
+def real_mesh(name):
+    """Path of the real mesh `name` ("teapot.obj", ...): tests/data/meshes/<name>.gz,
+    unpacked once per session into a temporary folder (kdray.load and the CLI read it
+    like any mesh file)."""
+    path = _UNPACKED / name
     if not path.exists():
-        pytest.skip(f"shared mesh {path} is not present")
+        with gzip.open(MESHES / f"{name}.gz", "rb") as src:
+            path.write_bytes(src.read())
     return path
 
 
@@ -25,11 +33,11 @@ def rng():
     return np.random.default_rng(12345)
 
 
-def shared_mesh_arrays(name):
-    """(vertices (n,3) float64, faces (m,3) int64) of a shared mesh, loaded by kdray.load;
-    the test is skipped when ../shared/meshes is absent."""
+def real_mesh_arrays(name):
+    """(vertices (n,3) float64, faces (m,3) int64) of a real mesh (`real_mesh`), loaded by
+    kdray.load."""
     from kdray.load import load
-    m = load(shared_mesh(name))
+    m = load(real_mesh(name))
     return m.vertices, m.faces
 
 

@@ -24,7 +24,7 @@ from kdray import layout
 from kdray.build import build
 from kdray.reference import brute_force, traverse
 from kdray.trace import MISS, Tracer
-from conftest import SCENES, shared_mesh
+from conftest import SCENES, real_mesh
 from test_trace import assert_watertight, check_hits, split_plane_rays, tracer
 
 P99_REL = 1e-6          # issue 4: 99th percentile of the relative depth error
@@ -109,7 +109,7 @@ _BUNNY = {}
 def bunny():
     if "mesh" not in _BUNNY:
         from kdray import load
-        m = load(shared_mesh("stanford-bunny.obj"))
+        m = load(real_mesh("stanford-bunny.obj"))
         _BUNNY["mesh"] = (m.vertices.astype(np.float64), np.asarray(m.faces, np.int64))
     return _BUNNY["mesh"]
 

@@ -16,7 +16,7 @@ from kdray.build.events import position_bits, position_value, sorted_root_events
 from kdray.build.sah import best_split
 from kdray.build.subdivide import MAX_REFS_PER_TRI
 from kdray.errors import MeshError
-from conftest import shared_mesh_arrays
+from conftest import real_mesh_arrays
 
 
 
@@ -52,7 +52,7 @@ def cubes(nx, ny, nz):
     return np.concatenate(vs), np.concatenate(fs)
 
 
-load_shared = shared_mesh_arrays
+load_real = real_mesh_arrays
 
 
 def leaves(tree):
@@ -124,8 +124,8 @@ def test_random_soups(seed, n, size):
 
 
 @pytest.mark.parametrize("name", ["teapot.obj", "spot.obj", "fandisk.obj", "stanford-bunny.obj"])
-def test_shared_meshes(name):
-    v, f = load_shared(name)
+def test_real_meshes(name):
+    v, f = load_real(name)
     tree = build(v, f)
     check_tree(tree, v, f)
     s = tree.stats()
@@ -134,8 +134,8 @@ def test_shared_meshes(name):
 
 
 @pytest.mark.parametrize("name", ["teapot.obj", "fandisk.obj"])
-def test_shared_meshes_hits_match_brute_force(name):
-    v, f = load_shared(name)
+def test_real_meshes_hits_match_brute_force(name):
+    v, f = load_real(name)
     tree = build(v, f)
     assert_same_hits(tree, np.random.default_rng(11), n=1000, min_hits=200)
 
@@ -307,7 +307,7 @@ def test_long_thin_overlapping_slivers(flat):
 # -- determinism and parameters ------------------------------------------------------
 
 def test_deterministic():
-    v, f = load_shared("teapot.obj")
+    v, f = load_real("teapot.obj")
     a = build(v, f)
     b = build(v.copy(), f.copy())
     assert a == b
@@ -339,7 +339,7 @@ def test_parameters_change_the_tree():
 def test_threads_give_the_same_tree(monkeypatch, task_depth, stages):
     # Subtrees built as tasks on threads and spliced in == the one-thread build.
     subdivide = importlib.import_module("kdray.build.subdivide")   # kdray.build is the function
-    v, f = load_shared("fandisk.obj")
+    v, f = load_real("fandisk.obj")
     one = build(v, f, threads=1)
     monkeypatch.setattr(subdivide, "MIN_PARALLEL_TRIS", 0)
     monkeypatch.setattr(subdivide, "TASK_DEPTH", task_depth)
@@ -356,7 +356,7 @@ def test_event_room_does_not_change_the_tree(monkeypatch, room_per_tri, room):
     # nodes are those of the one-thread build with the default room.
     from kdray.build.prepare import prepare
     subdivide = importlib.import_module("kdray.build.subdivide")
-    v, f = load_shared("fandisk.obj")
+    v, f = load_real("fandisk.obj")
     mesh = prepare(v, f)
     m = len(mesh.triangles)
     params = (140.0, 20.0, 0.8, 24, 1)

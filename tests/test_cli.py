@@ -2,7 +2,7 @@
 
 from kdray.cli import main
 from kdray.tree import KdTree
-from conftest import shared_mesh
+from conftest import real_mesh
 
 
 def run(capsys, *argv):
@@ -18,7 +18,7 @@ def run(capsys, *argv):
 
 def test_build_dump_info_check(capsys, tmp_path):
     tree_path = tmp_path / "teapot.kdt"
-    code, out, err = run(capsys, "build", shared_mesh("teapot.obj"), "--dump", tree_path)
+    code, out, err = run(capsys, "build", real_mesh("teapot.obj"), "--dump", tree_path)
     assert code == 0, err
     assert "nodes" in out and "build_seconds" in out and "refs_per_triangle" in out
     tree = KdTree.load(tree_path)
@@ -31,7 +31,7 @@ def test_build_dump_info_check(capsys, tmp_path):
 
 def test_build_options_reach_the_builder(capsys, tmp_path):
     tree_path = tmp_path / "t.kdt"
-    code, _, err = run(capsys, "build", shared_mesh("teapot.obj"), "--dump", tree_path,
+    code, _, err = run(capsys, "build", real_mesh("teapot.obj"), "--dump", tree_path,
                        "--max-depth", "5", "--k-i", "40", "--empty-bonus", "1")
     assert code == 0, err
     p = KdTree.load(tree_path).params
@@ -63,7 +63,7 @@ def test_usage_errors_exit_2(capsys):
 
 def test_dump_onto_the_input_is_refused(capsys, tmp_path):
     src = tmp_path / "m.obj"
-    src.write_bytes(shared_mesh("teapot.obj").read_bytes())
+    src.write_bytes(real_mesh("teapot.obj").read_bytes())
     code, _, err = run(capsys, "build", src, "--dump", src)
     assert code == 1 and "overwrite the input" in err
     assert src.read_bytes()[:2] != b"KD"

@@ -5,7 +5,7 @@ import pytest
 
 import kdray
 from kdray.cull import build_for_camera, cull_faces, mesh_origin, scene_box
-from conftest import SCENES, shared_mesh_arrays
+from conftest import SCENES, real_mesh_arrays
 
 SIZE = (96, 72)
 
@@ -54,7 +54,7 @@ def _check_scene(vertices, faces, cameras, expect_culled):
 
 
 def test_bunny_images_are_the_same_with_culling():
-    vertices, faces = shared_mesh_arrays("stanford-bunny.obj")
+    vertices, faces = real_mesh_arrays("stanford-bunny.obj")
     lo, hi = scene_box(vertices, faces)
     _check_scene(vertices, faces, _cameras(lo, hi), expect_culled={"part", "inside", "away"})
 
@@ -70,7 +70,7 @@ def test_cornell_images_are_the_same_with_culling():
 
 
 def test_looking_away_gives_all_miss_images():
-    vertices, faces = shared_mesh_arrays("stanford-bunny.obj")
+    vertices, faces = real_mesh_arrays("stanford-bunny.obj")
     lo, hi = scene_box(vertices, faces)
     camera = _cameras(lo, hi)["away"]
     assert len(cull_faces(vertices, faces, camera)) == 0

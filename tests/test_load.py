@@ -5,13 +5,13 @@ import pytest
 from kdray.load import load
 from kdray.errors import MeshError
 from kdray.mesh import Mesh
-from conftest import shared_mesh
+from conftest import real_mesh
 
 
 @pytest.mark.parametrize("name, n_tris", [("stanford-bunny.obj", 69451), ("fandisk.obj", 12946),
                                           ("teapot.obj", 6320), ("spot.obj", 5856)])
-def test_shared_meshes(name, n_tris):
-    m = load(shared_mesh(name))
+def test_real_meshes(name, n_tris):
+    m = load(real_mesh(name))
     assert m.faces.shape == (n_tris, 3) and m.vertices.dtype == np.float64
     assert m.faces.min() >= 0 and m.faces.max() < len(m.vertices)
 

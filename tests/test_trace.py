@@ -11,7 +11,7 @@ import pytest
 import trees
 from kdray import layout, trace
 from kdray.errors import KdrayError
-from conftest import shared_mesh_arrays
+from conftest import real_mesh_arrays
 from kdray.reference import brute_force
 from kdray.trace import MISS, Tracer, default_stack_size
 
@@ -21,7 +21,7 @@ GRAZE_ULPS = 64         # how near an edge a graze passes: float32 ulps of the m
 MAX_GRAZE = 0.002       # fraction of rays allowed to graze an edge differently
 
 
-mesh = shared_mesh_arrays
+mesh = real_mesh_arrays
 
 
 def sah_tree(vertices, faces):
