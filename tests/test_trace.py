@@ -125,8 +125,11 @@ def graze_tolerance(tree, tri, o, d, t_p, frame):
     return GRAZE_ULPS * 2.0 ** -24 * np.max(mags, axis=0)
 
 
-def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, frame="world"):
-    """Assert that `hits` agree with the oracle; return the number of rays that hit."""
+def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, frame="world",
+               rtol=RTOL_T):
+    """Assert that `hits` agree with the oracle (t and barycentric points to `rtol`
+    relative, at most `max_graze` of the rays grazing an edge differently); return the
+    number of rays that hit."""
     t_ref, p_ref, u_ref, v_ref, world, o = reference(tree, o, d, t_min, t_max, frame)
     ours = np.where(hits.prim == MISS, -1, hits.prim.astype(np.int64))
     hit, ref_hit = ours >= 0, p_ref >= 0
@@ -137,11 +140,11 @@ def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, f
     assert np.all((hits.t[hit] > t_min) & (hits.t[hit] < t_max))
 
     same = hit & ref_hit & (ours == p_ref)
-    # t: relative error RTOL_T, plus (for rays starting next to a surface) the float32
+    # t: relative error rtol, plus (for rays starting next to a surface) the float32
     # rounding of coordinates, 1e-6 of the scene's size along the ray
     scale = np.linalg.norm(tree.bounds[1].astype(np.float64) - tree.bounds[0])
     err = np.abs(hits.t[same] - t_ref[same])
-    allowed = RTOL_T * t_ref[same] + 1e-6 * scale / np.linalg.norm(d[same], axis=1)
+    allowed = rtol * t_ref[same] + 1e-6 * scale / np.linalg.norm(d[same], axis=1)
     assert np.all(err <= allowed), f"t error {np.max(err / t_ref[same]):.3g}"
     # barycentrics: the points they give agree to 1e-5 of the scene's size (as t does)
     tri = world[ours[same]]
@@ -150,7 +153,7 @@ def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, f
         u, v = u.astype(np.float64)[:, None], v.astype(np.float64)[:, None]
         return (1 - u - v) * tri[:, 0] + u * tri[:, 1] + v * tri[:, 2]
     err = np.linalg.norm(point(hits.u[same], hits.v[same]) - point(u_ref[same], v_ref[same]), axis=1)
-    assert err.size == 0 or err.max() <= RTOL_T * scale, f"barycentric error {err.max() / scale:.3g}"
+    assert err.size == 0 or err.max() <= rtol * scale, f"barycentric error {err.max() / scale:.3g}"
     # normals: float64 (v1 - v0) x (v2 - v0) of the hit triangle
     n64 = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n64 /= np.linalg.norm(n64, axis=1, keepdims=True)
@@ -172,7 +175,7 @@ def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, f
     if len(diff):
         out_ours, edge_ours, tol, t_p = gap(ours[diff], diff)
         assert np.all(out_ours <= tol), "a different, non-touching triangle"
-        tie = np.isclose(t_p, t_ref[diff], rtol=RTOL_T)
+        tie = np.isclose(t_p, t_ref[diff], rtol=rtol)
         _, edge_ref, tol_ref, _ = gap(p_ref[diff], diff)
         graze = np.where(t_p < t_ref[diff], edge_ours <= tol, edge_ref <= tol_ref)
         assert np.all(tie | graze), "a different triangle at another t"
