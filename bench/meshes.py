@@ -7,9 +7,7 @@ A suffix -x4^k subdivides k times (midpoint subdivision, deterministic); "bunny-
 is the bunny subdivided twice and its first 162,928 faces a third time (1,600,000),
 "bunny-6M" three times and then part of a fourth (5,999,998): PARTIAL.
 """
-import gzip
 import math
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -46,10 +44,7 @@ def mesh(name):
         return Mesh.from_arrays(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64),
                                 name=name)
     base, _, factor = name.partition("-x")
-    with tempfile.TemporaryDirectory() as folder:    # kdray.load reads a mesh file
-        path = Path(folder) / FILES[base]
-        path.write_bytes(gzip.decompress((MESHES / f"{FILES[base]}.gz").read_bytes()))
-        m = load(path)
+    m = load(MESHES / f"{FILES[base]}.gz")
     if factor:
         times = round(math.log(int(factor), 4))
         if 4 ** times != int(factor):

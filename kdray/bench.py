@@ -55,10 +55,11 @@ _HEADERS = {"scene": "scene", "tris": "tris", "setting": "setting", "build_s": "
 
 
 def default_scenes(root=None):
-    """The shipped cornell and sphere scenes and, when present, ../shared's bunny."""
+    """The shipped cornell and sphere scenes and, in a clone of the repository, the
+    tests' gzipped Stanford bunny (tests/data/meshes)."""
     root = root or os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     scenes = [os.path.join(root, "scenes", "cornell.obj"), os.path.join(root, "scenes", "sphere.obj")]
-    bunny = os.path.join(root, "..", "shared", "meshes", "stanford-bunny.obj")
+    bunny = os.path.join(root, "tests", "data", "meshes", "stanford-bunny.obj.gz")
     if os.path.exists(bunny):
         scenes.append(os.path.normpath(bunny))
     return scenes

@@ -322,7 +322,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
 def bench(scenes, size, repeat, sample, settings, plot_file, csv_file, device, offset):
     """Error against run time: kdray's settings, Open3D and embreex on the same rays.
 
-    SCENES default to scenes/cornell.obj, scenes/sphere.obj and ../shared's Stanford bunny."""
+    SCENES default to scenes/cornell.obj, scenes/sphere.obj and the tests' Stanford bunny."""
     from . import bench as _bench
     for path in (plot_file, csv_file):
         if path:

@@ -4,8 +4,11 @@ OBJ and PLY first, then anything trimesh loads as triangles (STL, OFF, GLB/glTF)
 quads and polygons are triangulated by trimesh's loaders, scenes of several meshes
 are flattened with their node transforms applied, materials and textures are skipped
 (no image library is needed). Triangle ids are the order of the loaded triangles:
-meshes are taken in the scene graph's order, each mesh's faces in file order.
+meshes are taken in the scene graph's order, each mesh's faces in file order. A file
+whose name ends in .gz is read through gzip ("bunny.obj.gz" as an OBJ named
+"bunny.obj").
 """
+import gzip
 import logging
 import os
 
@@ -30,12 +33,21 @@ def load(path):
         raise MeshError(f"{path}: is empty")
     import trimesh
 
-    ext = os.path.splitext(path)[1].lower().lstrip(".")
+    file_name = os.path.basename(path)
+    zipped = file_name.lower().endswith(".gz")
+    if zipped:
+        file_name = file_name[:-3]
+    ext = os.path.splitext(file_name)[1].lower().lstrip(".")
     if ext not in trimesh.available_formats():
         raise MeshError(f"{path}: unknown mesh format {'.' + ext if ext else '(no extension)'} "
                         f"(kdray reads OBJ, PLY, STL, OFF, GLB/glTF and what else trimesh loads)")
     try:
-        scene = trimesh.load(path, force="scene", process=False, skip_materials=True)
+        if zipped:
+            with gzip.open(path, "rb") as f:
+                scene = trimesh.load(f, file_type=ext, force="scene", process=False,
+                                     skip_materials=True)
+        else:
+            scene = trimesh.load(path, force="scene", process=False, skip_materials=True)
     except IndexError as e:
         raise MeshError(f"{path}: a face refers to a vertex that does not exist ({e})") from None
     except Exception as e:  # trimesh raises many kinds for a malformed file
@@ -58,5 +70,4 @@ def load(path):
         kinds = sorted({type(g).__name__ for g in scene.geometry.values()})
         what = f" (only {', '.join(kinds)})" if kinds else ""
         raise MeshError(f"{path}: contains no triangles{what}")
-    return Mesh.from_arrays(np.concatenate(vertices), np.concatenate(faces),
-                            name=os.path.basename(path))
+    return Mesh.from_arrays(np.concatenate(vertices), np.concatenate(faces), name=file_name)

@@ -16,6 +16,19 @@ def test_real_meshes(name, n_tris):
     assert m.faces.min() >= 0 and m.faces.max() < len(m.vertices)
 
 
+def test_gzipped_files_read_as_their_format(tmp_path):
+    """NAME.obj.gz loads as NAME.obj would, under that name; a .gz whose inner name has
+    an unknown extension is refused."""
+    from conftest import MESHES
+    zipped, plain = load(MESHES / "spot.obj.gz"), load(real_mesh("spot.obj"))
+    assert zipped.name == plain.name == "spot.obj"
+    assert np.array_equal(zipped.vertices, plain.vertices) and np.array_equal(zipped.faces, plain.faces)
+    odd = tmp_path / "mesh.abc.gz"
+    odd.write_bytes((MESHES / "spot.obj.gz").read_bytes())
+    with pytest.raises(MeshError, match="unknown mesh format .abc"):
+        load(odd)
+
+
 def test_quads_and_polygons_are_triangulated(tmp_path):
     p = tmp_path / "q.obj"
     p.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nv 1.5 2 0\n"
