@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
 	@# one tiny build (the one-thread path) and one of 20,000 triangles (the threaded
-	@# path): every numba function compiled into kdray/build/__pycache__
+	@# path): every numba function compiled into kdray/builder/__pycache__
 	@echo "compiling the tree builder (numba, once per install: about half a minute)"
 	$(BIN)/python -c "import numpy as np, kdray; r = np.random.default_rng(0); \
 	  kdray.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]); \

@@ -19,7 +19,7 @@ from .runtimes import register_runtimes as _register_runtimes
 _register_runtimes()
 
 from . import cull
-from .build import build
+from .builder import build
 from .camera import Camera
 from .errors import (CameraError, DeviceError, KdrayError, KernelBuildError, MeshError,
                      OutputError, TreeError, TreeFileError)

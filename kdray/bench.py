@@ -215,7 +215,7 @@ def errors(t, prim, normal, ref_t, ref_prim, ref_normal):
 # -- the methods: each returns (build seconds, trace seconds, t, prim, normal) on all rays -----
 
 def _kdray(setting, mesh, trees, o, d, repeat, device):
-    from .build import build
+    from .builder import build
     from .trace import MISS, Tracer
     params = dict(setting.build)
     key = setting.build
@@ -308,7 +308,7 @@ def run(scenes=None, size=(512, 512), repeat=5, sample=10000, settings=None, dev
         offset=0.0, step=None, seed=0):
     """Benchmark `settings` on `scenes`; returns (rows, notes): rows are dicts keyed by
     COLUMNS, notes are sentences about what was left out."""
-    from .build import build
+    from .builder import build
     from .camera import Camera
     from .load import load
     from .mesh import Mesh

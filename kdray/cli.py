@@ -106,10 +106,10 @@ class Steps:
 
 
 def _build_mesh(mesh, path, params, builder=None, *args):
-    """builder(vertices, faces, *args, **params) (default kdray.build.build) on a loaded
+    """builder(vertices, faces, *args, **params) (default kdray.builder.build) on a loaded
     mesh; mesh errors name the file."""
     if builder is None:
-        from .build import build as builder
+        from .builder import build as builder
     try:
         return builder(mesh.vertices, mesh.faces, *args, **params)
     except MeshError as e:

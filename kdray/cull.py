@@ -28,8 +28,8 @@ import logging
 
 import numpy as np
 
-from .build import build
-from .build.prepare import mesh_origin, prepare
+from .builder import build
+from .builder.prepare import mesh_origin, prepare
 from .mesh import check_arrays
 
 log = logging.getLogger(__name__)
@@ -123,7 +123,7 @@ def build_for_camera(vertices, faces, camera, **build_params):
     """A KdTree of the triangles `camera` may see; its images equal the whole mesh's.
 
     vertices : (n, 3) float64;  faces : (m, 3) int;  camera : kdray.Camera
-    build_params : keyword arguments of kdray.build.build (K_T, K_I, ...; not origin)
+    build_params : keyword arguments of kdray.builder.build (K_T, K_I, ...; not origin)
     Returns (tree, n_left_out): the tree, with the whole mesh's origin, `tri_ids`
     pointing into `faces` and `n_input_tris` = m, and the number of triangles the cull
     left out (degenerate ones among them included; the builder leaves out the

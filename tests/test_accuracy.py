@@ -21,7 +21,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from kdray import layout
-from kdray.build import build
+from kdray.builder import build
 from kdray.reference import brute_force, traverse
 from kdray.trace import MISS, Tracer
 from conftest import SCENES, real_mesh

@@ -30,3 +30,19 @@ print("ok", len(h.t))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "ok 5"
+
+
+def test_no_public_name_means_two_things():
+    # kdray.build is the function; the builder's modules are kdray.builder.*
+    code = """
+import kdray, kdray.builder, kdray.builder.prepare
+assert callable(kdray.build) and kdray.build is kdray.builder.build
+tree = kdray.builder.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+print(type(tree).__name__)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "KdTree"
+    public = {name: getattr(kdray, name) for name in kdray.__all__}
+    modules = {name for name, value in public.items() if type(value).__name__ == "module"}
+    assert modules == {"cull"}

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from kdray import layout, reference
-from kdray.build import build
-from kdray.build.classify import (ON_BOTH, ON_LEFT, ON_RIGHT, classify, clip_straddlers,
+from kdray.builder import build
+from kdray.builder.classify import (ON_BOTH, ON_LEFT, ON_RIGHT, classify, clip_straddlers,
                                   split_merge, straddler_events)
-from kdray.build.clip import clip_split, polygon_scratch
-from kdray.build.events import position_bits, position_value, sorted_root_events
-from kdray.build.sah import best_split
-from kdray.build.subdivide import MAX_REFS_PER_TRI
+from kdray.builder.clip import clip_split, polygon_scratch
+from kdray.builder.events import position_bits, position_value, sorted_root_events
+from kdray.builder.sah import best_split
+from kdray.builder.subdivide import MAX_REFS_PER_TRI
 from kdray.errors import MeshError
 from conftest import real_mesh_arrays
 
@@ -222,7 +222,7 @@ def test_prepare_matches_numpy(seed, threads, monkeypatch):
     # Degenerate, non-finite, float32-overflowing and tiny triangles among ordinary ones;
     # on threads, in pieces (each leaves out its own) put back together.
     import concurrent.futures
-    prepare_module = importlib.import_module("kdray.build.prepare")
+    prepare_module = importlib.import_module("kdray.builder.prepare")
     monkeypatch.setattr(prepare_module, "PARALLEL_FACES", 0)
     pool = concurrent.futures.ThreadPoolExecutor(threads)
 
@@ -338,7 +338,7 @@ def test_parameters_change_the_tree():
 @pytest.mark.parametrize("task_depth, stages", [(1, (1,)), (3, (1,)), (6, (1, 2)), (4, ())])
 def test_threads_give_the_same_tree(monkeypatch, task_depth, stages):
     # Subtrees built as tasks on threads and spliced in == the one-thread build.
-    subdivide = importlib.import_module("kdray.build.subdivide")   # kdray.build is the function
+    subdivide = importlib.import_module("kdray.builder.subdivide")
     v, f = load_real("fandisk.obj")
     one = build(v, f, threads=1)
     monkeypatch.setattr(subdivide, "MIN_PARALLEL_TRIS", 0)
@@ -354,8 +354,8 @@ def test_event_room_does_not_change_the_tree(monkeypatch, room_per_tri, room):
     # However much room the root's events have (none: the two event buffers grow, and
     # the root's children are copied out; a little: they do not fit in halves), the
     # nodes are those of the one-thread build with the default room.
-    from kdray.build.prepare import prepare
-    subdivide = importlib.import_module("kdray.build.subdivide")
+    from kdray.builder.prepare import prepare
+    subdivide = importlib.import_module("kdray.builder.subdivide")
     v, f = load_real("fandisk.obj")
     mesh = prepare(v, f)
     m = len(mesh.triangles)
@@ -428,7 +428,7 @@ def brute_force_sah(boxes, box, K_T, K_I, lam):
 def test_root_events_are_sorted_keys(threads, room):
     # The radix sort on position and type == numpy's sort of the whole keys, whatever
     # the threads and scratch: shared positions, planar triangles, +-0, negative values.
-    from kdray.build.events import END, PLANAR, START
+    from kdray.builder.events import END, PLANAR, START
 
     def key(x, kind, t):                     # the key layout of events.py, in numpy
         b = (x + np.float32(0.0)).view(np.uint32).astype(np.uint64)

@@ -16,7 +16,7 @@ from small_trees import two_leaf_tree
 def seed_files():
     files = [two_leaf_tree().to_bytes()]
     try:
-        from kdray.build import build
+        from kdray.builder import build
         rng = np.random.default_rng(5)
         tris = rng.random((60, 3, 3))
         files.append(build(tris.reshape(-1, 3), np.arange(180).reshape(60, 3)).to_bytes())

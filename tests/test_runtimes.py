@@ -37,7 +37,7 @@ def scene_tree(name):
             v, f = soup(5)
             _TREES[name] = trees.split_tree(v, f, max_depth=18, leaf_size=4)
         else:
-            from kdray.build import build
+            from kdray.builder import build
             mesh = load(SCENES / f"{name}.obj")
             _TREES[name] = build(mesh.vertices, mesh.faces)
     return _TREES[name]

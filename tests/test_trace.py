@@ -25,7 +25,7 @@ mesh = real_mesh_arrays
 
 
 def sah_tree(vertices, faces):
-    from kdray.build import build
+    from kdray.builder import build
     return build(vertices, faces)
 
 

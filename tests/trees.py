@@ -1,4 +1,4 @@
-"""Trees built in plain numpy for the traversal tests, independent of kdray.build.
+"""Trees built in plain numpy for the traversal tests, independent of kdray.builder.
 
     tree = leaf_tree(vertices, faces)                       # one leaf holds everything
     tree = split_tree(vertices, faces, max_depth=20)        # median splits

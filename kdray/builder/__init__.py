@@ -1,7 +1,7 @@
 """The SAH k-d tree builder (Wald & Havran 2006, O(n log n), with perfect splits).
 
-    import kdray.build
-    tree = kdray.build.build(vertices, faces)          # -> kdray.tree.KdTree
+    import kdray.builder
+    tree = kdray.builder.build(vertices, faces)        # -> kdray.tree.KdTree
     tree.validate()
 
 Pipeline (one module each): `prepare` (mesh arrays -> float32 triangles relative to
@@ -14,7 +14,7 @@ The build is a pure function: no I/O, no globals; the same input gives identical
 arrays, whatever the number of threads. The numba kernels are cached on disk
 (`__pycache__`); the first call in a fresh checkout compiles them (about 20 s on 2
 cores). numba checks a cached function against its own file only: after editing one of these modules, delete
-`kdray/build/__pycache__/*.nb[ic]` so that the functions calling it are rebuilt too.
+`kdray/builder/__pycache__/*.nb[ic]` so that the functions calling it are rebuilt too.
 """
 import concurrent.futures
 import contextlib
