@@ -26,7 +26,8 @@ from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
 from kdray.bench import timed  # noqa: E402
-from kdray.trace import _OUTPUT_WIDTH, _host_bytes_per_pixel, kernel_outputs  # noqa: E402
+from kdray.layout import OUTPUT_WIDTH  # noqa: E402
+from kdray.render import host_bytes_per_pixel, kernel_outputs  # noqa: E402
 
 AOV_SETS = [("depth",), ("depth", "normal"), ("depth", "bary"), ("depth", "id"),
             ("depth", "normal", "bary", "id"), ("distance",), ("position",)]
@@ -39,8 +40,8 @@ def outputs(tracer, camera, repeat):
     for aovs in AOV_SETS:
         s = timed(lambda: tracer.render(camera, aovs=aovs), repeat)[0]
         outs = kernel_outputs(aovs)
-        device = sum(_OUTPUT_WIDTH[o][0] * 4 for o in outs)
-        host = _host_bytes_per_pixel(aovs)
+        device = sum(OUTPUT_WIDTH[o][0] * 4 for o in outs)
+        host = host_bytes_per_pixel(aovs)
         if len(aovs) == 4:
             full = (s, device)
         print(f"{','.join(aovs):<28} {' '.join(outs):<18} {device:>11} {host:>9} {s:>9.4f}", flush=True)

@@ -216,7 +216,8 @@ def errors(t, prim, normal, ref_t, ref_prim, ref_normal):
 
 def _kdray(setting, mesh, trees, o, d, repeat, device):
     from .builder import build
-    from .trace import MISS, Tracer
+    from .layout import MISS
+    from .trace import Tracer
     params = dict(setting.build)
     key = setting.build
     if key not in trees:

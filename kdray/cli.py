@@ -118,7 +118,8 @@ def _build_mesh(mesh, path, params, builder=None, *args):
 
 def _log_left_out(tree, tracer, n_culled, from_file, outputs):
     """-v: what the render left out: triangles, kernel outputs, stack entries."""
-    from .trace import KERNEL_OUTPUTS, default_stack_size
+    from .layout import KERNEL_OUTPUTS
+    from .trace import default_stack_size
     n_input, n_kept = tree.n_input_tris, len(tree.tri_ids)
     if from_file:
         log.info("the tree holds %d of %d input triangles (the others are degenerate, or were "
@@ -238,9 +239,9 @@ def devices():
 def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_file, aov,
            preview, tree_file, device, cull, **kw):
     """Render SCENE's depth, normal, barycentric and id images to an EXR file."""
-    from .camera import Camera
     from .images import write_exr, write_preview
-    from .trace import Tracer, kernel_outputs, parse_aovs
+    from .render import kernel_outputs, parse_aovs
+    from .trace import Tracer
     from .tree import KdTree
     params = _build_kwargs(kw)
     aovs = parse_aovs(aov)
@@ -281,10 +282,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
         tracer = Tracer(tree, device=device)
     outputs = kernel_outputs(aovs)
     with step("compiling the kernels"):
-        # build the program, then launch it on one pixel: PoCL compiles a kernel again
-        # at its first launch (per work-group size), which belongs here, not to tracing
-        tracer.program(outputs)
-        tracer.render(Camera(1, 1, camera.K, camera.cam_to_world), aovs=aovs)
+        tracer.compile(aovs)
     with step(f"tracing {width}x{height} rays"):
         images = tracer.render(camera, aovs=aovs)
     _log_left_out(tree, tracer, n_culled, from_file=bool(tree_file), outputs=outputs)

@@ -34,7 +34,8 @@ import numpy as np
 
 from .errors import KdrayError, OutputError
 from .files import atomic_write, atomic_write_bytes
-from .trace import AOVS, MISS
+from .layout import MISS
+from .render import AOVS
 
 CHANNELS = {
     "depth": ("Z",),

@@ -201,3 +201,37 @@ def decode(data, name="tree file"):
         params=dict(K_T=K_T, K_I=K_I, empty_bonus=empty_bonus,
                     max_depth=int(max_depth), leaf_size=int(leaf_size)),
     )
+
+
+# -- on the device (kernels/layout.h, kernels/render.cl) ------------------------------
+
+MISS = np.uint32(0xFFFFFFFF)
+"""Triangle id of a ray that hits nothing (KD_NO_HIT in kernels/layout.h)."""
+
+KERNEL_OUTPUTS = ("T", "UV", "NORMAL", "ID")
+"""What a kernel can compute and store per ray (kernels/render.cl, -D OUT_<name>)."""
+
+OUTPUT_WIDTH = {"T": (1, np.float32), "UV": (2, np.float32), "NORMAL": (3, np.float32),
+                "ID": (1, np.uint32), "STATS": (4, np.uint32)}
+"""(values per ray, dtype) of each kernel output and of the STATS counters."""
+
+
+def device_sizes(tree):
+    """Bytes of each of the tree's device buffers: {"nodes", "triangles", "triangle
+    ids": int}, the last two with a copy per leaf reference (`device_triangles`)."""
+    refs = len(tree.leaf_tris)
+    return {"nodes": int(tree.nodes.nbytes), "triangles": 36 * refs, "triangle ids": 4 * refs}
+
+
+def device_triangles(tree):
+    """The triangles as the kernels read them: (tris (n_refs, 3, 3) float32, tri_ids
+    (n_refs,) uint32), one copy per entry of tree.leaf_tris, in that order, so that a
+    leaf's triangles are tris[leaf_offset : leaf_offset + n_prims] (kernels/layout.h).
+
+    A leaf is read in one run, with no index list to read first, for 40 bytes a
+    reference instead of 4 a reference and 40 a triangle (BENCHMARKS.md measures both).
+    The copies of a triangle are alike and keep its input id, so ties still go to the
+    lowest input id (kd_before) and a hit does not depend on the copy found."""
+    refs = np.asarray(tree.leaf_tris, dtype=np.intp)
+    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[refs]
+    return tris, np.asarray(tree.tri_ids, dtype=np.uint32)[refs]

@@ -29,18 +29,14 @@ import time
 import numpy as np
 
 from . import device as _device
+from . import render as _render
 from .errors import DeviceError, KdrayError
-from .layout import MAX_DEPTH_LIMIT
+from .host import PAGE, check_host_memory, page_aligned_empty
+from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_sizes,
+                     device_triangles)
+from .render import DEFAULT_AOVS
 
 log = logging.getLogger(__name__)
-
-MISS = np.uint32(0xFFFFFFFF)
-"""`prim` / `id` of a ray that hits nothing."""
-
-AOVS = ("depth", "distance", "normal", "bary", "id", "position")
-"""Every output `render` knows."""
-
-DEFAULT_AOVS = ("depth", "normal", "bary", "id")
 
 MAX_RAYS_PER_LAUNCH = 1 << 22
 """Rays per kernel launch at most: keeps the 32-bit batch counter far from overflow and
@@ -54,12 +50,7 @@ _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
 larger than any triangle id): a test can then see any element the kernel missed."""
 
-KERNEL_OUTPUTS = ("T", "UV", "NORMAL", "ID")
-"""What a kernel can compute and store per ray (kernels/render.cl, -D OUT_<name>)."""
-
 _OUTPUTS = KERNEL_OUTPUTS + ("STATS",)   # the kernels' output arguments, in order
-_OUTPUT_WIDTH = {"T": (1, np.float32), "UV": (2, np.float32), "NORMAL": (3, np.float32),
-                 "ID": (1, np.uint32), "STATS": (4, np.uint32)}
 
 
 @dataclasses.dataclass(eq=False)
@@ -101,12 +92,6 @@ def default_stack_size(tree):
 
 PACKET = 8
 """Rays per work-item in packet mode (float8 lanes, kernels/packet.cl)."""
-
-RENDER_TILE = (64, 8)
-"""(columns, rows) of the tiles `render` takes pixels in (kernels/render.cl): neighbours
-in both directions are traced one after another and share the tree's nodes in the
-cache. Columns are a multiple of PACKET."""
-
 
 def default_packet(device):
     """Rays per work-item: PACKET on CPU devices, 1 on others.
@@ -264,8 +249,8 @@ class Tracer:
         with its kernels: {"program": Program, "trace_rays": Kernel, ...}. rays_double:
         trace_rays takes float64 rays in world coordinates (render.cl, RAYS_DOUBLE)."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
-                   "BATCH_SIZE": self.batch_size, "TILE_W": RENDER_TILE[0],
-                   "TILE_H": RENDER_TILE[1]}
+                   "BATCH_SIZE": self.batch_size, "TILE_W": _render.RENDER_TILE[0],
+                   "TILE_H": _render.RENDER_TILE[1]}
         if rays_double:
             defines["RAYS_DOUBLE"] = None
         if self.packet > 1:
@@ -290,6 +275,25 @@ class Tracer:
                 entry[name] = cl.Kernel(program, name)
             self._programs[key] = entry
         return entry
+
+    def compile(self, aovs=DEFAULT_AOVS, trace=False):
+        """Build the program `render` uses for `aovs` (and with trace=True the ones
+        `trace` uses for float64 and float32 rays) and launch each once on one pixel
+        (ray), so that the time of compiling is spent here and not in the first render:
+        some runtimes compile a kernel again at its first launch (PoCL, per work-group
+        size). Returns the Tracer."""
+        outputs = _render.kernel_outputs(aovs)
+        # a camera with M = 0 at the tree's origin: its one ray has a zero direction
+        # and misses at once
+        camera_buf = self._buffer(np.zeros(12, dtype=np.float32))
+        out = {k: page_aligned_empty(shape, dtype)
+               for k, (shape, dtype) in _render.output_shapes(1, outputs).items()}
+        self._launch("render_camera", outputs, _render.tile_slots(1, 1),
+                     (camera_buf, np.uint32(1), np.uint32(0), np.uint32(1)), out)
+        if trace:
+            for dtype in (np.float64, np.float32):
+                self._trace(np.zeros((1, 3), dtype), np.zeros((1, 3), dtype))
+        return self
 
     # -- launching ---------------------------------------------------------------------
 
@@ -413,9 +417,9 @@ class Tracer:
         o, d, o_step, rays_double = self._rays(origins, directions)
         n = len(d)
         out = {name: page_aligned_empty((n, width) if width > 1 else (n,), dtype)
-               for name, (width, dtype) in _OUTPUT_WIDTH.items() if stats or name != "STATS"}
+               for name, (width, dtype) in OUTPUT_WIDTH.items() if stats or name != "STATS"}
         ray_t = _RAY_BYTES["double" if rays_double else "float"]
-        widths = [ray_t] * (1 + o_step) + [_OUTPUT_WIDTH[k][0] * 4 for k in out]
+        widths = [ray_t] * (1 + o_step) + [OUTPUT_WIDTH[k][0] * 4 for k in out]
         per_launch = self._launch_size(widths)
         for start in range(0, n, per_launch):
             stop = min(n, start + per_launch)
@@ -436,31 +440,11 @@ class Tracer:
 
     # -- cameras -------------------------------------------------------------------------
 
-    def _camera_constants(self, camera):
-        """(M, eye): float32 R K^-1 (3, 3) and eye relative to the tree's origin (3,),
-        exactly as the kernel receives them."""
-        c2w = np.asarray(camera.cam_to_world, dtype=np.float64)
-        M = c2w[:3, :3] @ np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
-        eye = c2w[:3, 3] - self._origin
-        return M.astype(np.float32), eye.astype(np.float32)
-
     def camera_rays(self, camera):
         """The rays `render` traces, computed on the host with the kernel's float32
         arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c)."""
-        eye = self._camera_constants(camera)[1]
-        d = np.stack(self._camera_directions(camera), axis=1)
-        origins = np.broadcast_to(eye.astype(np.float64) + self._origin, d.shape)
-        return origins, d
-
-    def _camera_directions(self, camera):
-        """The kernel's float32 ray directions of every pixel, row-major: a list of
-        three (H*W,) float32 arrays (x, y, z components)."""
-        M, _ = self._camera_constants(camera)
-        w, h = int(camera.width), int(camera.height)
-        x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
-        y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
-        return [M[r, 0] * x + M[r, 1] * y + M[r, 2] for r in range(3)]
+        return _render.camera_rays(camera, self._origin)
 
     def render(self, camera, aovs=DEFAULT_AOVS):
         """Primary-ray images of `camera` (kdray.Camera: width, height, K, cam_to_world).
@@ -470,81 +454,34 @@ class Tracer:
         ray; normal (H, W, 3); bary (H, W, 2) u, v; id (H, W) uint32; position (H, W, 3)
         world hit point (NaN on a miss). Only what is asked is computed and stored.
         """
-        aovs = parse_aovs(aovs)
+        aovs = _render.parse_aovs(aovs)
         w, h = int(camera.width), int(camera.height)
         if w < 1 or h < 1:
             raise KdrayError(f"camera size must be at least 1x1, got {w}x{h}")
         n = w * h
-        if n >= 1 << 32 or _tile_slots(w, min(h, max(1, MAX_RAYS_PER_LAUNCH // w))) >= 1 << 32:
+        tile_slots = _render.tile_slots
+        if n >= 1 << 32 or tile_slots(w, min(h, max(1, MAX_RAYS_PER_LAUNCH // w))) >= 1 << 32:
             raise KdrayError(f"{w}x{h} pixels are too many for one render (at most 2^32 - 1, "
-                             f"rows padded to {RENDER_TILE[0]} columns)")
-        _check_host_memory(n * _host_bytes_per_pixel(aovs), f"a {w}x{h} render of {', '.join(aovs)}")
-        outputs = kernel_outputs(aovs)
-        shapes = {"T": (n,), "UV": (n, 2), "NORMAL": (n, 3), "ID": (n,)}
-        out = {k: page_aligned_empty(shapes[k], _OUTPUT_WIDTH[k][1]) for k in outputs}
-        M, eye = self._camera_constants(camera)
+                             f"rows padded to {_render.RENDER_TILE[0]} columns)")
+        check_host_memory(n * _render.host_bytes_per_pixel(aovs),
+                          f"a {w}x{h} render of {', '.join(aovs)}")
+        outputs = _render.kernel_outputs(aovs)
+        out = {k: page_aligned_empty(shape, dtype)
+               for k, (shape, dtype) in _render.output_shapes(n, outputs).items()}
+        M, eye = _render.camera_constants(camera, self._origin)
         camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]).astype(np.float32))
         # launches of whole rows: as many as fit on the device, MAX_RAYS_PER_LAUNCH
         # pixels or one row at most
-        rows_per_launch = self._launch_size([w * _OUTPUT_WIDTH[k][0] * 4 for k in outputs],
+        rows_per_launch = self._launch_size([w * OUTPUT_WIDTH[k][0] * 4 for k in outputs],
                                             what=f"row of {w} pixels",
                                             cap=max(1, MAX_RAYS_PER_LAUNCH // w))
         for row0 in range(0, h, rows_per_launch):
             n_rows = min(h - row0, rows_per_launch)
             start, stop = row0 * w, (row0 + n_rows) * w
-            slots = _tile_slots(w, n_rows)
-            self._launch("render_camera", tuple(outputs), slots,
+            self._launch("render_camera", outputs, tile_slots(w, n_rows),
                          (camera_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
                          {k: v[start:stop] for k, v in out.items()})
-
-        images = {}
-        if "distance" in aovs or "position" in aovs:
-            # float64 from the kernel's float32 rays, column by column (numpy's loops
-            # over rows of 3 are slow): |d| = sqrt((dx^2 + dy^2) + dz^2), p = o + t d
-            d = [c.astype(np.float64) for c in self._camera_directions(camera)]
-            t = out["T"].astype(np.float64)
-        for name in aovs:
-            if name == "depth":
-                images[name] = out["T"].reshape(h, w)
-            elif name == "distance":
-                dist = t * np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-                images[name] = dist.astype(np.float32).reshape(h, w)
-            elif name == "position":
-                eye = self._camera_constants(camera)[1].astype(np.float64) + self._origin
-                p = np.empty((n, 3), dtype=np.float32)
-                with np.errstate(invalid="ignore"):
-                    for k in range(3):
-                        p[:, k] = eye[k] + t * d[k]
-                p[~np.isfinite(t)] = np.nan
-                images[name] = p.reshape(h, w, 3)
-            elif name == "normal":
-                images[name] = out["NORMAL"].reshape(h, w, 3)
-            elif name == "bary":
-                images[name] = out["UV"].reshape(h, w, 2)
-            elif name == "id":
-                images[name] = out["ID"].reshape(h, w)
-        return images
-
-
-_AOV_OUTPUT = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "normal": "NORMAL",
-               "id": "ID"}
-
-
-PAGE = 4096
-"""Alignment of the host arrays kdray gives a CPU device: Intel's CPU runtime uses a
-CL_MEM_USE_HOST_PTR array in place only when it starts on a page, and copies it at
-every launch otherwise, which costs more than a copy to pages first (BENCHMARKS.md,
-issue 16)."""
-
-
-def page_aligned_empty(shape, dtype):
-    """An uninitialised C-contiguous array of `shape` and `dtype` whose data starts at a
-    multiple of PAGE bytes."""
-    dtype = np.dtype(dtype)
-    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
-    raw = np.empty(nbytes + PAGE, dtype=np.uint8)
-    start = -raw.ctypes.data % PAGE
-    return raw[start:start + nbytes].view(dtype).reshape(shape)
+        return _render.images(out, camera, self._origin, aovs)
 
 
 _RAY_BYTES = {"float": 12, "double": 24}
@@ -561,92 +498,3 @@ def rays_per_launch(global_mem, max_alloc, tree_bytes, widths, cap=None):
     free = global_mem - tree_bytes
     n = min(cap, free // max(sum(widths), 1), max_alloc // max(max(widths), 1))
     return max(int(n), 0)
-
-
-def device_sizes(tree):
-    """Bytes of each of the tree's device buffers: {"nodes", "triangles", "triangle
-    ids": int}, the last two with a copy per leaf reference (`device_triangles`)."""
-    refs = len(tree.leaf_tris)
-    return {"nodes": int(tree.nodes.nbytes), "triangles": 36 * refs, "triangle ids": 4 * refs}
-
-
-def device_triangles(tree):
-    """The triangles as the kernels read them: (tris (n_refs, 3, 3) float32, tri_ids
-    (n_refs,) uint32), one copy per entry of tree.leaf_tris, in that order, so that a
-    leaf's triangles are tris[leaf_offset : leaf_offset + n_prims] (kernels/layout.h).
-
-    A leaf is read in one run, with no index list to read first (bunny-1.6M: render
-    and trace in 0.95-0.97x the time), for 40 bytes a reference instead of 4 a reference
-    and 40 a triangle (bunny-1.6M: 1.88 references a triangle, 120 MB instead of 77).
-    The copies of a triangle are alike and keep its input id, so ties still go to the
-    lowest input id (kd_before) and a hit does not depend on the copy found."""
-    refs = np.asarray(tree.leaf_tris, dtype=np.intp)
-    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[refs]
-    return tris, np.asarray(tree.tri_ids, dtype=np.uint32)[refs]
-
-
-def kernel_outputs(aovs):
-    """The kernel outputs `Tracer.render` compiles in for `aovs` (names from AOVS), in
-    KERNEL_OUTPUTS order: depth, distance and position need T, bary UV, normal NORMAL,
-    id ID. The others are neither computed nor stored."""
-    wanted = {_AOV_OUTPUT[a] for a in parse_aovs(aovs)}
-    return tuple(name for name in KERNEL_OUTPUTS if name in wanted)
-
-
-def _tile_slots(width, n_rows):
-    """Slots of the render kernel's tiling of `n_rows` rows: whole RENDER_TILE tiles."""
-    tw, th = RENDER_TILE
-    return -(-width // tw) * tw * (-(-n_rows // th) * th)
-
-
-def _host_bytes_per_pixel(aovs):
-    """Host bytes a render needs per pixel: kernel outputs, images, and the float64
-    rays that `distance` and `position` are computed from."""
-    size = {"depth": 4, "distance": 4, "normal": 12, "bary": 8, "id": 4, "position": 12}
-    total = sum(size[a] for a in aovs) + 4
-    if "distance" in aovs or "position" in aovs:
-        total += 12 + 8 + 24 + 24
-    return total
-
-
-def available_memory():
-    """Bytes of host memory available now (Linux MemAvailable), or None if unknown."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def _check_host_memory(nbytes, what):
-    """KdrayError, before anything is allocated, when `what` needs more host memory
-    than is available."""
-    have = available_memory()
-    if have is not None and nbytes > have:
-        raise KdrayError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory, but "
-                         f"{have / 2**30:.1f} GiB are available: ask for a smaller image or fewer AOVs")
-
-
-def parse_aovs(aovs):
-    """Validated AOV names, in the order given, duplicates dropped.
-
-    aovs : a sequence of names, or one comma-separated string ('all' = every AOV).
-    Raises KdrayError naming the valid AOVs for an unknown name or an empty list.
-    """
-    if isinstance(aovs, str):
-        aovs = aovs.split(",")
-    names = [str(a).strip().lower() for a in aovs]
-    names = [n for n in names if n]
-    if names == ["all"]:
-        return AOVS
-    unknown = [n for n in names if n not in AOVS]
-    if unknown or not names:
-        what = f"unknown AOV {', '.join(repr(n) for n in unknown)}" if unknown else "no AOV given"
-        raise KdrayError(f"{what}; valid AOVs are {', '.join(AOVS)} (or 'all').")
-    return tuple(dict.fromkeys(names))

@@ -10,7 +10,7 @@ import pytest
 from kdray import images
 from kdray.errors import KdrayError, OutputError
 from kdray.images import read_exr, write_exr, write_preview
-from kdray.trace import AOVS, DEFAULT_AOVS, parse_aovs
+from kdray.render import AOVS, DEFAULT_AOVS, parse_aovs
 
 SPECIAL_IDS = [0, 1, 2**24 + 1, 0xFFFFFFFE, 0xFFFFFFFF]
 CONTRACT_CHANNELS = {

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import trees
-from kdray import layout, trace
+from kdray import layout
 from kdray.errors import KdrayError
 from conftest import real_mesh_arrays
 from kdray.reference import brute_force
@@ -478,7 +478,7 @@ def reversed_leaves(tree):
 @pytest.mark.parametrize("packet", [1, 8])
 def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet):
     """The device keeps a copy of each triangle per leaf, in the leaves' order
-    (trace.device_triangles); a tie in t still goes to the lowest input id, whatever
+    (layout.device_triangles); a tie in t still goes to the lowest input id, whatever
     that order: every triangle of the teapot twice (coincident copies, ids i and i + m),
     traced with every leaf's list reversed."""
     v, f = mesh("teapot.obj")
@@ -490,7 +490,7 @@ def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet):
     assert np.all(base.prim[base.hit] < m)
     flipped = reversed_leaves(tree)
     flipped.validate()
-    ids = [trace.device_triangles(t)[1].astype(np.int64) for t in (tree, flipped)]
+    ids = [layout.device_triangles(t)[1].astype(np.int64) for t in (tree, flipped)]
     for a, b in zip(ids, ids[1:]):      # the copy of i + m comes first where i came first
         assert np.any((a[:-1] + m == a[1:]) & (b[:-1] == b[1:] + m))
     reversed_order = Tracer(flipped, packet=packet).trace(o, d)
@@ -503,10 +503,10 @@ def test_device_triangles_are_each_leafs_run():
     n_prims) of the tree's, with their input ids."""
     v, f = mesh("teapot.obj")
     tree = sah_tree(v, f)
-    tris, ids = trace.device_triangles(tree)
+    tris, ids = layout.device_triangles(tree)
     assert tris.dtype == np.float32 and ids.dtype == np.uint32
     assert len(tris) == len(ids) == len(tree.leaf_tris) > len(tree.triangles)
-    assert trace.device_sizes(tree) == {"nodes": tree.nodes.nbytes, "triangles": tris.nbytes,
+    assert layout.device_sizes(tree) == {"nodes": tree.nodes.nbytes, "triangles": tris.nbytes,
                                         "triangle ids": ids.nbytes}
     leaf = layout.is_leaf(tree.nodes)
     for n, off in zip(layout.n_prims(tree.nodes)[leaf], layout.leaf_offset(tree.nodes)[leaf]):
@@ -842,3 +842,29 @@ def test_render_compiles_only_what_is_asked():
     tr.render(cam, aovs=("distance",))
     assert {k for k, _ in list(tr._programs)[1]} >= {"OUT_T"}
     assert not {"OUT_ID", "OUT_UV", "OUT_NORMAL"} & {k for k, _ in list(tr._programs)[1]}
+
+
+def test_compile_builds_what_render_and_trace_use():
+    """compile(aovs) builds and launches render's program for those AOVs: a render
+    afterwards builds nothing; compile(trace=True) also builds trace's programs
+    (float64 and float32 rays). What is traced after it is unchanged."""
+    tree = mesh_tree("teapot.obj", "sah")
+    tr = Tracer(tree)
+    assert tr.compile(("depth", "id")) is tr
+    (key,) = tr._programs
+    assert {"OUT_T", "OUT_ID"} <= dict(key).keys()
+    assert not {"OUT_UV", "OUT_NORMAL"} & dict(key).keys()
+    cam = camera_for(tree, 24, 16)
+    images = tr.render(cam, aovs=("id", "depth"))
+    assert len(tr._programs) == 1
+    tr.compile(trace=True)
+    n = len(tr._programs)
+    o, d = random_rays(tree, 101, seed=5)
+    hits = tr.trace(o, d)
+    tr.trace(o.astype(np.float32), d.astype(np.float32))
+    assert len(tr._programs) == n
+    fresh = Tracer(tree).trace(o, d)
+    assert all(np.array_equal(getattr(hits, k), getattr(fresh, k), equal_nan=True)
+               for k in ("t", "prim", "u", "v", "normal"))
+    again = Tracer(tree).render(cam, aovs=("id", "depth"))
+    assert all(np.array_equal(images[k], again[k]) for k in images)

@@ -1,0 +1,49 @@
+"""Host memory: page-aligned arrays for CPU devices, and how much memory is free.
+
+    a = page_aligned_empty((n, 3), np.float32)     # data starts on a PAGE boundary
+    check_host_memory(nbytes, "a 4096x4096 render of depth")   # KdrayError if too much
+"""
+import os
+
+import numpy as np
+
+from .errors import KdrayError
+
+PAGE = 4096
+"""Alignment of the host arrays kdray gives a CPU device: Intel's CPU runtime uses a
+CL_MEM_USE_HOST_PTR array in place only when it starts on a page, and copies it at
+every launch otherwise, which costs more than a copy to pages first."""
+
+
+def page_aligned_empty(shape, dtype):
+    """An uninitialised C-contiguous array of `shape` and `dtype` whose data starts at a
+    multiple of PAGE bytes."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    raw = np.empty(nbytes + PAGE, dtype=np.uint8)
+    start = -raw.ctypes.data % PAGE
+    return raw[start:start + nbytes].view(dtype).reshape(shape)
+
+
+def available_memory():
+    """Bytes of host memory available now (Linux MemAvailable), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_host_memory(nbytes, what):
+    """KdrayError, before anything is allocated, when `what` needs more host memory
+    than is available."""
+    have = available_memory()
+    if have is not None and nbytes > have:
+        raise KdrayError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory, but "
+                         f"{have / 2**30:.1f} GiB are available: ask for a smaller image or fewer AOVs")

@@ -1,0 +1,150 @@
+"""Camera renders: the AOV vocabulary, the pixel rays the render kernel makes, and the
+images made from its outputs. `Tracer.render` launches the kernel; this module holds
+what is the same on every device.
+
+    aovs = parse_aovs("depth,id")                      # ('depth', 'id')
+    kernel_outputs(aovs)                               # ('T', 'ID'): all the kernel computes
+    M, eye = camera_constants(camera, origin)          # float32, as the kernel gets them
+    origins, directions = camera_rays(camera, origin)  # the kernel's rays, on the host
+
+Pixel (i, j) (column i, row j) is sampled at its centre: its ray leaves the eye with
+direction M @ (i + 0.5, j + 0.5, 1), M = R K^-1 rounded to float32 and the product
+taken in float32 (kernels/render.cl), so its camera-z is 1 and t is the z-depth.
+"""
+import numpy as np
+
+from .errors import KdrayError
+from .layout import KERNEL_OUTPUTS, OUTPUT_WIDTH
+
+AOVS = ("depth", "distance", "normal", "bary", "id", "position")
+"""Every output `render` knows."""
+
+DEFAULT_AOVS = ("depth", "normal", "bary", "id")
+
+AOV_OUTPUT = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "normal": "NORMAL",
+              "id": "ID"}
+"""The kernel output each AOV is made from."""
+
+RENDER_TILE = (64, 8)
+"""(columns, rows) of the tiles the render kernel takes pixels in (kernels/render.cl):
+neighbours in both directions are traced one after another and share the tree's nodes
+in the cache. Columns are a multiple of the packet width (8)."""
+
+
+def parse_aovs(aovs):
+    """Validated AOV names, in the order given, duplicates dropped.
+
+    aovs : a sequence of names, or one comma-separated string ('all' = every AOV).
+    Raises KdrayError naming the valid AOVs for an unknown name or an empty list.
+    """
+    if isinstance(aovs, str):
+        aovs = aovs.split(",")
+    names = [str(a).strip().lower() for a in aovs]
+    names = [n for n in names if n]
+    if names == ["all"]:
+        return AOVS
+    unknown = [n for n in names if n not in AOVS]
+    if unknown or not names:
+        what = f"unknown AOV {', '.join(repr(n) for n in unknown)}" if unknown else "no AOV given"
+        raise KdrayError(f"{what}; valid AOVs are {', '.join(AOVS)} (or 'all').")
+    return tuple(dict.fromkeys(names))
+
+
+def kernel_outputs(aovs):
+    """The kernel outputs a render of `aovs` (names from AOVS) compiles in, in
+    KERNEL_OUTPUTS order: depth, distance and position need T, bary UV, normal NORMAL,
+    id ID. The others are neither computed nor stored."""
+    wanted = {AOV_OUTPUT[a] for a in parse_aovs(aovs)}
+    return tuple(name for name in KERNEL_OUTPUTS if name in wanted)
+
+
+def camera_constants(camera, origin):
+    """(M, eye): float32 R K^-1 (3, 3) and the eye relative to `origin` ((3,) float64,
+    the tree's origin) as (3,) float32, exactly as the kernel receives them."""
+    c2w = np.asarray(camera.cam_to_world, dtype=np.float64)
+    M = c2w[:3, :3] @ np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
+    eye = c2w[:3, 3] - np.asarray(origin, dtype=np.float64)
+    return M.astype(np.float32), eye.astype(np.float32)
+
+
+def camera_directions(camera, origin):
+    """The kernel's float32 ray directions of every pixel, row-major (row j, then
+    column i): a list of three (H*W,) float32 arrays (x, y, z components)."""
+    M, _ = camera_constants(camera, origin)
+    w, h = int(camera.width), int(camera.height)
+    x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
+    y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
+    return [M[r, 0] * x + M[r, 1] * y + M[r, 2] for r in range(3)]
+
+
+def camera_rays(camera, origin):
+    """The rays the render kernel traces, computed on the host with its float32
+    arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
+    row-major. Tracing them gives the render's hits."""
+    eye = camera_constants(camera, origin)[1]
+    d = np.stack(camera_directions(camera, origin), axis=1)
+    origins = np.broadcast_to(eye.astype(np.float64) + origin, d.shape)
+    return origins, d
+
+
+def tile_slots(width, n_rows):
+    """Work slots of the render kernel's tiling of `n_rows` rows of `width` pixels:
+    whole RENDER_TILE tiles."""
+    tw, th = RENDER_TILE
+    return -(-width // tw) * tw * (-(-n_rows // th) * th)
+
+
+def host_bytes_per_pixel(aovs):
+    """Host bytes a render of `aovs` needs per pixel: kernel outputs, images, and the
+    float64 rays that `distance` and `position` are computed from."""
+    size = {"depth": 4, "distance": 4, "normal": 12, "bary": 8, "id": 4, "position": 12}
+    total = sum(size[a] for a in aovs) + 4
+    if "distance" in aovs or "position" in aovs:
+        total += 12 + 8 + 24 + 24
+    return total
+
+
+def output_shapes(n, outputs):
+    """{output: (shape, dtype)} of the host arrays of n pixels' kernel outputs."""
+    return {k: ((n,) if OUTPUT_WIDTH[k][0] == 1 else (n, OUTPUT_WIDTH[k][0]), OUTPUT_WIDTH[k][1])
+            for k in outputs}
+
+
+def images(out, camera, origin, aovs):
+    """The AOV images of a render from the kernel's outputs.
+
+    out : {output: array} of H*W rows each (T (H*W,) float32, UV (H*W, 2), NORMAL
+        (H*W, 3), ID (H*W,) uint32), as `kernel_outputs(aovs)` asked
+    Returns a dict in the order of `aovs`: depth (H, W) z-depth, +inf on a miss;
+    distance (H, W) along the ray; normal (H, W, 3); bary (H, W, 2) u, v; id (H, W)
+    uint32; position (H, W, 3) world hit point (NaN on a miss). Arrays from `out` are
+    reshaped, not copied.
+    """
+    w, h = int(camera.width), int(camera.height)
+    result = {}
+    if "distance" in aovs or "position" in aovs:
+        # float64 from the kernel's float32 rays, column by column (numpy's loops
+        # over rows of 3 are slow): |d| = sqrt((dx^2 + dy^2) + dz^2), p = o + t d
+        d = [c.astype(np.float64) for c in camera_directions(camera, origin)]
+        t = out["T"].astype(np.float64)
+    for name in aovs:
+        if name == "depth":
+            result[name] = out["T"].reshape(h, w)
+        elif name == "distance":
+            dist = t * np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            result[name] = dist.astype(np.float32).reshape(h, w)
+        elif name == "position":
+            eye = camera_constants(camera, origin)[1].astype(np.float64) + origin
+            p = np.empty((w * h, 3), dtype=np.float32)
+            with np.errstate(invalid="ignore"):
+                for k in range(3):
+                    p[:, k] = eye[k] + t * d[k]
+            p[~np.isfinite(t)] = np.nan
+            result[name] = p.reshape(h, w, 3)
+        elif name == "normal":
+            result[name] = out["NORMAL"].reshape(h, w, 3)
+        elif name == "bary":
+            result[name] = out["UV"].reshape(h, w, 2)
+        elif name == "id":
+            result[name] = out["ID"].reshape(h, w)
+    return result
