@@ -1,9 +1,10 @@
 """AOV images -> one multi-channel OpenEXR file, and an 8-bit PNG preview for people.
 
     images = tracer.render(camera, aovs=("depth", "normal", "bary", "id"))
-    write_exr("out.exr", images)          # Z, N.X N.Y N.Z, bary.U bary.V, id
+    write_exr("out.exr", images, camera)  # Z, N.X N.Y N.Z, bary.U bary.V, id + camera
     write_preview("out.png", images)      # depth colour map | normals as RGB
     images = read_exr("out.exr")          # the same dict back, ids exact
+    camera = read_camera("out.exr")       # the same kdray.Camera back, exactly
 
 `images` maps AOV names to arrays that share one (H, W):
 
@@ -15,25 +16,26 @@
     position : (H, W, 3) float32    channels P.X P.Y P.Z   miss: NaN
 
 The EXR is a single-part scanline file, full float32 (never half) plus one 32-bit
-unsigned integer channel for ids, ZIP-compressed (lossless). It is written by this
-module (numpy + zlib) rather than by OpenImageIO: OIIO's Python bindings accept only
-buffers of one pixel type and convert them to per-channel file types through float,
-which would round ids above 2**24. Files are read back with OpenImageIO, channel group
-by channel group, so ids come back as exact uint32.
+unsigned integer channel for ids, ZIP-compressed (lossless). It is written with the
+OpenEXR package (the format's own library), which stores float32 and uint32 numpy
+arrays as they are; OpenImageIO's Python bindings would convert a buffer to the
+per-channel file types through float, rounding ids above 2**24. Files are read with
+OpenImageIO, channel group by channel group, so ids come back as exact uint32.
+
+Given the camera, the header also holds it (see `CAMERA_ATTRIBUTES`): OpenEXR's
+standard worldToCamera and worldToNDC (float32, OpenEXR's conventions) and kdray's own
+exact float64 K and camera-to-world, so that a depth image is self-describing.
+docs/exr.md documents every channel and attribute.
 
 Both writers are atomic: the data goes to a temporary file in the destination folder
 that is renamed over the destination only once complete, so a failure or Ctrl-C never
 leaves a half-written file and never damages an existing one.
 """
-import concurrent.futures
-import os
-import struct
-import zlib
-
 import numpy as np
 
+from .camera import Camera
 from .errors import KdrayError, OutputError
-from .files import atomic_write, atomic_write_bytes
+from .files import atomic_write
 from .layout import MISS
 from .render import AOVS
 
@@ -46,10 +48,6 @@ CHANNELS = {
     "position": ("P.X", "P.Y", "P.Z"),
 }
 """Each AOV's EXR channel names (the public contract)."""
-
-ZIP_LEVEL = 4
-"""zlib level for EXR chunks (OpenEXR's own default)."""
-
 
 # Checking the images dict ----------------------------------------------------------
 
@@ -99,99 +97,126 @@ def _channel_arrays(images, path):
     return channels, size
 
 
-# OpenEXR encoding ----------------------------------------------------------------------
-# A single-part scanline file: magic, version, header attributes, a table of chunk
-# offsets, then chunks of 16 scanlines: int32 y, int32 byte count, data. Within a chunk
-# the uncompressed data is, for each scanline, each channel (sorted by name) in turn.
-# ZIP compression reorders the bytes (even-indexed first), delta-encodes them and
-# deflates them; a chunk that would not shrink is stored raw (OpenEXR's rule).
+# OpenEXR writing ----------------------------------------------------------------------
 
-_EXR_MAGIC = 20000630
-_EXR_VERSION = 2
-_EXR_UINT, _EXR_FLOAT = 0, 2
-_EXR_ZIP = 3
-_ZIP_LINES = 16
+DEPTH_CONVENTION = "z-depth along the camera's +z axis (OpenCV axes), in world units; +inf on a miss"
+DISTANCE_CONVENTION = (
+    "Euclidean distance from the camera centre along the pixel's ray, in world units; +inf on a miss"
+)
 
+CAMERA_ATTRIBUTES = {
+    "worldToCamera": "m44f",
+    "worldToNDC": "m44f",
+    "kdray/K": "m33d",
+    "kdray/camToWorld": "m44d",
+    "kdray/imageSize": "v2i",
+    "kdray/depth": "string",
+    "kdray/distance": "string",
+    "kdray/version": "string",
+}
+"""The header attributes `write_exr` adds given a camera (kdray/depth and kdray/distance
+only with that AOV): name -> OpenEXR type. OpenImageIO reads each back under the same
+name (see docs/exr.md)."""
 
-def _attribute(name, type_name, value):
-    head = name.encode() + b"\0" + type_name.encode() + b"\0"
-    return head + struct.pack("<i", len(value)) + value
-
-
-def _exr_header(channels, width, height):
-    chlist = b"".join(
-        name.encode() + b"\0" + struct.pack("<iB3xii", pixel_type, 0, 1, 1)
-        for name, pixel_type in channels
-    ) + b"\0"
-    window = struct.pack("<4i", 0, 0, width - 1, height - 1)
-    return b"".join(
-        [
-            struct.pack("<ii", _EXR_MAGIC, _EXR_VERSION),
-            _attribute("channels", "chlist", chlist),
-            _attribute("compression", "compression", bytes([_EXR_ZIP])),
-            _attribute("dataWindow", "box2i", window),
-            _attribute("displayWindow", "box2i", window),
-            _attribute("lineOrder", "lineOrder", bytes([0])),  # increasing y
-            _attribute("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
-            _attribute("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0)),
-            _attribute("screenWindowWidth", "float", struct.pack("<f", 1.0)),
-            b"\0",
-        ]
-    )
+_OPENCV_TO_EXR_CAMERA = np.diag([1.0, -1.0, 1.0, 1.0])
+"""OpenCV camera axes (y down) -> OpenEXR's (x right, y up, z forward: left-handed)."""
 
 
-def _zip_chunk(raw):
-    """OpenEXR ZIP compression of one chunk's bytes (or the raw bytes if no smaller)."""
-    data = np.frombuffer(raw, dtype=np.uint8)
-    reordered = np.concatenate([data[0::2], data[1::2]])
-    predicted = reordered.copy()
-    predicted[1:] = reordered[1:] - reordered[:-1] + np.uint8(128)  # wraps mod 256
-    packed = zlib.compress(predicted.tobytes(), ZIP_LEVEL)
-    return packed if len(packed) < len(raw) else raw
+def _openexr():
+    try:
+        import OpenEXR
+    except ImportError as exc:
+        raise KdrayError(f"the OpenEXR package is needed to write EXR files ({exc}).") from None
+    return OpenEXR
 
 
-def _encode_exr(channels, width, height):
-    """The bytes of an EXR file holding `channels`: [(name, (H, W) '<f4' or '<u4')]."""
-    channels = sorted(channels, key=lambda item: item[0].encode())
-    header = _exr_header(
-        [(name, _EXR_UINT if a.dtype == np.dtype("<u4") else _EXR_FLOAT) for name, a in channels],
-        width,
-        height,
-    )
-    # (H, C, W) 32-bit words: scanline by scanline, channel by channel.
-    words = np.empty((height, len(channels), width), dtype="<u4")
-    for c, (_, array) in enumerate(channels):
-        words[:, c, :] = array.view("<u4")
-    starts = range(0, height, _ZIP_LINES)
-    raws = [words[y : y + _ZIP_LINES].tobytes() for y in starts]
-    workers = min(len(raws), os.cpu_count() or 1)
-    if workers > 1:  # zlib releases the GIL
-        with concurrent.futures.ThreadPoolExecutor(workers) as pool:
-            packed = list(pool.map(_zip_chunk, raws))
-    else:
-        packed = [_zip_chunk(raw) for raw in raws]
-    offset = len(header) + 8 * len(packed)
-    offsets = []
-    for chunk in packed:
-        offsets.append(offset)
-        offset += 8 + len(chunk)
-    parts = [header, np.array(offsets, dtype="<u8").tobytes()]
-    for y, chunk in zip(starts, packed):
-        parts.append(struct.pack("<ii", y, len(chunk)))
-        parts.append(chunk)
-    return b"".join(parts)
+def _world_to_opencv(camera):
+    """(4, 4) float64 world -> OpenCV camera, column vectors: the rigid inverse of
+    cam_to_world (R^T, -R^T eye), exact for the rotation part."""
+    R, eye = camera.rotation, camera.eye
+    M = np.eye(4)
+    M[:3, :3] = R.T
+    M[:3, 3] = -(R.T @ eye)
+    return M
 
 
-def write_exr(path, images):
+def exr_camera_matrices(camera):
+    """OpenEXR's (worldToCamera, worldToNDC) of `camera`: (4, 4) float64 each, in
+    OpenEXR's row-vector convention (p' = [x y z 1] M, then divide by p'[3]).
+
+    worldToCamera maps world points to OpenEXR camera space: x right, y up, z forward
+    (OpenCV's camera with y negated). worldToNDC maps them to (x, y) = (u / W, v / H),
+    where (u, v) are kdray's pixel coordinates (Camera.project: pixel (i, j) covers
+    [i, i + 1) x [j, j + 1)), so (0, 0) and (1, 1) are the image's upper-left and
+    lower-right corners; its z is 1 / z-depth, which keeps the matrix invertible.
+    """
+    world_to_cv = _world_to_opencv(camera)
+    K = camera.K
+    projection = np.zeros((4, 4))  # OpenCV camera -> homogeneous NDC, column vectors
+    projection[0, :3] = K[0] / camera.width
+    projection[1, :3] = K[1] / camera.height
+    projection[2, 3] = 1.0  # z' = 1, w = z: NDC z is 1 / depth
+    projection[3, :3] = K[2]  # w = z (K's last row is [0, 0, 1])
+    world_to_camera = _OPENCV_TO_EXR_CAMERA @ world_to_cv
+    world_to_ndc = projection @ world_to_cv
+    return world_to_camera.T, world_to_ndc.T
+
+
+def _camera_header(camera, aovs):
+    from . import __version__  # here: kdray's __init__ may one day import this module
+
+    world_to_camera, world_to_ndc = exr_camera_matrices(camera)
+    # C-ordered copies: the binding reads an array's buffer in C order whatever its
+    # strides (a transposed view would be stored transposed).
+    header = {
+        "worldToCamera": np.array(world_to_camera, dtype=np.float32, order="C"),
+        "worldToNDC": np.array(world_to_ndc, dtype=np.float32, order="C"),
+        "kdray/K": np.array(camera.K, dtype=np.float64, order="C"),
+        "kdray/camToWorld": np.array(camera.cam_to_world, dtype=np.float64, order="C"),
+        "kdray/imageSize": np.array([camera.width, camera.height], dtype=np.int32),
+        "kdray/version": str(__version__),
+    }
+    if "depth" in aovs:
+        header["kdray/depth"] = DEPTH_CONVENTION
+    if "distance" in aovs:
+        header["kdray/distance"] = DISTANCE_CONVENTION
+    return header
+
+
+def write_exr(path, images, camera=None):
     """Write the AOV images of one render as one multi-channel EXR file, atomically.
 
-    images : dict of AOV name -> array (see the module docstring). Raises OutputError
-    naming `path` for bad arrays, a missing or unwritable folder, or a failed write.
+    images : dict of AOV name -> array (see the module docstring).
+    camera : the kdray.Camera the images were rendered with, or None. Given, the header
+             holds it (CAMERA_ATTRIBUTES; `read_camera` reads it back exactly) and its
+             size must be the images'.
+    Raises OutputError naming `path` for bad arrays, a camera of another size, a
+    missing or unwritable folder, or a failed write.
     """
     channels, (height, width) = _channel_arrays(images, path)
-    data = _encode_exr(channels, width, height)
+    openexr = _openexr()
+    header = {"compression": openexr.ZIP_COMPRESSION, "type": openexr.scanlineimage}
+    if camera is not None:
+        if not isinstance(camera, Camera):
+            raise OutputError(f"cannot write {path}: camera must be a kdray.Camera, got {type(camera).__name__}.")
+        if (camera.width, camera.height) != (width, height):
+            raise OutputError(
+                f"cannot write {path}: the camera is {camera.width}x{camera.height} pixels "
+                f"but the images are {width}x{height}."
+            )
+        header.update(_camera_header(camera, images))
+    # The binding reads each array's buffer in C order whatever its strides (openexr
+    # issue 1929), so every channel is handed over as its own C-ordered copy.
+    pixels = {name: np.ascontiguousarray(array) for name, array in channels}
 
-    atomic_write_bytes(path, data)
+    def write(tmp):
+        try:
+            with openexr.File(header, pixels) as exr:
+                exr.write(str(tmp))
+        except RuntimeError as exc:  # the library's I/O errors
+            raise OutputError(f"cannot write {path}: {exc}") from None
+
+    atomic_write(path, write)
 
 
 def _oiio():
@@ -246,6 +271,52 @@ def read_exr(path):
         return images
     finally:
         inp.close()
+
+
+def _find_attribute(spec, name):
+    """(OpenImageIO type name, value) of the header attribute `name`, or None."""
+    for attribute in spec.extra_attribs:
+        if attribute.name == name:
+            return str(attribute.type), attribute.value
+    return None
+
+
+_CAMERA_READ = {"kdray/K": ("matrix33d", (3, 3)), "kdray/camToWorld": ("matrixd", (4, 4)),
+                "kdray/imageSize": ("vector2i", (2,))}
+"""The attributes read_camera needs: name -> (OpenImageIO's type name, shape)."""
+
+
+def read_camera(path):
+    """The kdray.Camera stored in the header of an EXR written by `write_exr`, exactly
+    (float64 K and camera-to-world), or None when the file holds no camera.
+
+    Raises KdrayError if the file cannot be read, or holds part of a camera, attributes
+    of the wrong type or a camera that is not valid.
+    """
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise KdrayError(f"cannot read EXR {path}: {oiio.geterror() or 'unknown error'}.")
+    try:
+        spec = inp.spec()
+    finally:
+        inp.close()
+    found = {name: _find_attribute(spec, name) for name in _CAMERA_READ}
+    if all(value is None for value in found.values()):
+        return None
+    values = {}
+    for name, (type_name, shape) in _CAMERA_READ.items():
+        if found[name] is None:
+            raise KdrayError(f"EXR {path} holds part of a camera but no attribute {name}.")
+        got_type, value = found[name]
+        if got_type != type_name:
+            raise KdrayError(f"EXR {path}: attribute {name} is a {got_type}, expected a {type_name}.")
+        values[name] = np.array(value).reshape(shape)
+    width, height = (int(n) for n in values["kdray/imageSize"])
+    try:
+        return Camera(width, height, values["kdray/K"], values["kdray/camToWorld"])
+    except KdrayError as exc:
+        raise KdrayError(f"EXR {path} holds an invalid camera: {exc}") from None
 
 
 # PNG previews ----------------------------------------------------------------------------

@@ -1,15 +1,20 @@
 """kdray.images: the EXR contract (channel names, float32, exact uint32 ids, misses),
-atomic writes, errors, PNG previews and --aov parsing. OpenImageIO (the OpenEXR
-library underneath) is the independent reader."""
+the camera in the header, atomic writes, errors, PNG previews and --aov parsing. The
+files are written with the OpenEXR package and read back with OpenImageIO (and, for
+the pixels, with the OpenEXR package too)."""
 import os
+import sys
 
 import numpy as np
+import OpenEXR
 import OpenImageIO as oiio
 import pytest
 
+import kdray
 from kdray import images
+from kdray.camera import Camera
 from kdray.errors import KdrayError, OutputError
-from kdray.images import read_exr, write_exr, write_preview
+from kdray.images import read_camera, read_exr, write_exr, write_preview
 from kdray.render import AOVS, DEFAULT_AOVS, parse_aovs
 
 SPECIAL_IDS = [0, 1, 2**24 + 1, 0xFFFFFFFE, 0xFFFFFFFF]
@@ -30,6 +35,7 @@ def all_aovs(rng, height=23, width=41):
     distance = depth / np.float32(2)
     normal = rng.normal(size=(height, width, 3)).astype(np.float32)
     normal[0, 0] = 0
+    normal[0, 1] = np.array([0x7FC00001, 0xFFC00000, 0x80000000], np.uint32).view(np.float32)  # NaN payloads, -NaN, -0
     bary = rng.uniform(0, 1, (height, width, 2)).astype(np.float32)
     ids = rng.integers(0, 2**32, (height, width), dtype=np.uint64).astype(np.uint32)
     ids.flat[: len(SPECIAL_IDS)] = SPECIAL_IDS
@@ -80,6 +86,23 @@ def test_ids_read_independently_with_oiio(tmp_path, rng):
     np.testing.assert_array_equal(pixels[..., 0], ids)
 
 
+def test_pixels_read_with_the_openexr_package(tmp_path, rng):
+    # A second reader: every channel's bits, as the format's own library sees them.
+    aovs = all_aovs(rng)
+    path = tmp_path / "all.exr"
+    write_exr(path, aovs)
+    with OpenEXR.File(str(path), separate_channels=True) as exr:
+        assert len(exr.parts) == 1
+        pixels = {name: channel.pixels for name, channel in exr.channels().items()}
+    assert sorted(pixels) == sorted(n for names in CONTRACT_CHANNELS.values() for n in names)
+    for aov, names in CONTRACT_CHANNELS.items():
+        want = aovs[aov] if len(names) > 1 else aovs[aov][..., None]
+        for c, name in enumerate(names):
+            assert pixels[name].dtype == (np.uint32 if aov == "id" else np.float32), name
+            np.testing.assert_array_equal(pixels[name].view(np.uint32), want[..., c].view(np.uint32))
+    assert pixels["id"].flat[: len(SPECIAL_IDS)].tolist() == SPECIAL_IDS
+
+
 def test_channel_names_and_types(tmp_path, rng):
     path = tmp_path / "all.exr"
     write_exr(path, all_aovs(rng, 5, 7))
@@ -92,6 +115,9 @@ def test_channel_names_and_types(tmp_path, rng):
         assert formats[name].basetype == want, name
     assert (spec.width, spec.height, spec.nchannels) == (7, 5, 11)
     assert spec.get_string_attribute("compression") == "zip"
+    assert spec.tile_width == 0 and spec.deep is False  # scanline, not tiled or deep
+    assert spec.getattribute("oiio:subimages") == 1  # single-part
+    assert not any(a.name == "worldToCamera" or a.name.startswith("kdray/") for a in spec.extra_attribs)
 
 
 @pytest.mark.parametrize("aov", AOVS)
@@ -170,23 +196,46 @@ def test_read_errors(tmp_path):
 # Atomic writes ---------------------------------------------------------------------------
 
 
-def test_failed_write_keeps_the_existing_file(tmp_path, rng, monkeypatch):
+class _FailingOpenEXR:
+    """Stands in for the OpenEXR package: writes half a file, then fails like it."""
+
+    ZIP_COMPRESSION = OpenEXR.ZIP_COMPRESSION
+    scanlineimage = OpenEXR.scanlineimage
+
+    def __init__(self, error):
+        self.error = error
+
+    def File(self, header, channels):
+        error = self.error
+
+        class File:
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                return False
+
+            def write(self, path):
+                with open(path, "wb") as f:
+                    f.write(b"v/1\x01 half a file")
+                raise error
+
+        return File()
+
+
+@pytest.mark.parametrize("error", [RuntimeError("disk on fire"), KeyboardInterrupt()])
+def test_failed_write_keeps_the_existing_file(tmp_path, rng, monkeypatch, error):
     path = tmp_path / "out.exr"
     first = all_aovs(rng)
     write_exr(path, first)
     before = path.read_bytes()
 
-    calls = []
-
-    def failing_zip(raw):
-        calls.append(1)
-        if len(calls) > 1:
-            raise RuntimeError("disk on fire")
-        return raw
-
-    monkeypatch.setattr(images, "_zip_chunk", failing_zip)
-    with pytest.raises(RuntimeError, match="disk on fire"):
+    monkeypatch.setattr(images, "_openexr", lambda: _FailingOpenEXR(error))
+    expected = OutputError if isinstance(error, RuntimeError) else KeyboardInterrupt
+    with pytest.raises(expected) as info:
         write_exr(path, all_aovs(rng))
+    if expected is OutputError:
+        assert str(path) in str(info.value) and "disk on fire" in str(info.value)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr"]
 
@@ -200,7 +249,7 @@ def test_interrupted_file_write_keeps_the_existing_file(tmp_path, rng, monkeypat
     def failing_fsync(fd):
         raise error
 
-    monkeypatch.setattr(images.os, "fsync", failing_fsync)
+    monkeypatch.setattr(os, "fsync", failing_fsync)  # as kdray.files calls it
     expected = OutputError if isinstance(error, OSError) else KeyboardInterrupt
     with pytest.raises(expected) as info:
         write_exr(path, all_aovs(rng))
@@ -216,7 +265,7 @@ def test_failed_preview_keeps_the_existing_file(tmp_path, rng, monkeypatch):
     write_preview(path, aovs)
     before = path.read_bytes()
     monkeypatch.setattr(images, "preview_rgb", lambda imgs: np.zeros((4, 4, 3), np.uint8))
-    monkeypatch.setattr(images.os, "replace", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    monkeypatch.setattr(os, "replace", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
     with pytest.raises(KeyboardInterrupt):
         write_preview(path, aovs)
     assert path.read_bytes() == before
@@ -231,7 +280,245 @@ def test_written_file_has_ordinary_permissions(tmp_path, rng):
     assert path.stat().st_mode & 0o777 == 0o666 & ~umask
 
 
+# The camera in the header --------------------------------------------------------------
+
+
+def awkward_camera(width=37, height=23):
+    """Non-square pixels, skew, an off-centre principal point, a rotated pose away from
+    the origin: float64 values that float32 cannot hold."""
+    K = np.array([[41.0 / 3, 0.1, 17.2], [0.0, 43.0 / 7, 10.9], [0.0, 0.0, 1.0]])
+    q = np.array([0.3, -0.5, 0.7, 0.4])
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    R = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+    pose = np.eye(4)
+    pose[:3, :3] = R
+    pose[:3, 3] = [3.25, -1.0 / 3, 12.5]
+    return Camera.from_intrinsics(K, pose, width, height)
+
+
+def images_for(camera, aovs=("depth", "id")):
+    shape = (camera.height, camera.width)
+    out = {"depth": np.full(shape, 2.5, np.float32), "distance": np.full(shape, 3.0, np.float32),
+           "normal": np.zeros(shape + (3,), np.float32), "id": np.zeros(shape, np.uint32)}
+    return {name: out[name] for name in aovs}
+
+
+def header_attributes(path):
+    """name -> (OpenImageIO's type name, value) of every header attribute."""
+    return {a.name: (str(a.type), a.value) for a in exr_spec(path).extra_attribs}
+
+
+def row_matrix(value):
+    return np.array(value, dtype=np.float64).reshape(4, 4)
+
+
+def expected_world_to_camera(camera):
+    """OpenEXR's worldToCamera, float64, row vectors: [p 1] M = [x y z 1] with x right,
+    y up, z forward; OpenCV's camera is R^T (p - eye) with y down."""
+    R, eye = camera.cam_to_world[:3, :3], camera.cam_to_world[:3, 3]
+    flip = np.diag([1.0, -1.0, 1.0])
+    M = np.zeros((4, 4))
+    M[:3, :3] = R @ flip  # (p @ R)_k = (R^T p)_k
+    M[3, :3] = -(eye @ R) @ flip
+    M[3, 3] = 1.0
+    return M
+
+
+def expected_world_to_ndc(camera):
+    """OpenEXR's worldToNDC, float64, row vectors: x = u / W, y = v / H (kdray's pixel
+    coordinates, pixel (i, j) covering [i, i + 1) x [j, j + 1)), z = 1 / depth, w = depth."""
+    R, eye = camera.cam_to_world[:3, :3], camera.cam_to_world[:3, 3]
+    K = camera.K
+    to_cv = np.zeros((4, 4))  # [p 1] -> [x y z 1] in OpenCV's camera, row vectors
+    to_cv[:3, :3] = R
+    to_cv[3, :3] = -(eye @ R)
+    to_cv[3, 3] = 1.0
+    project = np.zeros((4, 4))  # [x y z 1] -> [u/W z, v/H z, 1, z], row vectors
+    project[:3, 0] = K[0] / camera.width
+    project[:3, 1] = K[1] / camera.height
+    project[3, 2] = 1.0
+    project[:3, 3] = K[2]
+    return to_cv @ project
+
+
+def assert_float32_of(stored, expected):
+    """stored (float32 values) is expected (float64) rounded to float32."""
+    stored, expected = np.asarray(stored, np.float64), np.asarray(expected, np.float64)
+    ulp = np.spacing(np.abs(expected).astype(np.float32)).astype(np.float64)
+    assert np.all(np.abs(stored - expected) <= ulp), (stored, expected)
+
+
+def ndc(M, points):
+    """World points (n, 3) -> NDC (n, 3) with a row-vector matrix, divided by w."""
+    h = np.column_stack([points, np.ones(len(points))]) @ M
+    return h[:, :3] / h[:, 3:]
+
+
+@pytest.mark.parametrize("camera", [awkward_camera(), Camera.look_at((0, 1, 4), (0, 1, 0), width=64, height=48)],
+                         ids=["awkward", "look_at"])
+def test_camera_attributes_read_with_oiio(tmp_path, camera):
+    path = tmp_path / "cam.exr"
+    write_exr(path, images_for(camera, ("depth", "distance", "id")), camera=camera)
+    attributes = header_attributes(path)
+    types = {name: type_name for name, (type_name, _) in attributes.items()}
+    assert {name: types.get(name) for name in images.CAMERA_ATTRIBUTES} == {
+        "worldToCamera": "matrix", "worldToNDC": "matrix",  # m44f
+        "kdray/K": "matrix33d", "kdray/camToWorld": "matrixd",  # m33d, m44d
+        "kdray/imageSize": "vector2i",
+        "kdray/depth": "string", "kdray/distance": "string", "kdray/version": "string",
+    }
+    value = {name: v for name, (_, v) in attributes.items()}
+    assert_float32_of(row_matrix(value["worldToCamera"]), expected_world_to_camera(camera))
+    assert_float32_of(row_matrix(value["worldToNDC"]), expected_world_to_ndc(camera))
+    # kdray's own: exact float64
+    assert value["kdray/K"] == tuple(camera.K.ravel().tolist())
+    assert value["kdray/camToWorld"] == tuple(camera.cam_to_world.ravel().tolist())
+    assert tuple(value["kdray/imageSize"]) == (camera.width, camera.height)
+    assert value["kdray/version"] == kdray.__version__
+    assert value["kdray/depth"] == images.DEPTH_CONVENTION
+    assert value["kdray/depth"] == "z-depth along the camera's +z axis (OpenCV axes), in world units; +inf on a miss"
+    assert value["kdray/distance"] == images.DISTANCE_CONVENTION
+    # getattribute by name gives the same values
+    spec = exr_spec(path)
+    assert spec.getattribute("kdray/K") == value["kdray/K"]
+    assert spec.getattribute("worldToNDC") == value["worldToNDC"]
+
+
+def test_world_to_camera_axes(tmp_path):
+    camera = awkward_camera()
+    path = tmp_path / "cam.exr"
+    write_exr(path, images_for(camera), camera=camera)
+    M = row_matrix(exr_spec(path).getattribute("worldToCamera"))
+    R, eye = camera.rotation, camera.eye
+
+    def to_camera(p):
+        return (np.append(p, 1.0) @ M)[:3]
+
+    np.testing.assert_allclose(to_camera(eye), 0, atol=1e-5)
+    np.testing.assert_allclose(to_camera(eye + 2 * R[:, 2]), [0, 0, 2], atol=1e-5)  # forward: +z
+    np.testing.assert_allclose(to_camera(eye + R[:, 0]), [1, 0, 0], atol=1e-5)  # image right: +x
+    np.testing.assert_allclose(to_camera(eye - R[:, 1]), [0, 1, 0], atol=1e-5)  # image up: +y
+    assert np.linalg.det(M[:3, :3]) == pytest.approx(-1.0)  # left-handed
+    np.testing.assert_array_equal(M[:, 3], [0, 0, 0, 1])
+
+
+@pytest.mark.parametrize("camera", [awkward_camera(), Camera.look_at((0, 1, 4), (0, 1, 0), width=64, height=48)],
+                         ids=["awkward", "look_at"])
+def test_world_to_ndc_projects_like_the_camera(tmp_path, rng, camera):
+    path = tmp_path / "cam.exr"
+    write_exr(path, images_for(camera), camera=camera)
+    M = row_matrix(exr_spec(path).getattribute("worldToNDC"))
+    size = np.array([camera.width, camera.height], np.float64)
+
+    # World points in front of the camera: NDC = camera.project's pixels / (W, H).
+    cam_points = rng.uniform([-3, -3, 0.5], [3, 3, 20], (200, 3))
+    points = cam_points @ camera.rotation.T + camera.eye
+    pixels, depth = camera.project(points)
+    got = ndc(M, points)
+    np.testing.assert_allclose(got[:, :2], pixels / size, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(got[:, 2], 1 / depth, rtol=1e-5)  # z: 1 / depth
+
+    # Pixel centres: the point at depth 3 on pixel (i, j)'s ray is at ((i + .5) / W, (j + .5) / H).
+    origins, directions = camera.rays()
+    got = ndc(M, origins + 3.0 * directions)
+    j, i = np.divmod(np.arange(camera.width * camera.height), camera.width)
+    np.testing.assert_allclose(got[:, 0], (i + 0.5) / camera.width, atol=2e-6)
+    np.testing.assert_allclose(got[:, 1], (j + 0.5) / camera.height, atol=2e-6)
+
+    # The image's corners are NDC (0, 0) and (1, 1).
+    corners = np.array([[0.0, 0.0, 1.0], [camera.width, camera.height, 1.0]])
+    corner_points = camera.eye + 5.0 * (corners @ np.linalg.inv(camera.K).T) @ camera.rotation.T
+    np.testing.assert_allclose(ndc(M, corner_points)[:, :2], [[0, 0], [1, 1]], atol=2e-6)
+
+    # Invertible: (NDC x, NDC y, 1 / depth) and the depth image give the world point back.
+    back = ndc(np.linalg.inv(M), ndc(M, points))
+    np.testing.assert_allclose(back, points, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("camera", [awkward_camera(), awkward_camera(1, 1),
+                                    Camera.look_at((0, 1, 4), (0, 1, 0), fov_deg=33, width=640, height=480),
+                                    Camera.frame((-1, -2, -3), (1e3, 2, 3), width=5, height=700)],
+                         ids=["awkward", "one_pixel", "look_at", "frame"])
+def test_read_camera_round_trip(tmp_path, camera):
+    path = tmp_path / "cam.exr"
+    write_exr(path, images_for(camera), camera=camera)
+    back = read_camera(path)
+    assert isinstance(back, Camera) and back == camera
+    assert back.K.dtype == np.float64 and back.cam_to_world.dtype == np.float64
+    np.testing.assert_array_equal(back.K.view(np.uint64), camera.K.view(np.uint64))
+    np.testing.assert_array_equal(back.cam_to_world.view(np.uint64), camera.cam_to_world.view(np.uint64))
+    assert_same_bits(read_exr(path)["depth"], images_for(camera)["depth"])  # the pixels unchanged
+
+
+def test_conventions_only_for_the_aovs_present(tmp_path):
+    camera = awkward_camera()
+    path = tmp_path / "ids.exr"
+    write_exr(path, images_for(camera, ("normal", "id")), camera=camera)
+    attributes = header_attributes(path)
+    assert "kdray/depth" not in attributes and "kdray/distance" not in attributes
+    assert read_camera(path) == camera
+    write_exr(path, images_for(camera, ("distance",)), camera=camera)
+    attributes = header_attributes(path)
+    assert "kdray/depth" not in attributes and attributes["kdray/distance"][1] == images.DISTANCE_CONVENTION
+
+
+def test_no_camera_no_camera_attributes(tmp_path, rng):
+    path = tmp_path / "plain.exr"
+    write_exr(path, all_aovs(rng, 4, 5))
+    assert not set(images.CAMERA_ATTRIBUTES) & set(header_attributes(path))
+    assert read_camera(path) is None
+
+
+def write_with_openexr(path, header):
+    """An EXR with one depth channel and `header`'s extra attributes."""
+    channels = {"Z": np.ones((2, 3), np.float32)}
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, **header}, channels) as exr:
+        exr.write(str(path))
+
+
+def test_read_camera_errors(tmp_path):
+    with pytest.raises(KdrayError, match="nope.exr"):
+        read_camera(tmp_path / "nope.exr")
+    K = np.array([[2.0, 0, 1.5], [0, 2.0, 1.0], [0, 0, 1]])
+    path = tmp_path / "partial.exr"
+    write_with_openexr(path, {"kdray/K": K})
+    with pytest.raises(KdrayError, match="partial.exr.*kdray/camToWorld"):
+        read_camera(path)
+    path = tmp_path / "float32.exr"
+    write_with_openexr(path, {"kdray/K": K.astype(np.float32), "kdray/camToWorld": np.eye(4),
+                              "kdray/imageSize": np.array([3, 2], np.int32)})
+    with pytest.raises(KdrayError, match="kdray/K is a matrix33, expected a matrix33d"):
+        read_camera(path)
+    path = tmp_path / "invalid.exr"
+    write_with_openexr(path, {"kdray/K": K, "kdray/camToWorld": 2 * np.eye(4),
+                              "kdray/imageSize": np.array([3, 2], np.int32)})
+    with pytest.raises(KdrayError, match="invalid.exr holds an invalid camera"):
+        read_camera(path)
+
+
+def test_camera_must_match_the_images(tmp_path):
+    camera = awkward_camera(8, 6)
+    path = tmp_path / "bad.exr"
+    with pytest.raises(OutputError, match=r"bad.exr.*camera is 8x6 pixels but the images are 5x6"):
+        write_exr(path, {"depth": np.ones((6, 5), np.float32)}, camera=camera)
+    with pytest.raises(OutputError, match=r"bad.exr.*kdray.Camera"):
+        write_exr(path, {"depth": np.ones((6, 8), np.float32)}, camera={"K": camera.K})
+    assert not path.exists()
+
+
 # Errors ------------------------------------------------------------------------------------
+
+
+def test_missing_openexr_package(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "OpenEXR", None)  # any import of it now fails
+    with pytest.raises(KdrayError, match="OpenEXR package is needed"):
+        write_exr(tmp_path / "out.exr", {"depth": np.ones((2, 2), np.float32)})
+    assert not (tmp_path / "out.exr").exists()
 
 
 def test_missing_folder(tmp_path):
