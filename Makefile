@@ -65,13 +65,13 @@ bench-trace: bench-deps
 	$(BIN)/python bench/bench_trace.py
 
 # Speed against Open3D and embreex on the same rays (1024x1024, the bunny and a
-# 1.6M-triangle mesh, with the ratios of issue 6's two workflows), then `kdray bench`:
-# error against run time for kdray's settings, Open3D and embreex.
+# 1.6M-triangle mesh, with the ratios of issue 6's two workflows), then
+# bench/bench_error.py: error against run time for kdray's settings, Open3D and embreex.
 BENCH_MESHES ?= bunny,bunny-1.6M
 bench: bench-deps
 	mkdir -p $(OUT)
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
-	$(BIN)/kdray bench --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
+	$(BIN)/python bench/bench_error.py --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
 
 # Everything in BENCHMARKS.md: the above, build scaling to 6M triangles, what leaving
 # out saves, and the cold start.

@@ -10,7 +10,7 @@ The base commit's `kdray/` is exported (git archive) into a temporary folder as 
 package `kdray_base` (kdray imports itself relatively, so it runs under that name);
 its numba functions compile there on the first build (about half a minute). After a
 warm-up build with each, each round builds the mesh once with each, the order
-reversed every other round (`kdray.bench.round_robin`). Prints,
+reversed every other round (`timing.round_robin`). Prints,
 per mesh, the median and fastest wall time and the median CPU time of each, the
 median of the rounds' time ratios (working tree / base: < 1 means faster), and
 whether the two trees are byte-identical.
@@ -124,7 +124,7 @@ def main():
             return
         import kdray
         import kdray_base
-        from kdray.bench import median_ratio, round_robin
+        from timing import median_ratio, round_robin
         for name in args.meshes.split(","):
             m = bench_mesh(name)
             build = {who: (lambda f=f: f(m.vertices, m.faces, threads=args.threads))

@@ -61,7 +61,7 @@ def worker(tree_path, size, out_path):
 def compare(name, folder, base_root, work_root, rounds, size):
     """Both versions on one mesh, in turns; prints the medians and ratios."""
     import kdray
-    from kdray.bench import ROUND_ROBIN_PAUSE
+    from timing import ROUND_ROBIN_PAUSE
     from meshes import mesh as bench_mesh
     m = bench_mesh(name)
     tree_path = os.path.join(folder, f"{name}.kdtree")

@@ -14,7 +14,7 @@ the numba kernels are compiled (or loaded from the on-disk cache), resets the pe
 RSS counter (/proc/self/clear_refs) and builds once for the memory columns; then,
 after a warm-up build with each, `--repeat` rounds each build the mesh with kdray and
 with Open3D, in turns (the order reversed every other round, each build 0.1 s after
-the one before; `kdray.bench.round_robin`), so that the machine's drift in speed
+the one before; `timing.round_robin`), so that the machine's drift in speed
 (+-20 % over minutes here) hits both alike and neither pays for the other's idle
 worker threads. The whole run takes about 6 minutes on 2 cores and
 needs ~3 GiB at 6M. Columns:
@@ -30,7 +30,7 @@ needs ~3 GiB at 6M. Columns:
                tree has relatively more nodes on small meshes (max_depth = 8 + 1.3 log2 n)
   O3D s        Open3D's RaycastingScene on the same mesh, in the same process, in turns
                with kdray's builds: add_triangles plus a cast of one ray (Open3D builds
-               its Embree BVH at the first cast; `kdray.bench.open3d_scene`), fastest of
+               its Embree BVH at the first cast; `peers.open3d_scene`), fastest of
                the rounds; n/a when Open3D is not installed. Embree's build is multi-threaded.
   x O3D        kdray's build time / Open3D's: the median of the rounds' ratios
 """
@@ -74,7 +74,8 @@ def proc_status(field):
 def child(path, repeat, threads, with_open3d):
     """Build one mesh; print one JSON line."""
     import kdray
-    from kdray.bench import median_ratio, open3d_scene, round_robin
+    from peers import open3d_scene
+    from timing import median_ratio, round_robin
     data = np.load(path)
     vertices, faces = data["vertices"], data["faces"]
     kdray.build(np.eye(3), np.array([[0, 1, 2]]))              # compile / load the kernels

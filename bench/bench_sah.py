@@ -24,7 +24,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
-from kdray.bench import median_ratio, round_robin  # noqa: E402
+from timing import median_ratio, round_robin  # noqa: E402
 
 
 def main():

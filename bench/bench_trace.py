@@ -34,8 +34,8 @@ from meshes import mesh as bench_mesh  # noqa: E402
 import kdray  # noqa: E402
 from kdray import reference  # noqa: E402
 from kdray.render import DEFAULT_AOVS  # noqa: E402
-from kdray.bench import (embreex_hits, median_ratio, open3d_cast, open3d_scene,  # noqa: E402
-                         round_robin)
+from peers import embreex_hits, open3d_cast, open3d_scene  # noqa: E402
+from timing import median_ratio, round_robin  # noqa: E402
 
 
 def accuracy(t, prim, ref_t, ref_prim, sample):

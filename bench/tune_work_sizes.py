@@ -10,7 +10,7 @@ For each mesh, one Tracer per configuration "[DEVICE:]PxL/B/G" (P rays a work-it
 work-items a group, batches of B rays, G groups; "default" is the device's default;
 DEVICE, if given, replaces --device) on the same tree; the first configuration is the
 reference. Each round times `render` (depth only) and `trace` (the camera's rays, numpy to
-numpy, float64) of every configuration once, in turns (kdray.bench.round_robin), and
+numpy, float64) of every configuration once, in turns (timing.round_robin), and
 the table gives the medians and each one's time relative to the first (< 1: faster).
 Every configuration's depth image must equal the first's bit for bit.
 """
@@ -24,7 +24,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
-from kdray.bench import round_robin  # noqa: E402
+from timing import round_robin  # noqa: E402
 
 CONFIGS = ("default", "1x8/64/8", "1x16/256/8", "1x32/512/8", "1x64/1024/8", "1x64/256/16",
            "1x128/1024/4", "8x1/64/8", "8x4/256/8", "8x8/512/8", "8x16/1024/8", "8x32/2048/4")

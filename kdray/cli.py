@@ -302,44 +302,38 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
 
 
 @cli.command()
-@click.argument("scenes", nargs=-1, type=click.Path(dir_okay=False))
+@click.argument("scenes", metavar="SCENE...", nargs=-1, type=click.Path(dir_okay=False))
 @click.option("--size", default="512x512", show_default=True, callback=_size, help="Rays: WIDTHxHEIGHT pixels.")
 @click.option("--repeat", type=int, default=5, show_default=True, help="Warm runs timed (median).")
 @click.option("--sample", type=int, default=10000, show_default=True,
               help="Random rays checked against the float64 reference.")
 @click.option("--settings", default=None,
               help="Comma-separated: kdray[:KEY=VALUE...] (K_T, K_I, empty_bonus, max_depth, "
-                   "leaf_size, stack, local, batch), open3d, embreex. "
-                   "[default: kdray,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1, open3d and embreex if installed]")
-@click.option("--plot", "plot_file", type=click.Path(dir_okay=False), help="PNG plot of depth error against Mrays/s.")
+                   "leaf_size, stack, local, batch). "
+                   "[default: kdray,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1]")
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), help="Also write the table as CSV.")
 @click.option("--device", default=None,
               help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
 @click.option("--offset", type=float, default=0.0, show_default=True,
               help="Move scene and camera by D along (1,1,1) (precision far from the origin).")
-def bench(scenes, size, repeat, sample, settings, plot_file, csv_file, device, offset):
-    """Error against run time: kdray's settings, Open3D and embreex on the same rays.
+def bench(scenes, size, repeat, sample, settings, csv_file, device, offset):
+    """Error against run time of kdray's settings on the same rays of each SCENE.
 
-    SCENES default to scenes/cornell.obj, scenes/sphere.obj and the tests' Stanford bunny."""
+    Each SCENE is a mesh file; every setting traces the framing camera's rays and is
+    checked against the float64 reference. The comparison with Open3D and embreex is
+    the script bench/bench_error.py of kdray's source repository (not installed)."""
     from . import bench as _bench
-    for path in (plot_file, csv_file):
-        if path:
-            _check_folder(path)
+    if not scenes:
+        raise click.UsageError("name one or more mesh files to benchmark: kdray bench SCENE...")
+    if csv_file:
+        _check_folder(csv_file)
     step = Steps()
-    rows, notes = _bench.run(scenes or None, size=size, repeat=repeat, sample=sample,
-                             settings=settings, device=device, offset=offset, step=step)
-    for note in notes:
-        click.echo(f"kdray: note: {note}", err=True)
-    width, height = size
-    click.echo(f"# {width}x{height} primary rays, median of {repeat} warm runs; errors on "
-               f"{min(sample, width * height)} random rays against the float64 reference"
-               + (f"; scene offset {offset:g} along (1,1,1)" if offset else ""))
+    rows = _bench.run(scenes, size=size, repeat=repeat, sample=sample, settings=settings,
+                      device=device, offset=offset, step=step)
+    click.echo(_bench.header(size, repeat, sample, offset))
     click.echo(_bench.format_table(rows))
     if csv_file:
         _bench.write_csv(rows, csv_file)
-    if plot_file:
-        note = _bench.plot(rows, plot_file)
-        click.echo(f"kdray: note: {note}" if note else f"kdray: wrote {plot_file}", err=True)
 
 
 def _camera(box, width, height, eye, target, up, fov, intrinsics, pose, camera_file):

@@ -1,56 +1,72 @@
-"""`kdray bench`: the table, the CSV, the plot and one-line errors (small and fast)."""
+"""`kdray bench` (the table, the CSV, one-line errors) and bench/bench_error.py, its
+comparison with Open3D and embreex (the plot), small and fast."""
 import csv
+import os
+import subprocess
+import sys
 import time
 
 import numpy as np
 import pytest
 
 from kdray import bench
-from test_cli import run
-from conftest import SCENES
+from kdray.errors import ParameterError
+from helpers import ROOT, SCENES, run
+
+sys.path.insert(0, str(ROOT / "bench"))
+import bench_error  # noqa: E402
+import timing  # noqa: E402
 
 SMALL = ["--size", "48x32", "--repeat", "1", "--sample", "300"]
 
 
-def test_bench_table_csv_plot(capsys, tmp_path):
-    csv_path, png_path = tmp_path / "b.csv", tmp_path / "b.png"
-    code, out, err = run(capsys, "bench", SCENES / "sphere.obj", *SMALL,
-                         "--settings", "kdray,kdray:stack=1", "--csv", csv_path, "--plot", png_path)
-    assert code == 0, err
+def check_table_and_csv(out, csv_path, settings):
     lines = [line for line in out.splitlines() if not line.startswith("#")]
     header = lines[0].split()
     for col in ("scene", "tris", "setting", "build", "trace", "Mrays/s", "disagree", "prim!=",
                 "p99", "max"):
         assert col in header, col
-    assert len(lines) == 3 and all(line.split()[0] == "sphere" for line in lines[1:])
+    assert len(lines) == 1 + len(settings) and all(line.split()[0] == "sphere" for line in lines[1:])
     with open(csv_path, newline="") as f:
         rows = list(csv.DictReader(f))
-    assert [r["setting"] for r in rows] == ["kdray", "kdray:stack=1"]
+    assert [r["setting"] for r in rows] == settings
     assert set(rows[0]) == set(bench.COLUMNS)
     for r in rows:
+        assert float(r["trace_s"]) > 0 and float(r["mrays_s"]) > 0
+    return rows
+
+
+def test_bench_table_csv(capsys, tmp_path):
+    csv_path = tmp_path / "b.csv"
+    code, out, err = run(capsys, "bench", SCENES / "sphere.obj", *SMALL,
+                         "--settings", "kdray,kdray:stack=1", "--csv", csv_path)
+    assert code == 0, err
+    assert out.startswith("# 48x32 primary rays")
+    for r in check_table_and_csv(out, csv_path, ["kdray", "kdray:stack=1"]):
         assert int(r["disagree"]) == 0
         assert float(r["depth_p99"]) < 1e-5
         assert float(r["normal_max_deg"]) < 1e-2
-        assert float(r["trace_s"]) > 0 and float(r["mrays_s"]) > 0
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        assert not png_path.exists() and "matplotlib" in err
-    else:
-        assert png_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_bench_offset_far_from_origin():
-    rows, _ = bench.run([SCENES / "sphere.obj"], size=(24, 16), repeat=1, sample=200,
-                        settings="kdray", offset=1e5)
+    rows = bench.run([SCENES / "sphere.obj"], size=(24, 16), repeat=1, sample=200,
+                     settings="kdray", offset=1e5)
     assert rows[0]["disagree"] == 0 and rows[0]["depth_p99"] < 1e-5
+
+
+def test_bench_without_a_scene_says_what_to_pass(capsys):
+    code, out, err = run(capsys, "bench", *SMALL)
+    assert code == 2 and out == ""
+    assert "name one or more mesh files" in err and "SCENE" in err, err
+    with pytest.raises(ParameterError, match="no scene given"):
+        bench.run([], settings="kdray")
 
 
 @pytest.mark.parametrize("settings, words", [
     ("kdray,fast", "unknown setting 'fast'"),
     ("kdray:K_T", "'K_T' is not KEY=VALUE"),
     ("kdray:stack=x", "stack must be an integer"),
-    ("open3d:K_T=1", "takes no options"),
+    ("open3d", "bench/bench_error.py"),
 ])
 def test_bench_bad_setting_is_one_line(capsys, settings, words):
     code, out, err = run(capsys, "bench", SCENES / "sphere.obj", *SMALL, "--settings", settings)
@@ -77,11 +93,70 @@ def test_errors_and_angles():
     assert bench.unit_normals(tri).tolist() == [[0.0, 0.0, 1.0]]
 
 
+def test_bench_takes_another_method():
+    # kdray.bench.run measures any object with `name` and `hits` on the same rays:
+    # here one that misses every ray, with no normals of its own.
+    class Blind:
+        name = "blind"
+
+        def hits(self, mesh, o, d, repeat):
+            return 0.0, 1.0, np.full(len(o), np.inf), np.full(len(o), -1), None
+    rows = bench.run([SCENES / "sphere.obj"], size=(24, 16), repeat=1, sample=200,
+                     settings=["kdray", Blind()])
+    assert [r["setting"] for r in rows] == ["kdray", "blind"]
+    assert rows[0]["disagree"] == 0 and rows[1]["disagree"] > 0
+
+
+# -- bench/bench_error.py ----------------------------------------------------------------
+
+@pytest.mark.parametrize("settings, words", [
+    ("kdray,fast", "unknown setting 'fast': expected kdray[:KEY=VALUE...], open3d or embreex"),
+    ("kdray:stack=x", "stack must be an integer"),
+    ("open3d:K_T=1", "takes no options"),
+    ("embreex:x", "takes no options"),
+])
+def test_bench_error_bad_setting_is_one_line(capsys, settings, words):
+    code = bench_error.main([str(SCENES / "sphere.obj"), *SMALL, "--settings", settings])
+    out, err = capsys.readouterr()
+    assert code == 1 and out == ""
+    assert err.count("\n") == 1 and err.startswith("bench_error: error:") and words in err, err
+
+
+def test_bench_error_default_settings_name_the_missing_peers(monkeypatch):
+    monkeypatch.setattr(bench_error, "installed", lambda name: name == "embreex")
+    settings, notes = bench_error.parse_settings(None)
+    assert [s.name for s in settings] == [*bench.DEFAULT_SETTINGS, "embreex"]
+    assert len(notes) == 1 and notes[0].startswith("open3d is not installed")
+    with pytest.raises(ParameterError, match="open3d is not installed"):
+        bench_error.parse_settings("kdray,open3d")
+
+
+def test_bench_error_default_scenes_exist():
+    for path in bench_error.DEFAULT_SCENES:
+        assert os.path.isfile(path), path
+
+
+def test_bench_error_script_table_csv_plot(tmp_path):
+    # The script as `make bench` runs it, in its own process, with the peers installed.
+    pytest.importorskip("matplotlib")
+    settings = ["kdray"] + [name for name in ("open3d", "embreex") if bench_error.installed(name)]
+    csv_path, png_path = tmp_path / "b.csv", tmp_path / "b.png"
+    p = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_error.py"),
+                        str(SCENES / "sphere.obj"), *SMALL, "--settings", ",".join(settings),
+                        "--csv", str(csv_path), "--plot", str(png_path)],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert p.returncode == 0, p.stderr
+    rows = check_table_and_csv(p.stdout, csv_path, settings)
+    for r in rows:
+        assert int(r["disagree"]) == 0 and float(r["depth_p99"]) < 1e-5
+    assert png_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"bench_error: wrote {png_path}" in p.stderr
+
+
 def test_plot_without_matplotlib_is_a_note(monkeypatch, tmp_path):
-    import sys
     monkeypatch.setitem(sys.modules, "matplotlib", None)      # import matplotlib -> ImportError
     rows = [dict(zip(bench.COLUMNS, ("s", 1, "kdray", 0.1, 0.1, 1.0, 0, 0, 1e-7, 1e-7, 0.0, 0.0)))]
-    note = bench.plot(rows, tmp_path / "p.png")
+    note = bench_error.plot(rows, tmp_path / "p.png")
     assert "matplotlib is not installed" in note and not (tmp_path / "p.png").exists()
 
 
@@ -95,9 +170,9 @@ def test_round_robin_turns_and_pauses():
             starts.append(time.perf_counter())
             return len(calls)
         return fn
-    wall, cpu, results = bench.round_robin({"a": make("a"), "b": make("b")}, 3, pause=0.02)
+    wall, cpu, results = timing.round_robin({"a": make("a"), "b": make("b")}, 3, pause=0.02)
     assert calls == ["a", "b", "a", "b", "b", "a", "a", "b"]
     assert min(np.diff(starts)) >= 0.02
     assert results == {"a": 7, "b": 8}
     assert wall["a"].shape == cpu["b"].shape == (3,)
-    assert bench.median_ratio([2.0, 4.0, 3.0], [1.0, 1.0, 2.0]) == 2.0
+    assert timing.median_ratio([2.0, 4.0, 3.0], [1.0, 1.0, 2.0]) == 2.0
