@@ -1,7 +1,7 @@
-"""Shared fixtures: the real meshes the tests use (vendored), the project's scenes, and
-the OpenCL implementations the kernel tests run on."""
+"""Shared fixtures: a random generator, the session's Tracers, and the OpenCL
+implementations the kernel tests run on. What tests share besides fixtures is in
+tests/helpers.py."""
 import dataclasses
-import gzip
 import os
 import tempfile
 from pathlib import Path
@@ -9,36 +9,29 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-MESHES = ROOT / "tests" / "data" / "meshes"
-"""The real meshes the tests use, gzipped OBJ files (provenance: its README.md)."""
-SCENES = ROOT / "scenes"
-
-_UNPACKED = Path(tempfile.mkdtemp(prefix="kdray-meshes-"))
-
-
-def real_mesh(name):
-    """Path of the real mesh `name` ("teapot.obj", ...): tests/data/meshes/<name>.gz,
-    unpacked once per session into a temporary folder (kdray.load and the CLI read it
-    like any mesh file)."""
-    path = _UNPACKED / name
-    if not path.exists():
-        with gzip.open(MESHES / f"{name}.gz", "rb") as src:
-            path.write_bytes(src.read())
-    return path
-
 
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
 
 
-def real_mesh_arrays(name):
-    """(vertices (n,3) float64, faces (m,3) int64) of a real mesh (`real_mesh`), loaded by
-    kdray.load."""
-    from kdray.load import load
-    m = load(real_mesh(name))
-    return m.vertices, m.faces
+@pytest.fixture(scope="session")
+def tracers():
+    """tracers(tree, **options) -> the session's Tracer of `tree` with those options, on
+    the default device: made once per (tree, options), so that contexts, uploads and
+    programs are made once. Options given as None are left out (the Tracer's default)."""
+    from kdray.trace import Tracer
+    made = {}
+
+    def get(tree, **options):
+        options = {k: v for k, v in options.items() if v is not None}
+        key = (id(tree), tuple(sorted(options.items())))
+        if key not in made:
+            made[key] = (tree, Tracer(tree, **options))   # the tree kept alive: ids stay unique
+        return made[key][1]
+
+    yield get
+    made.clear()
 
 
 # -- the OpenCL implementations the kernel tests run on ----------------------------------

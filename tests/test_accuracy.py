@@ -24,8 +24,7 @@ from kdray import layout
 from kdray.builder import build
 from kdray.reference import brute_force, traverse
 from kdray.trace import MISS, Tracer
-from conftest import SCENES, real_mesh
-from test_trace import assert_watertight, check_hits, split_plane_rays, tracer
+from helpers import SCENES, assert_watertight, check_hits, real_mesh, split_plane_rays
 
 P99_REL = 1e-6          # issue 4: 99th percentile of the relative depth error
 
@@ -124,7 +123,7 @@ def trace_against_traverse(v, f, o, d):
 
 # -- 1. watertightness -----------------------------------------------------------------------
 
-def test_watertight_tessellated_box():
+def test_watertight_tessellated_box(tracers):
     """Rays from inside a 20x20-per-face tessellated box (4800 triangles, 2402 shared
     vertices, axis-aligned shared edges on the tree's split planes) through every vertex
     and every edge midpoint all hit, at t = 1, for stack sizes 1 and the default; also
@@ -149,7 +148,7 @@ def test_watertight_tessellated_box():
     for center in centers:
         d = targets - center
         o = np.broadcast_to(center + tree.origin, d.shape)
-        base = assert_watertight(tree, o, d, (1, None), atol=1e-5, label=f"centre {center}")
+        base = assert_watertight(tracers, tree, o, d, (1, None), atol=1e-5, label=f"centre {center}")
         # the hit triangle touches the target (a triangle the vertex or edge belongs to)
         tri = v[f][base.prim.astype(np.int64)] - tree.origin
         p = center + base.t.astype(np.float64)[:, None] * d
@@ -158,7 +157,7 @@ def test_watertight_tessellated_box():
         assert near.all() and inside.all()
 
 
-def test_watertight_scene_sphere():
+def test_watertight_scene_sphere(tracers):
     """scenes/sphere.obj (closed icosphere, 1280 triangles) from inside, off-centre:
     every vertex and edge midpoint is hit, stack sizes 1 and default."""
     import trimesh
@@ -171,7 +170,7 @@ def test_watertight_scene_sphere():
         center = np.asarray(center) - tree.origin
         d = targets - center
         o = np.broadcast_to(center + tree.origin, d.shape)
-        assert_watertight(tree, o, d, (1, None), atol=1e-5, label=f"centre {center}")
+        assert_watertight(tracers, tree, o, d, (1, None), atol=1e-5, label=f"centre {center}")
 
 
 # -- 2. far from the origin ----------------------------------------------------------------
@@ -313,7 +312,7 @@ def face_rays(tree, n, seed):
     return world, d, axis, side, kind, start
 
 
-def test_origins_on_axis_aligned_faces():
+def test_origins_on_axis_aligned_faces(tracers):
     """Origins on a face of the box, with t_min a hair above 0 (1e-6 of the box) to leave
     out t = 0 (the strict rule is the next test): going in, the hit is the
     opposite wall, going out a miss; rays in the face's plane miss it (edge-on) and end
@@ -323,7 +322,7 @@ def test_origins_on_axis_aligned_faces():
     n = len(d)
     t_min = 1e-6 * float(np.linalg.norm(tree.bounds[1].astype(np.float64) - tree.bounds[0])) \
         / np.linalg.norm(d, axis=1).max()
-    hits = tracer(tree).trace(o, d, t_min=t_min)
+    hits = tracers(tree).trace(o, d, t_min=t_min)
     assert check_hits(hits, tree, o, d, t_min=t_min, frame="tree", max_graze=0.01) > 900
     hit = hits.prim != MISS
     assert not hit[kind == 1].any()                                    # out: nothing
@@ -340,12 +339,12 @@ def test_origins_on_axis_aligned_faces():
                   | (np.abs(p[along] - hi).min(axis=1) <= 1e-5))
 
 
-def test_origins_on_surface_t_zero_never_counts():
+def test_origins_on_surface_t_zero_never_counts(tracers):
     """The documented rule taken literally: t > 0 strictly, so a ray that starts on a
     surface never hits that surface (t = 0); the hit is the next surface or a miss."""
     v, f, tree = box_tree()
     o, d, axis, side, kind, start = face_rays(tree, 1501, seed=51)
-    hits = tracer(tree).trace(o, d)
+    hits = tracers(tree).trace(o, d)
     hit = hits.prim != MISS
     tri = v[f][np.where(hit, hits.prim, 0).astype(np.int64)] - tree.origin
     on_start_face = np.all(tri[np.arange(len(d)), :, axis] == start[:, None], axis=1)
@@ -370,7 +369,7 @@ def lattice_slab(seed, m=60):
     return tris.reshape(-1, 3), np.arange(3 * m).reshape(-1, 3)
 
 
-def test_origins_on_slanted_planes_and_in_plane_rays():
+def test_origins_on_slanted_planes_and_in_plane_rays(tracers):
     """Integer triangles in slanted planes: origins exactly on a plane (lattice points)
     with rays into it, out of it and along it (d = difference of two lattice points
     of the plane: exactly in-plane). Against brute force on the same float32 data."""
@@ -388,7 +387,7 @@ def test_origins_on_slanted_planes_and_in_plane_rays():
     d = np.where(kind[:, None] == 0, along, rng.normal(size=(n, 3)))
     assert np.all(np.abs(o[:, 0] + 2 * o[:, 1] - o[:, 2] - k) == 0)
     t_min = 1e-5          # only the hits' rounding matters here, not t = 0
-    hits = tracer(tree).trace(o, d, t_min=t_min)
+    hits = tracers(tree).trace(o, d, t_min=t_min)
     check_hits(hits, tree, o, d, t_min=t_min, frame="tree", max_graze=0.01)
     ref = brute_force(v[f], o, d, t_min=t_min)
     # no hit on the plane the ray starts in or runs along
@@ -400,7 +399,7 @@ def test_origins_on_slanted_planes_and_in_plane_rays():
     assert hit.sum() > 100 and np.count_nonzero(hit != ref.hit) <= 0.01 * n
 
 
-def test_split_planes_on_faces_of_the_box():
+def test_split_planes_on_faces_of_the_box(tracers):
     """Origins exactly on the box tree's split planes, which coincide with its grid's
     faces and edges, with rays in the plane (d[axis] = +-0) and across it."""
     v, f, tree = box_tree()
@@ -409,13 +408,13 @@ def test_split_planes_on_faces_of_the_box():
     splits = layout.split(tree.nodes)[~layout.is_leaf(tree.nodes)]
     assert np.isin(o32, splits).any(axis=1).mean() > 0.9
     for size in (1, None):
-        hits = tracer(tree, stack_size=size).trace(o, d)
+        hits = tracers(tree, stack_size=size).trace(o, d)
         assert check_hits(hits, tree, o, d, frame="tree", max_graze=0.01) > 300
 
 
 # -- 5. degenerate input ---------------------------------------------------------------------
 
-def test_degenerate_triangles_mixed_in():
+def test_degenerate_triangles_mixed_in(tracers):
     """Zero-area, collinear, duplicated and reversed triangles among good ones: they are
     kept in the input (ids unchanged), the good ones hit as the reference says, and
     zero-area ones are never hit."""
@@ -437,7 +436,7 @@ def test_degenerate_triangles_mixed_in():
     assert not np.isin(tree.tri_ids, degenerate).any()
     assert np.isin(np.flatnonzero(kind == 3), tree.tri_ids).all()
     o, d = camera_rays_at(tri[kind == 0], 2003, seed=62)
-    hits = tracer(tree).trace(o, d)
+    hits = tracers(tree).trace(o, d)
     # a few rays meet a triangle at a grazing angle: 1e-4 per ray, p99 1e-6 against float64 below
     assert check_hits(hits, tree, o, d, frame="tree", rtol=1e-4) > 1500
     assert not np.isin(hits.prim, degenerate).any()
@@ -447,7 +446,7 @@ def test_degenerate_triangles_mixed_in():
     assert n_miss <= 3 and np.percentile(err, 99) <= 5e-6   # soup: grazing angles
 
 
-def test_tiny_cluster_in_huge_scene():
+def test_tiny_cluster_in_huge_scene(tracers):
     """2000 triangles within 1e-6 next to the origin of a scene 1e3 across: nothing is
     dropped, refs per triangle stay bounded, and the kernel finds the reference's hits
     on rays aimed at the cluster."""
@@ -464,7 +463,7 @@ def test_tiny_cluster_in_huge_scene():
     pts, _ = points_on(small, rng, 1501)
     o = pts + rng.normal(size=(1501, 3)) * 3e-6
     d = pts - o
-    hits = tracer(tree).trace(o, d)
+    hits = tracers(tree).trace(o, d)
     assert check_hits(hits, tree, o, d, frame="tree", max_graze=0.01, rtol=5e-4) > 1000
     ref = brute_force(tree.triangles.astype(np.float64),
                       (o - tree.origin).astype(np.float32).astype(np.float64), d)
@@ -473,7 +472,7 @@ def test_tiny_cluster_in_huge_scene():
     assert np.percentile(err, 99) <= 1e-5, np.percentile(err, 99)
 
 
-def test_long_thin_overlapping_slivers_trace():
+def test_long_thin_overlapping_slivers_trace(tracers):
     """3000 long thin overlapping slivers: bounded references, kernel equals the
     reference (ties among overlapping slivers allowed). Slivers of aspect ~1000 cost
     float32 about 1000 eps of relative t error in the worst case (Woop's sub-determinants
@@ -489,7 +488,7 @@ def test_long_thin_overlapping_slivers_trace():
     tree = build(v, f)
     assert tree.stats()["refs_per_triangle"] < 40
     o, d = camera_rays_at(v[f], 3001, seed=65)
-    hits = tracer(tree).trace(o, d)
+    hits = tracers(tree).trace(o, d)
     # the tree's own float32 slivers (rounding a vertex moves an edge by ~1e-4 of a
     # sliver's width: a world-frame graze test would mostly measure that)
     assert check_hits(hits, tree, o, d, frame="tree", max_graze=0.01, rtol=5e-4) > 1000
@@ -571,7 +570,7 @@ def test_property_random_meshes(seed, n_tris, snap, log_scale, log_offset):
     with float64 brute force on its own float32 input (ties and grazes allowed; a small
     t_min leaves out the rounding of t = 0 for origins on a lattice plane), and with
     brute force on the float64 input up to rays through float32-rounded edges."""
-    from test_trace import plane_hit
+    from helpers import plane_hit
     v, f, o, d, at_vertex = random_case(seed, n_tris, snap, log_scale, log_offset)
     tree = build(v, f)
     size = float(np.linalg.norm(tree.bounds[1].astype(np.float64) - tree.bounds[0]))
@@ -585,6 +584,7 @@ def test_property_random_meshes(seed, n_tris, snap, log_scale, log_offset):
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     cos = np.where(ref.prim >= 0, np.abs(np.einsum("ij,ij->i", nrm[np.maximum(ref.prim, 0)], d)), 1.0)
     edge_on = cos < 1e-3
+    cos_ref = cos
     # random rays meet small meshes at grazing angles, where float32 t and barycentrics
     # lose ~1/cos: 1e-4 per ray here, p99 1e-5 below
     for rays, max_graze in ((~at_vertex & ~edge_on, 0.01), (at_vertex & ~edge_on, 1.0)):
@@ -603,6 +603,9 @@ def test_property_random_meshes(seed, n_tris, snap, log_scale, log_offset):
         cos = np.abs(nrm @ d[i]) / np.linalg.norm(nrm, axis=1)
         in_plane = cos <= 1e-6                                   # edge-on within rounding
         assert edge.any() or tie or in_plane.any(), f"ray {i}: ours {ours[i]}, reference {ref.prim[i]}, bary {b}"
-    both = (ours >= 0) & (ours == ref.prim) & ~at_vertex
+    # p99 of t against the float64 input, on rays meeting their triangle at cos >= 0.01:
+    # rounding the input to float32 alone moves t by up to ~2^-24 / cos (1e-4 at cos
+    # 3e-4), so a sample with a few grazing rays would otherwise decide the percentile
+    both = (ours >= 0) & (ours == ref.prim) & ~at_vertex & (cos_ref >= 1e-2)
     err = np.abs(hits.t[both] - ref.t[both]) / ref.t[both]
     assert err.size == 0 or np.percentile(err, 99) <= 1e-5, np.percentile(err, 99)

@@ -16,7 +16,7 @@ from kdray.builder.events import position_bits, position_value, sorted_root_even
 from kdray.builder.sah import best_split
 from kdray.builder.subdivide import MAX_REFS_PER_TRI
 from kdray.errors import MeshError
-from conftest import real_mesh_arrays
+from helpers import real_mesh_arrays
 
 
 

@@ -164,7 +164,7 @@ def test_json_intrinsics_object_form(tmp_path):
 
 
 def test_shipped_cornell_camera_sees_the_room():
-    from conftest import SCENES
+    from helpers import SCENES
 
     cam = Camera.from_json(SCENES / "cornell.json")
     back_corners = np.array([[x, y, -0.5] for x in (-0.5, 0.5) for y in (0.0, 1.0)])

@@ -1,19 +1,7 @@
 """The command line: output, exit codes, one-line errors."""
 
-from kdray.cli import main
 from kdray.tree import KdTree
-from conftest import real_mesh
-
-
-def run(capsys, *argv):
-    """Run `kdray argv...`; returns (exit code, stdout, stderr)."""
-    try:
-        main(list(map(str, argv)))
-        code = 0
-    except SystemExit as e:
-        code = e.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
+from helpers import real_mesh, run
 
 
 def test_build_dump_info_check(capsys, tmp_path):

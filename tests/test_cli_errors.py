@@ -4,8 +4,8 @@ import os
 
 import pytest
 
-from conftest import SCENES
-from test_cli import run
+from helpers import SCENES
+from helpers import run
 
 SCENE = SCENES / "cornell.obj"
 

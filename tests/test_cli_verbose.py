@@ -5,7 +5,7 @@ import subprocess
 import sys
 
 import kdray
-from conftest import SCENES
+from helpers import SCENES
 
 # Two triangles facing +z at x = -2 and x = +2, and one degenerate (its vertices on a line).
 OBJ = """v -2.5 -0.5 0

@@ -5,7 +5,7 @@ import pytest
 
 import kdray
 from kdray.cull import build_for_camera, cull_faces, mesh_origin, scene_box
-from conftest import SCENES, real_mesh_arrays
+from helpers import SCENES, real_mesh_arrays
 
 SIZE = (96, 72)
 

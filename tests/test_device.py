@@ -16,7 +16,7 @@ import pytest
 from kdray import device as kdevice
 from kdray import runtimes as kruntimes
 from kdray.errors import DeviceError
-from test_cli import run
+from helpers import run
 
 cl = pytest.importorskip("pyopencl")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -152,7 +152,7 @@ def test_a_broken_device_named_explicitly_is_refused(broken_default, capsys, mon
     monkeypatch.setenv("PYOPENCL_CTX", spec)
     with pytest.raises(DeviceError):
         kdevice.create_context(None)
-    from conftest import SCENES
+    from helpers import SCENES
     code, _, err = run(capsys, "render", SCENES / "sphere.obj", "-o", tmp_path / "o.exr",
                        "--device", spec)
     assert code == 1 and one_line(err) and "broken on purpose" in err

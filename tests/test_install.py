@@ -73,7 +73,7 @@ PLATFORMS = {
 
 OPENCL_RUNTIMES = {"pocl-binary-distribution", "intel-opencl-rt", "intel-cmplr-lib-rt"}
 # on every platform
-COMMON = {"numpy", "numba", "pyopencl", "trimesh", "openimageio", "click"}
+COMMON = {"numpy", "numba", "pyopencl", "trimesh", "openimageio", "openexr", "click"}
 
 
 def dependencies():

@@ -5,7 +5,7 @@ import pytest
 from kdray.load import load
 from kdray.errors import MeshError
 from kdray.mesh import Mesh
-from conftest import real_mesh
+from helpers import real_mesh
 
 
 @pytest.mark.parametrize("name, n_tris", [("stanford-bunny.obj", 69451), ("fandisk.obj", 12946),
@@ -19,7 +19,7 @@ def test_real_meshes(name, n_tris):
 def test_gzipped_files_read_as_their_format(tmp_path):
     """NAME.obj.gz loads as NAME.obj would, under that name; a .gz whose inner name has
     an unknown extension is refused."""
-    from conftest import MESHES
+    from helpers import MESHES
     zipped, plain = load(MESHES / "spot.obj.gz"), load(real_mesh("spot.obj"))
     assert zipped.name == plain.name == "spot.obj"
     assert np.array_equal(zipped.vertices, plain.vertices) and np.array_equal(zipped.faces, plain.faces)

@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 import trees
-from conftest import SCENES
-from test_trace import camera_for, check_hits, random_rays, soup, split_plane_rays
+from helpers import SCENES, camera_for, check_hits, random_rays, soup, split_plane_rays
 from kdray.load import load
 from kdray.trace import PACKET, Tracer
 

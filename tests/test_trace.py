@@ -9,16 +9,14 @@ import numpy as np
 import pytest
 
 import trees
+from helpers import (RTOL_T, assert_watertight, camera_for, check_hits, random_rays,
+                     real_mesh_arrays, soup, split_plane_rays)
 from kdray import layout
 from kdray.errors import KdrayError
-from conftest import real_mesh_arrays
 from kdray.reference import brute_force
 from kdray.trace import MISS, Tracer, default_stack_size
 
 
-RTOL_T = 1e-5           # relative t error against float64
-GRAZE_ULPS = 64         # how near an edge a graze passes: float32 ulps of the magnitudes involved
-MAX_GRAZE = 0.002       # fraction of rays allowed to graze an edge differently
 
 
 mesh = real_mesh_arrays
@@ -29,184 +27,7 @@ def sah_tree(vertices, faces):
     return build(vertices, faces)
 
 
-_TRACERS = {}
-
-
-def tracer(tree, **kw):
-    """One Tracer per (tree, options) for the whole session: contexts and programs are
-    made once."""
-    kw = {k: v for k, v in kw.items() if v is not None}
-    key = (id(tree), tuple(sorted(kw.items())))
-    if key not in _TRACERS:
-        _TRACERS[key] = (tree, Tracer(tree, **kw))
-    return _TRACERS[key][1]
-
-
-# -- rays and the oracle -------------------------------------------------------------
-
-def random_rays(tree, n, seed, inside=0.25):
-    """Rays in world coordinates: most from outside the scene towards points in its box,
-    a fraction `inside` from points in the box in random directions."""
-    rng = np.random.default_rng(seed)
-    lo = tree.bounds[0].astype(np.float64) + tree.origin
-    hi = tree.bounds[1].astype(np.float64) + tree.origin
-    c, r = 0.5 * (lo + hi), np.linalg.norm(hi - lo)
-    n_in = int(n * inside)
-    o = np.concatenate([c + rng.normal(size=(n - n_in, 3)) * r,
-                        lo + rng.random((n_in, 3)) * (hi - lo)])
-    target = lo + rng.random((n, 3)) * (hi - lo)
-    d = np.concatenate([target[: n - n_in] - o[: n - n_in], rng.normal(size=(n_in, 3)) * r])
-    d *= rng.uniform(0.1, 10.0, size=(n, 1))          # t is in units of |d|
-    return o, d
-
-
-def reference(tree, o, d, t_min=0.0, t_max=np.inf, frame="world"):
-    """brute_force on the tree's own triangles, prim mapped to input ids.
-
-    frame="world": world coordinates, float64 ray origins as given.
-    frame="tree": relative to the tree's origin, with the ray origins rounded to float32
-        as the tracer rounds them: exactly the tracer's input, for rays whose exact
-        position matters (in split planes, on faces).
-    Returns (t, prim int64 -1 on miss, u, v, triangles in input order, origins), the
-    last two in the frame used."""
-    if frame == "world":
-        tri = tree.triangles.astype(np.float64) + tree.origin
-        by_id = trees.world_triangles(tree)
-    else:
-        tri = tree.triangles.astype(np.float64)
-        by_id = trees.world_triangles(tree) - tree.origin
-        by_id[tree.tri_ids] = tri
-        o = (o - tree.origin).astype(np.float32).astype(np.float64)
-        d = np.asarray(d).astype(np.float32).astype(np.float64)
-    ref = brute_force(tri, o, d, t_min, t_max)
-    prim = np.where(ref.prim >= 0, tree.tri_ids[np.maximum(ref.prim, 0)].astype(np.int64), -1)
-    return ref.t, prim, ref.u, ref.v, by_id, o
-
-
-def plane_hit(tri, o, d):
-    """Ray/plane intersection of each ray with its triangle's plane, float64:
-    (t, barycentrics (k, 3) of v0, v1, v2), without edge tests."""
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    n = np.cross(e1, e2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.einsum("ij,ij->i", tri[:, 0] - o, n) / np.einsum("ij,ij->i", d, n)
-        p = o + t[:, None] * d - tri[:, 0]
-        nn = np.einsum("ij,ij->i", n, n)
-        b1 = np.einsum("ij,ij->i", np.cross(p, e2), n) / nn
-        b2 = np.einsum("ij,ij->i", np.cross(e1, p), n) / nn
-    return t, np.stack([1 - b1 - b2, b1, b2], axis=1)
-
-
-def edge_distance(tri, o, d):
-    """(k,) distance between each ray's line and the nearest edge of its triangle: how far
-    the ray must move to change whether it hits (independent of the angle it meets the
-    plane at). tri (k,3,3), o, d (k,3)."""
-    u = d / np.linalg.norm(d, axis=1, keepdims=True)
-
-    def perp(x):
-        return x - np.einsum("ij,ij->i", x, u)[:, None] * u
-    dist = np.full(len(o), np.inf)
-    for a, c in ((0, 1), (1, 2), (2, 0)):
-        wp, ep = perp(tri[:, a] - o), perp(tri[:, c] - tri[:, a])
-        ee = np.einsum("ij,ij->i", ep, ep)
-        s = np.clip(-np.einsum("ij,ij->i", wp, ep) / np.where(ee > 0, ee, 1.0), 0, 1)
-        dist = np.minimum(dist, np.linalg.norm(wp + s[:, None] * ep, axis=1))
-    return dist
-
-
-def graze_tolerance(tree, tri, o, d, t_p, frame):
-    """(k,) how near an edge a ray may pass and still be a float32 graze: GRAZE_ULPS float32
-    ulps of the largest coordinate involved (ray origin, hit point, vertices), measured in
-    the tree's frame. A barycentric tolerance would not do: at a grazing angle a rounding
-    of the ray moves the plane's hit point along the plane by 1/cos of the angle."""
-    shift = tree.origin if frame == "world" else 0.0
-    mags = [np.linalg.norm(o - shift, axis=1), np.linalg.norm(o + t_p[:, None] * d - shift, axis=1),
-            np.abs(tri - (shift if np.ndim(shift) == 0 else shift[None, None])).max(axis=(1, 2))]
-    return GRAZE_ULPS * 2.0 ** -24 * np.max(mags, axis=0)
-
-
-def check_hits(hits, tree, o, d, t_min=0.0, t_max=np.inf, max_graze=MAX_GRAZE, frame="world",
-               rtol=RTOL_T):
-    """Assert that `hits` agree with the oracle (t and barycentric points to `rtol`
-    relative, at most `max_graze` of the rays grazing an edge differently); return the
-    number of rays that hit."""
-    t_ref, p_ref, u_ref, v_ref, world, o = reference(tree, o, d, t_min, t_max, frame)
-    ours = np.where(hits.prim == MISS, -1, hits.prim.astype(np.int64))
-    hit, ref_hit = ours >= 0, p_ref >= 0
-    # miss values
-    assert np.all(np.isposinf(hits.t[~hit]))
-    assert np.all(hits.u[~hit] == 0) and np.all(hits.v[~hit] == 0)
-    assert np.all(hits.normal[~hit] == 0)
-    assert np.all((hits.t[hit] > t_min) & (hits.t[hit] < t_max))
-
-    same = hit & ref_hit & (ours == p_ref)
-    # t: relative error rtol, plus (for rays starting next to a surface) the float32
-    # rounding of coordinates, 1e-6 of the scene's size along the ray
-    scale = np.linalg.norm(tree.bounds[1].astype(np.float64) - tree.bounds[0])
-    err = np.abs(hits.t[same] - t_ref[same])
-    allowed = rtol * t_ref[same] + 1e-6 * scale / np.linalg.norm(d[same], axis=1)
-    assert np.all(err <= allowed), f"t error {np.max(err / t_ref[same]):.3g}"
-    # barycentrics: the points they give agree to 1e-5 of the scene's size (as t does)
-    tri = world[ours[same]]
-
-    def point(u, v):
-        u, v = u.astype(np.float64)[:, None], v.astype(np.float64)[:, None]
-        return (1 - u - v) * tri[:, 0] + u * tri[:, 1] + v * tri[:, 2]
-    err = np.linalg.norm(point(hits.u[same], hits.v[same]) - point(u_ref[same], v_ref[same]), axis=1)
-    assert err.size == 0 or err.max() <= rtol * scale, f"barycentric error {err.max() / scale:.3g}"
-    # normals: float64 (v1 - v0) x (v2 - v0) of the hit triangle
-    n64 = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    n64 /= np.linalg.norm(n64, axis=1, keepdims=True)
-    assert np.allclose(hits.normal[same], n64, atol=1e-5)
-
-    # both hit, different triangles: a tie (ours is hit, nearly, at the same t), or one
-    # of the two grazes an edge and the other is the hit behind it
-    diff = np.flatnonzero(hit & ref_hit & (ours != p_ref))
-    n_diff_grazes = 0
-    def gap(prims, rays):
-        """(distance from the ray's line to the triangle, 0 when the line passes through it;
-        distance to its nearest edge; tolerance for a float32 graze; plane t)."""
-        tri = world[prims]
-        t_p, b = plane_hit(tri, o[rays], d[rays])
-        edge = edge_distance(tri, o[rays], d[rays])
-        outside = np.where(b.min(axis=1) >= 0, 0.0, edge)
-        return outside, edge, graze_tolerance(tree, tri, o[rays], d[rays], t_p, frame), t_p
-
-    if len(diff):
-        out_ours, edge_ours, tol, t_p = gap(ours[diff], diff)
-        assert np.all(out_ours <= tol), "a different, non-touching triangle"
-        tie = np.isclose(t_p, t_ref[diff], rtol=rtol)
-        _, edge_ref, tol_ref, _ = gap(p_ref[diff], diff)
-        graze = np.where(t_p < t_ref[diff], edge_ours <= tol, edge_ref <= tol_ref)
-        assert np.all(tie | graze), "a different triangle at another t"
-        n_diff_grazes = int(np.count_nonzero(~tie))
-    # one hit, the other missed: only a ray grazing an edge
-    only_ours = np.flatnonzero(hit & ~ref_hit)
-    only_ref = np.flatnonzero(~hit & ref_hit)
-    if len(only_ours):
-        _, edge, tol, _ = gap(ours[only_ours], only_ours)
-        assert np.all(edge <= tol), "hit where the oracle sees none"
-    if len(only_ref):
-        _, edge, tol, _ = gap(p_ref[only_ref], only_ref)
-        assert np.all(edge <= tol), f"missed {len(only_ref)} rays the oracle hits squarely"
-    grazes = len(only_ours) + len(only_ref) + n_diff_grazes
-    assert grazes <= max_graze * len(o) + 1, f"{grazes} grazing disagreements"
-    return int(hit.sum())
-
-
 # -- trees of several shapes ---------------------------------------------------------
-
-def soup(seed, m=300):
-    """Random triangles of mixed sizes in the unit cube, with duplicates (exact ties)
-    and a few triangles sharing edges."""
-    rng = np.random.default_rng(seed)
-    centers = rng.random((m, 1, 3))
-    size = 10.0 ** rng.uniform(-2.5, -0.5, size=(m, 1, 1))
-    tri = centers + rng.normal(size=(m, 3, 3)) * size
-    tri[-10:] = tri[:10]                                  # duplicates: exact ties
-    tri[-20:-10, 0], tri[-20:-10, 1] = tri[:10, 1], tri[:10, 0]   # shared edges
-    return tri.reshape(-1, 3), np.arange(3 * m).reshape(m, 3)
-
 
 TREE_KINDS = {
     "leaf": lambda v, f: trees.leaf_tree(v, f),
@@ -217,12 +38,12 @@ TREE_KINDS = {
 
 
 @pytest.mark.parametrize("kind", list(TREE_KINDS))
-def test_soup_matches_reference(kind):
+def test_soup_matches_reference(kind, tracers):
     v, f = soup(1)
     tree = TREE_KINDS[kind](v, f)
     tree.validate()
     o, d = random_rays(tree, 3001, seed=2)
-    hits = tracer(tree).trace(o, d)
+    hits = tracers(tree).trace(o, d)
     assert check_hits(hits, tree, o, d) > 1000
 
 
@@ -241,27 +62,27 @@ def mesh_tree(name, kind):
     ("fandisk.obj", "sah", 1201), ("spot.obj", "median", 1201), ("spot.obj", "sah", 1201),
     ("stanford-bunny.obj", "sah", 401),
 ])
-def test_mesh_matches_reference(name, kind, n):
+def test_mesh_matches_reference(name, kind, n, tracers):
     tree = mesh_tree(name, kind)
     o, d = random_rays(tree, n, seed=len(name))
-    hits = tracer(tree).trace(o, d)
+    hits = tracers(tree).trace(o, d)
     assert check_hits(hits, tree, o, d) > n // 3
 
 
-def test_t_range():
+def test_t_range(tracers):
     """t_min and t_max narrow the hits, strictly: t_min < t < t_max."""
     tree = mesh_tree("teapot.obj", "sah")
     o, d = random_rays(tree, 1001, seed=5, inside=0.5)
-    full = tracer(tree).trace(o, d)
+    full = tracers(tree).trace(o, d)
     t_min, t_max = np.float32(0.05), np.float32(0.8)
-    part = tracer(tree).trace(o, d, t_min=t_min, t_max=t_max)
+    part = tracers(tree).trace(o, d, t_min=t_min, t_max=t_max)
     check_hits(part, tree, o, d, t_min=float(t_min), t_max=float(t_max))
     # hits of the full range inside (t_min, t_max) stay; those before t_min are replaced
     keep = (full.t > t_min) & (full.t < t_max)
     assert np.array_equal(part.prim[keep], full.prim[keep])
     assert np.all(part.t[full.t <= t_min] > t_min)
     with pytest.raises(KdrayError):
-        tracer(tree).trace(o, d, t_min=-1.0)
+        tracers(tree).trace(o, d, t_min=-1.0)
 
 
 # -- watertightness --------------------------------------------------------------------------
@@ -290,7 +111,7 @@ def vertex_and_edge_rays(tree, seed, offset=(0.0, 0.0, 0.0)):
 
 
 @pytest.mark.parametrize("kind", ["median", "sah"])
-def test_watertight(kind):
+def test_watertight(kind, tracers):
     """Rays from inside a closed convex mesh through its vertices and along its edges
     never leak between triangles (Woop et al.'s guarantee), also where a vertex lies on
     several split planes (SAH trees put planes at vertices) and for any stack size."""
@@ -298,25 +119,10 @@ def test_watertight(kind):
     tree = TREE_KINDS[kind](v, f)
     for offset in [(0.0, 0.0, 0.0), (0.013, -0.021, 0.007)]:
         o, d = vertex_and_edge_rays(tree, seed=17, offset=offset)
-        assert_watertight(tree, o, d, (1, 2, None), atol=1e-4, label=f"offset {offset}")
+        assert_watertight(tracers, tree, o, d, (1, 2, None), atol=1e-4, label=f"offset {offset}")
 
 
-def assert_watertight(tree, o, d, stack_sizes, atol, label=""):
-    """Rays aimed at points of a closed surface with |d| = distance: for every stack size,
-    no ray leaks, t = 1 within atol, and the results are identical. Returns the hits."""
-    base = None
-    for size in stack_sizes:
-        hits = tracer(tree, stack_size=size).trace(o, d)
-        leaks = np.count_nonzero(hits.prim == MISS)
-        assert leaks == 0, f"{leaks} of {len(d)} rays leaked (stack {size}, {label})"
-        assert np.allclose(hits.t, 1.0, atol=atol)
-        if base is None:
-            base = hits
-        assert np.array_equal(hits.prim, base.prim) and np.array_equal(hits.t, base.t)
-    return base
-
-
-def test_watertight_closed_cad_mesh():
+def test_watertight_closed_cad_mesh(tracers):
     """The same from a point inside fandisk (closed, non-convex, with axis-aligned faces
     and many vertices on split planes): every ray through a vertex or an edge hits."""
     import trimesh
@@ -335,7 +141,7 @@ def test_watertight_closed_cad_mesh():
     center = tree.triangles.reshape(-1, 3).astype(np.float64).mean(axis=0) + tree.origin
     o, d = vertex_and_edge_rays(tree, seed=19, offset=inside - center)
     for size in (1, None):
-        hits = tracer(tree, stack_size=size).trace(o, d)
+        hits = tracers(tree, stack_size=size).trace(o, d)
         leaks = np.count_nonzero(hits.prim == MISS)
         assert leaks == 0, f"{leaks} of {len(d)} rays leaked (stack {size})"
 
@@ -382,7 +188,7 @@ def deep_tree():
 
 
 @pytest.mark.parametrize("kind", ["median", "sah"])
-def test_stack_size_does_not_change_results(kind):
+def test_stack_size_does_not_change_results(kind, tracers):
     """Bit-identical hits for stacks of 1, 2, 4 and 32 entries on trees deep enough that
     small stacks restart (counted by the STATS build of the kernel), for random rays,
     rays in split planes and rays through vertices (where split planes cross)."""
@@ -395,7 +201,7 @@ def test_stack_size_does_not_change_results(kind):
     o, d = np.concatenate([o, o2, o3[pick]]), np.concatenate([d, d2, d3[pick]])
     results = {}
     for size in (1, 2, 4, 32):
-        hits, stats = tracer(tree, stack_size=size, packet=1)._trace(o, d, stats=True,
+        hits, stats = tracers(tree, stack_size=size, packet=1)._trace(o, d, stats=True,
                                                                      t_min=surface_t_min(tree))
         results[size] = (hits, stats)
     restarts = {size: int(stats[:, 3].sum()) for size, (_, stats) in results.items()}
@@ -436,7 +242,7 @@ def packet_rays(tree, camera_size=67):
 
 @pytest.mark.parametrize("kind", ["median", "sah"])
 @pytest.mark.parametrize("leaf", ["rule", "by triangle", "by ray"])
-def test_packets_equal_single_rays(kind, leaf):
+def test_packets_equal_single_rays(kind, leaf, tracers):
     """Packets of 8 rays in float8 lanes (CPU default) give bit for bit what one ray per
     work-item gives, for coherent and incoherent rays, rays the packet hands to the
     scalar kernel (split planes, diverging origins) and invalid rays; also with t_min
@@ -445,7 +251,7 @@ def test_packets_equal_single_rays(kind, leaf):
     triangle) and always ray by ray (one ray against 8 triangles) agree."""
     tree = deep_tree() if kind == "median" else mesh_tree("teapot.obj", "sah")
     o, d = packet_rays(tree)
-    single = tracer(tree, packet=1)
+    single = tracers(tree, packet=1)
     packed = Tracer(tree, packet=8)
     packed._lane_ratio = {"rule": None, "by triangle": 0.0, "by ray": np.inf}[leaf]
     for t_min, t_max in [(0.0, np.inf), (surface_t_min(tree), np.inf), (0.3, 2.5)]:
@@ -516,7 +322,7 @@ def test_device_triangles_are_each_leafs_run():
 
 
 @pytest.mark.parametrize("packet", [1, 8])
-def test_rays_converted_in_the_kernel(packet):
+def test_rays_converted_in_the_kernel(packet, tracers):
     """float64 rays shifted and rounded by trace_rays (RAYS_DOUBLE) give bit for bit what
     the host's conversion gives: rays near and far (1e6) from the tree's origin, one
     shared (3,) origin, NaN/inf and overflowing components, float32 input."""
@@ -526,7 +332,7 @@ def test_rays_converted_in_the_kernel(packet):
     o, d = random_rays(tree, 2003, seed=29)      # world coordinates, near the teapot
     o, d = o.copy(), d.copy()
     o[5], d[6], d[7, 1], o[8, 2] = np.nan, np.inf, 1e300, -1e300
-    in_kernel = tracer(tree, packet=packet)
+    in_kernel = tracers(tree, packet=packet)
     assert in_kernel._rays_in_kernel
     on_host = Tracer(tree, packet=packet)
     on_host._rays_in_kernel = False
@@ -542,22 +348,22 @@ def test_rays_converted_in_the_kernel(packet):
     assert np.count_nonzero(in_kernel.trace(o, d).hit) > 0.2 * len(d)
 
 
-def test_packet_stats_count_the_same_work():
+def test_packet_stats_count_the_same_work(tracers):
     """On coherent camera rays a packet's lanes visit the nodes and leaves the single
     rays visit (lanes are masked to their own), and restarts never happen."""
     tree = mesh_tree("teapot.obj", "sah")
     o, d = camera_for(tree, 64, 48).rays()
-    _, s1 = tracer(tree, packet=1)._trace(o, d, stats=True)
-    _, s8 = tracer(tree, packet=8)._trace(o, d, stats=True)
+    _, s1 = tracers(tree, packet=1)._trace(o, d, stats=True)
+    _, s8 = tracers(tree, packet=8)._trace(o, d, stats=True)
     assert np.array_equal(s1[:, :3], s8[:, :3])
     assert s8[:, 3].sum() == 0
 
 
-def test_default_stack_size():
+def test_default_stack_size(tracers):
     """depth + 1 entries rounded up to 8, 16, 32 or 64: few program variants."""
     from types import SimpleNamespace
     tree = deep_tree()
-    assert tracer(tree).stack_size == default_stack_size(tree) == 32 >= tree.depth + 1
+    assert tracers(tree).stack_size == default_stack_size(tree) == 32 >= tree.depth + 1
     sizes = [default_stack_size(SimpleNamespace(depth=depth)) for depth in (0, 7, 8, 15, 16, 31, 32, 63)]
     assert sizes == [8, 8, 16, 16, 32, 32, 64, 64]
     with pytest.raises(KdrayError):
@@ -582,15 +388,15 @@ def test_rays_per_launch():
 
 # -- precision far from the origin --------------------------------------------------------
 
-def test_far_from_origin():
+def test_far_from_origin(tracers):
     """The teapot moved by 1e6 (and its rays with it) traces as accurately as at 0."""
     v, f = mesh("teapot.obj")
     shift = np.array([1e6, -1e6, 1e6])
     near_tree, far_tree = sah_tree(v, f), sah_tree(v + shift, f)
     assert np.all(np.abs(far_tree.origin) > 9e5)
     o, d = random_rays(near_tree, 1501, seed=13)
-    near = tracer(near_tree).trace(o, d)
-    far = tracer(far_tree).trace(o + shift, d)
+    near = tracers(near_tree).trace(o, d)
+    far = tracers(far_tree).trace(o + shift, d)
     n_hit = check_hits(far, far_tree, o + shift, d)
     assert n_hit > 500
     both = (near.prim != MISS) & (far.prim == near.prim)
@@ -615,52 +421,26 @@ def axis_rays(tree, n, seed):
     return o, d
 
 
-def split_plane_rays(tree, n, seed):
-    """Rays lying in split planes of the tree (o[axis] == split, d[axis] = +-0), and rays
-    crossing a split plane exactly where they start (o[axis] == split, d[axis] != 0)."""
-    rng = np.random.default_rng(seed)
-    inner = np.flatnonzero(~layout.is_leaf(tree.nodes))
-    nodes = rng.choice(inner, size=n)
-    axis = layout.split_axis(tree.nodes[nodes]).astype(np.int64)
-    split = layout.split(tree.nodes[nodes]).astype(np.float64)
-    boxes = tree.node_boxes().astype(np.float64)
-    lo, hi = boxes[nodes, 0], boxes[nodes, 1]
-    o_rel = lo + rng.random((n, 3)) * (hi - lo)
-    o_rel[np.arange(n), axis] = split                      # exactly representable: float32
-    target = lo + rng.random((n, 3)) * (hi - lo)
-    d = target - o_rel
-    in_plane = rng.random(n) < 0.7
-    d[np.arange(n), axis] = np.where(in_plane, np.where(rng.random(n) < 0.5, 0.0, -0.0),
-                                     d[np.arange(n), axis])
-    # in-plane rays start back along the ray, outside the node (still in the plane);
-    # the others start on the plane, inside the node
-    o_rel[in_plane] -= 2.0 * d[in_plane]
-    zero = np.all(d == 0, axis=1)
-    d[zero, (axis[zero] + 1) % 3] = 1.0
-    d /= np.linalg.norm(d, axis=1, keepdims=True)          # (keeps the zeros' signs)
-    return o_rel.astype(np.float32).astype(np.float64) + tree.origin, d
-
-
 def surface_t_min(tree):
     """A t_min (for unit directions) that leaves out hits on a surface the ray starts
     on, whose sign is a matter of rounding."""
     return 1e-5 * float(np.linalg.norm(tree.bounds[1].astype(np.float64) - tree.bounds[0]))
 
 
-def test_axis_parallel_rays_signed_zeros():
+def test_axis_parallel_rays_signed_zeros(tracers):
     tree = mesh_tree("fandisk.obj", "sah")
     o, d = axis_rays(tree, 801, seed=14)
-    hits = tracer(tree).trace(o, d)
+    hits = tracers(tree).trace(o, d)
     assert check_hits(hits, tree, o, d, frame="tree") > 200
     # flipping the sign of the zero components changes nothing
     flipped_d = np.where(d == 0, -d, d)
     assert np.array_equal(np.signbit(flipped_d) != np.signbit(d), d == 0)
-    flipped = tracer(tree).trace(o, flipped_d)
+    flipped = tracers(tree).trace(o, flipped_d)
     assert np.array_equal(flipped.prim, hits.prim) and np.array_equal(flipped.t, hits.t)
 
 
 @pytest.mark.parametrize("kind", ["sah", "median"])
-def test_rays_in_split_planes(kind):
+def test_rays_in_split_planes(kind, tracers):
     tree = mesh_tree("fandisk.obj" if kind == "sah" else "teapot.obj", kind)
     o, d = split_plane_rays(tree, 701, seed=15)
     # most rays really start on their plane in the tracer's float32 coordinates
@@ -670,11 +450,11 @@ def test_rays_in_split_planes(kind):
     assert on_plane.mean() > 0.9
     assert (on_plane & (d == 0).any(axis=1)).mean() > 0.5
     t_min = surface_t_min(tree)
-    hits = tracer(tree).trace(o, d, t_min=t_min)
+    hits = tracers(tree).trace(o, d, t_min=t_min)
     assert check_hits(hits, tree, o, d, t_min=t_min, frame="tree") > 100
 
 
-def test_in_plane_ray_sees_both_sides():
+def test_in_plane_ray_sees_both_sides(tracers):
     """A ray in the plane z = 0 of the root's split, with one wall below the plane and
     one above it, each touching the plane with an edge and listed on its side only; an
     inner split makes a short stack overflow. Both walls must be found from either end,
@@ -698,25 +478,25 @@ def test_in_plane_ray_sees_both_sides():
     o = np.array([[0.0, 0.3, 0.0], [3.0, -0.2, 0.0], [0.0, 0.3, 0.0], [3.0, -0.2, 0.0]])
     d = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, -0.0], [-1.0, 0.0, -0.0]])
     for size in (1, 2, 3):
-        hits = tracer(tree, stack_size=size).trace(o, d)
+        hits = tracers(tree, stack_size=size).trace(o, d)
         assert hits.t.tolist() == [1.0, 1.0, 1.0, 1.0], size
         assert set(hits.prim[[0, 2]]) <= {0, 1} and set(hits.prim[[1, 3]]) <= {2, 3}
     check_hits(hits, tree, o, d)
 
 
-def test_bad_rays_miss():
+def test_bad_rays_miss(tracers):
     """Zero, NaN and infinite directions or origins miss instead of hanging or hitting."""
     tree = mesh_tree("teapot.obj", "sah")
     c = tree.origin
     o = np.array([c, c, c, c + np.nan, c + np.inf, c - 10])
     d = np.array([[0, 0, 0], [np.nan, 1, 0], [np.inf, 0, 0], [0, 0, 1], [0, 0, 1], [0, 0, 0]])
-    hits = tracer(tree).trace(o, d)
+    hits = tracers(tree).trace(o, d)
     assert np.all(hits.prim == MISS) and np.all(np.isposinf(hits.t))
 
 
-def test_input_checks():
+def test_input_checks(tracers):
     tree = mesh_tree("teapot.obj", "sah")
-    tr = tracer(tree)
+    tr = tracers(tree)
     with pytest.raises(KdrayError):
         tr.trace(np.zeros((3, 3)), np.ones((4, 3)))
     with pytest.raises(KdrayError):
@@ -728,23 +508,12 @@ def test_input_checks():
 
 # -- render ----------------------------------------------------------------------------------
 
-def camera_for(tree, width, height):
-    """A look-at camera a little outside the scene's bounding sphere, off the axes."""
-    from kdray.camera import Camera
-    lo = tree.bounds[0].astype(np.float64) + tree.origin
-    hi = tree.bounds[1].astype(np.float64) + tree.origin
-    c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-    view = np.array([0.35, 0.3, 1.0]) / np.linalg.norm([0.35, 0.3, 1.0])
-    return Camera.look_at(c + 2.2 * r * view, c, up=(0, 1, 0), fov_deg=40, width=width,
-                          height=height)
-
-
-def test_render_rays_match_host_rays():
+def test_render_rays_match_host_rays(tracers):
     """Rays made on the device equal the host's: render == trace(camera_rays), bit for
     bit; and the depth agrees with float64 camera rays (Camera.rays) to 1e-5."""
     tree = mesh_tree("spot.obj", "sah")
     cam = camera_for(tree, 97, 61)
-    tr = tracer(tree)
+    tr = tracers(tree)
     images = tr.render(cam, aovs=("depth", "normal", "bary", "id"))
     o, d = tr.camera_rays(cam)
     hits = tr.trace(o, d)
@@ -767,13 +536,13 @@ def test_render_rays_match_host_rays():
 
 
 @pytest.mark.parametrize("packet", [1, 8])
-def test_render_tiles_cover_every_pixel(monkeypatch, packet):
+def test_render_tiles_cover_every_pixel(monkeypatch, packet, tracers):
     """render takes pixels in 64 x 8 tiles: sizes that no tile, packet or launch fits
     (1 x 1, a width of 65, rows split over several launches, one row per launch) give
     every pixel exactly its own ray: outputs poisoned first, equal to trace(camera_rays)."""
     import kdray.trace
     tree = mesh_tree("spot.obj", "sah")
-    tr = tracer(tree, packet=packet)
+    tr = tracers(tree, packet=packet)
     tr._poison_outputs = True
     for (w, h), max_rays in [((1, 1), None), ((7, 3), None), ((65, 9), None),
                              ((130, 17), 600), ((97, 23), 50)]:
@@ -789,10 +558,10 @@ def test_render_tiles_cover_every_pixel(monkeypatch, packet):
     tr._poison_outputs = False
 
 
-def test_render_aovs():
+def test_render_aovs(tracers):
     tree = mesh_tree("teapot.obj", "sah")
     cam = camera_for(tree, 64, 48)
-    tr = tracer(tree)
+    tr = tracers(tree)
     everything = ("depth", "distance", "normal", "bary", "id", "position")
     images = tr.render(cam, aovs=everything)
     assert list(images) == list(everything)
