@@ -287,7 +287,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
         images = tracer.render(camera, aovs=aovs)
     _log_left_out(tree, tracer, n_culled, from_file=bool(tree_file), outputs=outputs)
     with step("writing"):
-        write_exr(output, images)
+        write_exr(output, images, camera=camera)
         if preview:
             write_preview(preview, images)
     step.log()

@@ -1,7 +1,7 @@
 """The command line: output, exit codes, one-line errors."""
 
 from kdray.tree import KdTree
-from helpers import real_mesh, run
+from helpers import SCENES, real_mesh, run
 
 
 def test_build_dump_info_check(capsys, tmp_path):
@@ -55,3 +55,23 @@ def test_dump_onto_the_input_is_refused(capsys, tmp_path):
     code, _, err = run(capsys, "build", src, "--dump", src)
     assert code == 1 and "overwrite the input" in err
     assert src.read_bytes()[:2] != b"KD"
+
+
+def test_render_writes_the_camera_into_the_exr(capsys, tmp_path):
+    """The EXR of `kdray render` names its camera: read_camera gives back the camera of
+    the --camera file exactly, and OpenImageIO reads the standard worldToCamera."""
+    import numpy as np
+    import OpenImageIO as oiio
+    from kdray.camera import Camera
+    from kdray.images import exr_camera_matrices, read_camera, read_exr
+    camera = Camera.look_at((0.3, 1.1, 3.9), (0.0, 1.0, 0.0), fov_deg=41.0, width=40, height=30)
+    camera.to_json(tmp_path / "cam.json")
+    out = tmp_path / "cornell.exr"
+    code, _, err = run(capsys, "render", SCENES / "cornell.obj", "--camera", tmp_path / "cam.json",
+                       "-o", out, "--aov", "depth,id")
+    assert code == 0, err
+    assert read_camera(out) == Camera.from_json(tmp_path / "cam.json")
+    assert set(read_exr(out)) == {"depth", "id"}
+    spec = oiio.ImageInput.open(str(out)).spec()
+    stored = np.array(spec.getattribute("worldToCamera"), dtype=np.float64).reshape(4, 4)
+    assert np.allclose(stored, exr_camera_matrices(camera)[0], rtol=1e-6, atol=1e-6)
