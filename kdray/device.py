@@ -61,10 +61,10 @@ default device, chosen only by name (`--device oclgrind`)."""
 
 CPU_RUNTIME_ORDER = ("pocl", "intel")
 """CPU runtimes by preference, as `implementation` names; CPUs of other runtimes come
-after these. The order is the measured speed of kdray's kernels where both work
-(BENCHMARKS.md, issue 16: renders as fast on either, PoCL's trace and program builds
-faster). Where PoCL 3.0 cannot start (CPUs newer than its LLVM 14) its probe fails and
-Intel's runtime is the default."""
+after these. The order is the speed of kdray's kernels where both work (renders
+alike, PoCL's trace and program builds faster: BENCHMARKS.md). Where PoCL 3.0 cannot
+start (CPUs newer than its LLVM 14) its probe fails and Intel's runtime is the
+default."""
 
 REMEDIES = {
     "pocl": "pip install intel-opencl-rt intel-cmplr-lib-rt (Intel's CPU runtime runs on any "

@@ -110,10 +110,10 @@ def default_work_sizes(device, packet=1):
     after another, and a traversal loop does not vectorize across them; small groups
     keep the per-group barrier cheap and many groups (4 per core) balance the load
     through the counter; a batch is 8 rounds of the group (with packets, 512 rays: one
-    64 x 8 render tile). On PoCL sizes from 1 to 16 work-items measured the same within
-    noise; Intel's runtime vectorizes groups of 16 and more across work-items, and then
-    both single rays in lockstep and packets are several times slower
-    (bench/tune_work_sizes.py, BENCHMARKS.md).
+    64 x 8 render tile). On PoCL the size makes no difference from 1 to 16 work-items;
+    Intel's runtime vectorizes groups of 16 and more across work-items, which makes
+    both single rays in lockstep and packets slower (bench/tune_work_sizes.py,
+    BENCHMARKS.md).
     GPU: 64 work-items (two warps / one wavefront), batches of 4 rays each, and about
     one full device of resident groups.
     """

@@ -26,14 +26,10 @@ class BuildParams:
 
     K_T: float = 170.0
     """Cost of one traversal step, relative to K_I. W&H's Table 1 has 15 (for 20); on
-    kdray's packet kernels a node visit costs more than that, mostly in cache misses
-    (a triangle test of 8 lanes is one float8 pass): K_T = 100 renders the bunny 1.2x
-    and a 1.6M-triangle bunny 1.7x faster than 15, and builds them 2-3x faster with
-    5-10x fewer nodes. 140 then built ~10 % faster than 100 and rendered as fast; once
-    leaves were read in one run with an unrolled gather (issue 6, sixth session), 170
-    builds another 6-16 % faster than 140 with a fifth fewer nodes, and renders and
-    traces bunny-x4 and bunny-1.6M as fast within 5 %; the bunny's render 1-11 %
-    slower (bench/bench_sah.py, BENCHMARKS.md)."""
+    kdray's packet kernels a node visit costs more than that, mostly in cache misses,
+    while a triangle test of 8 lanes is one float8 pass. The value is the one that
+    builds fastest, with the fewest nodes, among those that trace as fast as any
+    (bench/bench_sah.py; the figures are in BENCHMARKS.md)."""
     K_I: float = 20.0
     """Cost of one ray/triangle test (W&H Table 1)."""
     empty_bonus: float = 0.8

@@ -3,7 +3,7 @@
  * PoCL as shipped by pocl-binary-distribution calls builtins such as fabs, fmax,
  * clamp, isnan, select, any and vload as out-of-line functions, with vector arguments
  * passed through memory; in the traversal loops that cost more than the arithmetic
- * (see pocl-notes.md; measured in BENCHMARKS.md). These versions are bit for bit the
+ * (BENCHMARKS.md). These versions are bit for bit the
  * same as the builtins for the values kdray gives them: masks are comparison results
  * (each lane all ones or all zeros), and kd_max/kd_min see no NaN (their callers rule
  * it out first) except where noted.

@@ -3,7 +3,7 @@
  * packet visits the union of its rays' nodes, each ray masked to its own).
  *
  * Why: PoCL runs a work-item's data-dependent loop scalar, one eighth of an AVX2 core
- * (pocl-notes.md); the same loop on float8 lanes runs at full width. Coherent rays
+ * (BENCHMARKS.md); the same loop on float8 lanes runs at full width. Coherent rays
  * (a 4 x 2 block of pixels) share most nodes, so a packet costs little more than a ray.
  *
  * Each lane makes exactly the decisions the scalar traversal (traverse.cl) makes for
@@ -323,8 +323,8 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
             uint8 tri8 = (uint8)(first + i0) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7);
             __global const float *p = tris + 9 * (size_t)(first + i0);
             for (uint j = 0; j < m; j++) {
-                /* unrolled, LLVM gathers 4 triangles at a time into SSE vectors (as a
-                 * loop it copied float by float): bunny-1.6M renders 0.86x the time */
+                /* unrolled, so that LLVM gathers 4 triangles at a time into SSE vectors
+                 * (a loop it copies float by float) */
 #pragma unroll
                 for (uint c = 0; c < 9; c++)
                     q[c].s[j] = p[9 * j + c];

@@ -197,9 +197,9 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
  *
  * The slots of a batch a work-item takes: with item_runs (CPU devices) one run of
  * BATCH_SIZE / LOCAL_SIZE in a row, so that a group, whose work-items PoCL runs one
- * after another, reads its rays and writes their outputs in order (bunny-1.6M's trace
- * 0.89x the time, the bunny's 0.77x); else every LOCAL_SIZE-th packet, so that
- * neighbouring work-items read neighbouring rays (coalesced on a GPU). A kernel
+ * after another, reads its rays and writes their outputs in order; else every
+ * LOCAL_SIZE-th packet, so that neighbouring work-items read neighbouring rays
+ * (coalesced on a GPU). A kernel
  * argument, not a -D option, so that one program serves both and render_camera is
  * compiled the same either way. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))

@@ -1,4 +1,4 @@
-"""Accuracy of the kernels against the float64 oracles (issue 4).
+"""Accuracy of the kernels against the float64 oracles.
 
 What tests/test_trace.py and tests/test_build.py already cover is not repeated here
 (watertight icosphere and fandisk, the teapot at 1e6, signed zeros, split-plane rays on
@@ -26,7 +26,7 @@ from kdray.reference import brute_force, traverse
 from kdray.trace import MISS, Tracer
 from helpers import SCENES, assert_watertight, check_hits, real_mesh, split_plane_rays
 
-P99_REL = 1e-6          # issue 4: 99th percentile of the relative depth error
+P99_REL = 1e-6          # the target: 99th percentile of the relative depth error
 
 
 # -- helpers ---------------------------------------------------------------------------

@@ -81,7 +81,7 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         small = True
     if small:
         threads = 1                             # one thread, no pool
-    # One pool for the whole build (each new pool costs ~0.3 ms to start its threads).
+    # One pool for the whole build: starting a pool's threads costs more than a small step.
     with concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as pool:
         mesh = prepare(vertices, faces, origin, pool=pool, threads=threads)
         params = params.resolved(len(mesh.triangles))

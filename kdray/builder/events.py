@@ -176,7 +176,7 @@ def sorted_root_events(tri, room=0, threads=1, pool=None):
     builder's event stack grows there: `subdivide.subdivide`);  threads : the three axes are made and
     sorted on up to this many threads (the numba functions release the GIL), or on
     `pool` (a concurrent.futures executor) when one is given (the builder's own:
-    starting threads for each step costs ~0.3 ms a pool).
+    starting threads for each step would cost more than a small step).
     Returns (keys (e + room,) uint64, counts (3,) int64): keys[:e] are the x run, then
     y, then z, `counts` long.
 
@@ -197,8 +197,8 @@ def sorted_root_events(tri, room=0, threads=1, pool=None):
     keys = np.empty(e + room, dtype=np.uint64)
     # The sort's scratch: the second half of keys when the events fit in the first
     # (the builder's second event buffer, `subdivide.split_keys`: the pages the sort
-    # faults in are the ones the root's children are written to, not new ones: 1.6M
-    # triangles, ~19k page faults, ~40 ms, fewer), else an array of its own.
+    # faults in are the ones the root's children are written to, not new ones), else
+    # an array of its own.
     half = (e + room) // 2
     tmp, tmp_start = (keys, half) if half >= e else (np.empty(e, dtype=np.uint64), 0)
     start = np.r_[0, np.cumsum(counts)]

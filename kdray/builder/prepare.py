@@ -14,7 +14,7 @@ when its float32 cross product is zero: such a triangle can never be hit.
 The per-triangle work is one numba pass (`_triangles`; `cache=True`): the same float64
 subtraction, float32 rounding and float32 cross product as the numpy expressions
 `(v[f] - origin).astype(float32)` and `np.cross(e1, e2)`, without their (m, 3, 3)
-float64 temporaries (1.6M triangles: 0.55-0.78 s -> 0.07-0.11 s).
+float64 temporaries, whose allocation and page faults cost more than the arithmetic.
 """
 import dataclasses
 
@@ -125,8 +125,8 @@ def _triangles(vertices, faces, origin, start, stop, tri, ids):
 
 PARALLEL_FACES = 200000
 """Meshes with at least this many faces make their triangles in two or more pieces
-on the builder's threads (1.6M faces: 67 ms on one thread, half of it page faults on
-the new (m, 3, 3) array)."""
+on the builder's threads: on one thread the pass is bound by the page faults of the
+new (m, 3, 3) array, which threads take in parallel."""
 
 
 def prepare(vertices, faces, origin=None, pool=None, threads=1):

@@ -25,9 +25,9 @@ SWEEP_BLOCK = 16
 
 SMALL_RUN = 128
 """Runs of at most this many events (nodes of up to 64 triangles) are swept without
-the block bounds, in passes over scratch arrays on the stack (`_sweep_small`): the
-group loop's exit, one mispredicted branch per position, was most of a small node's
-sweep (bunny, nodes of 8-63 triangles: 52 -> 42 M cycles)."""
+the block bounds, in passes over scratch arrays on the stack (`_sweep_small`): in a
+small node the group loop's exit, one mispredicted branch per position, costs more
+than the bound test saves."""
 
 LEFT = 0
 """Planar triangles at the chosen plane go to the below (left) child..."""
@@ -200,8 +200,8 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np
                 j += 1
             if best_cost < np.inf:
                 # The block's lower bound: no plane in it can cost less (see above).
-                # (kind: END 0, PLANAR 1, START 2; unsigned indices: numba then adds no
-                # negative-index test, and the loop vectorizes: ~5x faster)
+                # (kind: END 0, PLANAR 1, START 2; unsigned indices, so that numba adds
+                # no negative-index test and the loop vectorizes)
                 b_planar = 0
                 b_start = 0
                 for q in range(np.uint64(i), np.uint64(j)):

@@ -38,9 +38,8 @@ free, and overlapping coplanar triangles double at every level down to max_depth
 
 TASK_DEPTH = 4
 """Depth of the nodes built as separate tasks: up to 2**4 = 16 subtrees, enough to keep
-a few threads busy when the subtrees differ in size (with 8, on 2 threads, the last
-of 7 similar subtrees ran alone for ~15 % of a 1.6M-triangle build; a fourth level
-on one thread costs less than that)."""
+a few threads busy when the subtrees differ in size (with 8, an odd one out runs
+alone at the end; a fourth level on one thread costs less than that wait)."""
 
 TASK_ROOM = 3
 """A task's slot of keys holds TASK_ROOM times its events (+ 64): room for its two
@@ -51,10 +50,9 @@ STAGE_DEPTHS = (1,)
 (`build_nodes`): the root alone is built before a second thread has work."""
 
 MIN_PARALLEL_TRIS = 4000
-"""Meshes with fewer triangles are built on one thread, with no thread pool (in turns,
-2 threads against 1: 1.8x the time at 1,000 triangles, 1.34 at 2,000, 1.03 at 3,000,
-0.92 at 5,000, 0.74 at 10,000 (the bunny's lowest 10k); the pool's threads cost
-~1-2 ms to start and feed)."""
+"""Meshes with fewer triangles are built on one thread, with no thread pool: below it
+starting and feeding the pool's threads costs more than they save (measured in
+turns, 2 threads against 1: BENCHMARKS.md)."""
 
 _LEAF = np.uint32(3)
 _U2 = np.uint32(2)
@@ -125,8 +123,7 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
     # The root's own children as tasks (task_depth = depth0 + 1) are written straight
     # into the halves of `other` when at most 6 events a triangle fit there (in_halves;
     # each half, with the same half of buf, is then a task's two event stacks): those
-    # pages are resident already, a new array's would be faulted in on this one thread
-    # (1.6M triangles: ~19k faults, ~45 ms).
+    # pages are resident already, a new array's would be faulted in on this one thread.
     in_halves = False
     task_keys = np.empty(2 * TASK_ROOM * (counts[0] + counts[1] + counts[2]) + 1024
                          if task_depth >= 0 else 16, dtype=np.uint64)
@@ -354,7 +351,7 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     In stages (`STAGE_DEPTHS`): the calling thread splits the root; each child is a
     task that builds its subtree down to TASK_DEPTH on a pool thread and there hands
     its own tasks to the pool, so that the second thread starts at depth 1 rather than
-    at TASK_DEPTH (bunny: the levels above TASK_DEPTH are ~15 % of a build).
+    at TASK_DEPTH (the levels above it are a sizeable part of a build).
     Each task's events run in place in its slot of its parent's `tasks` keys; the
     root's two children, when they fit, each in half of the root's two event buffers
     (`subdivide`).
