@@ -46,3 +46,16 @@ print(type(tree).__name__)
     public = {name: getattr(kdray, name) for name in kdray.__all__}
     modules = {name for name, value in public.items() if type(value).__name__ == "module"}
     assert modules == {"cull"}
+
+
+def test_builder_modules_are_not_shadowed():
+    """Every module of kdray.builder is reachable under its own name: no function of the
+    package carries a module's name."""
+    import importlib
+    import pkgutil
+    import types
+    import kdray.builder
+    for info in pkgutil.iter_modules(kdray.builder.__path__):
+        module = importlib.import_module(f"kdray.builder.{info.name}")
+        assert isinstance(getattr(kdray.builder, info.name), types.ModuleType), info.name
+        assert getattr(kdray.builder, info.name) is module

@@ -2,7 +2,6 @@
 the same hits as the brute-force oracle, determinism, parameters, and the sweep's
 choice checked against a direct evaluation of every candidate plane."""
 
-import importlib
 
 import numpy as np
 import pytest
@@ -222,7 +221,7 @@ def test_prepare_matches_numpy(seed, threads, monkeypatch):
     # Degenerate, non-finite, float32-overflowing and tiny triangles among ordinary ones;
     # on threads, in pieces (each leaves out its own) put back together.
     import concurrent.futures
-    prepare_module = importlib.import_module("kdray.builder.prepare")
+    import kdray.builder.prepare as prepare_module
     monkeypatch.setattr(prepare_module, "PARALLEL_FACES", 0)
     pool = concurrent.futures.ThreadPoolExecutor(threads)
 
@@ -338,7 +337,7 @@ def test_parameters_change_the_tree():
 @pytest.mark.parametrize("task_depth, stages", [(1, (1,)), (3, (1,)), (6, (1, 2)), (4, ())])
 def test_threads_give_the_same_tree(monkeypatch, task_depth, stages):
     # Subtrees built as tasks on threads and spliced in == the one-thread build.
-    subdivide = importlib.import_module("kdray.builder.subdivide")
+    import kdray.builder.subdivide as subdivide
     v, f = load_real("fandisk.obj")
     one = build(v, f, threads=1)
     monkeypatch.setattr(subdivide, "MIN_PARALLEL_TRIS", 0)
@@ -355,7 +354,7 @@ def test_event_room_does_not_change_the_tree(monkeypatch, room_per_tri, room):
     # the root's children are copied out; a little: they do not fit in halves), the
     # nodes are those of the one-thread build with the default room.
     from kdray.builder.prepare import prepare
-    subdivide = importlib.import_module("kdray.builder.subdivide")
+    import kdray.builder.subdivide as subdivide
     v, f = load_real("fandisk.obj")
     mesh = prepare(v, f)
     m = len(mesh.triangles)

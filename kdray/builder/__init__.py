@@ -26,9 +26,10 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..tree import BuildParams, KdTree
+# modules, not their functions, under the modules' names: kdray.builder.prepare is
+# the module (a function of the same name would shadow it)
+from . import prepare, subdivide
 from .events import sorted_root_events
-from .prepare import prepare
-from . import subdivide
 from .subdivide import build_nodes
 
 __all__ = ["build"]
@@ -83,7 +84,7 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         threads = 1                             # one thread, no pool
     # One pool for the whole build: starting a pool's threads costs more than a small step.
     with concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as pool:
-        mesh = prepare(vertices, faces, origin, pool=pool, threads=threads)
+        mesh = prepare.prepare(vertices, faces, origin, pool=pool, threads=threads)
         params = params.resolved(len(mesh.triangles))
         # The events are the builder's two event stacks, with room to grow (about 1.5
         # times the root's events each; `subdivide.split_keys`).
