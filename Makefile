@@ -13,7 +13,8 @@ install: $(STAMP)
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
+	@# pyproject.toml's build-system requirements too: tests/test_wheel.py builds a wheel offline
+	$(BIN)/python -m pip install -q --upgrade pip 'setuptools>=77' wheel
 	$(BIN)/python -m pip install -q -e '.[test]'
 	@# one tiny build (the one-thread path) and one of 20,000 triangles (the threaded
 	@# path): every numba function compiled into kdray/builder/__pycache__
