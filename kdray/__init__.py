@@ -22,7 +22,7 @@ from . import cull
 from .builder import build
 from .camera import Camera
 from .errors import (CameraError, DeviceError, KdrayError, KernelBuildError, MeshError,
-                     OutputError, TreeError, TreeFileError)
+                     OutputError, ParameterError, TreeError, TreeFileError)
 from .load import load
 from .mesh import Mesh
 from .trace import Hits, Tracer
@@ -32,4 +32,4 @@ __version__ = "0.1.0"
 
 __all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera",
            "KdrayError", "MeshError", "TreeError", "TreeFileError", "DeviceError",
-           "KernelBuildError", "CameraError", "OutputError"]
+           "KernelBuildError", "CameraError", "OutputError", "ParameterError"]

@@ -7,7 +7,7 @@
     camera = Camera.from_json("camera.json")
     origins, directions = camera.rays()                     # (H*W, 3) float64 each
 
-Conventions (the public contract, see the project's interface document):
+Conventions (the public contract, docs/conventions.md):
 
 - Camera frame: OpenCV, x right, y down, z forward. ``cam_to_world`` is a (4, 4)
   float64 matrix whose upper-left (3, 3) block R is a rotation (orthonormal, det +1)

@@ -283,6 +283,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
     outputs = kernel_outputs(aovs)
     with step("compiling the kernels"):
         tracer.compile(aovs)
+    width, height = int(camera.width), int(camera.height)   # a camera file has its own size
     with step(f"tracing {width}x{height} rays"):
         images = tracer.render(camera, aovs=aovs)
     _log_left_out(tree, tracer, n_culled, from_file=bool(tree_file), outputs=outputs)

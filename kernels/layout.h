@@ -12,7 +12,7 @@
  * Triangles on the device: one copy per leaf reference, in the tree's leaf_tris order,
  * so that a leaf's triangles are tris[leaf_offset .. leaf_offset + n_prims) (9 float32
  * each: v0 xyz, v1 xyz, v2 xyz, relative to the tree's origin), with no index list to
- * read first; tri_ids[i] is copy i's triangle's index in the input (kdray/trace.py,
+ * read first; tri_ids[i] is copy i's triangle's index in the input (kdray/layout.py,
  * device_triangles). A triangle in several leaves has several copies, alike bit for
  * bit, so a hit does not depend on the copy found.
  */

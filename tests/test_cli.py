@@ -67,9 +67,10 @@ def test_render_writes_the_camera_into_the_exr(capsys, tmp_path):
     camera = Camera.look_at((0.3, 1.1, 3.9), (0.0, 1.0, 0.0), fov_deg=41.0, width=40, height=30)
     camera.to_json(tmp_path / "cam.json")
     out = tmp_path / "cornell.exr"
-    code, _, err = run(capsys, "render", SCENES / "cornell.obj", "--camera", tmp_path / "cam.json",
-                       "-o", out, "--aov", "depth,id")
+    code, printed, err = run(capsys, "render", SCENES / "cornell.obj", "--camera",
+                             tmp_path / "cam.json", "-o", out, "--aov", "depth,id")
     assert code == 0, err
+    assert "(40x30, depth, id, " in printed and "of 1200 pixels hit" in printed   # the file's size
     assert read_camera(out) == Camera.from_json(tmp_path / "cam.json")
     assert set(read_exr(out)) == {"depth", "id"}
     spec = oiio.ImageInput.open(str(out)).spec()
