@@ -10,7 +10,8 @@ the same rays for every setting. A setting is
 
     kdray[:KEY=VALUE[:KEY=VALUE...]]   kdray's tree and kernel; keys are the build
                                         parameters K_T, K_I, empty_bonus, max_depth,
-                                        leaf_size and the kernel's stack, local, batch
+                                        leaf_size and the kernel's stack, local, batch,
+                                        refine (0: t, u, v as the float test gives them)
 
 or, from Python, any object with a `name` and a `hits(mesh, o, d, repeat)` method
 returning (build s, trace s, t, prim (-1 on a miss), normal or None): another ray
@@ -41,9 +42,9 @@ import numpy as np
 from .errors import MeshError, OutputError, ParameterError
 
 BUILD_KEYS = {"K_T": float, "K_I": float, "empty_bonus": float, "max_depth": int, "leaf_size": int}
-KERNEL_KEYS = {"stack": int, "local": int, "batch": int}
+KERNEL_KEYS = {"stack": int, "local": int, "batch": int, "refine": int}
 
-DEFAULT_SETTINGS = ("kdray", "kdray:K_T=15", "kdray:empty_bonus=1", "kdray:stack=1")
+DEFAULT_SETTINGS = ("kdray", "kdray:refine=0", "kdray:K_T=15", "kdray:empty_bonus=1", "kdray:stack=1")
 
 COLUMNS = ("scene", "tris", "setting", "build_s", "trace_s", "mrays_s", "disagree",
            "prim_diff", "depth_p99", "depth_max", "normal_p99_deg", "normal_max_deg")
@@ -161,7 +162,7 @@ def _kdray(setting, mesh, trees, o, d, repeat, device):
     tree, build_s = trees[key]
     k = dict(setting.kernel)
     tracer = Tracer(tree, device=device, stack_size=k.get("stack"), local_size=k.get("local"),
-                    batch_size=k.get("batch"))
+                    batch_size=k.get("batch"), refine=bool(k.get("refine", 1)))
     s, hits = timed(lambda: tracer.trace(o, d), repeat)
     prim = np.where(hits.prim == MISS, -1, hits.prim.astype(np.int64))
     return build_s, s, hits.t, prim, hits.normal

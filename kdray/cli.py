@@ -310,8 +310,8 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
               help="Random rays checked against the float64 reference.")
 @click.option("--settings", default=None,
               help="Comma-separated: kdray[:KEY=VALUE...] (K_T, K_I, empty_bonus, max_depth, "
-                   "leaf_size, stack, local, batch). "
-                   "[default: kdray,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1]")
+                   "leaf_size, stack, local, batch, refine=0|1). "
+                   "[default: kdray,kdray:refine=0,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1]")
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), help="Also write the table as CSV.")
 @click.option("--device", default=None,
               help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")

@@ -138,12 +138,16 @@ class Tracer:
     local_size, batch_size, groups : work-group size, rays a group takes at a time
         (a multiple of local_size * packet) and work-groups launched; defaults per
         device kind (`default_work_sizes`).
+    refine : recompute t, u, v of each hit in double from the ray and the hit
+        triangle's plane (kernels/triangle.cl, kd_refine_hit), so that they are accurate
+        whatever the triangle's size against t; which triangle is hit does not change.
+        Only on devices with cl_khr_fp64; `self.refine` says whether it is on.
 
     device_bytes : bytes of the tree on the device (`device_sizes`).
     """
 
     def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
-                 groups=None, packet=None):
+                 groups=None, packet=None, refine=True):
         cl = _device._cl()
         if stack_size is None:
             stack_size = default_stack_size(tree)
@@ -184,9 +188,10 @@ class Tracer:
         self._zero_copy = _device.is_cpu(self.device)
         # ... in place only when the array starts on a page, on Intel's CPU runtime (PAGE)
         self._page_inputs = self._zero_copy and _device.implementation(self.device) == "intel"
-        # float64 rays shifted and rounded in the kernel (`_rays`): no host pass, and
-        # on a CPU device no copy either
-        self._rays_in_kernel = self._zero_copy and _device.has_fp64(self.device)
+        self.refine = bool(refine) and _device.has_fp64(self.device)
+        # float64 rays shifted and rounded in the kernel (`_rays`): on a CPU device no
+        # host pass and no copy; with refine, the hits refined from the rays as given
+        self._rays_in_kernel = _device.has_fp64(self.device) and (self._zero_copy or self.refine)
         self._upload(tree)
 
     # -- set-up ----------------------------------------------------------------------
@@ -253,6 +258,8 @@ class Tracer:
                    "TILE_H": _render.RENDER_TILE[1]}
         if rays_double:
             defines["RAYS_DOUBLE"] = None
+        if self.refine:
+            defines["REFINE"] = None
         if self.packet > 1:
             defines["PACKET"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
@@ -357,8 +364,9 @@ class Tracer:
     def _rays(self, origins, directions):
         """The rays as trace_rays takes them: (o, d, o_step, rays_double).
 
-        On a CPU device with float64 (`_rays_in_kernel`) float64 rays go to the kernel
-        as they are (no copy when C-contiguous), which shifts and rounds them itself;
+        On a device with double precision, when it is a CPU or refines its hits
+        (`_rays_in_kernel`), float64 rays go to the kernel as they are (on a CPU no
+        copy when C-contiguous), which shifts and rounds them itself;
         else o (M, 3) float32 relative to the tree's origin and d (N, 3) float32. M is
         N, or 1 with o_step 0 when all rays share one (3,) origin."""
         d = np.asarray(directions)

@@ -93,6 +93,27 @@ void kd_lane_shear(const KdPacket *r, uint l, RayShear *s, float3 *o)
     *o = (float3)(ox.s[l], oy.s[l], oz.s[l]);
 }
 
+#ifdef cl_khr_fp64
+/* kd_t_double of lane l's (ray, triangle) pair: the lane's ray against src's one
+ * triangle (src->lane < 0), or ray src->lane against the lane's triangle. */
+KD_INLINE
+double kd_pair_t_double(const KdPairs *src, uint l, double *bound)
+{
+    RayShear s;
+    float3 o;
+    if (src->lane < 0) {
+        kd_lane_shear(src->r, l, &s, &o);
+        return kd_t_double(&s, o, src->p0, src->p1, src->p2, bound);
+    }
+    kd_lane_shear(src->r, (uint)src->lane, &s, &o);
+    const KdF8 *q = src->q;
+    float3 p0 = (float3)(q[0].s[l], q[1].s[l], q[2].s[l]);
+    float3 p1 = (float3)(q[3].s[l], q[4].s[l], q[5].s[l]);
+    float3 p2 = (float3)(q[6].s[l], q[7].s[l], q[8].s[l]);
+    return kd_t_double(&s, o, p0, p1, p2, bound);
+}
+#endif
+
 /* The test of triangle.cl on 8 (ray, triangle) pairs, one per lane, for the lanes in
  * `act`: the vertices P along each lane's shear axes (kx, ky, kz), the ray's origin
  * along them and its shear constants, its range (t_min, t_max) and best hit so far
@@ -147,7 +168,31 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
     float8 T = U * (Sz * Az) + V * (Sz * Bz) + W * (Sz * Cz);
     float8 det_abs = kd_abs8(det);
     float8 t = T / det;
-    cand &= (det != 0.0f) & (t > t_min) & (t < t_max);
+    cand &= (det != 0.0f);
+#if defined(REFINE) && defined(cl_khr_fp64)
+    /* ill-conditioned t from double before it is compared (intersect_triangle) */
+    KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, Sz, det_abs, delta_t)
+    int8 in_double = cand & !(delta_t <= KD_WELL_CONDITIONED * kd_abs8(t));
+    if (kd_any8(in_double)) {
+        KdI8 in_l, ok_l;
+        KdF8 t_l;
+        in_l.v = in_double; t_l.v = t;
+        ok_l.v = (int8)(-1);
+        for (uint l = 0; l < KD_PACKET; l++) {
+            if (!in_l.s[l])
+                continue;
+            double bound;
+            double t_d = kd_pair_t_double(src, l, &bound);
+            if (t_d > bound)
+                t_l.s[l] = (float)t_d;
+            else
+                ok_l.s[l] = 0;
+        }
+        t = t_l.v;
+        cand &= ok_l.v;
+    }
+#endif
+    cand &= (t > t_min) & (t < t_max);
     int8 tie = cand & (t == best_t);     /* rare: compare input ids (kd_before) */
     cand &= t < best_t;
     if (kd_any8(tie)) {
@@ -164,30 +209,21 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
         return cand;
 
     /* The bound on t's rounding error (triangle.cl) */
+#if defined(REFINE) && defined(cl_khr_fp64)
+    int8 doubt = cand & ~in_double & !(t > delta_t);
+#else
     KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, Sz, det_abs, delta_t)
     int8 doubt = cand & !(t > delta_t);
+#endif
     if (kd_any8(doubt)) {
         KdI8 doubt_l, ok_l;
         doubt_l.v = doubt;
         ok_l.v = (int8)(0);
 #ifdef cl_khr_fp64
-        RayShear s;
-        float3 o;
-        if (src->lane >= 0)
-            kd_lane_shear(src->r, (uint)src->lane, &s, &o);
         for (uint l = 0; l < KD_PACKET; l++) {
-            if (!doubt_l.s[l])
-                continue;
-            if (src->lane < 0) {
-                kd_lane_shear(src->r, l, &s, &o);
-                ok_l.s[l] = kd_t_certified_double(&s, o, src->p0, src->p1, src->p2) ? -1 : 0;
-            } else {
-                const KdF8 *q = src->q;
-                float3 p0 = (float3)(q[0].s[l], q[1].s[l], q[2].s[l]);
-                float3 p1 = (float3)(q[3].s[l], q[4].s[l], q[5].s[l]);
-                float3 p2 = (float3)(q[6].s[l], q[7].s[l], q[8].s[l]);
-                ok_l.s[l] = kd_t_certified_double(&s, o, p0, p1, p2) ? -1 : 0;
-            }
+            double bound;
+            if (doubt_l.s[l] && kd_pair_t_double(src, l, &bound) > bound)
+                ok_l.s[l] = -1;
         }
 #endif
         cand &= ~doubt | ok_l.v;

@@ -19,6 +19,7 @@
  * a miss), OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
  * Output buffers that are not compiled in may be passed as NULL. RAYS_DOUBLE:
  * trace_rays reads double rays in world coordinates (and takes the tree's origin).
+ * REFINE: t, u, v of each hit recomputed in double (triangle.cl, kd_refine_hit).
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"
@@ -49,12 +50,41 @@
 #define KD_TREE_PASS nodes, tris, tri_ids, bmin, bmax, n_nodes
 #define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
 
-/* Write ray k's outputs: only those compiled in. */
+/* The caller's double rays, when trace_rays reads them (RAYS_DOUBLE): what the hits
+ * are refined from (store_hit); render_camera passes NULL. */
+#if defined(RAYS_DOUBLE) && defined(REFINE) && defined(cl_khr_fp64)
+#define KD_EXACT_PARAMS , __global const double *exact_o, __global const double *exact_d, \
+    uint exact_o_step, double3 exact_origin
+#define KD_EXACT_PASS , exact_o, exact_d, exact_o_step, exact_origin
+#define KD_NO_EXACT , (__global const double *)0, (__global const double *)0, 0u, (double3)(0.0)
+#else
+#define KD_EXACT_PARAMS
+#define KD_EXACT_PASS
+#define KD_NO_EXACT
+#endif
+
+/* Write the outputs of ray k (o + t d, t_min < t < t_max): only those compiled in.
+ * With REFINE (and double on the device) t, u and v of a hit are recomputed in
+ * double first (kd_refine_hit), from the caller's double ray when there is one. */
 KD_INLINE
-void store_hit(uint k, const Hit *hit, __global const float *tris, __global const uint *tri_ids,
-               KD_OUTPUT_ARGS)
+void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
+               __global const float *tris, __global const uint *tri_ids, KD_OUTPUT_ARGS
+               KD_EXACT_PARAMS)
 {
     bool found = hit->tri != KD_NO_HIT;
+#if defined(REFINE) && defined(cl_khr_fp64) && (defined(OUT_T) || defined(OUT_UV))
+    if (found) {
+        double3 od = convert_double3(o), dd = convert_double3(d);
+#if defined(RAYS_DOUBLE)
+        if (exact_o) {
+            od = vload3((size_t)k * exact_o_step, exact_o) - exact_origin;
+            dd = vload3(k, exact_d);
+        }
+#endif
+        kd_refine_hit(od, dd, kd_vertex(tris, hit->tri, 0), kd_vertex(tris, hit->tri, 1),
+                      kd_vertex(tris, hit->tri, 2), t_min, t_max, &hit->t, &hit->u, &hit->v);
+    }
+#endif
 #ifdef OUT_T
     out_t[k] = found ? hit->t : INFINITY;
 #endif
@@ -84,7 +114,7 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
 KD_INLINE
 void trace_packet_and_store(KdF8 ox, KdF8 oy, KdF8 oz, KdF8 dx, KdF8 dy, KdF8 dz, KdI8 on,
                             float t_min, float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS,
-                            const uint *idx)
+                            const uint *idx KD_EXACT_PARAMS)
 {
     KdF8 t_l, u_l, v_l;
     KdU8 tri_l;
@@ -108,7 +138,9 @@ void trace_packet_and_store(KdF8 ox, KdF8 oy, KdF8 oz, KdF8 dx, KdF8 dy, KdF8 dz
         hit.u = u_l.s[l];
         hit.v = v_l.s[l];
         hit.tri = tri_l.s[l];
-        store_hit(idx[l], &hit, tris, tri_ids, KD_OUTPUT_PASS);
+        store_hit(idx[l], &hit, (float3)(ox.s[l], oy.s[l], oz.s[l]),
+                  (float3)(dx.s[l], dy.s[l], dz.s[l]), t_min, t_max, tris, tri_ids,
+                  KD_OUTPUT_PASS KD_EXACT_PASS);
     }
 }
 
@@ -116,7 +148,8 @@ void trace_packet_and_store(KdF8 ox, KdF8 oy, KdF8 oz, KdF8 dx, KdF8 dy, KdF8 dz
  * outputs at index idx[l]. */
 KD_INLINE
 void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
-                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx)
+                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx
+                     KD_EXACT_PARAMS)
 {
     KdF8 ox, oy, oz, dx, dy, dz;
     KdI8 on;
@@ -127,14 +160,15 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
         on.s[l] = l < count ? -1 : 0;
     }
     trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
-                           KD_OUTPUT_PASS, idx);
+                           KD_OUTPUT_PASS, idx KD_EXACT_PASS);
 }
 #define KD_RAYS_PER_ITEM KD_PACKET
 #else
 /* Trace ray o[0] + t d[0] (count = 1) and store its outputs at index idx[0]. */
 KD_INLINE
 void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
-                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx)
+                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx
+                     KD_EXACT_PARAMS)
 {
     Hit hit;
 #ifdef STATS
@@ -145,7 +179,8 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
 #else
     trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit);
 #endif
-    store_hit(idx[0], &hit, tris, tri_ids, KD_OUTPUT_PASS);
+    store_hit(idx[0], &hit, o[0], d[0], t_min, t_max, tris, tri_ids, KD_OUTPUT_PASS
+              KD_EXACT_PASS);
 }
 #define KD_RAYS_PER_ITEM 1
 #endif
@@ -169,6 +204,11 @@ uint fetch_batch(__local uint *slot, __global volatile uint *counter)
  * converted here as the host would: (float)(o - origin), (float)d, each one rounding
  * to nearest. The tree's origin is a kernel argument (KD_ORIGIN_PARAMS), not a -D
  * option, so that one program serves every tree. */
+#if defined(RAYS_DOUBLE) && defined(REFINE) && defined(cl_khr_fp64)
+#define KD_TRACE_EXACT , origins, directions, o_step, (double3)(origin_x, origin_y, origin_z)
+#else
+#define KD_TRACE_EXACT
+#endif
 #ifdef RAYS_DOUBLE
 #define KD_RAY_T double
 #define KD_ORIGIN_PARAMS , double origin_x, double origin_y, double origin_z
@@ -231,7 +271,8 @@ void trace_rays(KD_TREE_ARGS,
                 d[l] = kd_ray_direction(directions, k0 + l);
                 idx[l] = k0 + l;
             }
-            trace_and_store(count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, idx);
+            trace_and_store(count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, idx
+                            KD_TRACE_EXACT);
         }
     }
 }
@@ -307,7 +348,7 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
                 idx[l] = row * width + col;
             }
             trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, 0.0f, INFINITY, KD_TREE_PASS,
-                                   KD_OUTPUT_PASS, idx);
+                                   KD_OUTPUT_PASS, idx KD_NO_EXACT);
 #else
             uint col = tile_col + in_tile % TILE_W;
             uint row = tile_row + in_tile / TILE_W;
@@ -320,7 +361,8 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
             float3 d = (float3)(m0.x * x + m0.y * y + m0.z,
                                 m1.x * x + m1.y * y + m1.z,
                                 m2.x * x + m2.y * y + m2.z);
-            trace_and_store(1, &o, &d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, &idx);
+            trace_and_store(1, &o, &d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, &idx
+                            KD_NO_EXACT);
 #endif
         }
     }

@@ -26,6 +26,10 @@
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
 
+/* With REFINE: the largest bound on t's rounding error, relative to t, at which the
+ * float test's t decides a hit (above it, t is recomputed in double). */
+#define KD_WELL_CONDITIONED 0x1p-16f
+
 /* gamma(n) = n u / (1 - n u), u = 2^-24: the bound on n float32 roundings (pbrt). */
 #define KD_GAMMA(n) ((float)(n) * 0x1p-24f / (1.0f - (float)(n) * 0x1p-24f))
 
@@ -87,10 +91,10 @@ RayShear ray_shear(float3 d)
 KD_INLINE double kd_comp_d(double3 v, uint k) { return k == 0u ? v.x : (k == 1u ? v.y : v.z); }
 
 /* The test's t recomputed in double from the same float inputs (the ray's shear
- * constants taken as exact), with the same error bound in double's unit roundoff:
- * true when t > bound, i.e. t is certainly positive. */
+ * constants taken as exact); *bound: the same error bound in double's unit roundoff
+ * (t > *bound: t is certainly positive). */
 KD_INLINE
-bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2)
+double kd_t_double(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2, double *bound)
 {
     double3 od = convert_double3(o);
     double3 A = convert_double3(p0) - od;
@@ -103,11 +107,70 @@ bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, fl
     double Cx = kd_comp_d(C, s->kx) - Sx * Cz, Cy = kd_comp_d(C, s->ky) - Sy * Cz;
     double U = Cx * By - Cy * Bx, V = Ax * Cy - Ay * Cx, W = Bx * Ay - By * Ax;
     double det = U + V + W;
-    if (det == 0.0)
-        return false;
+    if (det == 0.0) {
+        *bound = INFINITY;
+        return 0.0;
+    }
     double t = (U * (Sz * Az) + V * (Sz * Bz) + W * (Sz * Cz)) / det;
     KD_T_ERROR_BOUND(double, fabs, fmax, KD_GAMMA_D, Sz, fabs(det), delta_t)
-    return t > delta_t;
+    *bound = delta_t;
+    return t;
+}
+
+/* kd_t_double's t exceeds its bound: the test's t is certainly positive. */
+KD_INLINE
+bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2)
+{
+    double bound;
+    double t = kd_t_double(s, o, p0, p1, p2, &bound);
+    return t > bound;
+}
+#endif
+
+#if defined(REFINE) && defined(cl_khr_fp64)
+KD_INLINE double kd_dot_d(double ax, double ay, double az, double bx, double by, double bz)
+{
+    return (ax * bx + ay * by) + az * bz;
+}
+
+/* The found hit's t, u, v recomputed in double from the ray (o, d: the float ray
+ * traced, or the caller's double ray it was rounded from) and the triangle's float
+ * vertices (all relative to the tree's origin): t from the triangle's plane, u and v
+ * as the barycentrics of the point o + t d in it. The watertight test's edge functions
+ * are float products of coordinates relative to the ray's origin; when the triangle
+ * is much larger than t (a ground plane under a small object, a wall beside the eye)
+ * they cancel, and t and u, v lose as many float roundings as the ratio. In double
+ * the same cancellation costs as many double roundings: far below one of float's.
+ * Which triangle is hit is not changed; the test's values stay when the plane's are
+ * not finite (a ray in the plane) or t falls outside (t_min, t_max). */
+KD_INLINE
+void kd_refine_hit(double3 o, double3 d, float3 p0, float3 p1, float3 p2, float t_min,
+                   float t_max, float *t, float *u, float *v)
+{
+    double ox = o.x, oy = o.y, oz = o.z, dx = d.x, dy = d.y, dz = d.z;
+    double ax = (double)p0.x - ox, ay = (double)p0.y - oy, az = (double)p0.z - oz;
+    double e1x = (double)p1.x - (double)p0.x, e1y = (double)p1.y - (double)p0.y;
+    double e1z = (double)p1.z - (double)p0.z;
+    double e2x = (double)p2.x - (double)p0.x, e2y = (double)p2.y - (double)p0.y;
+    double e2z = (double)p2.z - (double)p0.z;
+    double nx = e1y * e2z - e1z * e2y, ny = e1z * e2x - e1x * e2z, nz = e1x * e2y - e1y * e2x;
+    double tt = kd_dot_d(nx, ny, nz, ax, ay, az) / kd_dot_d(nx, ny, nz, dx, dy, dz);
+    /* the hit point relative to p0 */
+    double hx = tt * dx - ax, hy = tt * dy - ay, hz = tt * dz - az;
+    double nn = kd_dot_d(nx, ny, nz, nx, ny, nz);
+    double uu = kd_dot_d(hy * e2z - hz * e2y, hz * e2x - hx * e2z, hx * e2y - hy * e2x,
+                         nx, ny, nz) / nn;
+    double vv = kd_dot_d(e1y * hz - e1z * hy, e1z * hx - e1x * hz, e1x * hy - e1y * hx,
+                         nx, ny, nz) / nn;
+    float tf = (float)tt;
+    if (!(tf > t_min && tf < t_max && isfinite(uu) && isfinite(vv)))
+        return;
+    /* within the triangle up to rounding: clamped to its closure */
+    float uf = kd_clamp((float)uu, 0.0f, 1.0f);
+    float vf = kd_clamp((float)vv, 0.0f, 1.0f - uf);
+    *t = tf;
+    *u = uf;
+    *v = vf;
 }
 #endif
 
@@ -168,6 +231,25 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     float T = U * (s->Sz * Az) + V * (s->Sz * Bz) + W * (s->Sz * Cz);
     float det_abs = kd_abs(det);
     float t = T / det;
+#if defined(REFINE) && defined(cl_khr_fp64)
+    /* t must exceed a conservative bound on its own rounding error (below). With
+     * REFINE a t whose bound exceeds KD_WELL_CONDITIONED of it (a triangle much larger
+     * than t: its vertices' coordinates relative to the ray's origin cancel) is taken
+     * from double before it is compared, so that it neither misses nor wins for its
+     * rounding; double's bound decides whether it is positive. */
+    KD_T_ERROR_BOUND(float, kd_abs, kd_max, KD_GAMMA, s->Sz, det_abs, delta_t)
+    bool in_double = !(delta_t <= KD_WELL_CONDITIONED * kd_abs(t));
+    if (in_double) {
+        double bound;
+        double t_d = kd_t_double(s, o, p0, p1, p2, &bound);
+        if (!(t_d > bound))
+            return false;
+        t = (float)t_d;
+    }
+    if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best, tri_ids)))
+        return false;
+    if (!in_double && !(t > delta_t)) {
+#else
     if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best, tri_ids)))
         return false;
 
@@ -179,6 +261,7 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
      * pbrt adds the scaled z to x and y, which is only right for |d| near 1. */
     KD_T_ERROR_BOUND(float, kd_abs, kd_max, KD_GAMMA, s->Sz, det_abs, delta_t)
     if (!(t > delta_t)) {
+#endif
         /* The bound is a worst case; grazing hits of thin triangles reach it while
          * their t is fine. Decide again in double, whose bound is 2^29 times smaller:
          * a ray that starts on the triangle still fails it. */

@@ -325,16 +325,17 @@ def test_device_triangles_are_each_leafs_run():
 def test_rays_converted_in_the_kernel(packet, tracers):
     """float64 rays shifted and rounded by trace_rays (RAYS_DOUBLE) give bit for bit what
     the host's conversion gives: rays near and far (1e6) from the tree's origin, one
-    shared (3,) origin, NaN/inf and overflowing components, float32 input."""
+    shared (3,) origin, NaN/inf and overflowing components, float32 input. (Without
+    refinement: refined hits take t, u, v from the double rays themselves, below.)"""
     v, f = mesh("teapot.obj")
     shift = np.array([1e6, -3e5, 7.25e5])
     tree = sah_tree(v + shift, f)
     o, d = random_rays(tree, 2003, seed=29)      # world coordinates, near the teapot
     o, d = o.copy(), d.copy()
     o[5], d[6], d[7, 1], o[8, 2] = np.nan, np.inf, 1e300, -1e300
-    in_kernel = tracers(tree, packet=packet)
+    in_kernel = tracers(tree, packet=packet, refine=False)
     assert in_kernel._rays_in_kernel
-    on_host = Tracer(tree, packet=packet)
+    on_host = Tracer(tree, packet=packet, refine=False)
     on_host._rays_in_kernel = False
     eye = tree.origin + np.array([0.1, -2.0, 0.3])
     with np.errstate(over="ignore"):
@@ -346,6 +347,13 @@ def test_rays_converted_in_the_kernel(packet, tracers):
         for field in ("t", "prim", "u", "v", "normal"):
             assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), (k, field)
     assert np.count_nonzero(in_kernel.trace(o, d).hit) > 0.2 * len(d)
+    # refined from the double rays or from their float rounding: the same hits, t
+    # within the rounding of the rays
+    refined, from_float = tracers(tree, packet=packet), Tracer(tree, packet=packet)
+    from_float._rays_in_kernel = False
+    a, b = refined.trace(o, d, t_min=1e-3), from_float.trace(o, d, t_min=1e-3)
+    assert np.array_equal(a.prim, b.prim) and np.array_equal(a.normal, b.normal)
+    assert np.allclose(a.t, b.t, rtol=1e-5, equal_nan=True)
 
 
 def test_packet_stats_count_the_same_work(tracers):
