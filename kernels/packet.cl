@@ -170,9 +170,9 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
     float8 t = T / det;
     cand &= (det != 0.0f);
 #if defined(REFINE) && defined(cl_khr_fp64)
-    /* ill-conditioned t from double before it is compared (intersect_triangle) */
-    KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, Sz, det_abs, delta_t)
-    int8 in_double = cand & !(delta_t <= KD_WELL_CONDITIONED * kd_abs8(t));
+    /* t of a far-reaching triangle from double before it is compared (intersect_triangle) */
+    int8 in_double = cand & !(kd_abs8(Sz) * kd_max8(kd_abs8(Az), kd_max8(kd_abs8(Bz), kd_abs8(Cz)))
+                              <= KD_FAR_REACH * kd_abs8(t));
     if (kd_any8(in_double)) {
         KdI8 in_l, ok_l;
         KdF8 t_l;
@@ -209,10 +209,10 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
         return cand;
 
     /* The bound on t's rounding error (triangle.cl) */
+    KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, Sz, det_abs, delta_t)
 #if defined(REFINE) && defined(cl_khr_fp64)
     int8 doubt = cand & ~in_double & !(t > delta_t);
 #else
-    KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, Sz, det_abs, delta_t)
     int8 doubt = cand & !(t > delta_t);
 #endif
     if (kd_any8(doubt)) {

@@ -26,9 +26,12 @@
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
 
-/* With REFINE: the largest bound on t's rounding error, relative to t, at which the
- * float test's t decides a hit (above it, t is recomputed in double). */
-#define KD_WELL_CONDITIONED 0x1p-16f
+/* With REFINE: how far along the ray, in multiples of its t, a triangle's vertices
+ * may reach for the float test's t to decide a hit (farther, t is recomputed in
+ * double). T sums products of the scaled z of the vertices: their rounding errors,
+ * relative to t, grow with that reach (the leading term of t's error bound is
+ * 3 gamma(3) max_z); at 32 the bound is about 2^-16 of t. */
+#define KD_FAR_REACH 32.0f
 
 /* gamma(n) = n u / (1 - n u), u = 2^-24: the bound on n float32 roundings (pbrt). */
 #define KD_GAMMA(n) ((float)(n) * 0x1p-24f / (1.0f - (float)(n) * 0x1p-24f))
@@ -232,13 +235,12 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     float det_abs = kd_abs(det);
     float t = T / det;
 #if defined(REFINE) && defined(cl_khr_fp64)
-    /* t must exceed a conservative bound on its own rounding error (below). With
-     * REFINE a t whose bound exceeds KD_WELL_CONDITIONED of it (a triangle much larger
-     * than t: its vertices' coordinates relative to the ray's origin cancel) is taken
-     * from double before it is compared, so that it neither misses nor wins for its
-     * rounding; double's bound decides whether it is positive. */
-    KD_T_ERROR_BOUND(float, kd_abs, kd_max, KD_GAMMA, s->Sz, det_abs, delta_t)
-    bool in_double = !(delta_t <= KD_WELL_CONDITIONED * kd_abs(t));
+    /* With REFINE the t of a triangle that reaches much farther along the ray than t
+     * (KD_FAR_REACH; its vertices' coordinates relative to the ray's origin cancel in
+     * T) is taken from double before it is compared, so that it neither misses nor
+     * wins for its rounding; double's bound decides whether it is positive. */
+    bool in_double = !(kd_abs(s->Sz) * kd_max(kd_abs(Az), kd_max(kd_abs(Bz), kd_abs(Cz)))
+                       <= KD_FAR_REACH * kd_abs(t));
     if (in_double) {
         double bound;
         double t_d = kd_t_double(s, o, p0, p1, p2, &bound);
@@ -248,6 +250,7 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     }
     if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best, tri_ids)))
         return false;
+    KD_T_ERROR_BOUND(float, kd_abs, kd_max, KD_GAMMA, s->Sz, det_abs, delta_t)
     if (!in_double && !(t > delta_t)) {
 #else
     if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best, tri_ids)))
