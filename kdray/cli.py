@@ -192,6 +192,7 @@ def info(tree_file, check):
     p = tree.params
     click.echo(f"file               {tree_file}")
     click.echo(f"origin             {' '.join(repr(float(x)) for x in tree.origin)}")
+    click.echo(f"scale              {tree.scale!r}")
     click.echo(f"bounds (relative)  {tree.bounds[0].tolist()} .. {tree.bounds[1].tolist()}")
     click.echo(f"params             K_T={p.K_T} K_I={p.K_I} empty_bonus={p.empty_bonus} "
                f"max_depth={p.max_depth} leaf_size={p.leaf_size}")
@@ -363,8 +364,7 @@ def _camera(box, width, height, eye, target, up, fov, intrinsics, pose, camera_f
 
 def _tree_box(tree):
     """(lo, hi) (3,) float64 world box of a tree's triangles."""
-    return (tree.origin + tree.bounds[0].astype(np.float64),
-            tree.origin + tree.bounds[1].astype(np.float64))
+    return tree.world_box()
 
 
 def _same_file(a, b):

@@ -29,7 +29,7 @@ import logging
 import numpy as np
 
 from .builder import build
-from .builder.prepare import mesh_origin, prepare
+from .builder.prepare import mesh_origin, mesh_scale, prepare
 from .mesh import check_arrays
 
 log = logging.getLogger(__name__)
@@ -115,8 +115,8 @@ def scene_box(vertices, faces):
     the box `kdray render` frames when no camera is given (tree.origin + tree.bounds).
     Raises MeshError as `build` does."""
     prep = prepare(vertices, faces)
-    return (prep.origin + prep.bounds[0].astype(np.float64),
-            prep.origin + prep.bounds[1].astype(np.float64))
+    return (prep.origin + prep.scale * prep.bounds[0].astype(np.float64),
+            prep.origin + prep.scale * prep.bounds[1].astype(np.float64))
 
 
 def build_for_camera(vertices, faces, camera, **build_params):
@@ -124,7 +124,7 @@ def build_for_camera(vertices, faces, camera, **build_params):
 
     vertices : (n, 3) float64;  faces : (m, 3) int;  camera : kdray.Camera
     build_params : keyword arguments of kdray.builder.build (K_T, K_I, ...; not origin)
-    Returns (tree, n_left_out): the tree, with the whole mesh's origin, `tri_ids`
+    Returns (tree, n_left_out): the tree, with the whole mesh's origin and scale, `tri_ids`
     pointing into `faces` and `n_input_tris` = m, and the number of triangles the cull
     left out (degenerate ones among them included; the builder leaves out the
     degenerate ones it is given, so m - n_left_out - len(tree.tri_ids) of those).
@@ -136,10 +136,11 @@ def build_for_camera(vertices, faces, camera, **build_params):
     origin = mesh_origin(v, f)
     if origin is None:
         prepare(v, f)                                           # raises build's MeshError
+    scale = mesh_scale(v, f)
     keep = cull_faces(v, f, camera, origin=origin)
     if len(keep) == 0:
-        keep = prepare(v, f, origin).tri_ids[:1].astype(np.int64)
-    tree = build(v, f[keep], origin=origin, **build_params)
+        keep = prepare(v, f, origin, scale=scale).tri_ids[:1].astype(np.int64)
+    tree = build(v, f[keep], origin=origin, scale=scale, **build_params)
     tree = dataclasses.replace(tree, tri_ids=keep[tree.tri_ids].astype(np.uint32),
                                n_input_tris=len(f))
     log.debug("culled %d of %d triangles outside the view frustum", len(f) - len(keep), len(f))

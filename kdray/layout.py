@@ -15,7 +15,7 @@ The below child of interior node i is i + 1; its above child is `above_child > i
 A leaf lists `leaf_tris[leaf_offset : leaf_offset + n_prims]`, indices into the
 tree's triangle array, whose `tri_ids` map back to the input's triangle order.
 
-Tree file, version 1 (all little-endian)::
+Tree file, versions 1 and 2 (all little-endian)::
 
     offset  size  field
     0       8     magic b"KDRAYTRE"
@@ -34,16 +34,20 @@ Tree file, version 1 (all little-endian)::
     64      8     f64 empty_bonus
     72      24    f64[3] origin            (world position the float32 data is relative to)
     96      24    f32[6] bounds            (scene box, min xyz then max xyz, relative)
-    120     8     reserved, 0
+    120     8     version 1: reserved, 0
+                  version 2: f64 scale     (a power of two: world = origin + scale * relative)
     128     8 n_nodes       nodes          (u32 flags, u32 split/leaf_offset)
             4 n_leaf_refs   leaf_tris      (u32)
             36 n_tris       triangles      (f32 v0 xyz, v1 xyz, v2 xyz, relative)
             4 n_tris        tri_ids        (u32)
     end-16  16    checksum: BLAKE2b (16-byte digest) of every byte before it
 
-The version changes only when this layout does.
+The version changes only when this layout does. A writer writes version 1 when the
+tree's scale is 1 and version 2 otherwise, so that files of the trees version 1 can
+hold stay readable by every kdray; a reader reads both.
 """
 import hashlib
+import math
 import struct
 
 import numpy as np
@@ -60,8 +64,9 @@ MAX_DEPTH_LIMIT = 64
 """No tree is deeper than this; kernels size their stacks and loops from it."""
 
 MAGIC = b"KDRAYTRE"
-VERSION = 1
-HEADER = struct.Struct("<8s10I 3d 3d 6f 8x")
+VERSION = 2
+"""The newest version this kdray writes (and reads, with version 1)."""
+HEADER = struct.Struct("<8s10I 3d 3d 6f d")
 HEADER_SIZE = 128
 CHECKSUM_SIZE = 16
 assert HEADER.size == HEADER_SIZE
@@ -127,20 +132,31 @@ def leaf_offset(nodes):
 # -- file format ----------------------------------------------------------------
 
 def file_size(n_nodes, n_leaf_refs, n_tris):
-    """Exact byte size of a version-1 file with these counts."""
+    """Exact byte size of a tree file with these counts."""
     return HEADER_SIZE + 8 * n_nodes + 4 * n_leaf_refs + 40 * n_tris + CHECKSUM_SIZE
 
 
+def is_scale(scale):
+    """Whether `scale` may be a tree's scale: a power of two whose float32 is normal
+    (depths are scaled by it in float32)."""
+    scale = float(scale)
+    return (math.isfinite(scale) and 2.0 ** -126 <= scale <= 2.0 ** 127
+            and math.frexp(scale)[0] == 0.5)
+
+
 def encode(tree):
-    """KdTree -> bytes of a version-1 tree file (deterministic)."""
+    """KdTree -> bytes of a tree file (deterministic): version 1 when tree.scale is 1,
+    else version 2."""
     p = tree.params
+    scale = float(getattr(tree, "scale", 1.0))
     header = HEADER.pack(
-        MAGIC, VERSION, HEADER_SIZE,
+        MAGIC, 1 if scale == 1.0 else 2, HEADER_SIZE,
         len(tree.nodes), len(tree.leaf_tris), len(tree.triangles), tree.n_input_tris,
         tree.depth, p.max_depth, p.leaf_size, 0,
         p.K_T, p.K_I, p.empty_bonus,
         *np.asarray(tree.origin, dtype="<f8").tolist(),
         *np.asarray(tree.bounds, dtype="<f4").reshape(6).tolist(),
+        0.0 if scale == 1.0 else scale,
     )
     body = b"".join([
         header,
@@ -165,12 +181,16 @@ def decode(data, name="tree file"):
                             f"{HEADER_SIZE + CHECKSUM_SIZE})")
     (magic, version, header_size, n_nodes, n_leaf_refs, n_tris, n_input_tris, depth,
      max_depth, leaf_size, _reserved, K_T, K_I, empty_bonus,
-     ox, oy, oz, *bounds) = HEADER.unpack_from(data, 0)
+     ox, oy, oz, *bounds, scale) = HEADER.unpack_from(data, 0)
     if magic != MAGIC:
         raise TreeFileError(f"{name}: not a kdray tree file (bad magic {bytes(magic)!r})")
-    if version != VERSION:
+    if version not in (1, 2):
         raise TreeFileError(f"{name}: tree file format version {version}; this kdray reads "
-                            f"version {VERSION} (rebuild it with `kdray build`)")
+                            f"versions 1 to {VERSION} (rebuild it with `kdray build`)")
+    if version == 1:
+        scale = 1.0
+    elif not is_scale(scale):
+        raise TreeFileError(f"{name}: scale {scale!r} is not a power of two from 2^-126 to 2^127")
     if header_size != HEADER_SIZE:
         raise TreeFileError(f"{name}: header size {header_size}, expected {HEADER_SIZE}")
     expected = file_size(n_nodes, n_leaf_refs, n_tris)
@@ -200,6 +220,7 @@ def decode(data, name="tree file"):
         n_input_tris=int(n_input_tris), depth=int(depth),
         params=dict(K_T=K_T, K_I=K_I, empty_bonus=empty_bonus,
                     max_depth=int(max_depth), leaf_size=int(leaf_size)),
+        scale=float(scale),
     )
 
 

@@ -185,13 +185,16 @@ def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096, tri
     from . import layout
 
     o, d = _as_rays(origins, directions)
-    o = o - tree.origin
+    # in the tree's units (KdTree.scale, a power of two: exact): t there is t / scale
+    scale = float(tree.scale)
+    o = (o - tree.origin) / scale
+    t_min, t_max = t_min / scale, t_max / scale
     n = len(o)
     out = Hits.misses(n)
     if triangles64 is None:
         tri = tree.triangles.astype(np.float64)
     else:
-        tri = np.asarray(triangles64, dtype=np.float64)[tree.tri_ids] - tree.origin
+        tri = (np.asarray(triangles64, dtype=np.float64)[tree.tri_ids] - tree.origin) / scale
     axis_all = layout.split_axis(tree.nodes).astype(np.int64)
     split_all = layout.split(tree.nodes).astype(np.float64)
     above_all = layout.above_child(tree.nodes).astype(np.int64)
@@ -245,4 +248,5 @@ def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096, tri
         part = _nearest(n, pr[hit], ids, t[hit], u[hit], v[hit])
         sel = r[part.hit[r]]
         out.t[sel], out.prim[sel], out.u[sel], out.v[sel] = part.t[sel], part.prim[sel], part.u[sel], part.v[sel]
+    out.t *= scale
     return out

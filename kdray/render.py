@@ -4,8 +4,8 @@ what is the same on every device.
 
     aovs = parse_aovs("depth,id")                      # ('depth', 'id')
     kernel_outputs(aovs)                               # ('T', 'ID'): all the kernel computes
-    M, eye = camera_constants(camera, origin)          # float32, as the kernel gets them
-    origins, directions = camera_rays(camera, origin)  # the kernel's rays, on the host
+    M, eye = camera_constants(camera, origin, scale)   # float32, as the kernel gets them
+    origins, directions = camera_rays(camera, origin, scale)   # the kernel's rays, on the host
 
 Pixel (i, j) (column i, row j) is sampled at its centre: its ray leaves the eye with
 direction M @ (i + 0.5, j + 0.5, 1), M = R K^-1 rounded to float32 and the product
@@ -58,32 +58,38 @@ def kernel_outputs(aovs):
     return tuple(name for name in KERNEL_OUTPUTS if name in wanted)
 
 
-def camera_constants(camera, origin):
+def camera_constants(camera, origin, scale=1.0):
     """(M, eye): float32 R K^-1 (3, 3) and the eye relative to `origin` ((3,) float64,
-    the tree's origin) as (3,) float32, exactly as the kernel receives them."""
+    the tree's origin) in units of `scale` (the tree's) as (3,) float32, exactly as the
+    kernel receives them."""
     c2w = np.asarray(camera.cam_to_world, dtype=np.float64)
     M = c2w[:3, :3] @ np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
-    eye = c2w[:3, 3] - np.asarray(origin, dtype=np.float64)
+    eye = (c2w[:3, 3] - np.asarray(origin, dtype=np.float64)) / scale
     return M.astype(np.float32), eye.astype(np.float32)
 
 
-def camera_directions(camera, origin):
+def camera_directions(camera):
     """The kernel's float32 ray directions of every pixel, row-major (row j, then
     column i): a list of three (H*W,) float32 arrays (x, y, z components)."""
-    M, _ = camera_constants(camera, origin)
+    M, _ = camera_constants(camera, np.zeros(3))
     w, h = int(camera.width), int(camera.height)
     x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
     y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
     return [M[r, 0] * x + M[r, 1] * y + M[r, 2] for r in range(3)]
 
 
-def camera_rays(camera, origin):
+def camera_eye(camera, origin, scale=1.0):
+    """(3,) float64 world: the eye as the kernel has it, its float32 coordinates in the
+    tree's frame (origin, scale) taken back to the world."""
+    return origin + scale * camera_constants(camera, origin, scale)[1].astype(np.float64)
+
+
+def camera_rays(camera, origin, scale=1.0):
     """The rays the render kernel traces, computed on the host with its float32
     arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
     row-major. Tracing them gives the render's hits."""
-    eye = camera_constants(camera, origin)[1]
-    d = np.stack(camera_directions(camera, origin), axis=1)
-    origins = np.broadcast_to(eye.astype(np.float64) + origin, d.shape)
+    d = np.stack(camera_directions(camera), axis=1)
+    origins = np.broadcast_to(camera_eye(camera, origin, scale), d.shape)
     return origins, d
 
 
@@ -110,7 +116,7 @@ def output_shapes(n, outputs):
             for k in outputs}
 
 
-def images(out, camera, origin, aovs):
+def images(out, camera, origin, aovs, scale=1.0):
     """The AOV images of a render from the kernel's outputs.
 
     out : {output: array} of H*W rows each (T (H*W,) float32, UV (H*W, 2), NORMAL
@@ -125,7 +131,7 @@ def images(out, camera, origin, aovs):
     if "distance" in aovs or "position" in aovs:
         # float64 from the kernel's float32 rays, column by column (numpy's loops
         # over rows of 3 are slow): |d| = sqrt((dx^2 + dy^2) + dz^2), p = o + t d
-        d = [c.astype(np.float64) for c in camera_directions(camera, origin)]
+        d = [c.astype(np.float64) for c in camera_directions(camera)]
         t = out["T"].astype(np.float64)
     for name in aovs:
         if name == "depth":
@@ -134,7 +140,7 @@ def images(out, camera, origin, aovs):
             dist = t * np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
             result[name] = dist.astype(np.float32).reshape(h, w)
         elif name == "position":
-            eye = camera_constants(camera, origin)[1].astype(np.float64) + origin
+            eye = camera_eye(camera, origin, scale)
             p = np.empty((w * h, 3), dtype=np.float32)
             with np.errstate(invalid="ignore"):
                 for k in range(3):

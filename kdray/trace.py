@@ -248,6 +248,7 @@ class Tracer:
         self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))
         self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)
         self._origin = np.asarray(tree.origin, dtype=np.float64)
+        self._scale = float(tree.scale)       # a power of two: dividing by it is exact
 
     def program(self, outputs, stats=False, rays_double=False):
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
@@ -321,7 +322,7 @@ class Tracer:
         kernel(self.queue, (groups * self.local_size,), (self.local_size,),
                self._nodes, self._tris, self._tri_ids, self._bounds,
                np.uint32(self._n_nodes), *args, self._counter,
-               *(device_out.get(name) for name in _OUTPUTS))
+               *(device_out.get(name) for name in _OUTPUTS), np.float32(self._scale))
         for name, buf in device_out.items():
             if self._zero_copy:
                 # the buffer is the host array: a map makes the kernel's writes visible
@@ -393,12 +394,14 @@ class Tracer:
                     shifted = np.empty((len(o32[rows]), 3))
                     for k in range(3):   # by column: numpy's loops over rows of 3 are slow
                         np.subtract(o[rows, k], self._origin[k], out=shifted[:, k])
+                    if self._scale != 1.0:
+                        shifted /= self._scale
                     np.copyto(o32[rows], shifted, casting="unsafe")
                 np.copyto(d32[rows], d[rows], casting="unsafe")
 
         if not o_step:
             with np.errstate(over="ignore", invalid="ignore"):
-                np.copyto(o32, o - self._origin, casting="unsafe")
+                np.copyto(o32, (o - self._origin) / self._scale, casting="unsafe")
         chunks = [slice(i, i + _CONVERT_CHUNK) for i in range(0, len(d), _CONVERT_CHUNK)]
         if len(chunks) > 1:
             with concurrent.futures.ThreadPoolExecutor(min(len(chunks), os.cpu_count() or 1)) as pool:
@@ -433,12 +436,15 @@ class Tracer:
             stop = min(n, start + per_launch)
             o_buf = self._input_buffer(o[start:stop] if o_step else o)
             d_buf = self._input_buffer(d[start:stop])
-            # with double rays the kernel takes the tree's origin and shifts them itself
-            origin = tuple(np.float64(x) for x in self._origin) if rays_double else ()
+            # with double rays the kernel takes the tree's origin and 1 / scale and
+            # shifts them itself
+            origin = ((*(np.float64(x) for x in self._origin), np.float64(1.0 / self._scale))
+                      if rays_double else ())
+            # t in the tree's units is t / scale (directions are not scaled)
             self._launch("trace_rays", ("T", "UV", "NORMAL", "ID"), stop - start,
                          (o_buf, d_buf, np.uint32(o_step), np.uint32(stop - start),
-                          np.float32(t_min), np.float32(t_max), np.uint32(self._item_runs),
-                          *origin),
+                          np.float32(t_min / self._scale), np.float32(t_max / self._scale),
+                          np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
                          rays_double=rays_double)
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
@@ -452,7 +458,7 @@ class Tracer:
         """The rays `render` traces, computed on the host with the kernel's float32
         arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c)."""
-        return _render.camera_rays(camera, self._origin)
+        return _render.camera_rays(camera, self._origin, self._scale)
 
     def render(self, camera, aovs=DEFAULT_AOVS):
         """Primary-ray images of `camera` (kdray.Camera: width, height, K, cam_to_world).
@@ -476,7 +482,7 @@ class Tracer:
         outputs = _render.kernel_outputs(aovs)
         out = {k: page_aligned_empty(shape, dtype)
                for k, (shape, dtype) in _render.output_shapes(n, outputs).items()}
-        M, eye = _render.camera_constants(camera, self._origin)
+        M, eye = _render.camera_constants(camera, self._origin, self._scale)
         camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]).astype(np.float32))
         # launches of whole rows: as many as fit on the device, MAX_RAYS_PER_LAUNCH
         # pixels or one row at most
@@ -489,7 +495,7 @@ class Tracer:
             self._launch("render_camera", outputs, tile_slots(w, n_rows),
                          (camera_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
                          {k: v[start:stop] for k, v in out.items()})
-        return _render.images(out, camera, self._origin, aovs)
+        return _render.images(out, camera, self._origin, aovs, self._scale)
 
 
 _RAY_BYTES = {"float": 12, "double": 24}

@@ -4,10 +4,16 @@ Arrays (see `kdray.layout` for the node encoding)::
 
     nodes      : (n_nodes, 2) uint32      depth-first; below child of i is i + 1
     leaf_tris  : (n_leaf_refs,) uint32    indices into `triangles`
-    triangles  : (n_tris, 3, 3) float32   vertices relative to `origin`
+    triangles  : (n_tris, 3, 3) float32   vertices relative to `origin`, in units of `scale`
     tri_ids    : (n_tris,) uint32         index of each triangle in the input
     origin     : (3,) float64             world position the float32 data is relative to
     bounds     : (2, 3) float32           scene box (min, max), relative to `origin`
+    scale      : float                    a power of two: world = origin + scale * relative
+
+`scale` is 1 unless the scene's size is outside 2^-40 .. 2^40 (kdray.builder.prepare):
+then the float32 data is the scene divided by the power of two nearest its size, so
+that the kernels' products of coordinates neither overflow nor underflow. Every
+split position and box of the tree is in the same units. `world(x)` converts.
 """
 import dataclasses
 import math
@@ -58,6 +64,7 @@ class KdTree:
     n_input_tris: int
     depth: int
     params: BuildParams
+    scale: float = 1.0
 
     def __eq__(self, other):
         if not isinstance(other, KdTree):
@@ -65,7 +72,16 @@ class KdTree:
         arrays = ("nodes", "leaf_tris", "triangles", "tri_ids", "origin", "bounds")
         return (all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
                 and self.n_input_tris == other.n_input_tris and self.depth == other.depth
-                and self.params == other.params)
+                and self.params == other.params and self.scale == other.scale)
+
+    def world(self, relative):
+        """float64 world coordinates of points relative to the tree: origin + scale * x
+        (any shape ending in 3)."""
+        return self.origin + self.scale * np.asarray(relative, dtype=np.float64)
+
+    def world_box(self):
+        """(lo, hi) (3,) float64: the scene box in world coordinates."""
+        return self.world(self.bounds[0]), self.world(self.bounds[1])
 
     # -- files -------------------------------------------------------------------
 
@@ -189,6 +205,8 @@ class KdTree:
             raise TreeError("too many nodes or triangles for the node encoding")
         if t.origin.shape != (3,) or not np.all(np.isfinite(t.origin)):
             raise TreeError("origin must be 3 finite float64 values")
+        if not layout.is_scale(t.scale):
+            raise TreeError(f"scale must be a power of two from 2^-126 to 2^127, got {t.scale!r}")
         if t.bounds.shape != (2, 3) or not np.all(np.isfinite(t.bounds)) or np.any(t.bounds[0] > t.bounds[1]):
             raise TreeError("bounds must be a finite (2, 3) box with min <= max")
         if not np.all(np.isfinite(t.triangles)):

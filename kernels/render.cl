@@ -17,8 +17,9 @@
  * of pixels of render_camera; else one ray. Outputs, each only when asked: OUT_T (t,
  * +inf on a miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on
  * a miss), OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
- * Output buffers that are not compiled in may be passed as NULL. RAYS_DOUBLE:
- * trace_rays reads double rays in world coordinates (and takes the tree's origin).
+ * Output buffers that are not compiled in may be passed as NULL; t_scale multiplies
+ * every stored t (the tree's scale). RAYS_DOUBLE: trace_rays reads double rays in
+ * world coordinates (and takes the tree's origin and 1 / scale).
  * REFINE: t, u, v of each hit recomputed in double (triangle.cl, kd_refine_hit).
  */
 #pragma OPENCL FP_CONTRACT OFF
@@ -42,21 +43,21 @@
 
 #define KD_OUTPUT_ARGS                                                                   \
     __global float *out_t, __global float *out_uv, __global float *out_normal,           \
-    __global uint *out_id, __global uint *out_stats
+    __global uint *out_id, __global uint *out_stats, float t_scale
 
 #define KD_TREE_PARAMS                                                                   \
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
     float3 bmin, float3 bmax, uint n_nodes
 #define KD_TREE_PASS nodes, tris, tri_ids, bmin, bmax, n_nodes
-#define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
+#define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats, t_scale
 
 /* The caller's double rays, when trace_rays reads them (RAYS_DOUBLE): what the hits
  * are refined from (store_hit); render_camera passes NULL. */
 #if defined(RAYS_DOUBLE) && defined(REFINE) && defined(cl_khr_fp64)
 #define KD_EXACT_PARAMS , __global const double *exact_o, __global const double *exact_d, \
-    uint exact_o_step, double3 exact_origin
-#define KD_EXACT_PASS , exact_o, exact_d, exact_o_step, exact_origin
-#define KD_NO_EXACT , (__global const double *)0, (__global const double *)0, 0u, (double3)(0.0)
+    uint exact_o_step, double3 exact_origin, double exact_inv_scale
+#define KD_EXACT_PASS , exact_o, exact_d, exact_o_step, exact_origin, exact_inv_scale
+#define KD_NO_EXACT , (__global const double *)0, (__global const double *)0, 0u, (double3)(0.0), 1.0
 #else
 #define KD_EXACT_PARAMS
 #define KD_EXACT_PASS
@@ -77,7 +78,7 @@ void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
         double3 od = convert_double3(o), dd = convert_double3(d);
 #if defined(RAYS_DOUBLE)
         if (exact_o) {
-            od = vload3((size_t)k * exact_o_step, exact_o) - exact_origin;
+            od = (vload3((size_t)k * exact_o_step, exact_o) - exact_origin) * exact_inv_scale;
             dd = vload3(k, exact_d);
         }
 #endif
@@ -86,7 +87,7 @@ void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
     }
 #endif
 #ifdef OUT_T
-    out_t[k] = found ? hit->t : INFINITY;
+    out_t[k] = found ? hit->t * t_scale : INFINITY;
 #endif
 #ifdef OUT_UV
     out_uv[2 * (size_t)k] = found ? hit->u : 0.0f;
@@ -199,25 +200,29 @@ uint fetch_batch(__local uint *slot, __global volatile uint *counter)
     return start;
 }
 
-/* The rays' input type: float, origins relative to the tree's origin (the host
- * converted them), or with RAYS_DOUBLE the caller's double rays in world coordinates,
- * converted here as the host would: (float)(o - origin), (float)d, each one rounding
- * to nearest. The tree's origin is a kernel argument (KD_ORIGIN_PARAMS), not a -D
- * option, so that one program serves every tree. */
+/* The rays' input type: float, origins relative to the tree's origin in its units
+ * (the host converted them), or with RAYS_DOUBLE the caller's double rays in world
+ * coordinates, converted here as the host would: (float)((o - origin) / scale),
+ * (float)d, each one rounding to nearest (the scale is a power of two). The tree's
+ * origin and 1 / scale are kernel arguments (KD_ORIGIN_PARAMS), not -D options, so
+ * that one program serves every tree. Directions are not scaled: t is found in the
+ * tree's units, t / scale, and t_scale (the scale) turns it back when stored. */
 #if defined(RAYS_DOUBLE) && defined(REFINE) && defined(cl_khr_fp64)
-#define KD_TRACE_EXACT , origins, directions, o_step, (double3)(origin_x, origin_y, origin_z)
+#define KD_TRACE_EXACT , origins, directions, o_step, (double3)(origin_x, origin_y, origin_z), \
+    inv_scale
 #else
 #define KD_TRACE_EXACT
 #endif
 #ifdef RAYS_DOUBLE
 #define KD_RAY_T double
-#define KD_ORIGIN_PARAMS , double origin_x, double origin_y, double origin_z
-#define KD_RAY_ORIGIN(p, i) kd_ray_origin(p, i, (double3)(origin_x, origin_y, origin_z))
+#define KD_ORIGIN_PARAMS , double origin_x, double origin_y, double origin_z, double inv_scale
+#define KD_RAY_ORIGIN(p, i) kd_ray_origin(p, i, (double3)(origin_x, origin_y, origin_z), inv_scale)
 KD_INLINE
-float3 kd_ray_origin(__global const double *p, size_t i, double3 origin)
+float3 kd_ray_origin(__global const double *p, size_t i, double3 origin, double inv_scale)
 {
     p += 3 * i;
-    return (float3)((float)(p[0] - origin.x), (float)(p[1] - origin.y), (float)(p[2] - origin.z));
+    return (float3)((float)((p[0] - origin.x) * inv_scale), (float)((p[1] - origin.y) * inv_scale),
+                    (float)((p[2] - origin.z) * inv_scale));
 }
 KD_INLINE
 float3 kd_ray_direction(__global const double *p, size_t i)
@@ -280,8 +285,8 @@ void trace_rays(KD_TREE_ARGS,
 /* Primary rays of the pixels in rows row0 .. row0 + n_rows - 1 (row length `width`),
  * written to outputs 0 .. n_rows * width - 1 (row-major, from row0).
  * camera: 12 floats, M = R K^-1 row-major (9), then the eye relative to the tree's
- * origin (3). Pixel (i, j) (column, row): direction M [i + 0.5, j + 0.5, 1], not
- * normalized, so t is the z-depth.
+ * origin in its units (3). Pixel (i, j) (column, row): direction M [i + 0.5, j + 0.5,
+ * 1], not normalized, so t (times t_scale) is the z-depth.
  *
  * Pixels are taken in tiles of TILE_W x TILE_H (tiles row-major, rows within a tile;
  * a batch is best one tile), so the rays a group traces one after another are

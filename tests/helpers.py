@@ -62,8 +62,7 @@ def random_rays(tree, n, seed, inside=0.25):
     """Rays in world coordinates: most from outside the scene towards points in its box,
     a fraction `inside` from points in the box in random directions."""
     rng = np.random.default_rng(seed)
-    lo = tree.bounds[0].astype(np.float64) + tree.origin
-    hi = tree.bounds[1].astype(np.float64) + tree.origin
+    lo, hi = tree.world_box()
     c, r = 0.5 * (lo + hi), np.linalg.norm(hi - lo)
     n_in = int(n * inside)
     o = np.concatenate([c + rng.normal(size=(n - n_in, 3)) * r,
@@ -84,12 +83,13 @@ def reference(tree, o, d, t_min=0.0, t_max=np.inf, frame="world"):
     Returns (t, prim int64 -1 on miss, u, v, triangles in input order, origins), the
     last two in the frame used."""
     if frame == "world":
-        tri = tree.triangles.astype(np.float64) + tree.origin
+        tri = tree.world(tree.triangles)
         by_id = trees.world_triangles(tree)
     else:
         tri = tree.triangles.astype(np.float64)
         by_id = trees.world_triangles(tree) - tree.origin
         by_id[tree.tri_ids] = tri
+        assert tree.scale == 1.0, "frame='tree' compares t in the tree's units"
         o = (o - tree.origin).astype(np.float32).astype(np.float64)
         d = np.asarray(d).astype(np.float32).astype(np.float64)
     ref = brute_force(tri, o, d, t_min, t_max)
@@ -251,8 +251,7 @@ def split_plane_rays(tree, n, seed):
 def camera_for(tree, width, height):
     """A look-at camera a little outside the scene's bounding sphere, off the axes."""
     from kdray.camera import Camera
-    lo = tree.bounds[0].astype(np.float64) + tree.origin
-    hi = tree.bounds[1].astype(np.float64) + tree.origin
+    lo, hi = tree.world_box()
     c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
     view = np.array([0.35, 0.3, 1.0]) / np.linalg.norm([0.35, 0.3, 1.0])
     return Camera.look_at(c + 2.2 * r * view, c, up=(0, 1, 0), fov_deg=40, width=width,

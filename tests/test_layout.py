@@ -40,9 +40,40 @@ def test_round_trip(tmp_path):
 def test_header_layout_is_documented():
     data = GOLDEN.read_bytes()
     assert data[:8] == b"KDRAYTRE"
-    assert int.from_bytes(data[8:12], "little") == layout.VERSION
+    assert int.from_bytes(data[8:12], "little") == 1            # scale 1: version 1
     assert len(data) == layout.file_size(3, 2, 2)
     assert np.frombuffer(data, "<f8", 3, 72).tolist() == [1e6, -2.5, 0.125]
+    assert data[120:128] == bytes(8)                            # reserved in version 1
+
+
+def test_scaled_tree_is_version_2(tmp_path):
+    """A tree whose scale is not 1 is written as version 2, the scale at byte 120;
+    the rest of the file is version 1's. Both read back; a scale that is not a power
+    of two, and an unknown version, are refused."""
+    import dataclasses
+    tree = dataclasses.replace(two_leaf_tree(), scale=2.0 ** -70)
+    data = tree.to_bytes()
+    assert int.from_bytes(data[8:12], "little") == 2 == layout.VERSION
+    assert np.frombuffer(data, "<f8", 1, 120)[0] == 2.0 ** -70
+    one = two_leaf_tree().to_bytes()
+    assert data[12:120] == one[12:120] and data[128:-16] == one[128:-16]
+    path = tmp_path / "t.bin"
+    tree.save(path)
+    back = KdTree.load(path)
+    assert back == tree and back.scale == 2.0 ** -70
+    assert KdTree.from_bytes(one).scale == 1.0
+
+    def resealed(data, offset, value):
+        import hashlib
+        bad = bytearray(data)
+        bad[offset:offset + len(value)] = value
+        body = bytes(bad[:-16])
+        return body + hashlib.blake2b(body, digest_size=16).digest()
+    for scale in (3.0, 0.0, -2.0, float("inf"), float("nan"), 2.0 ** 200):
+        with pytest.raises(TreeFileError, match="scale"):
+            KdTree.from_bytes(resealed(data, 120, np.float64(scale).tobytes()))
+    with pytest.raises(TreeFileError, match="version 3"):
+        KdTree.from_bytes(resealed(data, 8, (3).to_bytes(4, "little")))
 
 
 @pytest.mark.parametrize("cut", [0, 7, 127, 128, 150, -17, -1])
@@ -65,8 +96,8 @@ def test_every_flipped_byte_is_refused():
 
 def test_other_version_and_magic(tmp_path):
     data = bytearray(GOLDEN.read_bytes())
-    data[8] = 2
-    with pytest.raises(TreeFileError, match="version 2"):
+    data[8] = 3
+    with pytest.raises(TreeFileError, match="version 3"):
         KdTree.from_bytes(bytes(data))
     with pytest.raises(TreeFileError, match="not a kdray tree"):
         KdTree.from_bytes(b"PLY\n" + bytes(200))

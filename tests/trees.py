@@ -94,5 +94,5 @@ def world_triangles(tree):
     """(n_input_tris, 3, 3) float64: the tree's triangles in world coordinates, in input
     order (rows of input ids the tree dropped are NaN): the geometry the tracer sees."""
     out = np.full((tree.n_input_tris, 3, 3), np.nan)
-    out[tree.tri_ids] = tree.triangles.astype(np.float64) + tree.origin
+    out[tree.tri_ids] = tree.world(tree.triangles)
     return out

@@ -39,7 +39,7 @@ log = logging.getLogger(__name__)
 
 def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
           empty_bonus=BuildParams.empty_bonus, max_depth=BuildParams.max_depth,
-          leaf_size=BuildParams.leaf_size, origin=None, threads=None):
+          leaf_size=BuildParams.leaf_size, origin=None, threads=None, scale=None):
     """Build a KdTree over a triangle mesh.
 
     vertices : (n, 3) float-like (read as float64);  faces : (m, 3) int.
@@ -51,7 +51,10 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         the point the float32 triangles are stored relative to. A tree over part of a
         mesh built with the whole mesh's origin stores the same float32 triangles;
     threads : None (the CPUs this process may run on) or the number of threads that
-        build subtrees; the tree is the same for any number.
+        build subtrees; the tree is the same for any number;
+    scale : None (1 for scenes 2^-40 .. 2^40 across, else the power of two nearest
+        the size: kdray.builder.prepare.scale_for) or a power of two: the unit of the
+        stored triangles (KdTree.scale). Like origin, for a tree over part of a mesh.
 
     Triangles with a non-finite coordinate or a zero float32 cross product are left
     out (`tri_ids` maps kept triangles to input rows). Raises MeshError for bad arrays
@@ -84,7 +87,8 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         threads = 1                             # one thread, no pool
     # One pool for the whole build: starting a pool's threads costs more than a small step.
     with concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as pool:
-        mesh = prepare.prepare(vertices, faces, origin, pool=pool, threads=threads)
+        mesh = prepare.prepare(vertices, faces, origin, pool=pool, threads=threads,
+                               scale=scale)
         params = params.resolved(len(mesh.triangles))
         # The events are the builder's two event stacks, with room to grow (about 1.5
         # times the root's events each; `subdivide.split_keys`).
@@ -98,4 +102,5 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
               len(nodes), len(leaf_tris), len(mesh.triangles), mesh.n_input_tris)
     return KdTree(nodes=nodes, leaf_tris=leaf_tris, triangles=mesh.triangles,
                   tri_ids=mesh.tri_ids, origin=mesh.origin, bounds=mesh.bounds,
-                  n_input_tris=mesh.n_input_tris, depth=int(depth), params=params)
+                  n_input_tris=mesh.n_input_tris, depth=int(depth), params=params,
+                  scale=mesh.scale)

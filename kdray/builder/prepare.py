@@ -3,10 +3,11 @@
     vertices  : (n, 3) float-like, world coordinates (read as float64)
     faces     : (m, 3) int, indices into vertices; triangle ids are row numbers
     ->
-    triangles : (k, 3, 3) float32   kept triangles, relative to `origin`
+    triangles : (k, 3, 3) float32   kept triangles, relative to `origin`, in units of `scale`
     tri_ids   : (k,) uint32         input row of each kept triangle (input order kept)
     origin    : (3,) float64        centre of the box of the finite vertices the faces use
     bounds    : (2, 3) float32      box of the kept triangles (min, max), relative
+    scale     : float               a power of two (`mesh_scale`): 1 for sizes 2^-40 .. 2^40
 
 A triangle is left out when a coordinate is not finite after the shift to float32, or
 when its float32 cross product is zero: such a triangle can never be hit.
@@ -17,6 +18,7 @@ subtraction, float32 rounding and float32 cross product as the numpy expressions
 float64 temporaries, whose allocation and page faults cost more than the arithmetic.
 """
 import dataclasses
+import math
 
 import numpy as np
 from numba import njit
@@ -33,6 +35,55 @@ class Prepared:
     origin: np.ndarray
     bounds: np.ndarray
     n_input_tris: int
+    scale: float = 1.0
+
+
+SCALE_FREE = (2.0 ** -40, 2.0 ** 40)
+"""Scene sizes stored at scale 1: the float32 kernels' products of coordinates (up to
+cubes of a coordinate relative to a ray's origin) stay far from float32's overflow and
+underflow for eyes up to thousands of scene sizes away."""
+
+SIZE_LIMITS = (2.0 ** -126, 2.0 ** 126)
+"""The scene sizes kdray represents (1.2e-38 .. 8.5e37): depths are float32, the tree's
+scale a normal float32 power of two."""
+
+
+def scale_for(size):
+    """The tree's scale for a scene `size` across (the largest side of the used
+    vertices' box, float64): 1 within SCALE_FREE, else the power of two nearest the
+    size, so that the stored coordinates are about 1. Raises MeshError outside
+    SIZE_LIMITS."""
+    size = float(size)
+    if size == 0.0 or SCALE_FREE[0] <= size <= SCALE_FREE[1]:
+        return 1.0
+    if not SIZE_LIMITS[0] <= size <= SIZE_LIMITS[1]:
+        raise MeshError(f"the scene is {size:.3g} across; kdray represents scenes from "
+                        f"{SIZE_LIMITS[0]:.2g} to {SIZE_LIMITS[1]:.2g} across (float32 depths)")
+    return 2.0 ** round(math.log2(size))
+
+
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def mesh_scale(vertices, faces):
+    """The builder's default scale (`scale_for`) of the vertices the faces use, left
+    out those float32 cannot hold (their triangles are left out as non-finite, as
+    `prepare` leaves out any such triangle). MeshError for a scene that float32 depths
+    cannot hold.
+
+    vertices : (n, 3) float64;  faces : (m, 3) int, valid indices (check_arrays).
+    """
+    lo, hi, found = _used_box(vertices, faces)
+    if not found:
+        return 1.0
+    size = np.max(hi - lo)
+    if size > SIZE_LIMITS[1]:
+        pts = vertices[np.unique(faces)]
+        pts = pts[(np.abs(pts) <= FLOAT32_MAX).all(axis=1)]    # (NaN compares False)
+        if len(pts) == 0:
+            scale_for(size)                                     # raises: beyond float32
+        size = np.max(np.ptp(pts, axis=0))
+    return scale_for(size)
 
 
 def mesh_origin(vertices, faces):
@@ -80,14 +131,14 @@ def _used_box(vertices, faces):
 
 
 @njit(cache=True, nogil=True)
-def _triangles(vertices, faces, origin, start, stop, tri, ids):
-    """The kept triangles of faces[start:stop] relative to `origin`, in input order,
-    written to tri[start:], ids[start:].
+def _triangles(vertices, faces, origin, inv_scale, start, stop, tri, ids):
+    """The kept triangles of faces[start:stop] relative to `origin`, in units of
+    1 / inv_scale (a power of two), in input order, written to tri[start:], ids[start:].
 
     vertices : (n, 3) float64;  faces : (m, 3) int64, valid indices;  origin : (3,)
     float64;  tri : (m, 3, 3) float32, ids : (m,) uint32.
     Returns (kept, lo (3,) float32, hi (3,) float32): each coordinate is the float64
-    difference rounded to float32; a triangle is kept when its nine coordinates are
+    difference times inv_scale (exact) rounded to float32; a triangle is kept when its nine coordinates are
     finite and one component of the float32 cross product of its edges
     (v1 - v0) x (v2 - v0) is not zero (each product and difference rounded to
     float32, as numpy's `np.cross` does); lo, hi is the box of the kept triangles
@@ -101,7 +152,7 @@ def _triangles(vertices, faces, origin, start, stop, tri, ids):
         for i in range(3):
             row = faces[t, i]
             for c in range(3):
-                x = np.float32(vertices[row, c] - origin[c])
+                x = np.float32((vertices[row, c] - origin[c]) * inv_scale)
                 finite &= np.isfinite(x)
                 tri[w, i, c] = x
         if not finite:
@@ -129,13 +180,14 @@ on the builder's threads: on one thread the pass is bound by the page faults of 
 new (m, 3, 3) array, which threads take in parallel."""
 
 
-def prepare(vertices, faces, origin=None, pool=None, threads=1):
+def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
     """Validate mesh arrays and make the kept float32 triangles; raises MeshError.
 
-    origin : None (the centre of the used vertices' box) or a (3,) float64 to use
-        instead, so that a subset of a mesh keeps the float32 coordinates it has in
-        the whole mesh;  pool, threads : a concurrent.futures executor of `threads`
-        threads to make the triangles of large meshes on (PARALLEL_FACES), or None.
+    origin, scale : None (the centre of the used vertices' box; `mesh_scale`) or the
+        values to use instead, so that a subset of a mesh keeps the float32
+        coordinates it has in the whole mesh;  pool, threads : a concurrent.futures
+        executor of `threads` threads to make the triangles of large meshes on
+        (PARALLEL_FACES), or None.
     """
     v, f = check_arrays(vertices, faces)
     m = len(f)
@@ -151,11 +203,18 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1):
         if origin.shape != (3,) or not np.isfinite(origin).all():
             raise MeshError(f"origin must be 3 finite numbers, got {origin!r}")
 
+    if scale is None:
+        scale = mesh_scale(v, f)
+    elif not layout.is_scale(scale):
+        raise MeshError(f"scale must be a power of two from 2^-126 to 2^127, got {scale!r}")
+    scale = float(scale)
+
     tri = np.empty((m, 3, 3), dtype=np.float32)
     tri_ids = np.empty(m, dtype=np.uint32)
     pieces = threads if pool is not None and threads > 1 and m >= PARALLEL_FACES else 1
     cuts = [m * i // pieces for i in range(pieces + 1)]
-    jobs = [(_triangles, v, f, origin, a, b, tri, tri_ids) for a, b in zip(cuts, cuts[1:])]
+    jobs = [(_triangles, v, f, origin, 1.0 / scale, a, b, tri, tri_ids)
+            for a, b in zip(cuts, cuts[1:])]
     if pieces > 1:
         done = [job.result() for job in [pool.submit(*job) for job in jobs]]
     else:
@@ -169,4 +228,4 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1):
     if len(tri) == 0:
         raise MeshError("no triangles left after removing degenerate ones")
     bounds = np.stack([lo, hi])
-    return Prepared(tri, tri_ids, origin, bounds, m)
+    return Prepared(tri, tri_ids, origin, bounds, m, scale)

@@ -1,0 +1,141 @@
+"""Any scale: a scene scaled uniformly by 1e-30 .. 1e30 (and to float32's edges) gives the
+picture and the relative accuracy of the unscaled scene, on every OpenCL implementation
+present. Outside what float32 depths can hold, building is a one-line error.
+
+A scene outside 2^-40 .. 2^40 across is stored divided by the power of two nearest its
+size (KdTree.scale), so the kernels' products of coordinates neither overflow nor
+underflow; a power-of-two scale changes no rounding, so a scene scaled by 2^k renders
+exactly 2^k times the unscaled depths."""
+import warnings
+
+import numpy as np
+import pytest
+
+from helpers import SCENES, real_mesh_arrays
+from kdray.builder import build
+from kdray.camera import Camera
+from kdray.errors import MeshError
+from kdray.layout import MISS
+from kdray.reference import brute_force
+from kdray.trace import Tracer
+
+DECIMAL = [1e-30, 1e-20, 1e-17, 1e15, 1e20, 1e30]
+BINARY = [2.0 ** -120, 2.0 ** -60, 2.0 ** 50, 2.0 ** 120]
+
+
+def fandisk():
+    return real_mesh_arrays("fandisk.obj")
+
+
+def render(v, f, runtime, size=(64, 48)):
+    tree = build(v, f)
+    lo, hi = tree.world_box()
+    camera = Camera.frame(lo, hi, *size)
+    images = Tracer(tree, device=runtime.spec).render(camera, aovs=("depth", "id", "position"))
+    return tree, camera, images
+
+
+@pytest.fixture(scope="module")
+def unscaled():
+    return {}
+
+
+def reference_of(runtime, unscaled):
+    if runtime.name not in unscaled:
+        unscaled[runtime.name] = render(*fandisk(), runtime)
+    return unscaled[runtime.name]
+
+
+@pytest.mark.parametrize("s", BINARY, ids=[f"2^{int(np.log2(s))}" for s in BINARY])
+def test_power_of_two_scales_render_exactly_scaled(runtime, unscaled, s):
+    if runtime.simulator and s not in (2.0 ** -120, 2.0 ** 120):
+        pytest.skip("a simulator runs the extremes only")
+    tree0, _, want = reference_of(runtime, unscaled)
+    v, f = fandisk()
+    tree, _, got = render(v * s, f, runtime)
+    assert tree.scale != 1.0 and len(tree.triangles) == len(tree0.triangles)
+    assert np.array_equal(got["id"], want["id"])
+    assert np.array_equal(got["depth"], (want["depth"].astype(np.float64) * s).astype(np.float32))
+
+
+@pytest.mark.parametrize("s", DECIMAL, ids=[f"{s:g}" for s in DECIMAL])
+def test_any_scale_gives_the_unscaled_picture(runtime, unscaled, s):
+    """The same triangle at almost every pixel (rounding the scaled vertices may move
+    an edge pixel), the depth s times the unscaled to float32 precision, and no
+    triangle lost as degenerate."""
+    if runtime.simulator and s not in (1e-30, 1e30):
+        pytest.skip("a simulator runs the extremes only")
+    tree0, _, want = reference_of(runtime, unscaled)
+    v, f = fandisk()
+    tree, _, got = render(v * s, f, runtime)
+    assert len(tree.triangles) == len(tree0.triangles)
+    same = got["id"] == want["id"]
+    assert same.mean() >= 0.995
+    hit = same & (want["id"] != MISS)
+    assert hit.mean() > 0.1
+    rel = np.abs(got["depth"][hit] / s - want["depth"][hit]) / want["depth"][hit]
+    assert rel.max() <= 2e-6, rel.max()
+
+
+@pytest.mark.parametrize("s", [1e-30, 1e25], ids=["1e-30", "1e25"])
+def test_traced_rays_at_extreme_scales_match_float64(runtime, s):
+    """Random rays into the scaled teapot, far from the origin too: the float64 oracle's
+    hits, depth to 1e-6."""
+    v, f = real_mesh_arrays("teapot.obj")
+    v = (v + np.array([3.0, -1.0, 2.0])) * s
+    tree = build(v, f)
+    rng = np.random.default_rng(7)
+    lo, hi = tree.world_box()
+    n = runtime.small(3001, 301)
+    target = lo + rng.random((n, 3)) * (hi - lo)
+    o = target + rng.normal(size=(n, 3)) * np.linalg.norm(hi - lo)
+    d = (target - o) / s                 # t ~ s: directions in units of the scene
+    hits = Tracer(tree, device=runtime.spec).trace(o, d)
+    ref = brute_force(v[f], o, d)
+    ours = np.where(hits.prim == MISS, -1, hits.prim.astype(np.int64))
+    assert np.mean(ours == ref.prim) >= 0.995
+    same = (ours >= 0) & (ours == ref.prim)
+    assert same.sum() > n // 5
+    rel = np.abs(hits.t[same] - ref.t[same]) / ref.t[same]
+    assert np.percentile(rel, 99) <= 1e-6 and rel.max() <= 4e-6, (np.percentile(rel, 99), rel.max())
+
+
+@pytest.mark.parametrize("s", [1e-40, 1e39])
+def test_beyond_float32_is_a_one_line_error(s):
+    v, f = fandisk()
+    with pytest.raises(MeshError, match="across") as info:
+        build(v * s, f)
+    assert "\n" not in str(info.value)
+
+
+def test_cli_renders_and_refuses_scaled_scenes(capsys, tmp_path):
+    """kdray render of a scene 1e30 across writes its image; of one 1e40 across says
+    why in one line, with no numpy warning."""
+    from helpers import run
+    from kdray.images import read_exr
+    import trimesh
+    mesh = trimesh.load(SCENES / "cornell.obj", force="mesh")
+    for s, code_wanted in ((1e30, 0), (1e40, 1)):
+        path = tmp_path / f"cornell-{s:g}.obj"
+        mesh.copy().apply_scale(s).export(path)
+        out = tmp_path / f"{s:g}.exr"
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)      # numpy's overflow warnings
+            code, printed, err = run(capsys, "render", path, "-o", out, "--size", "32x24")
+        assert code == code_wanted, err
+        if code == 0:
+            depth = read_exr(out)["depth"]
+            assert np.isfinite(depth).mean() > 0.2 and np.nanmax(depth[np.isfinite(depth)]) > 1e29
+        else:
+            assert err.count("\n") == 1 and "across" in err and "Warning" not in err
+
+
+def test_scaled_tree_file_round_trip(tmp_path):
+    v, f = fandisk()
+    tree = build(v * 1e30, f)
+    assert tree.scale == 2.0 ** round(np.log2(np.max(np.ptp(v * 1e30, axis=0))))
+    tree.save(tmp_path / "t.kdt")
+    from kdray.tree import KdTree
+    back = KdTree.load(tmp_path / "t.kdt")
+    assert back == tree and back.scale == tree.scale
+    back.validate()
