@@ -39,6 +39,7 @@ def worker(tree_path, size, out_path):
     Writes the outputs of one call of each to out_path (npz) first."""
     import kdray
     tree = kdray.KdTree.load(tree_path)
+    # (a base commit may predate KdTree.world_box; scale-1 trees need no scale)
     lo, hi = tree.origin + tree.bounds.astype(np.float64)
     camera = kdray.Camera.frame(lo, hi, size, size)
     o, d = camera.rays()

@@ -96,7 +96,7 @@ def main():
     args = ap.parse_args()
     m = bench_mesh(args.mesh)
     tree = kdray.build(m.vertices, m.faces)
-    lo, hi = tree.origin + tree.bounds.astype(np.float64)
+    lo, hi = tree.world_box()
     camera = kdray.Camera.frame(lo, hi, args.size, args.size)
     tracer = kdray.Tracer(tree)
     print(f"# {args.mesh}: {len(m.faces)} triangles, {args.size}x{args.size}, tree depth {tree.depth}, "

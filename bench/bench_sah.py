@@ -44,7 +44,7 @@ def main():
         build_s, _, trees = round_robin(
             {k_t: (lambda k_t=k_t: kdray.build(m.vertices, m.faces, K_T=k_t)) for k_t in k_ts},
             max(2, args.repeat if len(m.faces) < 1_000_000 else args.repeat // 3))
-        lo, hi = trees[k_ts[0]].origin + trees[k_ts[0]].bounds.astype(np.float64)
+        lo, hi = trees[k_ts[0]].world_box()
         camera = kdray.Camera.frame(lo, hi, args.size, args.size)
         o, d = camera.rays()
         tracers = {k_t: kdray.Tracer(tree) for k_t, tree in trees.items()}

@@ -111,7 +111,7 @@ def main():
         t0 = time.perf_counter()
         tree = kdray.build(m.vertices, m.faces)
         build_s = time.perf_counter() - t0
-        lo, hi = tree.origin + tree.bounds.astype(np.float64)
+        lo, hi = tree.world_box()
         camera = kdray.Camera.frame(lo, hi, args.size, args.size)
         o, d = camera.rays()
         sample = rng.choice(n_rays, size=min(args.sample, n_rays), replace=False)

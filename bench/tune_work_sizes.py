@@ -54,7 +54,7 @@ def main():
     for name in args.meshes.split(","):
         m = bench_mesh(name)
         tree = kdray.build(m.vertices, m.faces)
-        lo, hi = tree.bounds[0] + tree.origin, tree.bounds[1] + tree.origin
+        lo, hi = tree.world_box()
         c, r = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
         camera = kdray.Camera.look_at(c + np.array([0.0, 0.2, 2.2]) * r, c, (0, 1, 0), fov_deg=40,
                                       width=args.size, height=args.size)

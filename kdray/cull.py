@@ -112,7 +112,7 @@ def cull_faces(vertices, faces, camera, origin=None):
 
 def scene_box(vertices, faces):
     """(lo, hi): (3,) float64 world box of the triangles a tree of the whole mesh keeps,
-    the box `kdray render` frames when no camera is given (tree.origin + tree.bounds).
+    the box `kdray render` frames when no camera is given (tree.world_box()).
     Raises MeshError as `build` does."""
     prep = prepare(vertices, faces)
     return (prep.origin + prep.scale * prep.bounds[0].astype(np.float64),

@@ -30,6 +30,6 @@ def render(name, device=None):
     mesh = kdray.load(path)
     tree = kdray.build(mesh.vertices, mesh.faces)
     if camera is None:
-        lo, hi = tree.origin + tree.bounds.astype(np.float64)
+        lo, hi = tree.world_box()
         camera = kdray.Camera.frame(lo, hi, WIDTH, HEIGHT)
     return kdray.Tracer(tree, device=device).render(camera, aovs=AOVS)
