@@ -12,7 +12,7 @@ import time
 import click
 import numpy as np
 
-from .errors import DeviceError, KdrayError, MeshError, OutputError
+from .errors import DeviceError, KdrayError, MeshError, OutputError, TreeError
 
 log = logging.getLogger("kdray")
 
@@ -236,9 +236,13 @@ def devices():
               help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
 @click.option("--cull", is_flag=True,
               help="Build the tree of only the triangles the camera can see (same images).")
+@click.option("--precision", type=click.Choice(["single", "double"]), default="single",
+              show_default=True,
+              help="double: depth, distance, position and bary computed in float64 from the "
+                   "mesh's float64 triangles (the EXR stores them rounded to float32).")
 @build_options
 def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_file, aov,
-           preview, tree_file, device, cull, **kw):
+           preview, tree_file, device, cull, precision, **kw):
     """Render SCENE's depth, normal, barycentric and id images to an EXR file."""
     from .images import write_exr, write_preview
     from .render import kernel_outputs, parse_aovs
@@ -259,9 +263,19 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
         raise click.UsageError("--cull applies when building the tree; it cannot be combined with --tree")
     step = Steps()
     n_culled = None
+    if precision == "double":
+        params["keep_double"] = True
     if tree_file:
         with step("loading the tree"):
             tree = KdTree.load(tree_file)
+        if precision == "double":
+            from .load import load
+            with step("loading the float64 triangles"):
+                mesh = load(scene)
+                try:
+                    tree = tree.with_double(mesh.vertices, mesh.faces)
+                except TreeError as e:
+                    raise TreeError(f"{scene} is not the mesh of {tree_file}: {e}") from None
         camera = _camera(lambda: _tree_box(tree), width, height, eye, target, up, fov,
                          intrinsics, pose, camera_file)
     else:
@@ -283,10 +297,10 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
         tracer = Tracer(tree, device=device)
     outputs = kernel_outputs(aovs)
     with step("compiling the kernels"):
-        tracer.compile(aovs)
+        tracer.compile(aovs, precision=precision)
     width, height = int(camera.width), int(camera.height)   # a camera file has its own size
     with step(f"tracing {width}x{height} rays"):
-        images = tracer.render(camera, aovs=aovs)
+        images = tracer.render(camera, aovs=aovs, precision=precision)
     _log_left_out(tree, tracer, n_culled, from_file=bool(tree_file), outputs=outputs)
     with step("writing"):
         write_exr(output, images, camera=camera)

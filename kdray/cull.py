@@ -140,8 +140,11 @@ def build_for_camera(vertices, faces, camera, **build_params):
     keep = cull_faces(v, f, camera, origin=origin)
     if len(keep) == 0:
         keep = prepare(v, f, origin, scale=scale).tri_ids[:1].astype(np.int64)
+    keep_double = build_params.pop("keep_double", False)
     tree = build(v, f[keep], origin=origin, scale=scale, **build_params)
     tree = dataclasses.replace(tree, tri_ids=keep[tree.tri_ids].astype(np.uint32),
                                n_input_tris=len(f))
+    if keep_double:                     # by the whole mesh's ids, as tri_ids are
+        tree = tree.with_double(v, f)
     log.debug("culled %d of %d triangles outside the view frustum", len(f) - len(keep), len(f))
     return tree, len(f) - len(keep)

@@ -14,7 +14,7 @@ taken in float32 (kernels/render.cl), so its camera-z is 1 and t is the z-depth.
 import numpy as np
 
 from .errors import KdrayError
-from .layout import KERNEL_OUTPUTS, OUTPUT_WIDTH
+from .layout import KERNEL_OUTPUTS, MISS, OUTPUT_WIDTH
 
 AOVS = ("depth", "distance", "normal", "bary", "id", "position")
 """Every output `render` knows."""
@@ -153,4 +153,39 @@ def images(out, camera, origin, aovs, scale=1.0):
             result[name] = out["UV"].reshape(h, w, 2)
         elif name == "id":
             result[name] = out["ID"].reshape(h, w)
+    return result
+
+
+DOUBLE_AOVS = ("depth", "distance", "position", "bary")
+"""The AOVs precision="double" computes in float64 (`double_images`)."""
+
+
+def double_images(ids, camera, triangles64, aovs):
+    """The AOVs of DOUBLE_AOVS in `aovs` in float64, from each pixel's exact float64
+    ray (Camera.rays) and the float64 triangle the kernel found (kdray.double).
+
+    ids : (H*W,) uint32 input triangle id per pixel, MISS on a miss;
+    triangles64 : (n_input_tris, 3, 3) float64 world (KdTree.triangles64).
+    Returns {name: array}: depth, distance (H, W) float64 (+inf on a miss), position
+    (H, W, 3) float64 (NaN on a miss), bary (H, W, 2) float64 (0 on a miss).
+    """
+    from .double import plane_hits
+    w, h = int(camera.width), int(camera.height)
+    o, d = camera.rays()
+    hit = ids != MISS
+    t = np.full(w * h, np.inf)
+    uv = np.zeros((w * h, 2))
+    t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(triangles64[ids[hit]], o[hit], d[hit])
+    result = {}
+    for name in aovs:
+        if name == "depth":
+            result[name] = t.reshape(h, w)
+        elif name == "distance":
+            result[name] = (t * np.linalg.norm(d, axis=1)).reshape(h, w)
+        elif name == "position":
+            p = np.full((w * h, 3), np.nan)
+            p[hit] = o[hit] + t[hit, None] * d[hit]
+            result[name] = p.reshape(h, w, 3)
+        elif name == "bary":
+            result[name] = uv.reshape(h, w, 2)
     return result

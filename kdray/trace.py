@@ -284,12 +284,15 @@ class Tracer:
             self._programs[key] = entry
         return entry
 
-    def compile(self, aovs=DEFAULT_AOVS, trace=False):
-        """Build the program `render` uses for `aovs` (and with trace=True the ones
-        `trace` uses for float64 and float32 rays) and launch each once on one pixel
-        (ray), so that the time of compiling is spent here and not in the first render:
-        some runtimes compile a kernel again at its first launch (PoCL, per work-group
-        size). Returns the Tracer."""
+    def compile(self, aovs=DEFAULT_AOVS, trace=False, precision="single"):
+        """Build the program `render` uses for `aovs` at `precision` (and with
+        trace=True the ones `trace` uses for float64 and float32 rays) and launch each
+        once on one pixel (ray), so that the time of compiling is spent here and not in
+        the first render: some runtimes compile a kernel again at its first launch
+        (PoCL, per work-group size). Returns the Tracer."""
+        aovs = _render.parse_aovs(aovs)
+        if precision == "double":          # the kernel's part of a double render
+            aovs = tuple(dict.fromkeys([a for a in aovs if a in ("normal", "id")] + ["id"]))
         outputs = _render.kernel_outputs(aovs)
         # a camera with M = 0 at the tree's origin: its one ray has a zero direction
         # and misses at once
@@ -410,16 +413,34 @@ class Tracer:
             convert(chunks[0])
         return o32, d32, o_step, False
 
-    def trace(self, origins, directions, t_min=0.0, t_max=np.inf):
+    def trace(self, origins, directions, t_min=0.0, t_max=np.inf, precision="single"):
         """Nearest hit of every ray o + t d with t_min < t < t_max.
 
         origins : (N, 3) or (3,) float64 or float32, world coordinates
         directions : (N, 3), any length (t is in units of |direction|)
         t_min : >= 0 (default 0: hits behind the origin or at it never count)
+        precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
+            v in float64 from the tree's float64 triangles (KdTree.triangles64) and
+            the rays as given (kdray.double)
         Returns Hits. Rays with non-finite components or a zero direction miss.
         """
+        double = _precision(precision, self.tree)
         hits, _ = self._trace(origins, directions, t_min, t_max)
+        if double:
+            hits = self._double_hits(hits, origins, directions)
         return hits
+
+    def _double_hits(self, hits, origins, directions):
+        """`hits` with t, u, v (float64) recomputed from the float64 triangles."""
+        from .double import plane_hits
+        d = np.asarray(directions, dtype=np.float64)
+        o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
+        hit = hits.prim != MISS
+        t = np.full(len(d), np.inf)
+        uv = np.zeros((len(d), 2))
+        t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(self.tree.triangles64[hits.prim[hit]],
+                                                    o[hit], d[hit])
+        return Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal)
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False):
         t_min, t_max = float(t_min), float(t_max)
@@ -460,15 +481,26 @@ class Tracer:
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c)."""
         return _render.camera_rays(camera, self._origin, self._scale)
 
-    def render(self, camera, aovs=DEFAULT_AOVS):
+    def render(self, camera, aovs=DEFAULT_AOVS, precision="single"):
         """Primary-ray images of `camera` (kdray.Camera: width, height, K, cam_to_world).
 
         aovs : names from AOVS (or one comma-separated string). Returns a dict, in the
         order asked: depth (H, W) z-depth, +inf on a miss; distance (H, W) along the
         ray; normal (H, W, 3); bary (H, W, 2) u, v; id (H, W) uint32; position (H, W, 3)
         world hit point (NaN on a miss). Only what is asked is computed and stored.
+        precision : "single" (float32 images) or "double": the same hits, and depth,
+        distance, position and bary in float64 from each pixel's exact float64 ray
+        (Camera.rays) and the tree's float64 triangles (render.double_images).
         """
+        double = _precision(precision, self.tree)
         aovs = _render.parse_aovs(aovs)
+        if double:
+            # the kernel finds the triangles (ids) and the normals; the rest is float64
+            kernel_aovs = [a for a in aovs if a in ("normal", "id")]
+            images = self.render(camera, tuple(dict.fromkeys(kernel_aovs + ["id"])))
+            exact = _render.double_images(images["id"].reshape(-1), camera,
+                                          self.tree.triangles64, aovs)
+            return {a: exact[a] if a in exact else images[a] for a in aovs}
         w, h = int(camera.width), int(camera.height)
         if w < 1 or h < 1:
             raise KdrayError(f"camera size must be at least 1x1, got {w}x{h}")
@@ -496,6 +528,17 @@ class Tracer:
                          (camera_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
                          {k: v[start:stop] for k, v in out.items()})
         return _render.images(out, camera, self._origin, aovs, self._scale)
+
+
+def _precision(precision, tree):
+    """True for "double" (KdrayError when the tree has no float64 triangles), False for
+    "single"."""
+    from .double import need_double
+    if precision not in ("single", "double"):
+        raise KdrayError(f"precision must be 'single' or 'double', got {precision!r}")
+    if precision == "double" and need_double(tree):
+        raise KdrayError(need_double(tree))
+    return precision == "double"
 
 
 _RAY_BYTES = {"float": 12, "double": 24}

@@ -9,6 +9,10 @@ Arrays (see `kdray.layout` for the node encoding)::
     origin     : (3,) float64             world position the float32 data is relative to
     bounds     : (2, 3) float32           scene box (min, max), relative to `origin`
     scale      : float                    a power of two: world = origin + scale * relative
+    triangles64: (n_input_tris, 3, 3) float64 or None: the input's triangles in world
+                 coordinates by input id, kept only when asked for (`with_double`,
+                 `kdray.build(keep_double=True)`) for Tracer.trace(precision="double");
+                 not part of the tree file
 
 `scale` is 1 unless the scene's size is outside 2^-40 .. 2^40 (kdray.builder.prepare):
 then the float32 data is the scene divided by the power of two nearest its size, so
@@ -65,6 +69,7 @@ class KdTree:
     depth: int
     params: BuildParams
     scale: float = 1.0
+    triangles64: np.ndarray = None
 
     def __eq__(self, other):
         if not isinstance(other, KdTree):
@@ -73,6 +78,20 @@ class KdTree:
         return (all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
                 and self.n_input_tris == other.n_input_tris and self.depth == other.depth
                 and self.params == other.params and self.scale == other.scale)
+
+    def with_double(self, vertices, faces):
+        """A copy of the tree that keeps the float64 triangles of the mesh it was built
+        from (vertices (n, 3), faces (n_input_tris, 3)): the geometry
+        precision="double" computes t, u, v from. Raises TreeError when the faces do not
+        match the tree's input."""
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces)
+        if v.ndim != 2 or v.shape[1] != 3 or f.shape != (self.n_input_tris, 3) or f.dtype.kind not in "iu":
+            raise TreeError(f"with_double needs the mesh the tree was built from: (n, 3) vertices "
+                            f"and ({self.n_input_tris}, 3) integer faces, got {v.shape} and {f.shape}")
+        if f.size and (f.min() < 0 or f.max() >= len(v)):
+            raise TreeError("with_double: a face's vertex index is out of range")
+        return dataclasses.replace(self, triangles64=v[f])
 
     def world(self, relative):
         """float64 world coordinates of points relative to the tree: origin + scale * x
@@ -302,6 +321,7 @@ class KdTree:
             "mean_leaf_size": float(n_in_leaf[n_in_leaf > 0].mean()) if np.any(n_in_leaf > 0) else 0.0,
             "sah_cost": float(sah),
             "bytes": int(self.nodes.nbytes + self.leaf_tris.nbytes + self.triangles.nbytes + self.tri_ids.nbytes),
+            "double_bytes": int(self.triangles64.nbytes) if self.triangles64 is not None else 0,
         }
 
 

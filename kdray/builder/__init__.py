@@ -39,7 +39,8 @@ log = logging.getLogger(__name__)
 
 def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
           empty_bonus=BuildParams.empty_bonus, max_depth=BuildParams.max_depth,
-          leaf_size=BuildParams.leaf_size, origin=None, threads=None, scale=None):
+          leaf_size=BuildParams.leaf_size, origin=None, threads=None, scale=None,
+          keep_double=False):
     """Build a KdTree over a triangle mesh.
 
     vertices : (n, 3) float-like (read as float64);  faces : (m, 3) int.
@@ -54,7 +55,9 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         build subtrees; the tree is the same for any number;
     scale : None (1 for scenes 2^-40 .. 2^40 across, else the power of two nearest
         the size: kdray.builder.prepare.scale_for) or a power of two: the unit of the
-        stored triangles (KdTree.scale). Like origin, for a tree over part of a mesh.
+        stored triangles (KdTree.scale). Like origin, for a tree over part of a mesh;
+    keep_double : also keep the input's float64 triangles (KdTree.triangles64, 72
+        bytes a triangle) for Tracer.trace and render with precision="double".
 
     Triangles with a non-finite coordinate or a zero float32 cross product are left
     out (`tri_ids` maps kept triangles to input rows). Raises MeshError for bad arrays
@@ -100,7 +103,8 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
             threads=threads, pool=pool)
     log.debug("built %d nodes, %d leaf references over %d triangles (%d input)",
               len(nodes), len(leaf_tris), len(mesh.triangles), mesh.n_input_tris)
-    return KdTree(nodes=nodes, leaf_tris=leaf_tris, triangles=mesh.triangles,
+    tree = KdTree(nodes=nodes, leaf_tris=leaf_tris, triangles=mesh.triangles,
                   tri_ids=mesh.tri_ids, origin=mesh.origin, bounds=mesh.bounds,
                   n_input_tris=mesh.n_input_tris, depth=int(depth), params=params,
                   scale=mesh.scale)
+    return tree.with_double(vertices, faces) if keep_double else tree

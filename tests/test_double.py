@@ -1,0 +1,150 @@
+"""Float64 answers on request (precision="double"): the same hits as the default, t, u,
+v (and a render's depth, distance, position, bary) in float64 from the input's float64
+triangles, within 1e-12 of the exact answer: an oracle in rational arithmetic
+(fractions.Fraction) on the float64 input, independent of kdray."""
+from fractions import Fraction
+
+import numpy as np
+import pytest
+
+from helpers import SCENES, real_mesh, real_mesh_arrays, run
+from kdray.builder import build
+from kdray.camera import Camera
+from kdray.errors import KdrayError, TreeError
+from kdray.layout import MISS
+from kdray.trace import Tracer
+
+
+def exact_hit(tri, o, d):
+    """(t, u, v) as Fractions: ray o + t d on the plane of tri (3, 3), exactly."""
+    P = [[Fraction(float(x)) for x in p] for p in tri]
+    O, D = [Fraction(float(x)) for x in o], [Fraction(float(x)) for x in d]
+    e1 = [P[1][k] - P[0][k] for k in range(3)]
+    e2 = [P[2][k] - P[0][k] for k in range(3)]
+
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+    def dot(a, b):
+        return sum(x * y for x, y in zip(a, b))
+    n = cross(e1, e2)
+    t = dot(n, [P[0][k] - O[k] for k in range(3)]) / dot(n, D)
+    h = [O[k] + t * D[k] - P[0][k] for k in range(3)]
+    nn = dot(n, n)
+    return t, dot(cross(h, e2), n) / nn, dot(cross(e1, h), n) / nn
+
+
+def rays(tree, n, seed):
+    rng = np.random.default_rng(seed)
+    lo, hi = tree.world_box()
+    target = lo + rng.random((n, 3)) * (hi - lo)
+    o = target + rng.normal(size=(n, 3)) * np.linalg.norm(hi - lo)
+    return o, target - o
+
+
+CASES = {"teapot": (1.0, 0.0), "teapot-far": (1.0, 1e6), "teapot-1e20": (1e20, 0.0),
+         "teapot-1e-25": (1e-25, 3e-25)}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_double_trace_is_exact_to_1e_12(case):
+    s, offset = CASES[case]
+    v, f = real_mesh_arrays("teapot.obj")
+    v = v * s + offset
+    tree = build(v, f, keep_double=True)
+    tracer = Tracer(tree)
+    o, d = rays(tree, 1001, seed=3)
+    single = tracer.trace(o, d)
+    double = tracer.trace(o, d, precision="double")
+    assert np.array_equal(single.prim, double.prim)
+    assert double.t.dtype == double.u.dtype == double.v.dtype == np.float64
+    hit = np.flatnonzero(double.prim != MISS)
+    assert len(hit) > 200
+    miss = double.prim == MISS
+    assert np.all(np.isposinf(double.t[miss])) and np.all(double.u[miss] == 0)
+    for i in hit[:40]:
+        t, u, w = exact_hit(v[f[double.prim[i]]], o[i], d[i])
+        assert abs(Fraction(float(double.t[i])) - t) <= Fraction(1, 10 ** 12) * abs(t)
+        assert abs(Fraction(float(double.u[i])) - u) <= Fraction(1, 10 ** 12)
+        assert abs(Fraction(float(double.v[i])) - w) <= Fraction(1, 10 ** 12)
+    # and the float32 answer is the double one to float32 precision
+    rel = np.abs(single.t[hit] - double.t[hit]) / double.t[hit]
+    assert np.percentile(rel, 99) <= 1e-6
+
+
+def test_double_render():
+    v, f = real_mesh_arrays("spot.obj")
+    tree = build(v, f, keep_double=True)
+    lo, hi = tree.world_box()
+    camera = Camera.frame(lo, hi, 40, 30)
+    tracer = Tracer(tree)
+    aovs = ("depth", "distance", "normal", "bary", "id", "position")
+    single = tracer.render(camera, aovs=aovs)
+    double = tracer.render(camera, aovs=aovs, precision="double")
+    assert list(double) == list(aovs)
+    for name in ("depth", "distance", "bary", "position"):
+        assert double[name].dtype == np.float64, name
+    assert np.array_equal(double["normal"], single["normal"])
+    assert np.array_equal(double["id"], single["id"])
+    ids = double["id"].reshape(-1)
+    o, d = camera.rays()
+    hit = np.flatnonzero(ids != MISS)
+    assert len(hit) > 100
+    for i in hit[::max(1, len(hit) // 25)]:
+        t, u, w = exact_hit(v[f[ids[i]]], o[i], d[i])
+        assert abs(Fraction(float(double["depth"].reshape(-1)[i])) - t) <= Fraction(1, 10 ** 12) * t
+        assert abs(Fraction(float(double["bary"].reshape(-1, 2)[i, 0])) - u) <= Fraction(1, 10 ** 12)
+    rel = np.abs(single["depth"].reshape(-1)[hit] - double["depth"].reshape(-1)[hit])
+    assert np.max(rel / double["depth"].reshape(-1)[hit]) <= 1e-5
+    p = double["position"].reshape(-1, 3)
+    assert np.all(np.isnan(p[ids == MISS])) and np.all(np.isfinite(p[hit]))
+
+
+def test_double_needs_the_float64_triangles():
+    v, f = real_mesh_arrays("teapot.obj")
+    tree = build(v, f)
+    assert tree.triangles64 is None and tree.stats()["double_bytes"] == 0
+    tracer = Tracer(tree)
+    o, d = rays(tree, 5, seed=1)
+    with pytest.raises(KdrayError, match="keep_double") as info:
+        tracer.trace(o, d, precision="double")
+    assert "\n" not in str(info.value)
+    with pytest.raises(KdrayError, match="precision"):
+        tracer.trace(o, d, precision="half")
+    with_double = tree.with_double(v, f)
+    assert with_double.stats()["double_bytes"] == 72 * len(f)
+    assert Tracer(with_double).trace(o, d, precision="double").t.dtype == np.float64
+    with pytest.raises(TreeError):
+        tree.with_double(v, f[:-1])
+
+
+def test_cli_precision_double(capsys, tmp_path):
+    """--precision double: the EXR holds the float64 depth rounded once to float32; with
+    --tree the float64 triangles come from SCENE, and --cull keeps them by input id."""
+    from kdray.images import read_exr
+    from kdray.load import load
+    scene = real_mesh("teapot.obj")
+    out = {}
+    for name, extra in (("single", []), ("double", ["--precision", "double"]),
+                        ("cull", ["--precision", "double", "--cull"])):
+        out[name] = tmp_path / f"{name}.exr"
+        code, _, err = run(capsys, "render", scene, "-o", out[name], "--size", "48x32",
+                           "--aov", "depth,id", *extra)
+        assert code == 0, err
+    a, b, c = (read_exr(out[k]) for k in ("single", "double", "cull"))
+    assert np.array_equal(a["id"], b["id"]) and np.array_equal(b["id"], c["id"])
+    assert np.array_equal(b["depth"], c["depth"])
+    m = load(scene)
+    tree = build(m.vertices, m.faces, keep_double=True)
+    lo, hi = tree.world_box()
+    exact = Tracer(tree).render(Camera.frame(lo, hi, 48, 32), aovs="depth,id", precision="double")
+    assert np.array_equal(b["depth"], exact["depth"].astype(np.float32))
+    tree.save(tmp_path / "t.kdt")
+    code, _, err = run(capsys, "render", scene, "--tree", tmp_path / "t.kdt", "-o",
+                       tmp_path / "tree.exr", "--size", "48x32", "--aov", "depth,id",
+                       "--precision", "double")
+    assert code == 0, err
+    assert np.array_equal(read_exr(tmp_path / "tree.exr")["depth"], b["depth"])
+    code, _, err = run(capsys, "render", SCENES / "cornell.obj", "--tree", tmp_path / "t.kdt",
+                       "-o", tmp_path / "bad.exr", "--precision", "double")
+    assert code == 1 and "is not the mesh of" in err and err.count("\n") == 1
