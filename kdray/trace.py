@@ -261,6 +261,10 @@ class Tracer:
             defines["RAYS_DOUBLE"] = None
         if self.refine:
             defines["REFINE"] = None
+        if self._scale != 1.0:
+            # exact: a power of two as a hexadecimal literal
+            defines["SCALE"] = f"{self._scale.hex()}f"
+            defines["SCALE_INV"] = (1.0 / self._scale).hex()
         if self.packet > 1:
             defines["PACKET"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
@@ -325,7 +329,7 @@ class Tracer:
         kernel(self.queue, (groups * self.local_size,), (self.local_size,),
                self._nodes, self._tris, self._tri_ids, self._bounds,
                np.uint32(self._n_nodes), *args, self._counter,
-               *(device_out.get(name) for name in _OUTPUTS), np.float32(self._scale))
+               *(device_out.get(name) for name in _OUTPUTS))
         for name, buf in device_out.items():
             if self._zero_copy:
                 # the buffer is the host array: a map makes the kernel's writes visible
@@ -457,10 +461,8 @@ class Tracer:
             stop = min(n, start + per_launch)
             o_buf = self._input_buffer(o[start:stop] if o_step else o)
             d_buf = self._input_buffer(d[start:stop])
-            # with double rays the kernel takes the tree's origin and 1 / scale and
-            # shifts them itself
-            origin = ((*(np.float64(x) for x in self._origin), np.float64(1.0 / self._scale))
-                      if rays_double else ())
+            # with double rays the kernel takes the tree's origin and shifts them itself
+            origin = tuple(np.float64(x) for x in self._origin) if rays_double else ()
             # t in the tree's units is t / scale (directions are not scaled)
             self._launch("trace_rays", ("T", "UV", "NORMAL", "ID"), stop - start,
                          (o_buf, d_buf, np.uint32(o_step), np.uint32(stop - start),

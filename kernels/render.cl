@@ -17,15 +17,27 @@
  * of pixels of render_camera; else one ray. Outputs, each only when asked: OUT_T (t,
  * +inf on a miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on
  * a miss), OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
- * Output buffers that are not compiled in may be passed as NULL; t_scale multiplies
- * every stored t (the tree's scale). RAYS_DOUBLE: trace_rays reads double rays in
- * world coordinates (and takes the tree's origin and 1 / scale).
+ * Output buffers that are not compiled in may be passed as NULL. SCALE (a float
+ * literal, the tree's scale when it is not 1) multiplies every stored t, and its
+ * inverse SCALE_INV (a double literal) the rays trace_rays shifts. RAYS_DOUBLE:
+ * trace_rays reads double rays in world coordinates (and takes the tree's origin).
  * REFINE: t, u, v of each hit recomputed in double (triangle.cl, kd_refine_hit).
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"
 #include "triangle.cl"
 #include "traverse.cl"
+
+/* t in the tree's units (positions divided by its scale, directions not) times the
+ * scale is t; a -D option only where the scale is not 1, so that scenes at scale 1
+ * run the kernels as they are (and share their programs). */
+#ifdef SCALE
+#define KD_T_SCALE (SCALE)
+#define KD_SCALE_INV (SCALE_INV)
+#else
+#define KD_T_SCALE 1.0f
+#define KD_SCALE_INV 1.0
+#endif
 #ifdef PACKET
 #include "packet.cl"
 #endif
@@ -43,21 +55,21 @@
 
 #define KD_OUTPUT_ARGS                                                                   \
     __global float *out_t, __global float *out_uv, __global float *out_normal,           \
-    __global uint *out_id, __global uint *out_stats, float t_scale
+    __global uint *out_id, __global uint *out_stats
 
 #define KD_TREE_PARAMS                                                                   \
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
     float3 bmin, float3 bmax, uint n_nodes
 #define KD_TREE_PASS nodes, tris, tri_ids, bmin, bmax, n_nodes
-#define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats, t_scale
+#define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
 
 /* The caller's double rays, when trace_rays reads them (RAYS_DOUBLE): what the hits
  * are refined from (store_hit); render_camera passes NULL. */
 #if defined(RAYS_DOUBLE) && defined(REFINE) && defined(cl_khr_fp64)
 #define KD_EXACT_PARAMS , __global const double *exact_o, __global const double *exact_d, \
-    uint exact_o_step, double3 exact_origin, double exact_inv_scale
-#define KD_EXACT_PASS , exact_o, exact_d, exact_o_step, exact_origin, exact_inv_scale
-#define KD_NO_EXACT , (__global const double *)0, (__global const double *)0, 0u, (double3)(0.0), 1.0
+    uint exact_o_step, double3 exact_origin
+#define KD_EXACT_PASS , exact_o, exact_d, exact_o_step, exact_origin
+#define KD_NO_EXACT , (__global const double *)0, (__global const double *)0, 0u, (double3)(0.0)
 #else
 #define KD_EXACT_PARAMS
 #define KD_EXACT_PASS
@@ -78,7 +90,7 @@ void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
         double3 od = convert_double3(o), dd = convert_double3(d);
 #if defined(RAYS_DOUBLE)
         if (exact_o) {
-            od = (vload3((size_t)k * exact_o_step, exact_o) - exact_origin) * exact_inv_scale;
+            od = (vload3((size_t)k * exact_o_step, exact_o) - exact_origin) * KD_SCALE_INV;
             dd = vload3(k, exact_d);
         }
 #endif
@@ -87,7 +99,7 @@ void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
     }
 #endif
 #ifdef OUT_T
-    out_t[k] = found ? hit->t * t_scale : INFINITY;
+    out_t[k] = found ? hit->t * KD_T_SCALE : INFINITY;
 #endif
 #ifdef OUT_UV
     out_uv[2 * (size_t)k] = found ? hit->u : 0.0f;
@@ -204,25 +216,28 @@ uint fetch_batch(__local uint *slot, __global volatile uint *counter)
  * (the host converted them), or with RAYS_DOUBLE the caller's double rays in world
  * coordinates, converted here as the host would: (float)((o - origin) / scale),
  * (float)d, each one rounding to nearest (the scale is a power of two). The tree's
- * origin and 1 / scale are kernel arguments (KD_ORIGIN_PARAMS), not -D options, so
- * that one program serves every tree. Directions are not scaled: t is found in the
- * tree's units, t / scale, and t_scale (the scale) turns it back when stored. */
+ * origin is a kernel argument (KD_ORIGIN_PARAMS), not a -D option, so that one
+ * program serves every tree of scale 1. Directions are not scaled: t is found in the
+ * tree's units, t / scale, and SCALE turns it back when stored. */
 #if defined(RAYS_DOUBLE) && defined(REFINE) && defined(cl_khr_fp64)
-#define KD_TRACE_EXACT , origins, directions, o_step, (double3)(origin_x, origin_y, origin_z), \
-    inv_scale
+#define KD_TRACE_EXACT , origins, directions, o_step, (double3)(origin_x, origin_y, origin_z)
 #else
 #define KD_TRACE_EXACT
 #endif
 #ifdef RAYS_DOUBLE
 #define KD_RAY_T double
-#define KD_ORIGIN_PARAMS , double origin_x, double origin_y, double origin_z, double inv_scale
-#define KD_RAY_ORIGIN(p, i) kd_ray_origin(p, i, (double3)(origin_x, origin_y, origin_z), inv_scale)
+#define KD_ORIGIN_PARAMS , double origin_x, double origin_y, double origin_z
+#define KD_RAY_ORIGIN(p, i) kd_ray_origin(p, i, (double3)(origin_x, origin_y, origin_z))
 KD_INLINE
-float3 kd_ray_origin(__global const double *p, size_t i, double3 origin, double inv_scale)
+float3 kd_ray_origin(__global const double *p, size_t i, double3 origin)
 {
     p += 3 * i;
-    return (float3)((float)((p[0] - origin.x) * inv_scale), (float)((p[1] - origin.y) * inv_scale),
-                    (float)((p[2] - origin.z) * inv_scale));
+#ifdef SCALE
+    return (float3)((float)((p[0] - origin.x) * KD_SCALE_INV), (float)((p[1] - origin.y) * KD_SCALE_INV),
+                    (float)((p[2] - origin.z) * KD_SCALE_INV));
+#else
+    return (float3)((float)(p[0] - origin.x), (float)(p[1] - origin.y), (float)(p[2] - origin.z));
+#endif
 }
 KD_INLINE
 float3 kd_ray_direction(__global const double *p, size_t i)
