@@ -227,16 +227,22 @@ def _oiio():
     return OpenImageIO
 
 
+def _open_exr(path):
+    """(OpenImageIO, an open ImageInput of `path`); KdrayError when it cannot be read."""
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise KdrayError(f"cannot read EXR {path}: {oiio.geterror() or 'unknown error'}.")
+    return oiio, inp
+
+
 def read_exr(path):
     """Read an EXR written by `write_exr` (or any with kdray's channel names) -> dict.
 
     Returns the AOVs whose channels are all present: float32 arrays, ids as exact uint32.
     Raises KdrayError if the file cannot be read or holds part of an AOV's channels.
     """
-    oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise KdrayError(f"cannot read EXR {path}: {oiio.geterror() or 'unknown error'}.")
+    oiio, inp = _open_exr(path)
     try:
         spec = inp.spec()
         names = list(spec.channelnames)
@@ -293,10 +299,7 @@ def read_camera(path):
     Raises KdrayError if the file cannot be read, or holds part of a camera, attributes
     of the wrong type or a camera that is not valid.
     """
-    oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise KdrayError(f"cannot read EXR {path}: {oiio.geterror() or 'unknown error'}.")
+    _, inp = _open_exr(path)
     try:
         spec = inp.spec()
     finally:
