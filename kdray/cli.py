@@ -136,6 +136,11 @@ def _log_left_out(tree, tracer, n_culled, from_file, outputs):
              default_stack_size(tree))
     log.info("tree on the device: %.1f MiB (%d nodes, %d triangle copies)",
              tracer.device_bytes / 2**20, len(tree.nodes), len(tree.leaf_tris))
+    if tree.triangles64 is not None:
+        log.info("float64 triangles on the host (--precision double): %.1f MiB",
+                 tree.triangles64.nbytes / 2**20)
+    log.info("hits refined in double: %s", "yes" if tracer.refine else
+             "no (the device has no double precision)")
     if tracer.packet > 1:
         log.info("packets of %d rays per work-item, packet stack %d entries", tracer.packet,
                  tracer.packet_stack_size)
