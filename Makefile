@@ -40,7 +40,8 @@ test: $(STAMP)
 # The whole matrix: every kernel test on each working CPU or GPU implementation in turn
 # (PYOPENCL_CTX), and Oclgrind's small cases (tests/test_runtimes.py).
 KERNEL_TESTS ?= tests/test_trace.py tests/test_build.py tests/test_accuracy.py tests/test_golden.py \
-	tests/test_cull.py tests/test_device_layout.py tests/test_runtimes.py
+	tests/test_cull.py tests/test_device_layout.py tests/test_runtimes.py tests/test_refine.py \
+	tests/test_scale.py tests/test_double.py
 test-runtimes: $(STAMP)
 	@set -e; for rt in $$($(BIN)/python -c "from kdray.device import working_devices; \
 	  print(' '.join(dict.fromkeys(i for _, _, i in working_devices(include_simulators=False))))"); do \

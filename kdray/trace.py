@@ -538,8 +538,9 @@ def _precision(precision, tree):
     from .double import need_double
     if precision not in ("single", "double"):
         raise KdrayError(f"precision must be 'single' or 'double', got {precision!r}")
-    if precision == "double" and need_double(tree):
-        raise KdrayError(need_double(tree))
+    missing = need_double(tree) if precision == "double" else None
+    if missing:
+        raise KdrayError(missing)
     return precision == "double"
 
 
