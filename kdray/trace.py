@@ -13,9 +13,14 @@ Arrays returned::
                                   (strided views of one (N, 2) array)
     Hits.normal  (N, 3) float32   unit geometric normal (v1 - v0) x (v2 - v0); 0 on a miss
 
-Precision far from the scene's origin: the tree's float32 data is relative to its
-float64 `origin`; ray origins are moved there in float64 on the host and only then
-rounded to float32, so a scene at 1e6 traces as accurately as one at 0.
+With precision="double", t, u and v are float64 (kdray.double).
+
+Precision: the tree's float32 data is relative to its float64 `origin`, in units of
+its `scale` (a power of two); ray origins are taken there in float64 (on the host or
+in the kernel) and only then rounded to float32, so a scene at 1e6, or 1e30 across,
+traces as accurately as one at 0 and 1 across. With `refine` (devices with double
+precision) each hit's t, u, v are recomputed in double, so that they are accurate
+whatever the triangle's size against t (docs/conventions.md).
 
 The kernels are compiled once per option set (outputs, stack size, work sizes) and
 kept on the Tracer; the kernels compute and store only the outputs asked for.
