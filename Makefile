@@ -75,9 +75,10 @@ bench: bench-deps
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
 	$(BIN)/python bench/bench_error.py --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
 
-# Everything in BENCHMARKS.md: the above, build scaling to 6M triangles, what leaving
-# out saves, and the cold start.
+# Everything in BENCHMARKS.md: the above, the stiff cases beside Open3D and embreex,
+# build scaling to 6M triangles, what leaving out saves, and the cold start.
 bench-all: bench
+	$(BIN)/python bench/bench_stiff.py
 	$(BIN)/python bench/bench_build.py
 	$(BIN)/python bench/bench_leave_out.py
 	$(BIN)/python bench/bench_cold.py
