@@ -1,8 +1,7 @@
 """`kdray bench`: error against run time for kdray's settings on the user's scenes.
 
     rows = run(["scene.obj"], size=(512, 512), repeat=5, sample=10000, settings=None)
-    print(header(size, repeat, sample))
-    print(format_table(rows))
+    text = header((512, 512), 5, 10000) + "\n" + format_table(rows)   # what the CLI prints
     write_csv(rows, "bench.csv")
 
 For each scene: the automatic framing camera (`Camera.frame`) gives W x H primary rays,
