@@ -2,6 +2,7 @@
 recomputed on the host in float64 from the input's triangles and the caller's rays.
 
     t, u, v = plane_hits(triangles, origins, directions)   # (k,) float64 each
+    t, uv = hits_double(tree.triangles64, hits.prim, origins, directions)   # all rays
 
 The kernels decide which triangle a ray hits (float32, watertight); this module only
 computes where on that triangle, from its float64 vertices: t from the triangle's
@@ -45,6 +46,22 @@ def plane_hits(triangles, origins, directions):
         u = _dot(_cross(h, e2), n) / nn
         v = _dot(_cross(e1, h), n) / nn
     return t, u, v
+
+
+def hits_double(triangles64, prim, origins, directions):
+    """(t (N,), uv (N, 2)) float64 of N rays at the triangles the kernels found.
+
+    triangles64 : (n_input_tris, 3, 3) float64 world (KdTree.triangles64);
+    prim : (N,) uint32 input triangle id per ray, MISS on a miss;
+    origins, directions : (N, 3) float64. t is +inf and uv 0 on a miss.
+    """
+    from .layout import MISS
+    hit = prim != MISS
+    t = np.full(len(prim), np.inf)
+    uv = np.zeros((len(prim), 2))
+    t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(triangles64[prim[hit]], origins[hit],
+                                                directions[hit])
+    return t, uv
 
 
 def need_double(tree):

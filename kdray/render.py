@@ -169,13 +169,11 @@ def double_images(ids, camera, triangles64, aovs):
     Returns {name: array}: depth, distance (H, W) float64 (+inf on a miss), position
     (H, W, 3) float64 (NaN on a miss), bary (H, W, 2) float64 (0 on a miss).
     """
-    from .double import plane_hits
+    from .double import hits_double
     w, h = int(camera.width), int(camera.height)
     o, d = camera.rays()
     hit = ids != MISS
-    t = np.full(w * h, np.inf)
-    uv = np.zeros((w * h, 2))
-    t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(triangles64[ids[hit]], o[hit], d[hit])
+    t, uv = hits_double(triangles64, ids, o, d)
     result = {}
     for name in aovs:
         if name == "depth":

@@ -441,14 +441,10 @@ class Tracer:
 
     def _double_hits(self, hits, origins, directions):
         """`hits` with t, u, v (float64) recomputed from the float64 triangles."""
-        from .double import plane_hits
+        from .double import hits_double
         d = np.asarray(directions, dtype=np.float64)
         o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
-        hit = hits.prim != MISS
-        t = np.full(len(d), np.inf)
-        uv = np.zeros((len(d), 2))
-        t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(self.tree.triangles64[hits.prim[hit]],
-                                                    o[hit], d[hit])
+        t, uv = hits_double(self.tree.triangles64, hits.prim, o, d)
         return Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal)
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False):
