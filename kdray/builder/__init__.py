@@ -32,9 +32,67 @@ from . import prepare, subdivide
 from .events import sorted_root_events
 from .subdivide import build_nodes
 
-__all__ = ["build"]
+__all__ = ["build", "check_params", "compiled", "compile_all"]
 
 log = logging.getLogger(__name__)
+
+
+def check_params(K_T=BuildParams.K_T, K_I=BuildParams.K_I, empty_bonus=BuildParams.empty_bonus,
+                 max_depth=BuildParams.max_depth, leaf_size=BuildParams.leaf_size):
+    """BuildParams of these values, checked; ParameterError for one out of range."""
+    try:
+        params = BuildParams(K_T=float(K_T), K_I=float(K_I), empty_bonus=float(empty_bonus),
+                             max_depth=_whole(max_depth, "max_depth"),
+                             leaf_size=_whole(leaf_size, "leaf_size"))
+    except (TypeError, ValueError):
+        raise ParameterError(f"build parameters must be numbers, got K_T={K_T!r}, K_I={K_I!r}, "
+                             f"empty_bonus={empty_bonus!r}") from None
+    if not (math.isfinite(params.K_T) and params.K_T > 0):
+        raise ParameterError(f"K_T must be a positive number, got {K_T}")
+    if not (math.isfinite(params.K_I) and params.K_I > 0):
+        raise ParameterError(f"K_I must be a positive number, got {K_I}")
+    if not 0 < params.empty_bonus <= 1:
+        raise ParameterError(f"empty_bonus must be in (0, 1], got {empty_bonus}")
+    if params.max_depth < 0:
+        raise ParameterError(f"max_depth must be >= 0 (0 = automatic), got {max_depth}")
+    if params.leaf_size < 0:
+        raise ParameterError(f"leaf_size must be >= 0, got {leaf_size}")
+    return params
+
+
+def _whole(value, name):
+    if isinstance(value, bool) or int(value) != value:
+        raise ParameterError(f"{name} must be a whole number, got {value!r}")
+    return int(value)
+
+
+def _dispatchers():
+    """The builder's numba functions (CPUDispatcher objects) of every module."""
+    from numba.core.registry import CPUDispatcher
+    from . import classify, clip, events, sah
+    mods = (classify, clip, events, prepare, sah, subdivide)
+    # functions inlined into their callers are never compiled on their own
+    return [f for m in mods for f in vars(m).values()
+            if isinstance(f, CPUDispatcher) and f.targetoptions.get("inline") != "always"]
+
+
+def compiled():
+    """True when every numba function of the builder has compiled code in its on-disk
+    cache (so that a build starts at once), False when the first build of this
+    install would compile them (about half a minute on 2 cores)."""
+    try:
+        return all(os.path.exists(f._cache._cache_file._index_path) for f in _dispatchers())
+    except AttributeError:           # another numba's cache internals: assume compiled
+        return True
+
+
+def compile_all():
+    """Compile every numba function of the builder into its on-disk cache: one build of
+    a single triangle (the one-thread path) and one of 20,000 (the threaded path)."""
+    rng = np.random.default_rng(0)
+    build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    soup = rng.random((20000, 1, 3)) + 0.01 * rng.random((20000, 3, 3))
+    build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3))
 
 
 def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
@@ -63,18 +121,7 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
     out (`tri_ids` maps kept triangles to input rows). Raises MeshError for bad arrays
     or when no triangle is left; ParameterError (a ValueError) for parameters out of range.
     """
-    params = BuildParams(K_T=float(K_T), K_I=float(K_I), empty_bonus=float(empty_bonus),
-                         max_depth=int(max_depth), leaf_size=int(leaf_size))
-    if not (math.isfinite(params.K_T) and params.K_T > 0):
-        raise ParameterError(f"K_T must be a positive number, got {K_T}")
-    if not (math.isfinite(params.K_I) and params.K_I > 0):
-        raise ParameterError(f"K_I must be a positive number, got {K_I}")
-    if not 0 < params.empty_bonus <= 1:
-        raise ParameterError(f"empty_bonus must be in (0, 1], got {empty_bonus}")
-    if params.max_depth < 0:
-        raise ParameterError(f"max_depth must be >= 0 (0 = automatic), got {max_depth}")
-    if params.leaf_size < 0:
-        raise ParameterError(f"leaf_size must be >= 0, got {leaf_size}")
+    params = check_params(K_T, K_I, empty_bonus, max_depth, leaf_size)
 
     if threads is None:
         threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
