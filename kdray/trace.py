@@ -26,6 +26,7 @@ The kernels are compiled once per option set (outputs, stack size, work sizes) a
 kept on the Tracer; the kernels compute and store only the outputs asked for.
 """
 import concurrent.futures
+import copy
 import dataclasses
 import logging
 import os
@@ -531,6 +532,26 @@ class Tracer:
                          (camera_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
                          {k: v[start:stop] for k, v in out.items()})
         return _render.images(out, camera, self._origin, aovs, self._scale)
+
+    def render_many(self, cameras, aovs=DEFAULT_AOVS, precision="single"):
+        """The images of each camera of an iterable, one dict at a time, as `render`
+        gives them: a generator, so that a long list of views holds one view's images at
+        a time. The programs are built once, at the first view."""
+        aovs = _render.parse_aovs(aovs)
+        for camera in cameras:
+            yield self.render(camera, aovs, precision)
+
+    def with_tree(self, tree):
+        """A Tracer of another tree on this one's device, context and queue, with its
+        packet width, work sizes and refinement, sharing its compiled programs (a tree
+        of another depth or scale may still need programs of its own): the cost of a
+        new scene is its upload, not a context and a compile. Stack sizes are the new
+        tree's defaults."""
+        other = copy.copy(self)           # shallow: the program cache is shared
+        other.tree = tree
+        other.stack_size = other.packet_stack_size = default_stack_size(tree)
+        other._upload(tree)
+        return other
 
 
 def _precision(precision, tree):
