@@ -1,0 +1,543 @@
+"""Files of many cameras -> a list of named views, in the file's order.
+
+    views = read_cameras("transforms.json")   # nerfstudio
+    views = read_cameras("sparse/0")          # COLMAP text model (or its cameras.txt / images.txt)
+    views = read_cameras("cameras.json")      # a JSON list of kdray cameras (or one camera)
+    for view in views:                        # View(name: str, camera: Camera)
+        images = tracer.render(view.camera)   # kdray render writes DIR/<view.name>.exr
+
+Every view is a pinhole `Camera` (OpenCV axes, pixel centres at i + 0.5). A file that
+holds anything else (a fisheye, distortion, a non-rigid pose, a name that is no file
+name) raises `CameraError` with one line naming the file and the frame; nothing is
+guessed silently. The formats (docs/conventions.md, "Camera files (several views)"):
+
+nerfstudio ``transforms.json``: a JSON object with "frames". Intrinsics ``fl_x fl_y cx cy
+w h`` at the top level, each of which a frame may override with its own. ``fl_y``
+defaults to ``fl_x`` (as instant-ngp's files allow; nerfstudio's own parser requires
+it); ``cx`` and ``cy`` are required, as nerfstudio requires them (instant-ngp would take
+the image centre: a guess kdray does not make). ``transform_matrix`` is camera-to-world
+with OpenGL/Blender camera axes (x right, y up, z back); kdray's OpenCV axes flip the
+camera's y and z: ``cam_to_world = transform_matrix @ diag(1, -1, -1, 1)``. The view's
+name is the stem of ``file_path``. ``camera_model`` (top level or per frame): the models
+nerfstudio renders as a perspective camera (PINHOLE, SIMPLE_PINHOLE, OPENCV,
+SIMPLE_RADIAL, RADIAL; absent means perspective too) are accepted when every
+distortion coefficient (k1 k2 k3 k4 p1 p2, or "distortion_params") is zero or absent;
+any other model (OPENCV_FISHEYE, EQUIRECTANGULAR, ...), instant-ngp's ``is_fisheye``, or
+a nonzero coefficient is refused. Other keys (aabb_scale, mask_path, ...) are ignored.
+
+    Pixel convention: nerfstudio samples pixel (i, j) at (i + 0.5, j + 0.5)
+    (``Cameras.get_image_coords``, pixel_offset=0.5) and its perspective ray is
+    ((x - cx) / fx, -(y - cy) / fy, -1) in OpenGL camera axes, which is
+    ((x - cx) / fx, (y - cy) / fy, 1) in OpenCV axes: kdray's ``R K^-1 [i + 0.5, j + 0.5, 1]``
+    with K = [[fl_x, 0, cx], [0, fl_y, cy], [0, 0, 1]]. So fl_x, fl_y, cx, cy go into K
+    unchanged, with no half-pixel shift.
+
+    Where a key is given both at the top level and in a frame, the frame's value wins
+    here (as in instant-ngp). nerfstudio's parser reads a frame's fl_x, fl_y, cx, cy, w,
+    h and distortion only when the top level lacks them, so a file with both, differing,
+    renders otherwise there. Distortion and camera_model are checked at both levels.
+
+COLMAP text model: a folder holding cameras.txt and images.txt (e.g. ``sparse/0``), or
+the path of either (the other beside it). cameras.txt: ``CAMERA_ID MODEL WIDTH HEIGHT
+PARAMS...``, SIMPLE_PINHOLE (f cx cy) and PINHOLE (fx fy cx cy) only. images.txt: two
+lines per image, ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` then the 2D points (a
+line that may be empty). (q, t) map world to camera, x_cam = R(q) x_world + t, so
+cam_to_world = [R^T | -R^T t]; COLMAP's camera axes are OpenCV's and its pixel (0, 0)
+has its centre at (0.5, 0.5), as in kdray: K and the pose are used as they are. The
+quaternion is normalized; one whose norm is off 1 by more than QUATERNION_TOL is
+refused. The name is the stem of NAME. Lines starting with # are comments.
+
+kdray JSON: a list of the objects `Camera.from_json` reads, each with an optional
+"name" (default view_00000, view_00001, ...); or one such object, a single view named
+after the file's stem.
+
+Names become file names (DIR/<name>.exr): an empty name, "." or "..", one holding "/",
+"\\", a control character (NUL, newline, ...) or, on Windows, ":" is refused, and so
+are two views whose names are equal or differ only in case (they would overwrite each
+other on a case-insensitive file system).
+"""
+import dataclasses
+import json
+import math
+import numbers
+import os
+import re
+import unicodedata
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from .camera import Camera, _check_pose, _is_nested_numbers
+from .errors import CameraError
+
+MAX_VIEWS = 1_000_000
+"""Most views one file may name. Each is a render and an output file, and a View takes
+about 0.7 KB and 50-100 us to read, so a million is already hours of rendering, most of
+a gigabyte and a minute of reading: a file naming more is refused on its count alone,
+before any Camera is built."""
+
+MAX_SIDE = 65536
+"""Largest width or height, in pixels. A render holds at most 2^32 - 1 pixels (its pixel
+index is 32-bit: `Tracer.render` checks the product), about 65536 on each side; a
+larger side is a typo or a wrong unit, refused here before any rendering starts."""
+
+QUATERNION_TOL = 1e-3
+"""A COLMAP quaternion whose norm is off 1 by more than this is refused, not normalized:
+COLMAP writes unit quaternions, so such a norm means a damaged or hand-made file, not
+rounding."""
+
+NAME_MAX_BYTES = 255
+"""Longest file name (bytes, UTF-8) on common file systems: <name>.exr must fit."""
+
+_WINDOWS = os.name == "nt"
+"""On Windows a ':' in a name would make DIR/<name>.exr a drive-relative path or a stream."""
+
+_PERSPECTIVE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "SIMPLE_RADIAL", "RADIAL")
+"""nerfstudio camera_model values that nerfstudio renders as a perspective camera
+(cameras.CAMERA_MODEL_TO_TYPE); with zero distortion each is a pinhole."""
+
+_DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+"""nerfstudio's distortion coefficients, in the order of its "distortion_params"."""
+
+_COLMAP_MODELS = {"SIMPLE_PINHOLE": ("f", "cx", "cy"), "PINHOLE": ("fx", "fy", "cx", "cy")}
+"""COLMAP camera models kdray renders, with their PARAMS."""
+
+_NOT_SUPPORTED = "is not supported yet (kdray renders pinhole cameras)"
+
+
+@dataclasses.dataclass(frozen=True)
+class View:
+    """One view of a camera file: `name` (a safe file name stem) and its `camera`."""
+
+    name: str
+    camera: Camera
+
+
+def read_cameras(path):
+    """Read a file of cameras: a list of `View`, in the file's order.
+
+    path : a nerfstudio transforms.json, a COLMAP text model (its folder, cameras.txt
+    or images.txt), a JSON list of kdray cameras or a single kdray camera file.
+    Raises CameraError (one line naming the file and the frame) for anything that is
+    not a valid set of pinhole views; see the module docstring.
+    """
+    path = Path(path)
+    if path.is_dir():
+        where = path / "images.txt"
+        views, origins = _read_colmap(path, path / "cameras.txt", where)
+    elif path.name in ("cameras.txt", "images.txt"):
+        where = path.with_name("images.txt")
+        views, origins = _read_colmap(path, path.with_name("cameras.txt"), where)
+    else:
+        where = path
+        views, origins = _read_json_views(path)
+    _check_unique(views, origins, where)
+    return views
+
+
+def _read_json_views(path):
+    data = _read_json(path)
+    if isinstance(data, dict) and "frames" in data:
+        return _nerfstudio_views(data, path)
+    if isinstance(data, list):
+        return _list_views(data, path)
+    if isinstance(data, dict):
+        camera = _camera_from_dict(data, path, f"camera file {path}")
+        _check_name(path.stem, path, "the file's stem")
+        return [View(path.stem, camera)], [str(path)]
+    raise CameraError(
+        f"camera file {path} holds a JSON {_json_type(data)}; expected a nerfstudio "
+        "transforms.json (an object with \"frames\"), a list of kdray cameras or one "
+        "kdray camera object."
+    )
+
+
+# Reading ----------------------------------------------------------------------------
+
+
+def _read_text(path, shown):
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CameraError(f"{shown} does not exist.") from None
+    except (OSError, ValueError) as exc:  # ValueError: not UTF-8, or a NUL in the path
+        raise CameraError(f"{shown} cannot be read: {exc}.") from None
+
+
+def _read_json(path):
+    text = _read_text(path, f"camera file {path}")
+    try:
+        return json.loads(text)
+    except ValueError as exc:  # JSONDecodeError, or an integer of over 4300 digits
+        raise CameraError(f"camera file {path} is not valid JSON: {exc}.") from None
+    except RecursionError:
+        raise CameraError(f"camera file {path} is JSON nested too deeply to be a camera file.") from None
+
+
+def _json_type(value):
+    names = {dict: "object", list: "array", str: "string", bool: "boolean", type(None): "null"}
+    return names.get(type(value), "number")
+
+
+def _show(value, limit=60):
+    """repr(value), cut to about `limit` characters: messages quote what a file holds."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _fail(path, label, detail):
+    return CameraError(f"camera file {path}: {label}: {detail}")
+
+
+def _check_count(count, path):
+    if count > MAX_VIEWS:
+        raise CameraError(
+            f"camera file {path} names {count} views; at most {MAX_VIEWS} (MAX_VIEWS) are "
+            "read from one file: split it."
+        )
+    if count == 0:
+        raise CameraError(f"camera file {path} names no views.")
+
+
+def _camera_from_dict(data, path, label):
+    """A kdray camera object -> Camera, errors prefixed with `label`."""
+    try:
+        camera = Camera._from_dict(data)
+    except CameraError as exc:
+        raise CameraError(f"{label}: {exc}") from None
+    for key in ("width", "height"):
+        if getattr(camera, key) > MAX_SIDE:
+            raise CameraError(f"{label}: {key} {getattr(camera, key)} is more than "
+                              f"{MAX_SIDE} pixels (MAX_SIDE).")
+    return camera
+
+
+# Names ------------------------------------------------------------------------------
+
+
+def _name_problem(name):
+    """Why `name` cannot be the stem of an output file DIR/<name>.exr, or None."""
+    if name in ("", ".", ".."):
+        return "is not a file name"
+    for ch, what in (("/", "'/'"), ("\\", "'\\'"), ("\0", "NUL")):
+        if ch in name:
+            return f"contains {what}"
+    if _WINDOWS and ":" in name:
+        return "contains ':' (on Windows a drive or a stream)"
+    for ch in name:
+        category = unicodedata.category(ch)
+        if category == "Cc":
+            return f"contains the control character U+{ord(ch):04X}"
+        if category == "Cs":
+            return f"contains the lone surrogate U+{ord(ch):04X} (not Unicode text)"
+        if category in ("Zl", "Zp"):
+            return f"contains the line separator U+{ord(ch):04X}"
+    size = len(name.encode("utf-8")) + len(".exr")
+    if size > NAME_MAX_BYTES:
+        return f"makes a file name of {size} bytes, more than {NAME_MAX_BYTES}"
+    return None
+
+
+def _check_name(name, path, label):
+    problem = _name_problem(name)
+    if problem:
+        raise _fail(path, label, f"the view name {_show(name)} cannot be a file name "
+                                 f"(<name>.exr): it {problem}.")
+
+
+def _check_unique(views, origins, path):
+    seen = {}
+    for view, origin in zip(views, origins):
+        key = view.name.casefold()
+        if key in seen:
+            other, first = seen[key]
+            how = ("the same name" if other == view.name
+                   else f"names that differ only in case ({_show(other)})")
+            raise CameraError(
+                f"camera file {path}: {first} and {origin} have {how} {_show(view.name)}; each "
+                "view is written to <name>.exr, so names must differ (ignoring case)."
+            )
+        seen[key] = (view.name, origin)
+
+
+# nerfstudio transforms.json ---------------------------------------------------------
+
+
+def _nerfstudio_views(meta, path):
+    frames = meta["frames"]
+    if not isinstance(frames, list):
+        raise CameraError(f"camera file {path}: \"frames\" must be a list of frame objects, "
+                          f"got a JSON {_json_type(frames)}.")
+    _check_count(len(frames), path)
+    views, origins = [], []
+    for index, frame in enumerate(frames):
+        views.append(_nerfstudio_view(meta, frame, index, path))
+        origins.append(f"frames[{index}] ({_show(frame['file_path'])})")
+    return views, origins
+
+
+def _nerfstudio_view(meta, frame, index, path):
+    label = f"frames[{index}]"
+    if not isinstance(frame, dict):
+        raise _fail(path, label, f"expected a frame object, got a JSON {_json_type(frame)}.")
+    if "file_path" not in frame:
+        raise _fail(path, label, "missing 'file_path'.")
+    file_path = frame["file_path"]
+    if not isinstance(file_path, str):
+        raise _fail(path, label, f"file_path must be a string, got {_show(file_path)}.")
+    name = PurePosixPath(file_path.replace("\\", "/")).stem
+    _check_name(name, path, f"{label} (file_path {_show(file_path)})")
+    label = f"frame {name}"
+    _check_perspective(meta, frame, path, label)
+
+    def value(key):
+        """(value, how to name it) from the frame, else the top level."""
+        if key in frame:
+            return frame[key], key
+        if key in meta:
+            return meta[key], f"top-level {key}"
+        if key == "fl_y":
+            return value("fl_x")
+        raise _fail(path, label, f"missing '{key}' (give it at the top level or in the frame).")
+
+    fx, fy = (_number(*value(key), path, label, positive=True) for key in ("fl_x", "fl_y"))
+    cx, cy = (_number(*value(key), path, label) for key in ("cx", "cy"))
+    width, height = (_side(*value(key), path, label) for key in ("w", "h"))
+    K = [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
+    gl_to_world = _transform_matrix(frame, path, label)
+    cam_to_world = gl_to_world @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL -> OpenCV axes
+    try:
+        return View(name, Camera(width, height, K, cam_to_world))
+    except CameraError as exc:
+        raise _fail(path, label, str(exc)) from None
+
+
+def _check_perspective(meta, frame, path, label):
+    """Refuse a camera model or a distortion that is not a pinhole, at the top level
+    (`meta`) or in the frame."""
+    levels = ((meta, "top-level "), (frame, ""))
+    for source, where in levels:
+        model = source.get("camera_model", "PINHOLE")
+        if not isinstance(model, str):
+            raise _fail(path, label, f"{where}camera_model must be a string, got {_show(model)}.")
+        if model not in _PERSPECTIVE_MODELS:
+            raise _fail(path, label, f"camera model {model} {_NOT_SUPPORTED}.")
+        if source.get("is_fisheye", False):
+            raise _fail(path, label, f"{where}is_fisheye is set: a fisheye camera {_NOT_SUPPORTED}.")
+    model = frame.get("camera_model", meta.get("camera_model"))
+    camera = f"camera model {model}" if model else "a camera"
+    for source, where in levels:
+        coefficients = [(key, source[key]) for key in _DISTORTION_KEYS if key in source]
+        if "distortion_params" in source:
+            params = source["distortion_params"]
+            if not (isinstance(params, list) and len(params) == len(_DISTORTION_KEYS)):
+                raise _fail(path, label, f"{where}distortion_params must be a list of 6 numbers "
+                                         f"(k1 k2 k3 k4 p1 p2), got {_show(params)}.")
+            coefficients += [(f"distortion_params {key}", v)
+                             for key, v in zip(_DISTORTION_KEYS, params)]
+        for key, coefficient in coefficients:
+            number = _number(coefficient, where + key, path, label)
+            if number != 0.0:
+                raise _fail(path, label, f"{where}distortion coefficient {key} = {number!r} is "
+                                         f"not zero: {camera} with distortion {_NOT_SUPPORTED}.")
+
+
+def _number(value, name, path, label, positive=False):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise _fail(path, label, f"{name} must be a number, got {_show(value)}.")
+    number = float(value)
+    if not math.isfinite(number):
+        raise _fail(path, label, f"{name} must be finite, got {number!r}.")
+    if positive and not number > 0.0:
+        raise _fail(path, label, f"{name} must be positive, got {number!r}.")
+    return number
+
+
+def _side(value, name, path, label):
+    """A width or height: a whole number (640 or 640.0) from 1 to MAX_SIDE."""
+    whole = (isinstance(value, numbers.Integral)
+             or (isinstance(value, float) and math.isfinite(value) and value.is_integer()))
+    if isinstance(value, bool) or not whole or not 1 <= value <= MAX_SIDE:
+        raise _fail(path, label, f"{name} must be a whole number of pixels from 1 to "
+                                 f"{MAX_SIDE} (MAX_SIDE), got {_show(value)}.")
+    return int(value)
+
+
+def _transform_matrix(frame, path, label):
+    """The frame's transform_matrix (4x4, or 3x4 with [0, 0, 0, 1] implied), checked
+    rigid; float64."""
+    if "transform_matrix" not in frame:
+        raise _fail(path, label, "missing 'transform_matrix'.")
+    rows = frame["transform_matrix"]
+    if not (isinstance(rows, list) and len(rows) in (3, 4) and _is_nested_numbers(rows)
+            and all(isinstance(r, list) and len(r) == 4 for r in rows)):
+        raise _fail(path, label, "transform_matrix must be a 4x4 (or 3x4) array of numbers.")
+    M = np.array(rows, dtype=np.float64)
+    if len(rows) == 3:
+        M = np.vstack([M, [0.0, 0.0, 0.0, 1.0]])
+    if not np.all(np.isfinite(M)):
+        raise _fail(path, label, f"transform_matrix must be finite, got {M.tolist()}.")
+    try:
+        return _check_pose(M, name="transform_matrix")
+    except CameraError as exc:
+        if not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
+            raise _fail(path, label, str(exc)) from None
+        lengths = ", ".join(f"{n:.6g}" for n in np.linalg.norm(M[:3, :3], axis=0))
+        raise _fail(path, label, f"{exc} Its rotation's columns have lengths {lengths}: a "
+                                 "scale folded into the pose (common in nerfstudio exports) or a "
+                                 "singular matrix is not a camera; kdray needs a rigid "
+                                 "camera-to-world matrix.") from None
+
+
+# A JSON list of kdray cameras -------------------------------------------------------
+
+
+def _list_views(items, path):
+    _check_count(len(items), path)
+    digits = max(5, len(str(len(items) - 1)))
+    views, origins = [], []
+    for index, item in enumerate(items):
+        label = f"camera file {path}: [{index}]"
+        if not isinstance(item, dict):
+            raise CameraError(f"{label}: expected a camera object, got a JSON {_json_type(item)}.")
+        fields = dict(item)
+        name = fields.pop("name", f"view_{index:0{digits}d}")
+        if not isinstance(name, str):
+            raise CameraError(f"{label}: name must be a string, got {_show(name)}.")
+        _check_name(name, path, f"[{index}]")
+        views.append(View(name, _camera_from_dict(fields, path, f"{label} ({name})")))
+        origins.append(f"[{index}]")
+    return views, origins
+
+
+# COLMAP text model ------------------------------------------------------------------
+
+
+def _read_colmap(path, cameras_path, images_path):
+    if not (cameras_path.is_file() and images_path.is_file()):
+        if not path.exists():
+            raise CameraError(f"camera file {path} does not exist.")
+        binary = [n for n in ("cameras.bin", "images.bin") if (cameras_path.parent / n).is_file()]
+        hint = (f"; it holds a binary model ({', '.join(binary)}): convert it with colmap "
+                "model_converter --output_type TXT" if binary else "")
+        if path.is_dir():
+            raise CameraError(f"camera file {path} is a folder without cameras.txt and "
+                              f"images.txt (a COLMAP text model){hint}.")
+        other = cameras_path if path.name == images_path.name else images_path
+        raise CameraError(f"camera file {path}: {other.name} is not beside it (a COLMAP text "
+                          f"model is cameras.txt and images.txt){hint}.")
+    records = _colmap_image_records(_read_text(images_path, f"camera file {images_path}"),
+                                    images_path)
+    _check_count(len(records), images_path)
+    cameras = _colmap_cameras(_read_text(cameras_path, f"camera file {cameras_path}"),
+                              cameras_path)
+    views, origins = [], []
+    for line_no, fields in records:
+        views.append(_colmap_view(fields, cameras, images_path, line_no, cameras_path))
+        origins.append(f"line {line_no} ({_show(fields[9])})")
+    return views, origins
+
+
+def _colmap_image_records(text, path):
+    """(line number, the 10 fields) of each image of images.txt. Its second line (the 2D
+    points, possibly empty) is checked for shape only, X Y POINT3D_ID triples: an image
+    line there (10 values) means a file of one line per image, every other image of
+    which would otherwise be lost."""
+    lines = text.split("\n")
+    records = []
+    i = 0
+    while i < len(lines):
+        line = lines[i].strip()
+        if not line or line.startswith("#"):
+            i += 1
+            continue
+        fields = line.split(maxsplit=9)  # NAME is the rest of the line
+        if len(fields) < 10:
+            raise CameraError(f"camera file {path}: line {i + 1}: expected IMAGE_ID QW QX QY QZ "
+                              f"TX TY TZ CAMERA_ID NAME, found {len(fields)} values.")
+        if i + 1 < len(lines):
+            count = len(lines[i + 1].split())
+            if count % 3:
+                raise CameraError(
+                    f"camera file {path}: line {i + 2}: expected the 2D points of image "
+                    f"{_show(fields[9])} (X Y POINT3D_ID triples; the line may be empty), found "
+                    f"{count} values; images.txt holds two lines per image.")
+        records.append((i + 1, fields))
+        i += 2
+    return records
+
+
+def _colmap_cameras(text, path):
+    """CAMERA_ID -> (line number, MODEL, WIDTH, HEIGHT, PARAMS), as text: a camera is
+    checked when an image uses it."""
+    cameras = {}
+    for line_no, line in enumerate(text.split("\n"), 1):
+        fields = line.split()
+        if not fields or fields[0].startswith("#"):
+            continue
+        if len(fields) < 4:
+            raise CameraError(f"camera file {path}: line {line_no}: expected CAMERA_ID MODEL "
+                              f"WIDTH HEIGHT PARAMS..., found {len(fields)} values.")
+        camera_id = fields[0]
+        if camera_id in cameras:
+            raise CameraError(f"camera file {path}: line {line_no}: camera {camera_id} is "
+                              f"already on line {cameras[camera_id][0]}.")
+        cameras[camera_id] = (line_no, *fields[1:4], fields[4:])
+    return cameras
+
+
+def _colmap_view(fields, cameras, path, line_no, cameras_path):
+    _, *pose, camera_id, raw_name = fields
+    name = PurePosixPath(raw_name.replace("\\", "/")).stem
+    _check_name(name, path, f"line {line_no} (NAME {_show(raw_name)})")
+    label = f"line {line_no}: image {name}"
+    if camera_id not in cameras:
+        raise _fail(path, label, f"camera {camera_id} is not in {cameras_path}.")
+    cam_line, model, width, height, params = cameras[camera_id]
+    camera = f"camera {camera_id} ({cameras_path.name} line {cam_line})"
+    if model not in _COLMAP_MODELS:
+        raise _fail(path, label, f"camera model {model} of {camera} {_NOT_SUPPORTED}.")
+    names = _COLMAP_MODELS[model]
+    if len(params) != len(names):
+        raise _fail(path, label, f"{camera}: a {model} camera has {len(names)} PARAMS "
+                                 f"({' '.join(names)}), found {len(params)}.")
+    sides = []
+    for key, text in (("WIDTH", width), ("HEIGHT", height)):
+        if not (re.fullmatch(r"[0-9]+", text) and 1 <= int(text) <= MAX_SIDE):
+            raise _fail(path, label, f"{camera}: {key} must be a whole number of pixels from "
+                                     f"1 to {MAX_SIDE} (MAX_SIDE), got {_show(text)}.")
+        sides.append(int(text))
+    values = [_float(text, key, path, f"{label}: {camera}") for key, text in zip(names, params)]
+    fx, fy, cx, cy = values if model == "PINHOLE" else (values[0], *values)
+    K = [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
+
+    keys = ("QW", "QX", "QY", "QZ", "TX", "TY", "TZ")
+    qw, qx, qy, qz, tx, ty, tz = (_float(text, key, path, label) for key, text in zip(keys, pose))
+    norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    if not abs(norm - 1.0) <= QUATERNION_TOL:
+        raise _fail(path, label, f"the quaternion (QW QX QY QZ) = ({qw!r}, {qx!r}, {qy!r}, "
+                                 f"{qz!r}) has norm {norm:.9g}; a rotation's is 1 "
+                                 f"(to {QUATERNION_TOL:g}).")
+    w, x, y, z = qw / norm, qx / norm, qy / norm, qz / norm
+    R = np.array([  # world -> camera (Hamilton, w first, as COLMAP and Eigen)
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+    cam_to_world = np.eye(4)
+    cam_to_world[:3, :3] = R.T
+    cam_to_world[:3, 3] = -R.T @ np.array([tx, ty, tz])
+    try:
+        return View(name, Camera(sides[0], sides[1], K, cam_to_world))
+    except CameraError as exc:
+        raise _fail(path, label, f"{camera}: {exc}") from None
+
+
+def _float(text, key, path, label):
+    try:
+        number = float(text)
+    except ValueError:
+        raise _fail(path, label, f"{key} must be a number, got {_show(text)}.") from None
+    if not math.isfinite(number):
+        raise _fail(path, label, f"{key} must be finite, got {_show(text)}.")
+    return number
