@@ -15,11 +15,11 @@ The below child of interior node i is i + 1; its above child is `above_child > i
 A leaf lists `leaf_tris[leaf_offset : leaf_offset + n_prims]`, indices into the
 tree's triangle array, whose `tri_ids` map back to the input's triangle order.
 
-Tree file, versions 1 and 2 (all little-endian)::
+Tree file, versions 1, 2 and 3 (all little-endian)::
 
     offset  size  field
     0       8     magic b"KDRAYTRE"
-    8       4     u32 format version (1)
+    8       4     u32 format version (1, 2 or 3)
     12      4     u32 header size (128)
     16      4     u32 n_nodes
     20      4     u32 n_leaf_refs          (length of leaf_tris)
@@ -28,25 +28,34 @@ Tree file, versions 1 and 2 (all little-endian)::
     32      4     u32 depth                (deepest leaf; root is depth 0)
     36      4     u32 max_depth            (build parameter, resolved)
     40      4     u32 leaf_size            (build parameter)
-    44      4     u32 reserved, 0
+    44      4     versions 1, 2: u32 reserved, 0
+                  version 3: u32 n_name_bytes (length of the object names' JSON)
     48      8     f64 K_T
     56      8     f64 K_I
     64      8     f64 empty_bonus
     72      24    f64[3] origin            (world position the float32 data is relative to)
     96      24    f32[6] bounds            (scene box, min xyz then max xyz, relative)
     120     8     version 1: reserved, 0
-                  version 2: f64 scale     (a power of two: world = origin + scale * relative)
+                  versions 2, 3: f64 scale (a power of two: world = origin + scale * relative)
     128     8 n_nodes       nodes          (u32 flags, u32 split/leaf_offset)
             4 n_leaf_refs   leaf_tris      (u32)
             36 n_tris       triangles      (f32 v0 xyz, v1 xyz, v2 xyz, relative)
             4 n_tris        tri_ids        (u32)
+    version 3 only, the object table:
+            4 n_input_tris  objects        (u32: each input triangle's object)
+            n_name_bytes    object_names   (UTF-8 JSON array of the objects' names,
+                                            compact: json.dumps(names, ensure_ascii=False,
+                                            separators=(",", ":")))
     end-16  16    checksum: BLAKE2b (16-byte digest) of every byte before it
 
-The version changes only when this layout does. A writer writes version 1 when the
-tree's scale is 1 and version 2 otherwise, so that files of the trees version 1 can
-hold stay readable by every kdray; a reader reads both.
+The version changes only when this layout does. A writer writes the oldest version
+that holds the tree: version 3 when it has an object table (more than one object,
+KdTree.objects), else version 1 when its scale is 1 and version 2 otherwise, so that
+files of the trees the older versions can hold stay readable by every kdray; a reader
+reads all three.
 """
 import hashlib
+import json
 import math
 import struct
 
@@ -64,8 +73,8 @@ MAX_DEPTH_LIMIT = 64
 """No tree is deeper than this; kernels size their stacks and loops from it."""
 
 MAGIC = b"KDRAYTRE"
-VERSION = 2
-"""The newest version this kdray writes (and reads, with version 1)."""
+VERSION = 3
+"""The newest version this kdray writes (and reads, with versions 1 and 2)."""
 HEADER = struct.Struct("<8s10I 3d 3d 6f d")
 HEADER_SIZE = 128
 CHECKSUM_SIZE = 16
@@ -131,9 +140,28 @@ def leaf_offset(nodes):
 
 # -- file format ----------------------------------------------------------------
 
-def file_size(n_nodes, n_leaf_refs, n_tris):
-    """Exact byte size of a tree file with these counts."""
-    return HEADER_SIZE + 8 * n_nodes + 4 * n_leaf_refs + 40 * n_tris + CHECKSUM_SIZE
+def file_size(n_nodes, n_leaf_refs, n_tris, n_input_tris=0, n_name_bytes=None):
+    """Exact byte size of a tree file with these counts: with n_name_bytes (version 3)
+    the object table's 4 n_input_tris + n_name_bytes bytes too."""
+    table = 0 if n_name_bytes is None else 4 * n_input_tris + n_name_bytes
+    return HEADER_SIZE + 8 * n_nodes + 4 * n_leaf_refs + 40 * n_tris + table + CHECKSUM_SIZE
+
+
+def header_file_size(header):
+    """The byte size a tree file's header (its first HEADER_SIZE bytes, magic already
+    checked) says the file has, from its version and counts; None for a version this
+    kdray does not read."""
+    (_, version, _, n_nodes, n_leaf_refs, n_tris, n_input_tris, _, _, _, n_name_bytes,
+     *_) = HEADER.unpack_from(header, 0)
+    if version not in (1, 2, 3):
+        return None
+    return file_size(n_nodes, n_leaf_refs, n_tris, n_input_tris,
+                     n_name_bytes if version == 3 else None)
+
+
+def encode_names(names):
+    """The object names as the file holds them: compact UTF-8 JSON."""
+    return json.dumps(list(names), ensure_ascii=False, separators=(",", ":")).encode("utf-8")
 
 
 def is_scale(scale):
@@ -145,26 +173,32 @@ def is_scale(scale):
 
 
 def encode(tree):
-    """KdTree -> bytes of a tree file (deterministic): version 1 when tree.scale is 1,
-    else version 2."""
+    """KdTree -> bytes of a tree file (deterministic): version 3 when the tree has an
+    object table (tree.objects), else version 1 when tree.scale is 1, else version 2."""
     p = tree.params
     scale = float(getattr(tree, "scale", 1.0))
+    objects = getattr(tree, "objects", None)
+    names = encode_names(tree.object_names) if objects is not None else b""
+    version = 3 if objects is not None else 1 if scale == 1.0 else 2
     header = HEADER.pack(
-        MAGIC, 1 if scale == 1.0 else 2, HEADER_SIZE,
+        MAGIC, version, HEADER_SIZE,
         len(tree.nodes), len(tree.leaf_tris), len(tree.triangles), tree.n_input_tris,
-        tree.depth, p.max_depth, p.leaf_size, 0,
+        tree.depth, p.max_depth, p.leaf_size, len(names),
         p.K_T, p.K_I, p.empty_bonus,
         *np.asarray(tree.origin, dtype="<f8").tolist(),
         *np.asarray(tree.bounds, dtype="<f4").reshape(6).tolist(),
-        0.0 if scale == 1.0 else scale,
+        0.0 if version == 1 else scale,
     )
-    body = b"".join([
+    parts = [
         header,
         np.ascontiguousarray(tree.nodes, dtype="<u4").tobytes(),
         np.ascontiguousarray(tree.leaf_tris, dtype="<u4").tobytes(),
         np.ascontiguousarray(tree.triangles, dtype="<f4").tobytes(),
         np.ascontiguousarray(tree.tri_ids, dtype="<u4").tobytes(),
-    ])
+    ]
+    if objects is not None:
+        parts += [np.ascontiguousarray(objects, dtype="<u4").tobytes(), names]
+    body = b"".join(parts)
     return body + hashlib.blake2b(body, digest_size=CHECKSUM_SIZE).digest()
 
 
@@ -180,11 +214,11 @@ def decode(data, name="tree file"):
         raise TreeFileError(f"{name}: truncated ({len(data)} bytes; a tree file has at least "
                             f"{HEADER_SIZE + CHECKSUM_SIZE})")
     (magic, version, header_size, n_nodes, n_leaf_refs, n_tris, n_input_tris, depth,
-     max_depth, leaf_size, _reserved, K_T, K_I, empty_bonus,
+     max_depth, leaf_size, n_name_bytes, K_T, K_I, empty_bonus,
      ox, oy, oz, *bounds, scale) = HEADER.unpack_from(data, 0)
     if magic != MAGIC:
         raise TreeFileError(f"{name}: not a kdray tree file (bad magic {bytes(magic)!r})")
-    if version not in (1, 2):
+    if version not in (1, 2, 3):
         raise TreeFileError(f"{name}: tree file format version {version}; this kdray reads "
                             f"versions 1 to {VERSION} (rebuild it with `kdray build`)")
     if version == 1:
@@ -193,7 +227,7 @@ def decode(data, name="tree file"):
         raise TreeFileError(f"{name}: scale {scale!r} is not a power of two from 2^-126 to 2^127")
     if header_size != HEADER_SIZE:
         raise TreeFileError(f"{name}: header size {header_size}, expected {HEADER_SIZE}")
-    expected = file_size(n_nodes, n_leaf_refs, n_tris)
+    expected = header_file_size(data)
     if len(data) != expected:
         raise TreeFileError(f"{name}: {len(data)} bytes, but its counts need {expected} "
                             f"(truncated or corrupt)")
@@ -213,6 +247,10 @@ def decode(data, name="tree file"):
     leaf_tris = take("<u4", n_leaf_refs, (n_leaf_refs,))
     triangles = take("<f4", 9 * n_tris, (n_tris, 3, 3))
     tri_ids = take("<u4", n_tris, (n_tris,))
+    objects, object_names = None, ()
+    if version == 3:
+        objects = take("<u4", n_input_tris, (n_input_tris,))
+        object_names = decode_names(data[off: off + n_name_bytes], name)
     return dict(
         nodes=nodes, leaf_tris=leaf_tris, triangles=triangles, tri_ids=tri_ids,
         origin=np.array([ox, oy, oz], dtype=np.float64),
@@ -220,8 +258,26 @@ def decode(data, name="tree file"):
         n_input_tris=int(n_input_tris), depth=int(depth),
         params=dict(K_T=K_T, K_I=K_I, empty_bonus=empty_bonus,
                     max_depth=int(max_depth), leaf_size=int(leaf_size)),
-        scale=float(scale),
+        scale=float(scale), objects=objects, object_names=object_names,
     )
+
+
+def decode_names(data, name="tree file"):
+    """The object names from the file's JSON (`encode_names`): a tuple of str, or
+    TreeFileError. That they are unique and match the objects is
+    `KdTree.validate()`'s job."""
+    try:
+        names = json.loads(bytes(data).decode("utf-8"))
+    except (ValueError, RecursionError) as e:       # UnicodeDecodeError is a ValueError
+        raise TreeFileError(f"{name}: the object names are not UTF-8 JSON ({e})") from None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise TreeFileError(f"{name}: the object names are not a JSON array of strings")
+    try:
+        for n in names:
+            n.encode("utf-8")                   # JSON may hold lone surrogates
+    except UnicodeEncodeError:
+        raise TreeFileError(f"{name}: an object name is not valid Unicode") from None
+    return tuple(names)
 
 
 # -- on the device (kernels/layout.h, kernels/render.cl) ------------------------------

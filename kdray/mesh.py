@@ -1,7 +1,10 @@
 """Mesh: validated triangle-mesh arrays.
 
-    vertices : (n, 3) float64
-    faces    : (m, 3) int64, indices into vertices; triangle ids are row numbers
+    vertices     : (n, 3) float64
+    faces        : (m, 3) int64, indices into vertices; triangle ids are row numbers
+    objects      : (m,) uint32, the object each triangle belongs to: an index into
+                   object_names, numbered in the order objects first appear
+    object_names : tuple of str, one unique name per object
 """
 import dataclasses
 
@@ -35,19 +38,65 @@ def check_arrays(vertices, faces):
     return v, f
 
 
+def check_objects(objects, object_names, n_tris):
+    """(objects (n_tris,) uint32, object_names tuple of str) after checking them: one
+    object index per triangle, each below len(object_names), and unique names. Raises
+    MeshError."""
+    try:
+        names = tuple(object_names) if not isinstance(object_names, (str, bytes)) else None
+    except TypeError:
+        names = None
+    if names is None or not all(isinstance(n, str) for n in names):
+        raise MeshError("object_names must be a sequence of strings")
+    for n in names:
+        try:
+            n.encode("utf-8")
+        except UnicodeEncodeError:
+            raise MeshError(f"object name {n!r} is not valid Unicode (a lone surrogate)") from None
+    if not names:
+        raise MeshError("object_names must name at least one object")
+    if len(set(names)) != len(names):
+        dup = next(n for i, n in enumerate(names) if n in names[:i])
+        raise MeshError(f"object name {dup!r} is given twice (names must be unique)")
+    o = np.asarray(objects)
+    if o.shape != (n_tris,):
+        raise MeshError(f"objects must be a ({n_tris},) array, one per triangle, got shape {o.shape}")
+    if o.size and o.dtype.kind not in "iu":
+        raise MeshError(f"objects must be integers, got {o.dtype}")
+    if o.size and (o.min() < 0 or o.max() >= len(names)):
+        bad = int(np.flatnonzero((o < 0) | (o >= len(names)))[0])
+        raise MeshError(f"triangle {bad}'s object {int(o[bad])} is out of range "
+                        f"({len(names)} object names)")
+    return np.array(o, dtype=np.uint32, order="C"), names
+
+
 @dataclasses.dataclass(frozen=True)
 class Mesh:
     vertices: np.ndarray
     faces: np.ndarray
     name: str = "mesh"
+    objects: np.ndarray = None
+    """(m,) uint32; None when constructed: every triangle object 0."""
+    object_names: tuple = None
+    """None when constructed: one object, named after the mesh."""
+
+    def __post_init__(self):
+        if self.objects is None:
+            object.__setattr__(self, "objects", np.zeros(len(self.faces), dtype=np.uint32))
+        if self.object_names is None:
+            object.__setattr__(self, "object_names", (self.name,))
 
     @classmethod
-    def from_arrays(cls, vertices, faces, name="mesh"):
+    def from_arrays(cls, vertices, faces, name="mesh", objects=None, object_names=None):
         """Validate and copy arrays into a Mesh; raises MeshError naming `name`.
 
         Checks: shapes (n, 3) and (m, 3); at least one face; face indices in range;
         every vertex a face uses is finite. Degenerate (zero-area) triangles are kept
         here; the builder leaves them out of the tree.
+        objects : None (one object, 0, named `name`) or (m,) integers, each triangle's
+            index into object_names (`check_objects`)
+        object_names : the objects' unique names; None with objects given: "object 0",
+            "object 1", ... up to the largest index
         """
         try:
             v, f = check_arrays(vertices, faces)
@@ -59,7 +108,24 @@ class Mesh:
         if not finite[used].all():
             bad = int(np.flatnonzero(used & ~finite)[0])
             raise MeshError(f"{name}: vertex {bad} is not finite ({v[bad].tolist()})")
-        return cls(vertices=np.array(v, order="C"), faces=np.array(f, order="C"), name=name)
+        if objects is None and object_names is None:
+            objects, object_names = np.zeros(len(f), dtype=np.uint32), (name,)
+        elif objects is None:
+            raise MeshError(f"{name}: object_names given without objects")
+        elif object_names is None:
+            o = np.asarray(objects)
+            top = int(o.max()) if o.size and o.dtype.kind in "iu" else 0
+            if top >= len(f):
+                raise MeshError(f"{name}: object index {top} with no object_names given "
+                                f"(without names, objects are numbered below the number "
+                                f"of triangles)")
+            object_names = tuple(f"object {i}" for i in range(max(top, 0) + 1))
+        try:
+            objects, object_names = check_objects(objects, object_names, len(f))
+        except MeshError as e:
+            raise MeshError(f"{name}: {e}") from None
+        return cls(vertices=np.array(v, order="C"), faces=np.array(f, order="C"), name=name,
+                   objects=objects, object_names=object_names)
 
     @property
     def triangles(self):

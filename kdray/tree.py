@@ -13,6 +13,13 @@ Arrays (see `kdray.layout` for the node encoding)::
                  coordinates by input id, kept only when asked for (`with_double`,
                  `kdray.build(keep_double=True)`) for Tracer.trace(precision="double");
                  not part of the tree file
+    objects    : (n_input_tris,) uint32 or None: the object of each input triangle, an
+                 index into `object_names` (`with_objects`); None: one object, 0
+    object_names: tuple of str, one unique name per object; () when objects is None
+
+A tree holds an object table only for more than one object (`with_objects` drops a
+table of one object), and the tree file holds it then (format version 3).
+`object_ids(tri_ids, tree.objects)` looks up the objects of triangle ids.
 
 `scale` is 1 unless the scene's size is outside 2^-40 .. 2^40 (kdray.builder.prepare):
 then the float32 data is the scene divided by the power of two nearest its size, so
@@ -27,7 +34,8 @@ import numpy as np
 
 from . import layout
 from .files import atomic_write_bytes
-from .errors import TreeError, TreeFileError
+from .errors import MeshError, TreeError, TreeFileError
+from .mesh import check_objects
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,6 +78,8 @@ class KdTree:
     params: BuildParams
     scale: float = 1.0
     triangles64: np.ndarray = None
+    objects: np.ndarray = None
+    object_names: tuple = ()
 
     def __eq__(self, other):
         if not isinstance(other, KdTree):
@@ -77,7 +87,29 @@ class KdTree:
         arrays = ("nodes", "leaf_tris", "triangles", "tri_ids", "origin", "bounds")
         return (all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
                 and self.n_input_tris == other.n_input_tris and self.depth == other.depth
-                and self.params == other.params and self.scale == other.scale)
+                and self.params == other.params and self.scale == other.scale
+                and (self.objects is None) == (other.objects is None)
+                and (self.objects is None or np.array_equal(self.objects, other.objects))
+                and tuple(self.object_names) == tuple(other.object_names))
+
+    @property
+    def n_objects(self):
+        """The number of objects: len(object_names), 1 for a tree with no table."""
+        return len(self.object_names) if self.objects is not None else 1
+
+    def with_objects(self, objects, object_names):
+        """A copy of the tree that keeps the object of each input triangle: objects
+        (n_input_tris,) integers, indices into object_names (unique strings), as
+        kdray.Mesh has them (Mesh.objects, Mesh.object_names). A table of one object is
+        dropped (every triangle is object 0 anyway). Raises TreeError when the table
+        does not fit the tree's input or is not valid."""
+        try:
+            objects, object_names = check_objects(objects, object_names, self.n_input_tris)
+        except MeshError as e:
+            raise TreeError(f"with_objects: {e}") from None
+        if len(object_names) == 1:
+            return dataclasses.replace(self, objects=None, object_names=())
+        return dataclasses.replace(self, objects=objects, object_names=object_names)
 
     def with_double(self, vertices, faces):
         """A copy of the tree that keeps the float64 triangles of the mesh it was built
@@ -133,11 +165,11 @@ class KdTree:
             with open(path, "rb") as f:
                 head = f.read(layout.HEADER_SIZE)
                 if len(head) == layout.HEADER_SIZE and head[:8] == layout.MAGIC:
-                    counts = layout.HEADER.unpack(head)[3:6]
-                    if size != layout.file_size(*counts):
+                    need = layout.header_file_size(head)
+                    if need is not None and size != need:
                         raise TreeFileError(
-                            f"{path}: {size} bytes, but its counts need "
-                            f"{layout.file_size(*counts)} (truncated or corrupt)")
+                            f"{path}: {size} bytes, but its counts need {need} "
+                            f"(truncated or corrupt)")
                 data = head + f.read()
         except OSError as e:
             raise TreeFileError(f"{path}: cannot read ({e.strerror or e})") from None
@@ -234,6 +266,8 @@ class KdTree:
             raise TreeError("a triangle id is out of range of the input's triangles")
         if len(t.leaf_tris) and int(t.leaf_tris.max()) >= len(t.triangles):
             raise TreeError("a leaf refers to a triangle out of range")
+        if t.objects is not None or len(t.object_names):
+            self._check_objects()
         p = t.params
         if not (p.K_T > 0 and p.K_I > 0 and 0 < p.empty_bonus <= 1 and 1 <= p.max_depth <= layout.MAX_DEPTH_LIMIT):
             raise TreeError("build parameters out of range")
@@ -259,6 +293,24 @@ class KdTree:
             raise TreeError("a triangle lies outside the scene bounds")
         if coverage_samples is not None and coverage_samples >= 0 and len(t.triangles):
             self._check_coverage(coverage_samples, seed)
+
+    def _check_objects(self):
+        """The object table: (n_input_tris,) uint32 indices below the number of
+        objects, more than one object, unique string names."""
+        o, names = self.objects, self.object_names
+        if o is None:
+            raise TreeError("object_names given without an objects table")
+        if o.shape != (self.n_input_tris,) or o.dtype != np.uint32:
+            raise TreeError(f"objects must be an ({self.n_input_tris},) uint32 array, one per "
+                            f"input triangle")
+        if not isinstance(names, tuple) or not all(isinstance(n, str) for n in names):
+            raise TreeError("object_names must be a tuple of strings")
+        if len(names) < 2:
+            raise TreeError("an object table has at least two objects")
+        if len(set(names)) != len(names):
+            raise TreeError("object names must be unique")
+        if len(o) and int(o.max()) >= len(names):
+            raise TreeError(f"an object index is out of range ({len(names)} objects)")
 
     def _check_coverage(self, n_random, seed):
         tri = self.triangles.astype(np.float64)
@@ -351,3 +403,18 @@ def point_leaves(nodes, points):
         pi = np.concatenate([pi[go_below], pi[go_above]])
         node = np.concatenate([node[go_below] + 1, above_all[node[go_above]]])
     return np.concatenate(out_p), np.concatenate(out_n)
+
+
+def object_ids(tri_ids, objects):
+    """(N,) uint32: the object of each input triangle id, objects[tri_ids], and MISS
+    where tri_ids is MISS (a miss).
+
+    tri_ids : (N,) uint32 input triangle ids or MISS (Hits.prim, the `id` AOV)
+    objects : (n_input_tris,) uint32 (KdTree.objects) or None: every triangle object 0
+    """
+    tri_ids = np.asarray(tri_ids, dtype=np.uint32)
+    if objects is None:
+        return np.where(tri_ids == layout.MISS, layout.MISS, np.uint32(0)).astype(np.uint32)
+    # the table with MISS appended, indexed by min(id, n): a miss takes the last entry
+    table = np.append(np.asarray(objects, dtype=np.uint32), layout.MISS)
+    return table[np.minimum(tri_ids, np.uint32(len(table) - 1))]

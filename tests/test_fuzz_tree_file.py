@@ -14,7 +14,8 @@ from small_trees import two_leaf_tree
 
 
 def seed_files():
-    files = [two_leaf_tree().to_bytes()]
+    files = [two_leaf_tree().to_bytes(),                        # version 1
+             two_leaf_tree().with_objects(np.array([1, 0, 1]), ("a", "b")).to_bytes()]  # 3
     try:
         from kdray.builder import build
         rng = np.random.default_rng(5)
@@ -35,7 +36,7 @@ def mutate(data, rng):
     elif kind == 1:                                 # truncate
         b = b[:rng.integers(len(b))]
     elif kind == 2:                                 # a header count or index set to something wild
-        off = int(rng.choice([12, 16, 20, 24, 28, 32, 36, 40, 128, 132, 136, 140]))
+        off = int(rng.choice([8, 12, 16, 20, 24, 28, 32, 36, 40, 44, 128, 132, 136, 140]))
         b[off:off + 4] = int(rng.choice([0, 1, 2**31, 2**32 - 1, rng.integers(2**32)])).to_bytes(4, "little")
     elif kind == 3:                                 # overwrite a node word
         n_nodes = int.from_bytes(b[16:20], "little")

@@ -53,7 +53,7 @@ def test_scaled_tree_is_version_2(tmp_path):
     import dataclasses
     tree = dataclasses.replace(two_leaf_tree(), scale=2.0 ** -70)
     data = tree.to_bytes()
-    assert int.from_bytes(data[8:12], "little") == 2 == layout.VERSION
+    assert int.from_bytes(data[8:12], "little") == 2
     assert np.frombuffer(data, "<f8", 1, 120)[0] == 2.0 ** -70
     one = two_leaf_tree().to_bytes()
     assert data[12:120] == one[12:120] and data[128:-16] == one[128:-16]
@@ -72,8 +72,8 @@ def test_scaled_tree_is_version_2(tmp_path):
     for scale in (3.0, 0.0, -2.0, float("inf"), float("nan"), 2.0 ** 200):
         with pytest.raises(TreeFileError, match="scale"):
             KdTree.from_bytes(resealed(data, 120, np.float64(scale).tobytes()))
-    with pytest.raises(TreeFileError, match="version 3"):
-        KdTree.from_bytes(resealed(data, 8, (3).to_bytes(4, "little")))
+    with pytest.raises(TreeFileError, match="version 4"):
+        KdTree.from_bytes(resealed(data, 8, (4).to_bytes(4, "little")))
 
 
 @pytest.mark.parametrize("cut", [0, 7, 127, 128, 150, -17, -1])
@@ -96,8 +96,8 @@ def test_every_flipped_byte_is_refused():
 
 def test_other_version_and_magic(tmp_path):
     data = bytearray(GOLDEN.read_bytes())
-    data[8] = 3
-    with pytest.raises(TreeFileError, match="version 3"):
+    data[8] = 4
+    with pytest.raises(TreeFileError, match="version 4"):
         KdTree.from_bytes(bytes(data))
     with pytest.raises(TreeFileError, match="not a kdray tree"):
         KdTree.from_bytes(b"PLY\n" + bytes(200))
@@ -128,3 +128,136 @@ def test_hostile_counts_and_indices_are_refused():
     for edit in (huge_count, child_out_of_range, child_cycle, leaf_range, tri_id_range, nan_split):
         with pytest.raises(TreeFileError):
             KdTree.from_bytes(_resealed(edit))
+
+
+# -- version 3: the object table ----------------------------------------------------------
+
+NAMES = ("floor", "ball, \"B\"", "ünïcode ☃")
+
+
+def objects_tree(scale=1.0):
+    """The golden tree with an object table: input triangles 0, 1, 2 in objects 2, 0, 1."""
+    import dataclasses
+    tree = dataclasses.replace(two_leaf_tree(), scale=scale)
+    return tree.with_objects(np.array([2, 0, 1]), NAMES)
+
+
+def test_objects_tree_is_version_3(tmp_path):
+    """A tree with objects is version 3: version 1's (2's) bytes, the names' length at
+    byte 44, the scale at 120, then the objects (u32 per input triangle) and the names'
+    compact UTF-8 JSON before the checksum. It reads back equal."""
+    import json
+    one = two_leaf_tree().to_bytes()
+    for scale in (1.0, 2.0 ** -70):
+        tree = objects_tree(scale)
+        data = tree.to_bytes()
+        names = json.dumps(list(NAMES), ensure_ascii=False, separators=(",", ":")).encode()
+        assert int.from_bytes(data[8:12], "little") == 3 == layout.VERSION
+        assert int.from_bytes(data[44:48], "little") == len(names)
+        assert np.frombuffer(data, "<f8", 1, 120)[0] == scale
+        assert data[12:44] == one[12:44] and data[48:120] == one[48:120]
+        body = len(one) - 16
+        assert data[128:body] == one[128:body]
+        assert np.frombuffer(data, "<u4", 3, body).tolist() == [2, 0, 1]
+        assert data[body + 12:-16] == names
+        assert len(data) == layout.file_size(3, 2, 2, 3, len(names))
+        assert layout.header_file_size(data[:128]) == len(data)
+        path = tmp_path / "t.bin"
+        tree.save(path)
+        back = KdTree.load(path)
+        assert back == tree and back.object_names == NAMES and back.scale == scale
+        assert back.objects.dtype == np.uint32 and back.n_objects == 3
+
+
+def test_trees_of_one_object_stay_version_1_and_2():
+    """A table of one object is dropped: the file is the old version's, byte for byte
+    (the golden file); a tree with no table reads back with none."""
+    import dataclasses
+    one = two_leaf_tree().with_objects(np.zeros(3, np.uint8), ("all",))
+    assert one.objects is None and one.object_names == () and one.n_objects == 1
+    assert one.to_bytes() == GOLDEN.read_bytes()
+    scaled = dataclasses.replace(two_leaf_tree(), scale=4.0)
+    assert scaled.with_objects([0, 0, 0], ["x"]).to_bytes() == scaled.to_bytes()
+    back = KdTree.load(GOLDEN)
+    assert back.objects is None and back.object_names == ()
+    assert back != objects_tree() and objects_tree() != back
+
+
+def test_with_objects_checks_the_table():
+    from kdray.errors import TreeError
+    tree = two_leaf_tree()
+    for objects, names, message in [([0, 1], ("a", "b"), r"\(3,\)"),
+                                    ([0, 1, 2], ("a", "b"), "out of range"),
+                                    ([0, -1, 1], ("a", "b"), "out of range"),
+                                    ([0, 1, 1], ("a", "a"), "twice"),
+                                    ([0.0, 1.0, 1.0], ("a", "b"), "integers"),
+                                    ([0, 1, 1], "ab", "strings"),
+                                    ([0, 1, 1], ("a", 2), "strings")]:
+        with pytest.raises(TreeError, match=message):
+            tree.with_objects(np.array(objects), names)
+
+
+def _resealed_v3(edit):
+    """The objects tree's bytes after an edit, with a valid checksum (a hostile file)."""
+    import hashlib
+    body = bytearray(objects_tree().to_bytes()[:-layout.CHECKSUM_SIZE])
+    edit(body)
+    return bytes(body) + hashlib.blake2b(bytes(body), digest_size=layout.CHECKSUM_SIZE).digest()
+
+
+def test_corrupt_object_table_is_refused(tmp_path):
+    data = objects_tree().to_bytes()
+    table = len(two_leaf_tree().to_bytes()) - 16              # where the objects start
+    for i in range(table, len(data)):                          # the checksum covers it
+        bad = bytearray(data)
+        bad[i] ^= 0x5A
+        with pytest.raises(TreeFileError):
+            KdTree.from_bytes(bytes(bad))
+    path = tmp_path / "t.bin"
+    for cut in (1, 16, 17, 16 + len(NAMES[0]), len(data) - table):
+        path.write_bytes(data[:-cut])
+        with pytest.raises(TreeFileError, match="truncated|bytes"):
+            KdTree.load(path)
+
+    def names(text):
+        def edit(b):
+            n = int.from_bytes(b[44:48], "little")
+            del b[len(b) - n:]
+            b += text
+            b[44:48] = len(text).to_bytes(4, "little")
+        return edit
+
+    def index(value):
+        def edit(b):
+            b[table:table + 4] = value.to_bytes(4, "little")
+        return edit
+
+    def name_bytes(value):
+        def edit(b):
+            b[44:48] = value.to_bytes(4, "little")
+        return edit
+
+    for edit, message in [(names(b'["a","b",'), "not UTF-8 JSON"),
+                          (names(b'\xff["a","b"]'), "not UTF-8 JSON"),
+                          (names(b'{"a": 1}'), "array of strings"),
+                          (names(b'["a", 2, "c"]'), "array of strings"),
+                          (names(b'["\\ud800", "b", "c"]'), "Unicode"),
+                          (names(b'["a", "a", "c"]'), "unique"),
+                          (names(b'["a"]'), "two objects|out of range"),
+                          (names(b'[' + b'[' * 100000 + b']' * 100000 + b']'), "JSON"),
+                          (index(3), "out of range"),
+                          (name_bytes(2**32 - 1), "bytes"),
+                          (name_bytes(0), "bytes")]:
+        with pytest.raises(TreeFileError, match=message):
+            KdTree.from_bytes(_resealed_v3(edit))
+
+
+def test_hostile_v3_header_is_refused_before_reading(tmp_path):
+    """KdTree.load checks the size a version 3 header states (its objects and names
+    included) before it reads the body."""
+    data = bytearray(objects_tree().to_bytes())
+    data[28:32] = (2**32 - 1).to_bytes(4, "little")           # n_input_tris
+    path = tmp_path / "t.bin"
+    path.write_bytes(bytes(data))
+    with pytest.raises(TreeFileError, match="its counts need"):
+        KdTree.load(path)

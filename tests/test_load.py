@@ -14,6 +14,7 @@ def test_real_meshes(name, n_tris):
     m = load(real_mesh(name))
     assert m.faces.shape == (n_tris, 3) and m.vertices.dtype == np.float64
     assert m.faces.min() >= 0 and m.faces.max() < len(m.vertices)
+    assert m.object_names == (name,) and m.objects.shape == (n_tris,) and not m.objects.any()
 
 
 def test_gzipped_files_read_as_their_format(tmp_path):
@@ -60,6 +61,9 @@ def test_scene_transforms_are_applied(tmp_path):
     m = load(p)
     assert len(m.faces) == 24
     assert m.bounds[1][0] == pytest.approx(10.5)
+    assert sorted(m.object_names) == ["a", "b"] and np.bincount(m.objects).tolist() == [12, 12]
+    b = m.objects == m.object_names.index("b")                 # the translated node
+    assert np.all(m.triangles[b][..., 0] > 9) and np.all(m.triangles[~b][..., 0] < 1)
 
 
 @pytest.mark.parametrize("content, ext, message", [
