@@ -5,6 +5,8 @@
     write_preview("out.png", images)      # depth colour map | normals as RGB
     images = read_exr("out.exr")          # the same dict back, ids exact
     camera = read_camera("out.exr")       # the same kdray.Camera back, exactly
+    write_exr("out.exr", images, camera, object_names=tree.object_names)
+    names = read_object_names("out.exr")  # the tuple of names back, or None
 
 `images` maps AOV names to arrays that share one (H, W):
 
@@ -14,13 +16,16 @@
     bary     : (H, W, 2) float32    channels bary.U bary.V miss: 0
     id       : (H, W) uint32        channel id (UINT)      miss: 0xFFFFFFFF
     position : (H, W, 3) float32    channels P.X P.Y P.Z   miss: NaN
+    object   : (H, W) uint32        channel object (UINT)  miss: 0xFFFFFFFF
 
-The EXR is a single-part scanline file, full float32 (never half) plus one 32-bit
-unsigned integer channel for ids, ZIP-compressed (lossless). It is written with the
-OpenEXR package (the format's own library), which stores float32 and uint32 numpy
-arrays as they are; OpenImageIO's Python bindings would convert a buffer to the
-per-channel file types through float, rounding ids above 2**24. Files are read with
-OpenImageIO, channel group by channel group, so ids come back as exact uint32.
+The EXR is a single-part scanline file, full float32 (never half) plus 32-bit
+unsigned integer channels for ids and objects, ZIP-compressed (lossless). It is
+written with the OpenEXR package (the format's own library), which stores float32 and
+uint32 numpy arrays as they are; OpenImageIO's Python bindings would convert a buffer
+to the per-channel file types through float, rounding ids above 2**24. Files are read
+with OpenImageIO, channel group by channel group, so ids come back as exact uint32.
+Given object names (with `id` or `object`), the header holds them as a JSON array
+(OBJECT_NAMES_ATTRIBUTE).
 
 Given the camera, the header also holds it (see `CAMERA_ATTRIBUTES`): OpenEXR's
 standard worldToCamera and worldToNDC (float32, OpenEXR's conventions) and kdray's own
@@ -31,6 +36,8 @@ Both writers are atomic: the data goes to a temporary file in the destination fo
 that is renamed over the destination only once complete, so a failure or Ctrl-C never
 leaves a half-written file and never damages an existing one.
 """
+import json
+
 import numpy as np
 
 from .camera import Camera
@@ -46,8 +53,16 @@ CHANNELS = {
     "bary": ("bary.U", "bary.V"),
     "id": ("id",),
     "position": ("P.X", "P.Y", "P.Z"),
+    "object": ("object",),
 }
 """Each AOV's EXR channel names (the public contract)."""
+
+UINT_AOVS = ("id", "object")
+"""The AOVs stored as 32-bit unsigned integers (exact)."""
+
+OBJECT_NAMES_ATTRIBUTE = "kdray/objectNames"
+"""The header attribute (a string: a JSON array of strings) that holds the objects'
+names, object i's at index i, when `write_exr` is given them."""
 
 # Checking the images dict ----------------------------------------------------------
 
@@ -79,12 +94,12 @@ def _channel_arrays(images, path):
                 f"cannot write {path}: {aov} is {array.shape[1]}x{array.shape[0]} pixels "
                 f"but other AOVs are {size[1]}x{size[0]}."
             )
-        if aov == "id":
+        if aov in UINT_AOVS:
             if array.dtype.kind not in "iu":
-                raise OutputError(f"cannot write {path}: id must be an integer array, got {array.dtype}.")
+                raise OutputError(f"cannot write {path}: {aov} must be an integer array, got {array.dtype}.")
             if array.size and (array.min() < 0 or array.max() > MISS):
-                raise OutputError(f"cannot write {path}: id values must fit in uint32.")
-            channels.append(("id", array.astype("<u4")))
+                raise OutputError(f"cannot write {path}: {aov} values must fit in uint32.")
+            channels.append((names[0], array.astype("<u4")))
         else:
             if array.dtype.kind not in "fiub":
                 raise OutputError(f"cannot write {path}: {aov} must be a real array, got {array.dtype}.")
@@ -183,19 +198,27 @@ def _camera_header(camera, aovs):
     return header
 
 
-def write_exr(path, images, camera=None):
+def write_exr(path, images, camera=None, object_names=None):
     """Write the AOV images of one render as one multi-channel EXR file, atomically.
 
     images : dict of AOV name -> array (see the module docstring).
     camera : the kdray.Camera the images were rendered with, or None. Given, the header
              holds it (CAMERA_ATTRIBUTES; `read_camera` reads it back exactly) and its
              size must be the images'.
-    Raises OutputError naming `path` for bad arrays, a camera of another size, a
-    missing or unwritable folder, or a failed write.
+    object_names : the names of the objects the `object` image indexes (a sequence of
+             str, KdTree.object_names), or None. Given (not empty) and the images hold
+             `object` or `id`, the header holds them (OBJECT_NAMES_ATTRIBUTE;
+             `read_object_names` reads them back); every value of `object` but
+             0xFFFFFFFF must then index them.
+    Raises OutputError naming `path` for bad arrays, a camera of another size, bad
+    object names, a missing or unwritable folder, or a failed write.
     """
     channels, (height, width) = _channel_arrays(images, path)
+    names = _object_names_header(images, object_names, path)
     openexr = _openexr()
     header = {"compression": openexr.ZIP_COMPRESSION, "type": openexr.scanlineimage}
+    if names is not None:
+        header[OBJECT_NAMES_ATTRIBUTE] = names
     if camera is not None:
         if not isinstance(camera, Camera):
             raise OutputError(f"cannot write {path}: camera must be a kdray.Camera, got {type(camera).__name__}.")
@@ -217,6 +240,33 @@ def write_exr(path, images, camera=None):
             raise OutputError(f"cannot write {path}: {exc}") from None
 
     atomic_write(path, write)
+
+
+def _object_names_header(images, object_names, path):
+    """The object names' attribute value (a JSON array), or None when there are none to
+    write (no names, or neither `object` nor `id` among the images)."""
+    if object_names is None or not any(aov in images for aov in UINT_AOVS):
+        return None
+    try:
+        object_names = list(object_names) if not isinstance(object_names, (str, bytes)) else None
+    except TypeError:
+        object_names = None
+    if object_names is None or not all(isinstance(n, str) for n in object_names):
+        raise OutputError(f"cannot write {path}: object_names must be a sequence of strings.")
+    if not object_names:
+        return None
+    if "object" in images:
+        obj = np.asarray(images["object"])
+        bad = (obj != MISS) & (obj >= len(object_names))
+        if np.any(bad):
+            raise OutputError(f"cannot write {path}: object {int(obj[bad].flat[0])} has no name "
+                              f"({len(object_names)} object names given).")
+    value = json.dumps(object_names, ensure_ascii=False)
+    try:
+        value.encode("utf-8")                   # no lone surrogates
+    except UnicodeEncodeError:
+        raise OutputError(f"cannot write {path}: an object name is not valid Unicode.") from None
+    return value
 
 
 def _oiio():
@@ -258,14 +308,14 @@ def read_exr(path):
             planes = []
             for name in CHANNELS[aov]:
                 c = names.index(name)
-                if aov == "id" and formats[c].basetype == oiio.UINT:
+                if aov in UINT_AOVS and formats[c].basetype == oiio.UINT:
                     plane = inp.read_image(0, 0, c, c + 1, oiio.UINT)
                 else:
                     plane = inp.read_image(0, 0, c, c + 1, oiio.FLOAT)
                 if plane is None:
                     raise KdrayError(f"cannot read channel {name} of EXR {path}: {inp.geterror()}.")
                 planes.append(np.asarray(plane).reshape(spec.height, spec.width))
-            if aov == "id":
+            if aov in UINT_AOVS:
                 plane = planes[0]
                 if plane.dtype.kind != "u":  # an id channel stored as float elsewhere
                     plane = np.rint(plane)
@@ -285,6 +335,30 @@ def _find_attribute(spec, name):
         if attribute.name == name:
             return str(attribute.type), attribute.value
     return None
+
+
+def read_object_names(path):
+    """The object names stored in the header of an EXR written by `write_exr`
+    (OBJECT_NAMES_ATTRIBUTE): a tuple of str, object i's at index i; None when the file
+    holds none. Raises KdrayError if the file cannot be read or the attribute is not a
+    JSON array of strings."""
+    _, inp = _open_exr(path)
+    try:
+        spec = inp.spec()
+    finally:
+        inp.close()
+    found = _find_attribute(spec, OBJECT_NAMES_ATTRIBUTE)
+    if found is None:
+        return None
+    type_name, value = found
+    try:
+        names = json.loads(value) if type_name == "string" else None
+    except ValueError:
+        names = None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise KdrayError(f"EXR {path}: attribute {OBJECT_NAMES_ATTRIBUTE} is not a JSON array "
+                         f"of strings.")
+    return tuple(names)
 
 
 _CAMERA_READ = {"kdray/K": ("matrix33d", (3, 3)), "kdray/camToWorld": ("matrixd", (4, 4)),
@@ -396,13 +470,15 @@ def _position_panel(position):
 
 def preview_rgb(images):
     """(H, W', 3) uint8: depth (or distance) and normals side by side when both are
-    present, else the first present of depth, distance, normal, id, bary, position."""
+    present, else the first present of depth, distance, normal, id, object, bary,
+    position (ids and objects: a colour each)."""
     depth = images.get("depth", images.get("distance"))
     if depth is not None and "normal" in images:
         return np.concatenate([_depth_panel(depth), _normal_panel(images["normal"])], axis=1)
     if depth is not None:
         return _depth_panel(depth)
-    panels = {"normal": _normal_panel, "id": _id_panel, "bary": _bary_panel, "position": _position_panel}
+    panels = {"normal": _normal_panel, "id": _id_panel, "object": _id_panel, "bary": _bary_panel,
+              "position": _position_panel}
     for name, panel in panels.items():
         if name in images:
             return panel(images[name])

@@ -4,6 +4,7 @@ what is the same on every device.
 
     aovs = parse_aovs("depth,id")                      # ('depth', 'id')
     kernel_outputs(aovs)                               # ('T', 'ID'): all the kernel computes
+    kernel_outputs(("object",))                        # ('ID',): objects are looked up
     M, eye = camera_constants(camera, origin, scale)   # float32, as the kernel gets them
     origins, directions = camera_rays(camera, origin, scale)   # the kernel's rays, on the host
 
@@ -15,15 +16,17 @@ import numpy as np
 
 from .errors import KdrayError
 from .layout import KERNEL_OUTPUTS, MISS, OUTPUT_WIDTH
+from .tree import object_ids
 
-AOVS = ("depth", "distance", "normal", "bary", "id", "position")
+AOVS = ("depth", "distance", "normal", "bary", "id", "position", "object")
 """Every output `render` knows."""
 
 DEFAULT_AOVS = ("depth", "normal", "bary", "id")
 
 AOV_OUTPUT = {"depth": "T", "distance": "T", "position": "T", "bary": "UV", "normal": "NORMAL",
-              "id": "ID"}
-"""The kernel output each AOV is made from."""
+              "id": "ID", "object": "ID"}
+"""The kernel output each AOV is made from (`object` on the host: the tree's object
+of each triangle id, kdray.tree.object_ids)."""
 
 RENDER_TILE = (64, 8)
 """(columns, rows) of the tiles the render kernel takes pixels in (kernels/render.cl):
@@ -53,7 +56,7 @@ def parse_aovs(aovs):
 def kernel_outputs(aovs):
     """The kernel outputs a render of `aovs` (names from AOVS) compiles in, in
     KERNEL_OUTPUTS order: depth, distance and position need T, bary UV, normal NORMAL,
-    id ID. The others are neither computed nor stored."""
+    id and object ID. The others are neither computed nor stored."""
     wanted = {AOV_OUTPUT[a] for a in parse_aovs(aovs)}
     return tuple(name for name in KERNEL_OUTPUTS if name in wanted)
 
@@ -103,7 +106,8 @@ def tile_slots(width, n_rows):
 def host_bytes_per_pixel(aovs):
     """Host bytes a render of `aovs` needs per pixel: kernel outputs, images, and the
     float64 rays that `distance` and `position` are computed from."""
-    size = {"depth": 4, "distance": 4, "normal": 12, "bary": 8, "id": 4, "position": 12}
+    size = {"depth": 4, "distance": 4, "normal": 12, "bary": 8, "id": 4, "position": 12,
+            "object": 4}
     total = sum(size[a] for a in aovs) + 4
     if "distance" in aovs or "position" in aovs:
         total += 12 + 8 + 24 + 24
@@ -116,15 +120,17 @@ def output_shapes(n, outputs):
             for k in outputs}
 
 
-def images(out, camera, origin, aovs, scale=1.0):
+def images(out, camera, origin, aovs, scale=1.0, objects=None):
     """The AOV images of a render from the kernel's outputs.
 
     out : {output: array} of H*W rows each (T (H*W,) float32, UV (H*W, 2), NORMAL
         (H*W, 3), ID (H*W,) uint32), as `kernel_outputs(aovs)` asked
+    objects : the tree's object table (KdTree.objects: (n_input_tris,) uint32, or None:
+        one object, 0), for `object`
     Returns a dict in the order of `aovs`: depth (H, W) z-depth, +inf on a miss;
     distance (H, W) along the ray; normal (H, W, 3); bary (H, W, 2) u, v; id (H, W)
-    uint32; position (H, W, 3) world hit point (NaN on a miss). Arrays from `out` are
-    reshaped, not copied.
+    uint32; position (H, W, 3) world hit point (NaN on a miss); object (H, W) uint32
+    (0xFFFFFFFF on a miss). Arrays from `out` are reshaped, not copied.
     """
     w, h = int(camera.width), int(camera.height)
     result = {}
@@ -153,6 +159,8 @@ def images(out, camera, origin, aovs, scale=1.0):
             result[name] = out["UV"].reshape(h, w, 2)
         elif name == "id":
             result[name] = out["ID"].reshape(h, w)
+        elif name == "object":
+            result[name] = object_ids(out["ID"], objects).reshape(h, w)
     return result
 
 

@@ -2,7 +2,7 @@
 
     tracer = Tracer(tree, device=None)              # context, queue, tree upload
     hits = tracer.trace(origins, directions)        # (N, 3) world coordinates
-    hits.t, hits.prim, hits.u, hits.v, hits.normal
+    hits.t, hits.prim, hits.u, hits.v, hits.normal, hits.object
     images = tracer.render(camera, aovs=("depth", "normal", "bary", "id"))
 
 Arrays returned::
@@ -12,6 +12,9 @@ Arrays returned::
     Hits.u, .v   (N,) float32     P = (1 - u - v) v0 + u v1 + v v2; 0 on a miss
                                   (strided views of one (N, 2) array)
     Hits.normal  (N, 3) float32   unit geometric normal (v1 - v0) x (v2 - v0); 0 on a miss
+    Hits.object  (N,) uint32      the hit triangle's object (KdTree.objects; 0 for a
+                                  tree with no table); 0xFFFFFFFF on a miss. Looked up
+                                  on first access
 
 With precision="double", t, u and v are float64 (kdray.double).
 
@@ -28,6 +31,7 @@ kept on the Tracer; the kernels compute and store only the outputs asked for.
 import concurrent.futures
 import copy
 import dataclasses
+import functools
 import logging
 import os
 import time
@@ -41,6 +45,7 @@ from .host import PAGE, check_host_memory, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_sizes,
                      device_triangles)
 from .render import DEFAULT_AOVS
+from .tree import object_ids
 
 log = logging.getLogger(__name__)
 
@@ -61,18 +66,28 @@ _OUTPUTS = KERNEL_OUTPUTS + ("STATS",)   # the kernels' output arguments, in ord
 
 @dataclasses.dataclass(eq=False)
 class Hits:
-    """Nearest hits of N rays (see the module docstring for the arrays)."""
+    """Nearest hits of N rays (see the module docstring for the arrays).
+
+    object_table : the traced tree's KdTree.objects ((n_input_tris,) uint32, or None:
+        one object), which `object` looks up prim in."""
 
     t: np.ndarray
     prim: np.ndarray
     u: np.ndarray
     v: np.ndarray
     normal: np.ndarray
+    object_table: np.ndarray = dataclasses.field(default=None, repr=False)
 
     @property
     def hit(self):
         """(N,) bool: the ray hit something."""
         return self.prim != MISS
+
+    @functools.cached_property
+    def object(self):
+        """(N,) uint32: the object of each hit triangle, 0xFFFFFFFF on a miss; computed
+        on first access (kdray.tree.object_ids)."""
+        return object_ids(self.prim, self.object_table)
 
     def __len__(self):
         return len(self.t)
@@ -80,7 +95,7 @@ class Hits:
     def __getitem__(self, index):
         """The hits of a subset of the rays (a slice, mask or index array)."""
         return Hits(self.t[index], self.prim[index], self.u[index], self.v[index],
-                    self.normal[index])
+                    self.normal[index], object_table=self.object_table)
 
 
 STACK_SIZES = (8, 16, 32, MAX_DEPTH_LIMIT)
@@ -446,7 +461,8 @@ class Tracer:
         d = np.asarray(directions, dtype=np.float64)
         o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
         t, uv = hits_double(self.tree.triangles64, hits.prim, o, d)
-        return Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal)
+        return Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal,
+                    object_table=hits.object_table)
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False):
         t_min, t_max = float(t_min), float(t_max)
@@ -474,7 +490,7 @@ class Tracer:
                          rays_double=rays_double)
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
         hits = Hits(t=out["T"], prim=out["ID"], u=out["UV"][:, 0], v=out["UV"][:, 1],
-                    normal=out["NORMAL"])
+                    normal=out["NORMAL"], object_table=self.tree.objects)
         return hits, out.get("STATS")
 
     # -- cameras -------------------------------------------------------------------------
@@ -491,7 +507,9 @@ class Tracer:
         aovs : names from AOVS (or one comma-separated string). Returns a dict, in the
         order asked: depth (H, W) z-depth, +inf on a miss; distance (H, W) along the
         ray; normal (H, W, 3); bary (H, W, 2) u, v; id (H, W) uint32; position (H, W, 3)
-        world hit point (NaN on a miss). Only what is asked is computed and stored.
+        world hit point (NaN on a miss); object (H, W) uint32, the tree's object of
+        each pixel's triangle (KdTree.objects), 0xFFFFFFFF on a miss. Only what is
+        asked is computed and stored (object from the kernel's ids, looked up here).
         precision : "single" (float32 images) or "double": the same hits, and depth,
         distance, position and bary in float64 from each pixel's exact float64 ray
         (Camera.rays) and the tree's float64 triangles (render.double_images).
@@ -499,8 +517,9 @@ class Tracer:
         double = _precision(precision, self.tree)
         aovs = _render.parse_aovs(aovs)
         if double:
-            # the kernel finds the triangles (ids) and the normals; the rest is float64
-            kernel_aovs = [a for a in aovs if a in ("normal", "id")]
+            # the kernel finds the triangles (ids, objects) and the normals; the rest is
+            # float64
+            kernel_aovs = [a for a in aovs if a in ("normal", "id", "object")]
             images = self.render(camera, tuple(dict.fromkeys(kernel_aovs + ["id"])))
             exact = _render.double_images(images["id"].reshape(-1), camera,
                                           self.tree.triangles64, aovs)
@@ -531,7 +550,8 @@ class Tracer:
             self._launch("render_camera", outputs, tile_slots(w, n_rows),
                          (camera_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
                          {k: v[start:stop] for k, v in out.items()})
-        return _render.images(out, camera, self._origin, aovs, self._scale)
+        return _render.images(out, camera, self._origin, aovs, self._scale,
+                              objects=self.tree.objects)
 
     def render_many(self, cameras, aovs=DEFAULT_AOVS, precision="single"):
         """The images of each camera of an iterable, one dict at a time, as `render`

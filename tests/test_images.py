@@ -25,6 +25,7 @@ CONTRACT_CHANNELS = {
     "bary": ["bary.U", "bary.V"],
     "id": ["id"],
     "position": ["P.X", "P.Y", "P.Z"],
+    "object": ["object"],
 }
 
 
@@ -41,7 +42,10 @@ def all_aovs(rng, height=23, width=41):
     ids.flat[: len(SPECIAL_IDS)] = SPECIAL_IDS
     position = rng.normal(size=(height, width, 3)).astype(np.float32) * 1e6
     position[0, 0] = np.nan
-    return {"depth": depth, "distance": distance, "normal": normal, "bary": bary, "id": ids, "position": position}
+    objects = rng.integers(0, 2**32, (height, width), dtype=np.uint64).astype(np.uint32)
+    objects.flat[-len(SPECIAL_IDS):] = SPECIAL_IDS
+    return {"depth": depth, "distance": distance, "normal": normal, "bary": bary, "id": ids,
+            "position": position, "object": objects}
 
 
 def exr_spec(path):
@@ -72,6 +76,8 @@ def test_round_trip_every_aov_exactly(tmp_path, rng):
         assert_same_bits(back[name], array)
     assert back["id"].dtype == np.uint32
     assert back["id"].flat[: len(SPECIAL_IDS)].tolist() == SPECIAL_IDS
+    assert back["object"].dtype == np.uint32
+    assert back["object"].flat[-len(SPECIAL_IDS):].tolist() == SPECIAL_IDS
     assert np.isposinf(back["depth"].flat[0]) and np.isnan(back["position"][0, 0]).all()
 
 
@@ -98,7 +104,7 @@ def test_pixels_read_with_the_openexr_package(tmp_path, rng):
     for aov, names in CONTRACT_CHANNELS.items():
         want = aovs[aov] if len(names) > 1 else aovs[aov][..., None]
         for c, name in enumerate(names):
-            assert pixels[name].dtype == (np.uint32 if aov == "id" else np.float32), name
+            assert pixels[name].dtype == (np.uint32 if aov in ("id", "object") else np.float32), name
             np.testing.assert_array_equal(pixels[name].view(np.uint32), want[..., c].view(np.uint32))
     assert pixels["id"].flat[: len(SPECIAL_IDS)].tolist() == SPECIAL_IDS
 
@@ -111,9 +117,9 @@ def test_channel_names_and_types(tmp_path, rng):
     assert sorted(spec.channelnames) == sorted(expected)
     formats = dict(zip(spec.channelnames, spec.channelformats))
     for name in expected:
-        want = oiio.UINT if name == "id" else oiio.FLOAT  # never HALF
+        want = oiio.UINT if name in ("id", "object") else oiio.FLOAT  # never HALF
         assert formats[name].basetype == want, name
-    assert (spec.width, spec.height, spec.nchannels) == (7, 5, 11)
+    assert (spec.width, spec.height, spec.nchannels) == (7, 5, 12)
     assert spec.get_string_attribute("compression") == "zip"
     assert spec.tile_width == 0 and spec.deep is False  # scanline, not tiled or deep
     assert spec.getattribute("oiio:subimages") == 1  # single-part
@@ -389,6 +395,77 @@ def test_camera_attributes_read_with_oiio(tmp_path, camera):
     assert spec.getattribute("worldToNDC") == value["worldToNDC"]
 
 
+NAMES = ("floor", "ball, \"B\"", "ünïcode ☃", "", "a\nb")
+
+
+def test_object_names_read_with_oiio(tmp_path):
+    """The names are one string attribute, a JSON array (commas, quotes, newlines and
+    non-ASCII survive); OpenImageIO reads it back; read_object_names gives the tuple."""
+    import json
+    objects = np.array([[0, 1, 0xFFFFFFFF], [2, 3, 4]], np.uint32)
+    path = tmp_path / "o.exr"
+    write_exr(path, {"object": objects}, camera=None, object_names=NAMES)
+    attributes = header_attributes(path)
+    assert attributes[images.OBJECT_NAMES_ATTRIBUTE][0] == "string"
+    assert images.OBJECT_NAMES_ATTRIBUTE == "kdray/objectNames"
+    assert json.loads(attributes["kdray/objectNames"][1]) == list(NAMES)
+    assert json.loads(exr_spec(path).getattribute("kdray/objectNames")) == list(NAMES)
+    assert images.read_object_names(path) == NAMES
+    back = read_exr(path)
+    assert back["object"].dtype == np.uint32 and np.array_equal(back["object"], objects)
+    with OpenEXR.File(str(path)) as exr:                # the format's own library too
+        assert json.loads(exr.header()["kdray/objectNames"]) == list(NAMES)
+
+
+def test_object_names_with_ids_and_camera(tmp_path):
+    camera = Camera.look_at((0, 1, 4), (0, 1, 0), width=3, height=2)
+    path = tmp_path / "o.exr"
+    write_exr(path, images_for(camera, ("depth", "id")), camera=camera, object_names=["a", "b"])
+    assert images.read_object_names(path) == ("a", "b")
+    assert read_camera(path) == camera
+
+
+@pytest.mark.parametrize("aovs, names", [(("depth",), ["a", "b"]), (("id",), None), (("id",), [])])
+def test_no_object_names_without_ids_or_names(tmp_path, aovs, names):
+    camera = Camera.look_at((0, 1, 4), (0, 1, 0), width=3, height=2)
+    path = tmp_path / "o.exr"
+    write_exr(path, images_for(camera, aovs), camera=camera, object_names=names)
+    assert images.read_object_names(path) is None
+    assert "kdray/objectNames" not in header_attributes(path)
+
+
+@pytest.mark.parametrize("objects, names, match", [
+    (np.array([[0, 2]], np.uint32), ["a", "b"], "object 2 has no name"),
+    (np.array([[0, 1]], np.uint32), "ab", "sequence of strings"),
+    (np.array([[0, 1]], np.uint32), 5, "sequence of strings"),
+    (np.array([[0, 1]], np.uint32), ["a", 1], "sequence of strings"),
+    (np.array([[0, 1]], np.uint32), ["a", "\ud800"], "Unicode"),
+])
+def test_bad_object_names(tmp_path, objects, names, match):
+    path = tmp_path / "o.exr"
+    with pytest.raises(OutputError, match=match):
+        write_exr(path, {"object": objects}, object_names=names)
+    assert not path.exists()
+
+
+def test_read_object_names_errors(tmp_path):
+    path = tmp_path / "o.exr"
+    for value in ("not json", '{"a": 1}', '["a", 2]'):
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+                  "kdray/objectNames": value}
+        with OpenEXR.File(header, {"object": np.zeros((2, 2), np.uint32)}) as exr:
+            exr.write(str(path))
+        with pytest.raises(KdrayError, match="kdray/objectNames"):
+            images.read_object_names(path)
+
+
+def test_preview_of_objects_like_ids(tmp_path):
+    objects = np.array([[0, 1, 0xFFFFFFFF], [1, 0, 2]], np.uint32)
+    write_preview(tmp_path / "o.png", {"object": objects})
+    write_preview(tmp_path / "i.png", {"id": objects})
+    assert np.array_equal(read_png(tmp_path / "o.png")[1], read_png(tmp_path / "i.png")[1])
+
+
 def test_world_to_camera_axes(tmp_path):
     camera = awkward_camera()
     path = tmp_path / "cam.exr"
@@ -554,6 +631,8 @@ def test_unwritable_destinations(tmp_path):
         ({"id": np.ones((2, 2), np.float32)}, "integer"),
         ({"id": np.full((2, 2), -1)}, "uint32"),
         ({"id": np.full((2, 2), 2**32)}, "uint32"),
+        ({"object": np.ones((2, 2), np.float32)}, "object must be an integer"),
+        ({"object": np.full((2, 2), -1)}, "object values must fit in uint32"),
         ({"depth": np.ones((0, 3))}, "no pixels"),
         ({"depth": np.full((2, 2), "x")}, "real"),
     ],
@@ -633,7 +712,7 @@ def test_parse_aovs():
     assert parse_aovs(" id , depth,id ") == ("id", "depth")
     assert parse_aovs("all") == AOVS
     assert parse_aovs(",".join(DEFAULT_AOVS)) == DEFAULT_AOVS
-    assert AOVS == ("depth", "distance", "normal", "bary", "id", "position")
+    assert AOVS == ("depth", "distance", "normal", "bary", "id", "position", "object")
 
 
 @pytest.mark.parametrize("text", ["depth,colour", "", " , ", "Z"])
