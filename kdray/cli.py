@@ -146,6 +146,16 @@ def _log_left_out(tree, tracer, n_culled, from_file, outputs):
                  tracer.packet_stack_size)
 
 
+def _print_objects(tree, most=20):
+    """The tree's objects: their number, and the names of the first `most`."""
+    none = "" if tree.object_names else " (no object table: every triangle is object 0)"
+    click.echo(f"{'objects':<19}{tree.n_objects}{none}")
+    for i, name in enumerate(tree.object_names[:most]):
+        click.echo(f"{f'  object {i}':<19}{name}")
+    if len(tree.object_names) > most:
+        click.echo(f"{'':<19}... and {len(tree.object_names) - most} more")
+
+
 def _print_stats(stats, seconds=None):
     width = max(len(k) for k in stats)
     for k, v in stats.items():
@@ -179,7 +189,7 @@ def build(scene, dump, **kw):
     with step("loading"):
         mesh = load(scene)
     with step(f"building the tree of {len(mesh.faces):,} triangles"):
-        tree = _build_mesh(mesh, scene, params)
+        tree = _build_mesh(mesh, scene, params).with_objects(mesh.objects, mesh.object_names)
     if dump:
         with step("writing the tree"):
             _save_tree(tree, dump)
@@ -202,6 +212,7 @@ def info(tree_file, check):
     click.echo(f"params             K_T={p.K_T} K_I={p.K_I} empty_bonus={p.empty_bonus} "
                f"max_depth={p.max_depth} leaf_size={p.leaf_size}")
     _print_stats(tree.stats())
+    _print_objects(tree)
     if check:
         tree.validate()
         click.echo("check              ok")
@@ -233,7 +244,8 @@ def devices():
               help="4x4 camera-to-world matrix file (OpenCV axes), with --intrinsics.")
 @click.option("--camera", "camera_file", type=click.Path(dir_okay=False), help="A JSON camera file.")
 @click.option("--aov", default="depth,normal,bary,id", show_default=True,
-              help="Comma-separated outputs: depth, distance, normal, bary, id, position.")
+              help="Comma-separated outputs: depth, distance, normal, bary, id, position, "
+                   "object (or all).")
 @click.option("--preview", type=click.Path(dir_okay=False), help="Also write an 8-bit PNG for people.")
 @click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
               help="Render from this dumped tree instead of building one.")
@@ -293,9 +305,11 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
                              target, up, fov, intrinsics, pose, camera_file)
             with step(f"building the tree of the visible part of {len(mesh.faces):,} triangles"):
                 tree, n_culled = _build_mesh(mesh, scene, params, build_for_camera, camera)
+            tree = tree.with_objects(mesh.objects, mesh.object_names)
         else:
             with step(f"building the tree of {len(mesh.faces):,} triangles"):
-                tree = _build_mesh(mesh, scene, params)
+                tree = _build_mesh(mesh, scene, params).with_objects(mesh.objects,
+                                                                     mesh.object_names)
             camera = _camera(lambda: _tree_box(tree), width, height, eye, target, up, fov,
                              intrinsics, pose, camera_file)
     with step("setting up the device"):
@@ -308,12 +322,12 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
         images = tracer.render(camera, aovs=aovs, precision=precision)
     _log_left_out(tree, tracer, n_culled, from_file=bool(tree_file), outputs=outputs)
     with step("writing"):
-        write_exr(output, images, camera=camera)
+        write_exr(output, images, camera=camera, object_names=tree.object_names)
         if preview:
             write_preview(preview, images)
     step.log()
-    if "id" in images:
-        hit = np.count_nonzero(images["id"] != 0xFFFFFFFF)
+    if "id" in images or "object" in images:
+        hit = np.count_nonzero(images.get("id", images.get("object")) != 0xFFFFFFFF)
     elif "depth" in images or "distance" in images:
         hit = np.count_nonzero(np.isfinite(images.get("depth", images.get("distance"))))
     else:
