@@ -38,6 +38,10 @@ class OutputError(KdrayError):
     """An image or tree file that cannot be written."""
 
 
+class DatasetError(KdrayError):
+    """A jobs file that cannot be used, or a dataset run some of whose jobs failed."""
+
+
 class ParameterError(KdrayError, ValueError):
     """An option or argument out of its range (a build parameter, a work size)."""
 

@@ -32,7 +32,7 @@ from . import prepare, subdivide
 from .events import sorted_root_events
 from .subdivide import build_nodes
 
-__all__ = ["build", "check_params", "compiled", "compile_all"]
+__all__ = ["build", "check_params", "compiled", "compile_all", "COMPILING"]
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +74,11 @@ def _dispatchers():
     # functions inlined into their callers are never compiled on their own
     return [f for m in mods for f in vars(m).values()
             if isinstance(f, CPUDispatcher) and f.targetoptions.get("inline") != "always"]
+
+
+COMPILING = ("compiling the tree builder (once per install, about half a minute; "
+             "`kdray setup` does it ahead)")
+"""What to tell a user who waits while `compile_all`, or a first build, compiles."""
 
 
 def compiled():
