@@ -16,13 +16,9 @@ $(STAMP): pyproject.toml
 	@# pyproject.toml's build-system requirements too: tests/test_wheel.py builds a wheel offline
 	$(BIN)/python -m pip install -q --upgrade pip 'setuptools>=77' wheel
 	$(BIN)/python -m pip install -q -e '.[test]'
-	@# one tiny build (the one-thread path) and one of 20,000 triangles (the threaded
-	@# path): every numba function compiled into kdray/builder/__pycache__
-	@echo "compiling the tree builder (numba, once per install: about half a minute)"
-	$(BIN)/python -c "import numpy as np, kdray; r = np.random.default_rng(0); \
-	  kdray.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]]); \
-	  kdray.build((r.random((20000, 1, 3)) + 0.01 * r.random((20000, 3, 3))).reshape(-1, 3), \
-	              np.arange(60000).reshape(-1, 3))"
+	@# the tree builder (numba, into kdray/builder/__pycache__) and a default render's
+	@# kernels on the default device, compiled once here rather than in the first render
+	$(BIN)/kdray setup
 	rm -f $(VENV)/.installed-*
 	touch $@
 

@@ -63,6 +63,27 @@ def build_options(f):
     return f
 
 
+def dataset_options(f):
+    """The options of runs of many views (kdray render --cameras, kdray batch)."""
+    opts = [
+        click.option("--workers", type=click.IntRange(min=1), default=None,
+                     help="Run on a local Dask cluster of N worker processes "
+                          "[default: in this process]; needs kdray[dask]."),
+        click.option("--scheduler", default=None,
+                     help="Run on an existing Dask cluster: its scheduler's address "
+                          "(tcp://host:8786, or a scheduler file's path)."),
+        click.option("--no-cache", is_flag=True,
+                     help="Build every tree; do not read or fill the tree cache "
+                          "(KDRAY_CACHE_DIR, default ~/.cache/kdray/trees)."),
+        click.option("--overwrite", is_flag=True,
+                     help="Render every view, also those whose files exist "
+                          "[default: only the missing ones]."),
+    ]
+    for opt in reversed(opts):
+        f = opt(f)
+    return f
+
+
 def _build_kwargs(kw):
     return {k: kw.pop(k) for k in ("K_T", "K_I", "empty_bonus", "max_depth", "leaf_size")}
 
@@ -110,10 +131,20 @@ def _build_mesh(mesh, path, params, builder=None, *args):
     mesh; mesh errors name the file."""
     if builder is None:
         from .builder import build as builder
+    _say_if_builder_compiles()
     try:
         return builder(mesh.vertices, mesh.faces, *args, **params)
     except MeshError as e:
         raise MeshError(f"{path}: {e}") from None
+
+
+def _say_if_builder_compiles():
+    """A warning on stderr when the builder's compiled code is not on disk yet: the first
+    build of an install compiles it (numba), about half a minute that would otherwise
+    pass in silence."""
+    from . import builder
+    if not builder.compiled():
+        log.warning(builder.COMPILING)
 
 
 def _log_left_out(tree, tracer, n_culled, from_file, outputs):
@@ -232,8 +263,9 @@ def devices():
 
 @cli.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
-              help="EXR file to write [default: SCENE's name with .exr, here].")
+@click.option("-o", "--output", type=click.Path(), default=None,
+              help="EXR file to write [default: SCENE's name with .exr, here]; with --cameras "
+                   "the folder of the views' files [default: SCENE's name, here].")
 @click.option("--size", default="640x480", show_default=True, callback=_size, help="Image WIDTHxHEIGHT.")
 @click.option("--eye", callback=_floats(3), help="Camera position X,Y,Z (look-at camera).")
 @click.option("--target", callback=_floats(3), help="Point looked at X,Y,Z.")
@@ -246,7 +278,13 @@ def devices():
 @click.option("--aov", default="depth,normal,bary,id", show_default=True,
               help="Comma-separated outputs: depth, distance, normal, bary, id, position, "
                    "object (or all).")
-@click.option("--preview", type=click.Path(dir_okay=False), help="Also write an 8-bit PNG for people.")
+@click.option("--preview", type=click.Path(dir_okay=False), is_flag=False, flag_value="",
+              help="Also write an 8-bit PNG for people (with --cameras, or with no value: "
+                   "beside each EXR).")
+@click.option("--cameras", "cameras_file", type=click.Path(),
+              help="Render every view of a camera file (nerfstudio transforms.json, a COLMAP "
+                   "text model, a JSON list of cameras) to -o DIR/<name>.exr.")
+@dataset_options
 @click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
               help="Render from this dumped tree instead of building one.")
 @click.option("--device", default=None,
@@ -259,8 +297,10 @@ def devices():
                    "mesh's float64 triangles (the EXR stores them rounded to float32).")
 @build_options
 def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_file, aov,
-           preview, tree_file, device, cull, precision, **kw):
-    """Render SCENE's depth, normal, barycentric and id images to an EXR file."""
+           preview, cameras_file, workers, scheduler, no_cache, overwrite, tree_file, device,
+           cull, precision, **kw):
+    """Render SCENE's depth, normal, barycentric and id images to an EXR file (with
+    --cameras: one EXR file per view, in the folder -o DIR)."""
     from .images import write_exr, write_preview
     from .render import kernel_outputs, parse_aovs
     from .trace import Tracer
@@ -268,8 +308,28 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
     params = _build_kwargs(kw)
     aovs = parse_aovs(aov)
     width, height = size
+    if cameras_file:
+        given = {"--camera": camera_file, "--eye": eye, "--target": target,
+                 "--intrinsics": intrinsics, "--pose": pose, "--tree": tree_file, "--cull": cull}
+        clash = [k for k, v in given.items() if v]
+        if clash:
+            raise click.UsageError(f"--cameras cannot be combined with {', '.join(clash)}")
+        from .dataset import Job, check_params
+        job = Job(scene=scene, cameras=cameras_file,
+                  output=output or os.path.splitext(os.path.basename(scene))[0],
+                  aovs=aovs, preview=preview is not None, precision=precision,
+                  params=check_params(params))
+        from .camera_files import read_cameras
+        read_cameras(job.cameras)            # a bad camera file: one line, nothing written
+        _run_jobs([job], workers, scheduler, device, no_cache, overwrite)
+        return
+    for clash in ("workers", "scheduler", "no_cache", "overwrite"):
+        if locals()[clash]:
+            raise click.UsageError(f"--{clash.replace('_', '-')} goes with --cameras")
     if output is None:
         output = os.path.splitext(os.path.basename(scene))[0] + ".exr"
+    if preview == "":
+        preview = os.path.splitext(output)[0] + ".png"
     for path in (output, preview):
         _check_not_same(scene, path)
         _check_not_same(tree_file, path)
@@ -369,6 +429,87 @@ def bench(scenes, size, repeat, sample, settings, csv_file, device, offset):
     click.echo(_bench.format_table(rows))
     if csv_file:
         _bench.write_csv(rows, csv_file)
+
+
+def _run_jobs(jobs, workers, scheduler, device, no_cache, overwrite):
+    """Run dataset jobs with a progress bar; print a line per job (each step's time);
+    DatasetError (exit code 1) when any failed."""
+    from .cache import TreeCache
+    from .dataset import Progress, run
+    from .errors import DatasetError
+    if workers and scheduler:
+        raise click.UsageError("--workers starts a local cluster, --scheduler uses another: give one")
+    live = sys.stderr.isatty() and log.getEffectiveLevel() == logging.WARNING
+    started = time.perf_counter()
+    reports = run(jobs, workers=workers, scheduler=scheduler, device=device,
+                  cache=None if no_cache else TreeCache(), overwrite=overwrite,
+                  progress=Progress(0, live=live))
+    seconds = time.perf_counter() - started
+    rendered = sum(r.rendered for r in reports)
+    for r in reports:
+        if not r.ok:
+            for error in r.errors:
+                click.echo(f"kdray: {error}", err=True)
+        click.echo(r.summary())
+    failed = [r for r in reports if not r.ok]
+    click.echo(f"wrote {rendered} views in {seconds:.1f} s"
+               + (f" ({rendered / seconds:.1f} views/s)" if rendered and seconds > 0 else "")
+               + f"; {sum(r.skipped for r in reports)} already there")
+    if failed:
+        names = ", ".join(r.job.scene.name for r in failed[:5]) + (", ..." if len(failed) > 5 else "")
+        raise DatasetError(f"{len(failed)} of {len(reports)} job(s) failed: {names}")
+
+
+@cli.command()
+@click.argument("jobs_file", metavar="JOBS", type=click.Path(dir_okay=False))
+@dataset_options
+@click.option("--device", default=None,
+              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+def batch(jobs_file, workers, scheduler, no_cache, overwrite, device):
+    """Render many scenes: JOBS holds one JSON object a line with scene, cameras,
+    output (a folder) and optionally aovs, preview, precision and build (build
+    parameters); paths relative to JOBS' folder. A job that fails is reported and the
+    others go on; the exit code is 1 when any failed. docs/interface.md has the format."""
+    from .dataset import read_jobs
+    jobs = read_jobs(jobs_file)
+    _run_jobs(jobs, workers, scheduler, device, no_cache, overwrite)
+
+
+@cli.command()
+@click.option("--device", default=None,
+              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+def setup(device):
+    """Compile the tree builder (once per install) and the kernels of a default render
+    on the device, so that the first render does not wait for them."""
+    from . import builder
+    from .trace import Tracer
+    step = Steps()
+    if builder.compiled():
+        click.echo("tree builder: compiled already")
+    else:
+        with step("compiling the tree builder (once per install, about half a minute)"):
+            builder.compile_all()
+        click.echo("tree builder: compiled")
+    tree = builder.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    with step("compiling the kernels"):
+        tracer = Tracer(tree, device=device).compile()
+    click.echo(f"kernels: compiled for {tracer.device.name.strip()}")
+    step.log()
+
+
+@cli.command()
+@click.option("--clear", is_flag=True, help="Remove every cached tree.")
+def cache(clear):
+    """Show (or --clear) the tree cache of kdray batch and render --cameras:
+    KDRAY_CACHE_DIR, default ~/.cache/kdray/trees."""
+    from .cache import TreeCache
+    trees = TreeCache()
+    if clear:
+        files, size = trees.clear()
+        click.echo(f"removed {files} trees ({size / 2**20:.1f} MiB) from {trees.folder}")
+    else:
+        files, size = trees.usage()
+        click.echo(f"{trees.folder}: {files} trees, {size / 2**20:.1f} MiB")
 
 
 def _camera(box, width, height, eye, target, up, fov, intrinsics, pose, camera_file):
