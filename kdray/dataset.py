@@ -30,6 +30,8 @@ Bad input is refused before anything is written (`read_jobs`, `check_outputs`):
 unknown keys, missing fields or scene files, two jobs writing one folder, an output
 that is a file or cannot be written.
 """
+import collections
+import concurrent.futures
 import dataclasses
 import json
 import logging
@@ -47,6 +49,11 @@ log = logging.getLogger(__name__)
 
 MAX_JOBS = 1_000_000
 """A jobs file of more lines than this is refused (a run keeps every job in memory)."""
+
+WRITES_WAITING = 1
+"""Views whose files wait to be written while the next view traces, at most: writing
+(EXR compression) takes longer than tracing a view, so it runs on a thread beside it;
+each waiting view holds its images in memory."""
 
 SCENES_KEPT = 2
 """Scenes a process keeps uploaded (the most recently used): a worker that takes the
@@ -281,6 +288,8 @@ class Renderer:
     """
 
     def __init__(self, device=None, cache=None):
+        from .images import compress_on_threads
+        compress_on_threads()
         self.device = device
         self.cache = cache
         self._base = None                 # the first Tracer: its context serves them all
@@ -327,8 +336,10 @@ class Renderer:
 
     def render_views(self, job, views, overwrite=False, on_view=None):
         """Render and write `views` (kdray.camera_files.View) of `job` that are missing
-        (all with overwrite). Returns (seconds, rendered, skipped, errors); on_view(name,
-        seconds) is called after each view written."""
+        (all with overwrite). Returns (seconds, rendered, skipped, errors, tree_cached);
+        on_view(name, seconds) is called after each view written. A view's files are
+        written on a thread while the next view traces (WRITES_WAITING), so `seconds`'
+        trace and write overlap."""
         seconds = dict.fromkeys(STEPS, 0.0)
         todo = [v for v in views if overwrite or not all(f.exists() for f in job.files(v.name))]
         skipped = len(views) - len(todo)
@@ -338,21 +349,41 @@ class Renderer:
         for k, v in setup.items():
             seconds[k] += v
         rendered, errors = 0, []
-        for view in todo:
+        pending = collections.deque()            # (view, write's future, trace seconds)
+
+        def finish(view, future, trace_seconds):
+            nonlocal rendered
             try:
-                t0 = time.perf_counter()
-                images = tracer.render(view.camera, job.aovs, job.precision)
-                t1 = time.perf_counter()
-                write_view(job, view, images, tracer.tree)
-                t2 = time.perf_counter()
+                write_seconds = future.result()
             except KdrayError as e:
                 errors.append(f"view {view.name}: {e}")
-                continue
-            seconds["trace"] += t1 - t0
-            seconds["write"] += t2 - t1
+                return
+            seconds["trace"] += trace_seconds
+            seconds["write"] += write_seconds
             rendered += 1
             if on_view is not None:
-                on_view(view.name, t2 - t0)
+                on_view(view.name, trace_seconds + write_seconds)
+
+        # a view's files are written on a thread while the next view traces
+        with concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="kdray-write") as writer:
+            try:
+                for view in todo:
+                    t0 = time.perf_counter()
+                    try:
+                        images = tracer.render(view.camera, job.aovs, job.precision)
+                    except KdrayError as e:
+                        errors.append(f"view {view.name}: {e}")
+                        continue
+                    future = writer.submit(_timed_write, job, view, images, tracer.tree)
+                    pending.append((view, future, time.perf_counter() - t0))
+                    while len(pending) > WRITES_WAITING or (pending and pending[0][1].done()):
+                        finish(*pending.popleft())
+                while pending:
+                    finish(*pending.popleft())
+            except BaseException:
+                for _, future, _ in pending:         # a write under way still completes
+                    future.cancel()
+                raise
         return seconds, rendered, skipped, errors, cached
 
 
@@ -371,6 +402,12 @@ def _scene_key(job):
     modification time), the build parameters and the precision."""
     st = job.scene.stat()
     return (os.path.abspath(job.scene), st.st_size, st.st_mtime_ns, job.params, job.precision)
+
+
+def _timed_write(job, view, images, tree):
+    t0 = time.perf_counter()
+    write_view(job, view, images, tree)
+    return time.perf_counter() - t0
 
 
 def write_view(job, view, images, tree):
@@ -602,6 +639,20 @@ def _task_views(job, views, overwrite, _tree_done=None):
     return seconds, rendered, errors, done
 
 
+def local_cluster(workers):
+    """A dask.distributed LocalCluster of `workers` processes of one thread each, with
+    glibc's malloc left as it is: Dask's nannies set MALLOC_TRIM_THRESHOLD_ in their
+    workers, which also fixes glibc's mmap threshold, so that every image array is
+    mapped and faulted in anew and a worker renders and writes at 0.6 times the speed
+    (BENCHMARKS.md)."""
+    import dask
+    distributed = _dask()
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        return distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
+                                        processes=True, dashboard_address=None,
+                                        silence_logs=logging.ERROR)
+
+
 def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, chunk):
     distributed = _dask()
     if not log.isEnabledFor(logging.DEBUG):      # Dask's own progress lines only at -vv
@@ -616,9 +667,7 @@ def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, c
             raise DatasetError(f"cannot reach the Dask scheduler {scheduler}: {e}") from None
         n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
     else:
-        cluster = distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
-                                           processes=True, dashboard_address=None,
-                                           silence_logs=logging.ERROR)
+        cluster = local_cluster(workers)
         client = distributed.Client(cluster)
         n_workers = int(workers)
     try:

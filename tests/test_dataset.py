@@ -111,10 +111,12 @@ def test_resume_renders_only_what_is_missing(teapot_job, cache_dir):
 
     with pytest.raises(KeyboardInterrupt):
         run([teapot_job], cache=cache, progress=Interrupt(0, live=False))
-    assert sorted(files(teapot_job.output)) == ["view00.exr", "view01.exr"]
+    # the views reported, and at most the one whose write was under way
+    kept = sorted(files(teapot_job.output))
+    assert kept in (["view00.exr", "view01.exr"], ["view00.exr", "view01.exr", "view02.exr"])
     (teapot_job.output / ".view03.exr.1234abcd.tmp").write_bytes(b"half")
     again = run([teapot_job], cache=cache)[0]
-    assert again.ok and (again.rendered, again.skipped) == (3, 2)
+    assert again.ok and (again.rendered, again.skipped) == (5 - len(kept), len(kept))
     assert again.tree_cached is True               # the first run filled the cache
     assert files(teapot_job.output) == full
     assert sorted(p.name for p in teapot_job.output.iterdir()) == sorted(full)   # no .tmp left
