@@ -41,7 +41,7 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import CameraError, DatasetError, KdrayError, OutputError
+from .errors import DatasetError, KdrayError, MeshError, OutputError
 from .render import DEFAULT_AOVS, parse_aovs
 from .tree import BuildParams
 
@@ -287,9 +287,10 @@ class Renderer:
     every time).
     """
 
-    def __init__(self, device=None, cache=None):
+    def __init__(self, device=None, cache=None, dask_worker=False):
         from .images import compress_on_threads
         compress_on_threads()
+        self.dask_worker = dask_worker    # the test-only kill hook acts in workers only
         self.device = device
         self.cache = cache
         self._base = None                 # the first Tracer: its context serves them all
@@ -374,7 +375,8 @@ class Renderer:
                     except KdrayError as e:
                         errors.append(f"view {view.name}: {e}")
                         continue
-                    future = writer.submit(_timed_write, job, view, images, tracer.tree)
+                    future = writer.submit(_timed_write, job, view, images, tracer.tree,
+                                           self.dask_worker)
                     pending.append((view, future, time.perf_counter() - t0))
                     while len(pending) > WRITES_WAITING or (pending and pending[0][1].done()):
                         finish(*pending.popleft())
@@ -400,22 +402,26 @@ def build_tree(mesh, params):
 def _scene_key(job):
     """What makes two jobs' scenes the same on a device: the file (path, size and
     modification time), the build parameters and the precision."""
-    st = job.scene.stat()
+    try:
+        st = job.scene.stat()
+    except OSError as e:
+        raise MeshError(f"{job.scene}: cannot be read ({e.strerror or e})") from None
     return (os.path.abspath(job.scene), st.st_size, st.st_mtime_ns, job.params, job.precision)
 
 
-def _timed_write(job, view, images, tree):
+def _timed_write(job, view, images, tree, test_kill):
     t0 = time.perf_counter()
-    write_view(job, view, images, tree)
+    write_view(job, view, images, tree, test_kill)
     return time.perf_counter() - t0
 
 
-def write_view(job, view, images, tree):
+def write_view(job, view, images, tree, test_kill=False):
     """Write one view's files (atomically): the EXR with the camera and the objects'
     names, and the preview."""
     from .images import write_exr, write_preview
     exr, *preview = job.files(view.name)
-    _test_kill_hook(exr)
+    if test_kill:
+        _test_kill_hook(exr)
     write_exr(exr, images, camera=view.camera, object_names=tree.object_names)
     if preview:
         write_preview(preview[0], images)
@@ -573,8 +579,10 @@ def _run_here(planned, device, cache, overwrite, progress):
         try:
             seconds, rendered, _, errors, cached = renderer.render_views(
                 job, todo, overwrite, on_view=lambda name, s, job=job: progress.view(job, name, s))
-        except KdrayError as e:
-            report.errors.append(f"{job.scene}: {e}" if str(job.scene) not in str(e) else str(e))
+        except Exception as e:          # a scene that fails, whatever the reason: go on
+            what = str(e) if isinstance(e, KdrayError) else f"{type(e).__name__}: {e}"
+            report.errors.append(what if str(job.scene) in what else f"{job.scene}: {what}")
+            log.debug("%s failed", job.scene, exc_info=True)
             progress.advance(len(todo))
             continue
         report.add(seconds)
@@ -609,7 +617,7 @@ def _make_plugin(device, cache_folder):
         def setup(self, worker):
             from .cache import TreeCache
             cache = None if self.cache_folder is None else TreeCache(self.cache_folder)
-            self.renderer = Renderer(device=self.device, cache=cache)
+            self.renderer = Renderer(device=self.device, cache=cache, dask_worker=True)
 
     return KdrayWorker(device, cache_folder)
 

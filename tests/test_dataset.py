@@ -355,9 +355,10 @@ def test_dask_workers_write_the_same_bytes(tmp_path):
 def test_dask_worker_killed_loses_nothing(tmp_path, monkeypatch):
     pytest.importorskip("distributed")
     cache = TreeCache(tmp_path / "cache")
-    here = run(_dask_jobs(tmp_path, "here"), cache=cache)
     marker = tmp_path / "killed"
     monkeypatch.setenv(dataset.TEST_KILL_ENV, str(marker))
+    assert all(r.ok for r in run(_dask_jobs(tmp_path, "here"), cache=cache))
+    assert not marker.exists()                           # the hook acts in Dask workers only
     dask = run(_dask_jobs(tmp_path, "dask"), workers=2, cache=cache, chunk=2)
     assert marker.exists()                               # a worker did die
     assert all(r.ok and r.rendered == 7 for r in dask), [r.errors for r in dask]
