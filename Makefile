@@ -72,12 +72,14 @@ bench: bench-deps
 	$(BIN)/python bench/bench_error.py --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
 
 # Everything in BENCHMARKS.md: the above, the stiff cases beside Open3D and embreex,
-# build scaling to 6M triangles, what leaving out saves, and the cold start.
+# build scaling to 6M triangles, what leaving out saves, the cold start, and datasets
+# (views per second beside Open3D, per-scene overhead, Dask workers).
 bench-all: bench
 	$(BIN)/python bench/bench_stiff.py
 	$(BIN)/python bench/bench_build.py
 	$(BIN)/python bench/bench_leave_out.py
 	$(BIN)/python bench/bench_cold.py
+	$(BIN)/python bench/bench_dataset.py
 
 # Regenerate the golden images on purpose (review the diff before committing).
 golden: $(STAMP)
