@@ -1,4 +1,5 @@
-"""Camera: a pinhole camera with OpenCV axes, and the rays of its pixels.
+"""Camera: a camera with OpenCV axes (a pinhole, or one of kdray.lens's models), and
+the rays of its pixels.
 
     camera = Camera.look_at(eye=(0, 1, 4), target=(0, 1, 0), fov_deg=40,
                             width=640, height=480)
@@ -46,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import lens
 from .errors import CameraError, OutputError
 
 ORTHONORMAL_TOL = 1e-6
@@ -168,21 +170,32 @@ def _readonly(array):
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Camera:
-    """A pinhole camera: image size, intrinsics and pose (OpenCV axes).
+    """A camera: image size, intrinsics, pose (OpenCV axes) and model.
 
     width, height : int                  image size in pixels, >= 1
     K             : (3, 3) float64       intrinsics, pixels (read-only copy)
     cam_to_world  : (4, 4) float64       camera-to-world rigid transform (read-only copy)
+    model         : str                  "pinhole" (default), "opencv", "fisheye",
+                                         "equirectangular" or "orthographic" (kdray.lens,
+                                         docs/conventions.md "Camera models")
+    distortion    : tuple of float       coefficients in OpenCV's order: opencv k1 k2 p1
+                                         p2 [k3 [k4 k5 k6]], fisheye k1 k2 k3 k4; () else
     """
 
     width: int
     height: int
     K: np.ndarray
     cam_to_world: np.ndarray
+    model: str = "pinhole"
+    distortion: tuple = ()
 
     def __post_init__(self):
         object.__setattr__(self, "width", _size(self.width, "width"))
         object.__setattr__(self, "height", _size(self.height, "height"))
+        if not isinstance(self.model, str):
+            raise CameraError(f"model must be a string, one of {', '.join(lens.MODELS)}; "
+                              f"got {self.model!r}.")
+        object.__setattr__(self, "distortion", lens.check_distortion(self.model, self.distortion))
         K = _check_intrinsics(self.K)
         if abs(np.linalg.det(K)) == 0 or not np.all(np.isfinite(np.linalg.inv(K))):
             raise CameraError(f"K must be invertible, got {K.tolist()}.")
@@ -197,6 +210,8 @@ class Camera:
             and self.height == other.height
             and np.array_equal(self.K, other.K)
             and np.array_equal(self.cam_to_world, other.cam_to_world)
+            and self.model == other.model
+            and self.distortion == other.distortion
         )
 
     __hash__ = None
@@ -220,9 +235,21 @@ class Camera:
         return cls(width, height, K, pose)
 
     @classmethod
-    def from_intrinsics(cls, K, cam_to_world, width, height):
-        """A camera from a (3, 3) intrinsic matrix and a (4, 4) camera-to-world pose."""
-        return cls(width, height, K, cam_to_world)
+    def from_intrinsics(cls, K, cam_to_world, width, height, model="pinhole", distortion=()):
+        """A camera from a (3, 3) intrinsic matrix and a (4, 4) camera-to-world pose
+        (and a model and its distortion coefficients, OpenCV's order)."""
+        return cls(width, height, K, cam_to_world, model, distortion)
+
+    @classmethod
+    def panorama(cls, cam_to_world, width, height, longitude=(-math.pi, math.pi),
+                 latitude=(math.pi / 2, -math.pi / 2)):
+        """An equirectangular camera whose image spans `longitude` (left, right edge)
+        and `latitude` (top, bottom edge), radians, in camera axes (longitude 0 along
+        +z, pi / 2 along +x; latitude pi / 2 up, along -y): the full 360 x 180 degree
+        panorama by default."""
+        width, height = _size(width, "width"), _size(height, "height")
+        K = lens.equirectangular_K(width, height, longitude, latitude)
+        return cls(width, height, K, cam_to_world, "equirectangular")
 
     @classmethod
     def frame(
@@ -302,12 +329,19 @@ class Camera:
             raise CameraError("expected a JSON object with width, height and a pose.")
         look_keys = {"eye", "target", "up", "fov"}
         matrix_keys = {"K", "cam_to_world"}
-        unknown = set(data) - look_keys - matrix_keys - {"width", "height"}
+        unknown = set(data) - look_keys - matrix_keys - {"width", "height", "model", "distortion"}
         if unknown:
             raise CameraError(
-                f"unknown keys {sorted(unknown)}; expected width, height and either "
-                "eye, target, up, fov or K, cam_to_world."
+                f"unknown keys {sorted(unknown)}; expected width, height, optionally model "
+                "and distortion, and either eye, target, up, fov or K, cam_to_world."
             )
+        model = data.get("model", "pinhole")
+        distortion = data.get("distortion", [])
+        if not isinstance(model, str):
+            raise CameraError(f"model must be a string, got {model!r}.")
+        if not (isinstance(distortion, list) and all(
+                isinstance(c, numbers.Real) and not isinstance(c, bool) for c in distortion)):
+            raise CameraError(f"distortion must be a list of numbers, got {distortion!r}.")
         for key in ("width", "height"):
             if key not in data:
                 raise CameraError(f"missing '{key}'.")
@@ -319,7 +353,13 @@ class Camera:
             for key in ("eye", "target"):
                 if key not in data:
                     raise CameraError(f"missing '{key}'.")
-            return cls.look_at(
+            if model == "orthographic":
+                raise CameraError("an orthographic camera needs K (pixels per world unit): "
+                                  "give K and cam_to_world.")
+            if model == "equirectangular" and "fov" in data:
+                raise CameraError("an equirectangular camera of the look-at form is the full "
+                                  "panorama: give no fov (or give K and cam_to_world).")
+            camera = cls.look_at(
                 data["eye"],
                 data["target"],
                 data.get("up", DEFAULT_UP),
@@ -327,6 +367,10 @@ class Camera:
                 data["width"],
                 data["height"],
             )
+            K = camera.K
+            if model == "equirectangular":
+                K = lens.equirectangular_K(camera.width, camera.height)
+            return cls(camera.width, camera.height, K, camera.cam_to_world, model, distortion)
         if not uses_matrix:
             raise CameraError("missing a pose: give eye and target, or K and cam_to_world.")
         for key in ("K", "cam_to_world"):
@@ -343,20 +387,21 @@ class Camera:
             raise CameraError("K must be a 3x3 array of numbers or {fx, fy, cx, cy}.")
         if not _is_nested_numbers(data["cam_to_world"]):
             raise CameraError("cam_to_world must be a 4x4 array of numbers.")
-        return cls(data["width"], data["height"], K, data["cam_to_world"])
+        return cls(data["width"], data["height"], K, data["cam_to_world"], model, distortion)
 
     def to_json(self, path):
-        """Write this camera as a JSON file (K and cam_to_world form; exact round trip)."""
+        """Write this camera as a JSON file (K and cam_to_world form, and model and
+        distortion unless a pinhole; exact round trip)."""
         path = Path(path)
-        text = json.dumps(
-            {
-                "width": self.width,
-                "height": self.height,
-                "K": self.K.tolist(),
-                "cam_to_world": self.cam_to_world.tolist(),
-            },
-            indent=2,
-        )
+        fields = {
+            "width": self.width,
+            "height": self.height,
+            "K": self.K.tolist(),
+            "cam_to_world": self.cam_to_world.tolist(),
+        }
+        if self.model != "pinhole":
+            fields.update(model=self.model, distortion=list(self.distortion))
+        text = json.dumps(fields, indent=2)
         tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
         try:
             with open(tmp, "x", encoding="utf-8") as f:
@@ -386,29 +431,61 @@ class Camera:
         """(3,) float64: the unit optical axis (camera +z) in world space."""
         return self.cam_to_world[:3, 2]
 
-    def rays(self):
+    def rays(self, valid=False):
         """One ray per pixel through its centre, row-major (row j, then column i).
 
-        Returns origins (H*W, 3) float64 (all the eye) and directions (H*W, 3) float64
-        with camera-z 1 (not normalized).
+        Returns origins (H*W, 3) float64 (all the eye, but for an orthographic camera)
+        and directions (H*W, 3) float64: camera-z 1 (not normalized) for pinhole and
+        opencv cameras, unit for the other models; NaN for a pixel with no ray. With
+        valid=True also (H*W,) bool: the pixel has a ray (every pixel of a pinhole).
         """
+        if self.model != "pinhole":
+            return self._model_rays(valid)
         M = self.rotation @ np.linalg.inv(self.K)
         u = np.arange(self.width, dtype=np.float64) + 0.5
         v = np.arange(self.height, dtype=np.float64) + 0.5
         uu, vv = np.meshgrid(u, v)  # (H, W): row j, column i
         directions = uu.reshape(-1, 1) * M[:, 0] + vv.reshape(-1, 1) * M[:, 1] + M[:, 2]
         origins = np.broadcast_to(self.eye, directions.shape).copy()
+        if valid:
+            return origins, directions, np.ones(len(directions), dtype=bool)
         return origins, directions
+
+    def _model_rays(self, valid):
+        o_cam, d_cam, ok = lens.model_rays(self.model, self.K, self.distortion,
+                                           self.width, self.height)
+        R = self.rotation
+        directions = np.empty_like(d_cam)
+        for k in range(3):      # by column: numpy's loops over rows of 3 are slow
+            directions[:, k] = d_cam[:, 0] * R[k, 0] + d_cam[:, 1] * R[k, 1] + d_cam[:, 2] * R[k, 2]
+        if o_cam is None:
+            origins = np.broadcast_to(self.eye, directions.shape).copy()
+        else:
+            origins = np.empty_like(o_cam)
+            for k in range(3):
+                origins[:, k] = self.eye[k] + o_cam[:, 0] * R[k, 0] + o_cam[:, 1] * R[k, 1]
+        return (origins, directions, ok) if valid else (origins, directions)
+
+    def valid(self):
+        """(H, W) bool: the pixels that have a ray (all of a pinhole's). Costs a
+        computation of the rays."""
+        if self.model == "pinhole":
+            return np.ones((self.height, self.width), dtype=bool)
+        return lens.model_rays(self.model, self.K, self.distortion, self.width,
+                               self.height)[2].reshape(self.height, self.width)
 
     def project(self, points):
         """World points (n, 3) -> (pixels (n, 2) float64, depth (n,) float64).
 
         pixels are continuous image coordinates (x right, y down): pixel (i, j) covers
         [i, i + 1) x [j, j + 1) and its centre is (i + 0.5, j + 0.5). depth is the
-        camera-z (negative behind the camera).
+        camera-z (negative behind the camera); for a fisheye or equirectangular camera
+        the distance from the eye (the model's forward map: kdray.lens.project_camera).
         """
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         cam = (points - self.eye) @ self.rotation  # R^T (p - eye), row by row
+        if self.model != "pinhole":
+            return lens.project_camera(self.model, self.K, self.distortion, cam)
         depth = cam[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             pixels = (cam @ self.K.T)[:, :2] / depth[:, None]

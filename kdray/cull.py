@@ -85,9 +85,13 @@ def cull_faces(vertices, faces, camera, origin=None):
     origin : (3,) float64 the tree's float32 data will be relative to; None = the
         centre of the box of the finite vertices the faces use (the builder's default)
     Returns (k,) int64 ascending face indices: every triangle a ray can reach, and
-    possibly some it cannot (see the module docstring). Raises MeshError for bad arrays.
+    possibly some it cannot (see the module docstring); every face for a camera that is
+    not a pinhole (kdray.lens: no frustum of planes bounds its rays). Raises MeshError
+    for bad arrays.
     """
     v, f = check_arrays(vertices, faces)
+    if getattr(camera, "model", "pinhole") != "pinhole":
+        return np.arange(len(f), dtype=np.int64)
     used = np.zeros(len(v), dtype=bool)
     used[f.ravel()] = True
     used &= np.isfinite(v).all(axis=1)

@@ -164,6 +164,55 @@ def images(out, camera, origin, aovs, scale=1.0, objects=None):
     return result
 
 
+MODEL_RAY_BYTES = 3 * 24 + 1
+"""Host bytes per pixel of a camera model's rays (Camera.rays: float64 origins and
+directions, and the camera-axis directions they are made from) and its valid mask."""
+
+
+def ray_images(hits, origins, directions, valid, camera, aovs):
+    """The AOV images of a camera traced from its own rays (a model that is not the
+    pinhole: Tracer.render), and `valid`.
+
+    hits : Hits of the H*W rays (float32 or, precision="double", float64 t, u, v);
+    origins, directions : (H*W, 3) float64, the rays traced (Camera.rays: NaN
+        directions for the pixels with no ray); valid : (H*W,) bool.
+    Returns a dict in the order of `aovs`, then valid (H, W) bool: depth (H, W) the
+    ray's t (z-depth for opencv and orthographic cameras, whose directions have
+    camera-z 1; the distance along the unit ray for fisheye and equirectangular
+    ones), +inf on a miss; distance (H, W) t |d|; position (H, W, 3) o + t d (NaN on a
+    miss); normal, bary, id, object as `images`. float32, or float64 where hits are.
+    """
+    w, h = int(camera.width), int(camera.height)
+    t = hits.t
+    hit = hits.hit
+    dtype = t.dtype
+    result = {}
+    for name in aovs:
+        if name == "depth":
+            result[name] = t.reshape(h, w)
+        elif name == "distance":
+            dist = np.full(w * h, np.inf)
+            dd = directions[hit]
+            dist[hit] = t[hit] * np.sqrt(dd[:, 0] ** 2 + dd[:, 1] ** 2 + dd[:, 2] ** 2)
+            result[name] = dist.astype(dtype).reshape(h, w)
+        elif name == "position":
+            p = np.full((w * h, 3), np.nan)
+            th = t[hit].astype(np.float64)
+            for k in range(3):
+                p[hit, k] = origins[hit, k] + th * directions[hit, k]
+            result[name] = p.astype(dtype).reshape(h, w, 3)
+        elif name == "normal":
+            result[name] = hits.normal.reshape(h, w, 3)
+        elif name == "bary":
+            result[name] = np.stack([hits.u, hits.v], axis=-1).reshape(h, w, 2)
+        elif name == "id":
+            result[name] = hits.prim.reshape(h, w)
+        elif name == "object":
+            result[name] = hits.object.reshape(h, w)
+    result["valid"] = np.asarray(valid, dtype=bool).reshape(h, w)
+    return result
+
+
 DOUBLE_AOVS = ("depth", "distance", "position", "bary")
 """The AOVs precision="double" computes in float64 (`double_images`)."""
 

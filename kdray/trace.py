@@ -513,9 +513,16 @@ class Tracer:
         precision : "single" (float32 images) or "double": the same hits, and depth,
         distance, position and bary in float64 from each pixel's exact float64 ray
         (Camera.rays) and the tree's float64 triangles (render.double_images).
+        A camera of another model than the pinhole (opencv, fisheye, equirectangular,
+        orthographic: kdray.lens) is traced from its float64 rays (Camera.rays), and
+        its images hold `valid` too: (H, W) bool, the pixels that have a ray (the others
+        are misses). Its depth is the z-depth for opencv and orthographic cameras, the
+        distance along the ray for fisheye and equirectangular ones.
         """
         double = _precision(precision, self.tree)
         aovs = _render.parse_aovs(aovs)
+        if camera.model != "pinhole":
+            return self._render_model(camera, aovs, precision)
         if double:
             # the kernel finds the triangles (ids, objects) and the normals; the rest is
             # float64
@@ -552,6 +559,18 @@ class Tracer:
                          {k: v[start:stop] for k, v in out.items()})
         return _render.images(out, camera, self._origin, aovs, self._scale,
                               objects=self.tree.objects)
+
+    def _render_model(self, camera, aovs, precision):
+        """`render` of a camera that is not a pinhole (kdray.lens): its float64 rays
+        (Camera.rays) made on the host, traced by `trace` (refined in double against
+        those rays where the device has it), and a `valid` image."""
+        w, h = int(camera.width), int(camera.height)
+        check_host_memory(w * h * (_render.host_bytes_per_pixel(aovs) + _render.MODEL_RAY_BYTES),
+                          f"a {w}x{h} {camera.model} render of {', '.join(aovs)}")
+        o, d, valid = camera.rays(valid=True)
+        origins = o if camera.model == "orthographic" else camera.eye   # one origin: no copy
+        hits = self.trace(origins, d, precision=precision)
+        return _render.ray_images(hits, o, d, valid, camera, aovs)
 
     def render_many(self, cameras, aovs=DEFAULT_AOVS, precision="single"):
         """The images of each camera of an iterable, one dict at a time, as `render`

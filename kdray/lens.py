@@ -1,0 +1,399 @@
+"""Camera models beyond the pinhole: pixel -> ray in camera axes, and back.
+
+    rays_cam = model_rays("fisheye", K, (k1, k2, k3, k4), width, height)
+    origins, directions, valid = rays_cam        # camera axes; origins None: the eye
+    pixels, depth = project_camera("opencv", K, distortion, points_cam)
+
+Every model uses OpenCV's camera axes (x right, y down, z forward) and kdray's pixels
+(pixel (i, j) sampled at its centre (i + 0.5, j + 0.5)). With (a, b, 1) = K^-1 (u, v, 1)
+the normalized image coordinates of the pixel point (u, v) (docs/conventions.md,
+"Camera models"):
+
+- ``pinhole``: direction (a, b, 1).
+- ``opencv``: OpenCV's radial-tangential model, coefficients (k1, k2, p1, p2[, k3[,
+  k4, k5, k6]]) in OpenCV's order. (a, b) is the *distorted* point; the ray goes
+  through the undistorted (x, y) whose distortion is (a, b), found in float64 by a
+  safeguarded Newton iteration and checked (`opencv_undistort`); direction (x, y, 1).
+- ``fisheye``: OpenCV's fisheye (Kannala-Brandt) model, (k1, k2, k3, k4): the distorted
+  radius theta_d = |(a, b)| is theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4
+  theta^8) of the angle theta from the optical axis, which may pass pi / 2 (a field of
+  view over 180 degrees) up to pi; unit direction (sin theta (a, b) / theta_d, cos theta).
+- ``equirectangular``: longitude a and latitude -b, in radians (b is positive down);
+  unit direction (cos b sin a, sin b, cos b cos a): longitude 0 is +z, pi / 2 is +x;
+  b = -pi / 2 is straight up (-y). The full panorama of a W x H image has
+  K = [[W / (2 pi), 0, W / 2], [0, H / pi, H / 2], [0, 0, 1]] (`equirectangular_K`).
+- ``orthographic``: K is in pixels per world unit; the ray leaves the point (a, b, 0)
+  of the camera's image plane (through the eye) along +z.
+
+A pixel with no ray (outside the domain where a model is invertible and monotonic, past
+a fisheye's field, a latitude beyond +-pi / 2) is not valid: its direction is NaN, and
+`valid` says so.
+"""
+import logging
+import math
+
+import numpy as np
+
+from .errors import CameraError
+
+log = logging.getLogger(__name__)
+
+MODELS = ("pinhole", "opencv", "fisheye", "equirectangular", "orthographic")
+"""The camera models a kdray.Camera knows."""
+
+OPENCV_LENGTHS = (4, 5, 8)
+"""How many coefficients an `opencv` camera takes: k1 k2 p1 p2 [k3 [k4 k5 k6]]."""
+
+FISHEYE_LENGTH = 4
+"""A `fisheye` camera's coefficients: k1 k2 k3 k4."""
+
+CONVERGENCE_TOL = 1e-12
+"""An inverted pixel counts as valid when its distortion is within CONVERGENCE_TOL *
+(1 + |(a, b)|) of the pixel's normalized point (about 1e-9 pixel at f = 1000)."""
+
+MAX_ITERATIONS = 100
+"""Newton steps at most for one pixel's inversion; one that has not converged by then
+is not valid."""
+
+_STOP = 1e-3
+"""The iterations go on until the error is _STOP times the tolerance checked (or stops
+changing), so that a pixel never fails the check by a rounding."""
+
+SCAN_STEPS = 4096
+"""Samples per interval of the scan for the radius where a model stops being monotonic."""
+
+
+def check_distortion(model, distortion):
+    """`distortion` as a tuple of finite floats of the length `model` takes, or
+    CameraError (one line)."""
+    if model not in MODELS:
+        raise CameraError(f"unknown camera model {model!r}; expected one of {', '.join(MODELS)}.")
+    if isinstance(distortion, (str, bytes)):
+        raise CameraError(f"distortion must be a sequence of numbers, got {distortion!r}.")
+    try:
+        values = tuple(float(c) for c in np.asarray(distortion, dtype=np.float64).reshape(-1))
+    except (TypeError, ValueError):
+        raise CameraError(f"distortion must be a sequence of numbers, got {distortion!r}.") from None
+    if np.ndim(distortion) > 1:
+        raise CameraError(f"distortion must be a flat sequence of numbers, got {distortion!r}.")
+    if not all(math.isfinite(c) for c in values):
+        raise CameraError(f"distortion coefficients must be finite, got {list(values)}.")
+    if model == "opencv" and len(values) not in OPENCV_LENGTHS:
+        raise CameraError(f"an opencv camera takes 4, 5 or 8 distortion coefficients (k1 k2 p1 "
+                          f"p2 [k3 [k4 k5 k6]], OpenCV's order), got {len(values)}.")
+    if model == "fisheye" and len(values) != FISHEYE_LENGTH:
+        raise CameraError(f"a fisheye camera takes 4 distortion coefficients (k1 k2 k3 k4), "
+                          f"got {len(values)}.")
+    if model not in ("opencv", "fisheye") and values:
+        raise CameraError(f"a {model} camera takes no distortion coefficients, got {len(values)}.")
+    return values
+
+
+def equirectangular_K(width, height, longitude=(-math.pi, math.pi),
+                      latitude=(math.pi / 2, -math.pi / 2)):
+    """K of an equirectangular camera whose image spans `longitude` (left edge, right
+    edge) and `latitude` (top edge, bottom edge), radians: the full panorama by default."""
+    (lon0, lon1), (lat0, lat1) = longitude, latitude
+    if not (lon1 > lon0 and lat0 > lat1):
+        raise CameraError(f"an equirectangular image needs longitudes increasing to the right and "
+                          f"latitudes decreasing downwards, got {longitude}, {latitude}.")
+    fx, fy = width / (lon1 - lon0), height / (lat0 - lat1)
+    return np.array([[fx, 0.0, -lon0 * fx], [0.0, fy, lat0 * fy], [0.0, 0.0, 1.0]])
+
+
+# OpenCV's radial-tangential model ----------------------------------------------------
+
+
+def _opencv_coefficients(distortion):
+    k = list(distortion) + [0.0] * (8 - len(distortion))
+    k1, k2, p1, p2, k3, k4, k5, k6 = k
+    return k1, k2, p1, p2, k3, k4, k5, k6
+
+
+def opencv_distort(x, y, distortion):
+    """OpenCV's distortion of undistorted normalized points (x, y) -> (xd, yd), float64."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = _opencv_coefficients(distortion)
+    r2 = x * x + y * y
+    radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xy = x * y
+    return (x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x * x),
+            y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * xy)
+
+
+def _radial(distortion):
+    """(g, dg, den): the radial distortion r -> r * radial(r^2), its derivative, and the
+    rational model's denominator."""
+    k1, k2, _, _, k3, k4, k5, k6 = _opencv_coefficients(distortion)
+
+    def num(s):
+        return 1 + s * (k1 + s * (k2 + s * k3))
+
+    def den(r):
+        s = r * r
+        return 1 + s * (k4 + s * (k5 + s * k6))
+
+    def g(r):
+        return r * num(r * r) / den(r)
+
+    def dg(r):
+        s = r * r
+        n, d = num(s), den(r)
+        dn = 2 * r * (k1 + s * (2 * k2 + 3 * s * k3))
+        dd = 2 * r * (k4 + s * (2 * k5 + 3 * s * k6))
+        return (n + r * dn) / d - r * n * dd / (d * d)
+
+    return g, dg, den
+
+
+def _monotonic_limit(g, dg, need, cap, den=None):
+    """(limit, g(limit)): the first r > 0 where g stops increasing (g' <= 0, or `den`
+    <= 0) found by a scan, or the r where g passes `need` (every pixel's target), or
+    `cap`, whichever comes first. g is monotonic increasing on [0, limit)."""
+    lo, hi = 0.0, max(min(2.0 * need, cap), 1e-6)
+    while True:
+        r = np.linspace(lo, hi, SCAN_STEPS + 1)[1:]
+        bad = ~(dg(r) > 0)
+        if den is not None:
+            bad |= ~(den(r) > 0)
+        if bad.any():
+            i = int(np.argmax(bad))
+            a, b = (r[i - 1] if i else lo), r[i]
+            for _ in range(200):              # bisect to the first bad radius
+                m = 0.5 * (a + b)
+                if m in (a, b):
+                    break
+                ok = dg(m) > 0 and (den is None or den(m) > 0)
+                a, b = (m, b) if ok else (a, m)
+            return a, float(g(a))
+        top = float(g(hi))
+        if top > need or hi >= cap:
+            return hi, top
+        lo, hi = hi, min(2.0 * hi, cap)
+
+
+def _invert_monotonic(g, dg, target, limit):
+    """r in [0, limit] with g(r) = target (g increasing there), by Newton's method kept
+    inside a bisection bracket; float64. Returns (r, converged)."""
+    r = np.minimum(target, limit)
+    lo = np.zeros_like(target)
+    hi = np.full_like(target, limit)
+    stop = _STOP * CONVERGENCE_TOL * (1.0 + target)
+    active = np.arange(len(target))
+    for _ in range(MAX_ITERATIONS):
+        ra, ta = r[active], target[active]
+        f = g(ra) - ta
+        keep = ~(np.abs(f) <= stop[active])
+        active, ra, f = active[keep], ra[keep], f[keep]
+        if not len(active):
+            break
+        lo[active] = np.where(f < 0, ra, lo[active])
+        hi[active] = np.where(f > 0, ra, hi[active])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = ra - f / dg(ra)
+        la, ha = lo[active], hi[active]
+        inside = (step > la) & (step < ha)
+        step = np.where(inside, step, 0.5 * (la + ha))
+        moved = step != ra                # a fixed point in float64: as good as it gets
+        r[active] = step
+        active = active[moved]
+    converged = np.abs(g(r) - target) <= CONVERGENCE_TOL * (1.0 + target)
+    return r, converged
+
+
+def opencv_undistort(a, b, distortion):
+    """The undistorted normalized points (x, y) whose OpenCV distortion is (a, b):
+    (x, y, valid), float64. Invalid where no such point lies inside the radius up to
+    which the radial distortion is monotonic (and its denominator positive), where the
+    iteration does not converge, or where the Jacobian there is not positive; x, y are
+    NaN there."""
+    g, dg, den = _radial(distortion)
+    rd = np.hypot(a, b)
+    need = float(rd.max()) if rd.size else 0.0
+    limit, g_limit = _monotonic_limit(g, dg, need, cap=1e8, den=den)
+    reach = rd < g_limit
+    r = np.full_like(rd, np.nan)
+    r[reach], converged = _invert_monotonic(g, dg, rd[reach], limit)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(rd > 0, r / rd, 1.0)
+    x, y = a * scale, b * scale
+    k1, k2, p1, p2 = _opencv_coefficients(distortion)[:4]
+    if p1 or p2:
+        x, y = _newton_2d(x, y, a, b, distortion)
+    xd, yd = opencv_distort(x, y, distortion)
+    residual = np.hypot(xd - a, yd - b)
+    with np.errstate(invalid="ignore"):
+        valid = (residual <= CONVERGENCE_TOL * (1.0 + rd)) & (np.hypot(x, y) < limit)
+        valid &= _jacobian_det(x, y, distortion) > 0
+    x[~valid] = np.nan
+    y[~valid] = np.nan
+    _report(valid, "opencv", distortion, f"monotonic up to the radius {limit:.6g} "
+            f"(distorted {g_limit:.6g}) of the normalized image plane")
+    return x, y, valid
+
+
+def _report(valid, model, distortion, domain):
+    """Log (warning) the fraction of the pixels that have a ray, when not all do."""
+    if valid.size and not valid.all():
+        log.warning("%s camera %s: %.4g%% of the pixels have a ray (%s); the others are "
+                    "misses, flagged in `valid`.", model, list(distortion),
+                    100.0 * valid.mean(), domain)
+
+
+def _jacobian(x, y, distortion):
+    """d(xd, yd) / d(x, y) of opencv_distort: four arrays."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = _opencv_coefficients(distortion)
+    r2 = x * x + y * y
+    num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    dnum = k1 + r2 * (2 * k2 + 3 * r2 * k3)       # d num / d r2
+    dden = k4 + r2 * (2 * k5 + 3 * r2 * k6)
+    radial = num / den
+    drad = (dnum * den - num * dden) / (den * den)  # d radial / d r2
+    j00 = radial + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
+    j01 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
+    j10 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
+    j11 = radial + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
+    return j00, j01, j10, j11
+
+
+def _jacobian_det(x, y, distortion):
+    j00, j01, j10, j11 = _jacobian(x, y, distortion)
+    return j00 * j11 - j01 * j10
+
+
+def _newton_2d(x, y, a, b, distortion):
+    """Newton's method on the full model from the radial solution (x, y); float64."""
+    x, y = x.copy(), y.copy()
+    active = np.flatnonzero(np.isfinite(x))
+    tol = _STOP * CONVERGENCE_TOL * (1.0 + np.hypot(a, b))
+    for _ in range(MAX_ITERATIONS):
+        xa, ya = x[active], y[active]
+        xd, yd = opencv_distort(xa, ya, distortion)
+        fx, fy = xd - a[active], yd - b[active]
+        keep = ~(np.hypot(fx, fy) <= tol[active]) & np.isfinite(fx) & np.isfinite(fy)
+        active, xa, ya, fx, fy = active[keep], xa[keep], ya[keep], fx[keep], fy[keep]
+        if not len(active):
+            break
+        j00, j01, j10, j11 = _jacobian(xa, ya, distortion)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = j00 * j11 - j01 * j10
+            xn = xa - (j11 * fx - j01 * fy) / det
+            yn = ya - (j00 * fy - j10 * fx) / det
+        x[active], y[active] = xn, yn
+        active = active[(xn != xa) | (yn != ya)]
+    return x, y
+
+
+# OpenCV's fisheye model -----------------------------------------------------------------
+
+
+def _fisheye_polynomial(distortion):
+    k1, k2, k3, k4 = distortion
+
+    def f(t):
+        s = t * t
+        return t * (1 + s * (k1 + s * (k2 + s * (k3 + s * k4))))
+
+    def df(t):
+        s = t * t
+        return 1 + s * (3 * k1 + s * (5 * k2 + s * (7 * k3 + s * 9 * k4)))
+
+    return f, df
+
+
+def fisheye_unproject(a, b, distortion):
+    """Unit directions (n, 3) of the fisheye points (a, b) and `valid`: theta in [0, pi]
+    with theta_d(theta) = |(a, b)|, inside the angle up to which theta_d is monotonic."""
+    f, df = _fisheye_polynomial(distortion)
+    rd = np.hypot(a, b)
+    limit, f_limit = _monotonic_limit(f, df, math.inf, cap=math.pi)
+    reach = rd <= f_limit if limit == math.pi else rd < f_limit
+    theta = np.full_like(rd, np.nan)
+    theta[reach], converged = _invert_monotonic(f, df, rd[reach], limit)
+    valid = np.zeros(rd.shape, dtype=bool)
+    valid[reach] = converged
+    theta[~valid] = np.nan
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.where(rd > 0, np.sin(theta) / rd, 1.0)
+    d = np.stack([a * s, b * s, np.cos(theta)], axis=1)
+    d[~valid] = np.nan
+    _report(valid, "fisheye", distortion, f"theta_d is monotonic up to theta = {limit:.6g} rad"
+            if limit < math.pi else f"a field of view of 360 degrees ends at theta_d {f_limit:.6g}")
+    return d, valid
+
+
+# All models ---------------------------------------------------------------------------
+
+
+def pixel_points(K, width, height):
+    """(a, b): K^-1 (i + 0.5, j + 0.5, 1) of every pixel, row-major, (H*W,) float64 each."""
+    Kinv = np.linalg.inv(np.asarray(K, dtype=np.float64))
+    u = np.tile(np.arange(width, dtype=np.float64) + 0.5, height)
+    v = np.repeat(np.arange(height, dtype=np.float64) + 0.5, width)
+    a = Kinv[0, 0] * u + Kinv[0, 1] * v + Kinv[0, 2]
+    b = Kinv[1, 1] * v + Kinv[1, 2]
+    return a, b
+
+
+def model_rays(model, K, distortion, width, height):
+    """(origins, directions, valid) of every pixel in camera axes, row-major, float64.
+
+    origins : None for a central model (every ray leaves the eye), else (H*W, 3): the
+        orthographic camera's points on its image plane. directions : (H*W, 3), NaN
+        where not valid; camera-z 1 for pinhole and opencv, unit otherwise.
+    valid : (H*W,) bool.
+    """
+    a, b = pixel_points(K, width, height)
+    n = len(a)
+    valid = np.ones(n, dtype=bool)
+    origins = None
+    if model == "pinhole":
+        d = np.stack([a, b, np.ones(n)], axis=1)
+    elif model == "opencv":
+        x, y, valid = opencv_undistort(a, b, distortion)
+        d = np.stack([x, y, np.where(valid, 1.0, np.nan)], axis=1)
+    elif model == "fisheye":
+        d, valid = fisheye_unproject(a, b, distortion)
+    elif model == "equirectangular":
+        valid = np.abs(b) <= math.pi / 2
+        cb = np.cos(b)
+        d = np.stack([cb * np.sin(a), np.sin(b), cb * np.cos(a)], axis=1)
+        d[~valid] = np.nan
+    elif model == "orthographic":
+        origins = np.stack([a, b, np.zeros(n)], axis=1)
+        d = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (n, 3)).copy()
+    else:
+        raise CameraError(f"unknown camera model {model!r}.")
+    return origins, d, valid
+
+
+def project_camera(model, K, distortion, points):
+    """Camera-axis points (n, 3) -> (pixels (n, 2), depth (n,)), float64: the forward
+    model. depth is the camera-z for pinhole, opencv and orthographic, the distance
+    from the eye for fisheye and equirectangular (the AOV `depth` of each model)."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if model in ("pinhole", "opencv"):
+            a, b = x / z, y / z
+            if model == "opencv":
+                a, b = opencv_distort(a, b, distortion)
+            depth = z
+        elif model == "fisheye":
+            rxy = np.hypot(x, y)
+            theta = np.arctan2(rxy, z)
+            f, _ = _fisheye_polynomial(distortion)
+            s = np.where(rxy > 0, f(theta) / rxy, 0.0)
+            a, b = x * s, y * s
+            depth = np.sqrt(x * x + y * y + z * z)
+        elif model == "equirectangular":
+            a = np.arctan2(x, z)
+            b = np.arctan2(y, np.hypot(x, z))
+            depth = np.sqrt(x * x + y * y + z * z)
+        elif model == "orthographic":
+            a, b, depth = x, y, z
+        else:
+            raise CameraError(f"unknown camera model {model!r}.")
+    K = np.asarray(K, dtype=np.float64)
+    pixels = np.stack([K[0, 0] * a + K[0, 1] * b + K[0, 2], K[1, 1] * b + K[1, 2]], axis=1)
+    return pixels, depth

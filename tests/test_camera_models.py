@@ -1,0 +1,345 @@
+"""Camera models beyond the pinhole (kdray.lens, Camera.model / distortion): rays against
+OpenCV's projections (cv2.projectPoints, cv2.fisheye.projectPoints) and against the
+analytic directions of the equirectangular and orthographic cameras; renders whose hit
+points project back onto their pixel centres; the valid mask; bad input."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+import kdray
+from kdray import Camera, lens
+from kdray.errors import CameraError
+
+cv2 = pytest.importorskip("cv2")
+
+W, H = 160, 120
+MODERATE = (-0.28, 0.07, 0.0008, -0.0011, 0.01)
+STRONG = (0.9, 0.45, -0.004, 0.003, 0.12, 0.35, 0.08, 0.02)        # rational model
+FISHEYE = (0.08, -0.02, 0.004, -0.0005)
+
+
+def _pose(eye=(0.2, -0.1, 0.3), target=(0.0, 0.0, 3.0)):
+    return Camera.look_at(eye, target, (0.1, -1.0, 0.0), 60, W, H).cam_to_world
+
+
+def _K(f=110.0):
+    return np.array([[f, 0.0, W / 2 + 3.25], [0.0, 1.03 * f, H / 2 - 1.5], [0.0, 0.0, 1.0]])
+
+
+def _rvec_tvec(camera):
+    R = camera.rotation.T                       # world -> camera
+    rvec, _ = cv2.Rodrigues(R)
+    return rvec, -R @ camera.eye
+
+
+def _pixel_centres(mask):
+    j, i = np.divmod(np.flatnonzero(mask.reshape(-1)), W)
+    return np.stack([i + 0.5, j + 0.5], axis=1)
+
+
+def _opencv_project(camera, points):
+    rvec, tvec = _rvec_tvec(camera)
+    objects = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 1, 3)
+    if camera.model == "fisheye":
+        pixels, _ = cv2.fisheye.projectPoints(objects, rvec, tvec, camera.K,
+                                              np.array(camera.distortion))
+    else:
+        pixels, _ = cv2.projectPoints(objects, rvec, tvec, camera.K, np.array(camera.distortion))
+    return pixels.reshape(-1, 2)
+
+
+@pytest.mark.parametrize("model, distortion", [
+    ("opencv", MODERATE), ("opencv", STRONG), ("opencv", MODERATE[:4]), ("fisheye", FISHEYE)])
+def test_rays_land_on_pixel_centres_in_opencv(model, distortion):
+    camera = Camera(W, H, _K(), _pose(), model, distortion)
+    o, d, valid = camera.rays(valid=True)
+    assert valid.all()
+    points = o + 2.5 * d
+    if model == "fisheye":
+        assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
+        front = (points - camera.eye) @ camera.forward > 0    # cv2.fisheye: z > 0 only
+        assert front.all()
+    else:
+        assert np.allclose(d @ camera.forward, 1.0)           # camera-z 1: t is z-depth
+    error = np.abs(_opencv_project(camera, points) - _pixel_centres(valid)).max()
+    assert error < 1e-8
+    pixels, _ = camera.project(points)                        # kdray's forward model
+    assert np.abs(pixels - _pixel_centres(valid)).max() < 1e-8
+
+
+def test_fisheye_beyond_180_degrees():
+    # f = 40 px on 160 x 120: theta reaches about 2.2 rad (a 250 degree field) in the corners
+    camera = Camera(W, H, _K(40.0), _pose(), "fisheye", (0.01, -0.002, 0.0, 0.0))
+    o, d, valid = camera.rays(valid=True)
+    assert valid.all()
+    z = d @ camera.forward
+    assert (z < -0.3).any()                                   # rays behind the eye
+    theta = np.arccos(np.clip(z, -1, 1))
+    a, b = lens.pixel_points(camera.K, W, H)
+    k1, k2, k3, k4 = camera.distortion
+    theta_d = theta * (1 + k1 * theta**2 + k2 * theta**4 + k3 * theta**6 + k4 * theta**8)
+    assert np.abs(theta_d - np.hypot(a, b)).max() < 1e-10
+    front = z > 1e-3
+    points = o + 3.0 * d
+    error = np.abs(_opencv_project(camera, points[front]) - _pixel_centres(front)).max()
+    assert error < 1e-8
+
+
+def test_fisheye_past_its_field_is_not_valid():
+    # theta_d(theta) stops growing at theta = 1 rad: pixels beyond are misses, flagged
+    k1 = -1.0 / 3.0 / 1.0                                     # d/dtheta (theta + k1 theta^3) = 0 at 1
+    camera = Camera(W, H, _K(60.0), _pose(), "fisheye", (k1, 0.0, 0.0, 0.0))
+    o, d, valid = camera.rays(valid=True)
+    a, b = lens.pixel_points(camera.K, W, H)
+    expected = np.hypot(a, b) < 1.0 + k1                      # theta_d(1) = 2 / 3
+    assert np.array_equal(valid, expected)
+    assert 0.2 < valid.mean() < 0.9
+    assert np.isnan(d[~valid]).all() and np.isfinite(d[valid]).all()
+    assert np.array_equal(camera.valid().reshape(-1), valid)
+
+
+def test_opencv_non_monotonic_distortion_is_masked(caplog):
+    # r (1 + k1 r^2) stops growing at r = sqrt(-1 / (3 k1)): 0.745 for k1 = -0.6
+    k1 = -0.6
+    camera = Camera(W, H, _K(130.0), _pose(), "opencv", (k1, 0.0, 0.0, 0.0))
+    with caplog.at_level("WARNING", logger="kdray.lens"):
+        o, d, valid = camera.rays(valid=True)
+    r_max = math.sqrt(-1.0 / (3.0 * k1))
+    a, b = lens.pixel_points(camera.K, W, H)
+    expected = np.hypot(a, b) < r_max * (1 + k1 * r_max**2)
+    assert np.array_equal(valid, expected)
+    assert 0.3 < valid.mean() < 0.95
+    assert "of the pixels have a ray" in caplog.text
+    assert np.isnan(d[~valid]).all()
+    error = np.abs(_opencv_project(camera, (o + d)[valid]) - _pixel_centres(valid)).max()
+    assert error < 1e-8
+
+
+def test_equirectangular_directions_are_analytic():
+    camera = Camera.panorama(_pose(), W, H)
+    o, d, valid = camera.rays(valid=True)
+    assert valid.all() and np.allclose(o, camera.eye)
+    j, i = np.divmod(np.arange(W * H), W)
+    lon = -math.pi + (i + 0.5) * 2 * math.pi / W
+    lat = math.pi / 2 - (j + 0.5) * math.pi / H
+    local = np.stack([np.cos(lat) * np.sin(lon), -np.sin(lat), np.cos(lat) * np.cos(lon)], 1)
+    assert np.abs(d - local @ camera.rotation.T).max() < 1e-14
+    pixels, depth = camera.project(camera.eye + 2.0 * d)
+    assert np.abs(pixels - np.stack([i + 0.5, j + 0.5], 1)).max() < 1e-9
+    assert np.allclose(depth, 2.0)
+
+
+def test_equirectangular_partial_range_and_past_the_poles():
+    camera = Camera.panorama(_pose(), W, H, longitude=(-1.0, 0.5), latitude=(0.4, -0.2))
+    o, d, valid = camera.rays(valid=True)
+    assert valid.all()
+    local = d @ camera.rotation
+    lon = np.arctan2(local[:, 0], local[:, 2])
+    lat = -np.arcsin(local[:, 1])
+    assert lon.min() == pytest.approx(-1.0 + 0.75 / W, abs=1e-12)
+    assert lon.max() == pytest.approx(0.5 - 0.75 / W, abs=1e-12)
+    assert lat.max() == pytest.approx(0.4 - 0.3 / H, abs=1e-12)
+    # latitudes beyond the poles have no direction
+    camera = Camera.panorama(_pose(), W, H, latitude=(2.0, -2.0))
+    valid = camera.valid()
+    rows = valid.all(axis=1)
+    assert rows.any() and not rows.all() and np.array_equal(valid.any(axis=1), rows)
+
+
+def test_orthographic_rays():
+    K = np.array([[40.0, 0.0, W / 2], [0.0, 40.0, H / 2], [0.0, 0.0, 1.0]])   # 40 px per unit
+    camera = Camera(W, H, K, _pose(), "orthographic")
+    o, d, valid = camera.rays(valid=True)
+    assert valid.all()
+    assert np.abs(d - camera.forward).max() < 1e-15
+    j, i = np.divmod(np.arange(W * H), W)
+    local = np.stack([(i + 0.5 - W / 2) / 40.0, (j + 0.5 - H / 2) / 40.0, np.zeros(W * H)], 1)
+    assert np.abs(o - (camera.eye + local @ camera.rotation.T)).max() < 1e-14
+    pixels, depth = camera.project(o + 1.5 * d)
+    assert np.abs(pixels - np.stack([i + 0.5, j + 0.5], 1)).max() < 1e-9
+    assert np.allclose(depth, 1.5)
+
+
+def test_pinhole_is_unchanged():
+    a = Camera.look_at((0, 1, 4), (0, 1, 0), fov_deg=40, width=W, height=H)
+    b = Camera(W, H, a.K, a.cam_to_world, "pinhole", ())
+    assert a == b and a.model == "pinhole" and a.distortion == ()
+    (o1, d1), (o2, d2, valid) = a.rays(), b.rays(valid=True)
+    assert np.array_equal(d1, d2) and np.array_equal(o1, o2) and valid.all()
+    assert a != Camera(W, H, a.K, a.cam_to_world, "opencv", (0, 0, 0, 0))
+
+
+def test_json_round_trip_of_every_model(tmp_path):
+    cameras = [Camera(W, H, _K(), _pose(), "opencv", STRONG),
+               Camera(W, H, _K(), _pose(), "fisheye", FISHEYE),
+               Camera.panorama(_pose(), W, H, longitude=(-1.0, 0.5)),
+               Camera(W, H, _K(), _pose(), "orthographic")]
+    for camera in cameras:
+        camera.to_json(tmp_path / "c.json")
+        data = json.loads((tmp_path / "c.json").read_text())
+        assert data["model"] == camera.model
+        assert Camera.from_json(tmp_path / "c.json") == camera
+    pinhole = Camera(W, H, _K(), _pose())
+    pinhole.to_json(tmp_path / "p.json")
+    assert set(json.loads((tmp_path / "p.json").read_text())) == {"width", "height", "K", "cam_to_world"}
+
+
+def test_json_look_at_form_with_a_model(tmp_path):
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps({"width": W, "height": H, "eye": [0, 0, 0], "target": [0, 0, 1],
+                                "fov": 90, "model": "fisheye", "distortion": list(FISHEYE)}))
+    camera = Camera.from_json(path)
+    assert camera.model == "fisheye" and camera.distortion == FISHEYE
+    assert camera.K[1, 1] == pytest.approx(H / 2)
+    path.write_text(json.dumps({"width": W, "height": H, "eye": [0, 0, 0], "target": [0, 0, 1],
+                                "model": "equirectangular"}))
+    assert np.allclose(Camera.from_json(path).K, lens.equirectangular_K(W, H))
+
+
+@pytest.mark.parametrize("model, distortion, match", [
+    ("opencv", (0.1, float("nan"), 0, 0), r"distortion coefficients must be finite, got \[0.1, nan"),
+    ("fisheye", (0.1, 0.0, float("inf"), 0.0), r"must be finite"),
+    ("opencv", (0.1, 0.2, 0.0), r"an opencv camera takes 4, 5 or 8 distortion coefficients"),
+    ("fisheye", (0.1,), r"a fisheye camera takes 4 distortion coefficients \(k1 k2 k3 k4\), got 1"),
+    ("pinhole", (0.1, 0, 0, 0), r"a pinhole camera takes no distortion coefficients"),
+    ("orthographic", (0.0,), r"an? orthographic camera takes no distortion"),
+    ("kannala", (), r"unknown camera model 'kannala'; expected one of pinhole, opencv"),
+    ("opencv", "0.1 0.2", r"distortion must be a sequence of numbers"),
+    ("opencv", ((0.1, 0.2), (0.0, 0.0)), r"distortion must be a flat sequence"),
+])
+def test_bad_models_and_coefficients(model, distortion, match):
+    with pytest.raises(CameraError, match=match) as info:
+        Camera(W, H, _K(), _pose(), model, distortion)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("width, height", [(0, H), (W, -3), (2.5, H)])
+def test_bad_sizes(width, height):
+    with pytest.raises(CameraError, match="a whole number of pixels >= 1") as info:
+        Camera(width, height, _K(), _pose(), "fisheye", FISHEYE)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("extra, match", [
+    ({"model": 3}, r"model must be a string, got 3"),
+    ({"model": "opencv", "distortion": [0.1, "x", 0, 0]}, r"distortion must be a list of numbers"),
+    ({"model": "opencv", "distortion": [0.1, 0, 0]}, r"takes 4, 5 or 8"),
+    ({"model": "fisheye", "distortion": [0.1, 0, 0, float("nan")]}, r"must be finite"),
+    ({"model": "orthographic", "eye": [0, 0, 0], "target": [0, 0, 1]}, r"orthographic camera needs K"),
+])
+def test_bad_json_models(tmp_path, extra, match):
+    data = {"width": W, "height": H, "K": _K().tolist(), "cam_to_world": _pose().tolist()}
+    if "eye" in extra:
+        del data["K"], data["cam_to_world"]
+    data.update(extra)
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(CameraError, match=match) as info:
+        Camera.from_json(path)
+    assert "\n" not in str(info.value)
+
+
+# Renders ---------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def room():
+    """(tree, tracer): the teapot inside a closed box around the cameras, so that every
+    direction hits something (a fisheye of more than 180 degrees included)."""
+    from helpers import real_mesh_arrays
+    from kdray.trace import Tracer
+    vertices, faces = real_mesh_arrays("teapot.obj")
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    vertices = (vertices - (lo + hi) / 2) / np.abs(hi - lo).max() + [0.0, 0.0, 2.5]
+    box = np.array([[x, y, z] for x in (-4, 4) for y in (-3.5, 3) for z in (-3, 6)], float)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    box_faces = np.array([f for a, b, c, d in quads for f in ((a, b, c), (a, c, d))]) + len(vertices)
+    tree = kdray.build(np.vstack([vertices, box]), np.vstack([faces, box_faces]), keep_double=True)
+    return tree, Tracer(tree)
+
+
+def _render_and_project(tracer, camera, precision="single"):
+    images = tracer.render(camera, aovs="depth,distance,position,id", precision=precision)
+    valid = images["valid"]
+    hit = images["id"] != 0xFFFFFFFF
+    assert np.array_equal(hit, valid)                  # the box is closed: every ray hits
+    points = images["position"].reshape(-1, 3)[hit.reshape(-1)].astype(np.float64)
+    return images, hit, points
+
+
+@pytest.mark.parametrize("model, distortion, f", [
+    ("opencv", MODERATE, 110.0), ("opencv", STRONG, 110.0), ("fisheye", FISHEYE, 70.0),
+    ("fisheye", (0.01, -0.002, 0.0, 0.0), 40.0)])              # the last: 250 degrees
+def test_render_hit_points_project_to_pixel_centres(room, model, distortion, f):
+    tree, tracer = room
+    camera = Camera(W, H, _K(f), _pose(), model, distortion)
+    images, hit, points = _render_and_project(tracer, camera)
+    assert hit.all()
+    centres = _pixel_centres(hit)
+    cam = (points - camera.eye) @ camera.rotation
+    front = cam[:, 2] > 1e-3 * np.linalg.norm(cam, axis=1)
+    error = np.abs(_opencv_project(camera, points[front]) - centres[front])
+    assert error.max() < 5e-4, error.max()
+    if not front.all():                                # behind the eye: kdray's own model
+        pixels, _ = camera.project(points[~front])
+        assert np.abs(pixels - centres[~front]).max() < 5e-4
+    o, d = camera.rays()
+    depth = images["depth"].reshape(-1).astype(np.float64)
+    assert np.allclose(o + depth[:, None] * d, points, atol=1e-5)
+    distance = np.linalg.norm(points - o, axis=1)
+    assert np.allclose(images["distance"].reshape(-1), distance, rtol=1e-6)
+    if model == "opencv":                              # depth is the z-depth
+        assert np.allclose(depth, cam[:, 2], rtol=1e-6)
+    else:                                              # depth is the distance
+        assert np.allclose(depth, distance, rtol=1e-6)
+
+
+def test_render_masks_what_has_no_ray(room):
+    tree, tracer = room
+    camera = Camera(W, H, _K(130.0), _pose(), "opencv", (-0.6, 0.0, 0.0, 0.0))
+    images = tracer.render(camera, aovs="all")
+    valid = images["valid"]
+    assert valid.dtype == bool and np.array_equal(valid, camera.valid())
+    assert 0.3 < valid.mean() < 0.95
+    out = ~valid
+    assert np.all(images["id"][out] == 0xFFFFFFFF) and np.all(images["object"][out] == 0xFFFFFFFF)
+    assert np.all(images["depth"][out] == np.inf) and np.all(images["distance"][out] == np.inf)
+    assert np.isnan(images["position"][out]).all()
+    assert np.all(images["normal"][out] == 0) and np.all(images["bary"][out] == 0)
+    assert np.all(images["id"][valid] != 0xFFFFFFFF)
+
+
+def test_render_equirectangular_and_orthographic(room):
+    tree, tracer = room
+    camera = Camera.panorama(_pose(), W, H)
+    images, hit, points = _render_and_project(tracer, camera, precision="double")
+    assert hit.all() and images["depth"].dtype == np.float64
+    pixels, depth = camera.project(points)
+    assert np.abs(pixels - _pixel_centres(hit)).max() < 1e-6
+    assert np.allclose(images["depth"].reshape(-1), depth, rtol=1e-12)
+    K = np.array([[40.0, 0.0, W / 2], [0.0, 40.0, H / 2], [0.0, 0.0, 1.0]])
+    camera = Camera(W, H, K, _pose(), "orthographic")
+    images, hit, points = _render_and_project(tracer, camera)
+    pixels, depth = camera.project(points)
+    assert np.abs(pixels - _pixel_centres(hit)).max() < 1e-4
+    assert np.allclose(images["depth"].reshape(-1), depth, rtol=1e-6)
+
+
+def test_pinhole_render_has_no_valid_image(room):
+    tree, tracer = room
+    camera = Camera(W, H, _K(), _pose())
+    images = tracer.render(camera, aovs="depth,id")
+    assert list(images) == ["depth", "id"]
+
+
+def test_cull_keeps_every_face_for_a_camera_model(room):
+    tree, _ = room
+    v, f = np.zeros((3, 3)), np.array([[0, 1, 2]] * 5)
+    v[1, 0] = v[2, 1] = 1.0
+    v += [0.0, 0.0, -10.0]                                    # behind a pinhole
+    pose = np.eye(4)
+    assert len(kdray.cull.cull_faces(v, f, Camera(W, H, _K(), pose))) == 0
+    fisheye = Camera(W, H, _K(40.0), pose, "fisheye", (0.0, 0.0, 0.0, 0.0))
+    assert np.array_equal(kdray.cull.cull_faces(v, f, fisheye), np.arange(5))
