@@ -17,6 +17,8 @@
     id       : (H, W) uint32        channel id (UINT)      miss: 0xFFFFFFFF
     position : (H, W, 3) float32    channels P.X P.Y P.Z   miss: NaN
     object   : (H, W) uint32        channel object (UINT)  miss: 0xFFFFFFFF
+    valid    : (H, W) bool          channel valid (UINT 0/1): a camera model's pixels
+                                    that have a ray (Tracer.render, kdray.lens)
 
 The EXR is a single-part scanline file, full float32 (never half) plus 32-bit
 unsigned integer channels for ids and objects, ZIP-compressed (lossless). It is
@@ -55,11 +57,17 @@ CHANNELS = {
     "id": ("id",),
     "position": ("P.X", "P.Y", "P.Z"),
     "object": ("object",),
+    "valid": ("valid",),
 }
 """Each AOV's EXR channel names (the public contract)."""
 
 UINT_AOVS = ("id", "object")
 """The AOVs stored as 32-bit unsigned integers (exact)."""
+
+UINT_CHANNELS = UINT_AOVS + ("valid",)
+"""The images stored as 32-bit unsigned integers: the AOVs of UINT_AOVS and `valid`
+(a camera model's pixels that have a ray, 1, and those that do not, 0; read back as
+bool)."""
 
 OBJECT_NAMES_ATTRIBUTE = "kdray/objectNames"
 """The header attribute (a string: a JSON array of strings) that holds the objects'
@@ -79,7 +87,7 @@ def _channel_arrays(images, path):
         )
     size = None
     channels = []
-    for aov in AOVS:
+    for aov in CHANNELS:
         if aov not in images:
             continue
         array = np.asarray(images[aov])
@@ -95,8 +103,8 @@ def _channel_arrays(images, path):
                 f"cannot write {path}: {aov} is {array.shape[1]}x{array.shape[0]} pixels "
                 f"but other AOVs are {size[1]}x{size[0]}."
             )
-        if aov in UINT_AOVS:
-            if array.dtype.kind not in "iu":
+        if aov in UINT_CHANNELS:
+            if array.dtype.kind not in "iub":
                 raise OutputError(f"cannot write {path}: {aov} must be an integer array, got {array.dtype}.")
             if array.size and (array.min() < 0 or array.max() > MISS):
                 raise OutputError(f"cannot write {path}: {aov} values must fit in uint32.")
@@ -119,6 +127,19 @@ DEPTH_CONVENTION = "z-depth along the camera's +z axis (OpenCV axes), in world u
 DISTANCE_CONVENTION = (
     "Euclidean distance from the camera centre along the pixel's ray, in world units; +inf on a miss"
 )
+MODEL_DEPTH_CONVENTION = {
+    "opencv": DEPTH_CONVENTION,
+    "orthographic": ("distance from the camera's image plane (through the eye) along its +z "
+                     "axis (OpenCV axes), in world units; +inf on a miss"),
+    "fisheye": ("distance from the camera centre along the pixel's ray (z-depth has no meaning "
+                "past 90 degrees), in world units; +inf on a miss"),
+    "equirectangular": ("distance from the camera centre along the pixel's ray (z-depth has no "
+                        "meaning for a panorama), in world units; +inf on a miss"),
+}
+"""kdray/depth of a camera that is not a pinhole, by model (docs/exr.md)."""
+MODEL_DISTANCE_CONVENTION = ("Euclidean distance from the pixel's ray origin along the ray, in "
+                             "world units; +inf on a miss")
+"""kdray/distance of an orthographic camera, whose rays leave its image plane."""
 
 CAMERA_ATTRIBUTES = {
     "worldToCamera": "m44f",
@@ -131,8 +152,14 @@ CAMERA_ATTRIBUTES = {
     "kdray/version": "string",
 }
 """The header attributes `write_exr` adds given a camera (kdray/depth and kdray/distance
-only with that AOV): name -> OpenEXR type. OpenImageIO reads each back under the same
+only with that AOV; no worldToNDC for a camera that is not a pinhole): name -> OpenEXR
+type. OpenImageIO reads each back under the same
 name (see docs/exr.md)."""
+
+MODEL_ATTRIBUTES = {"kdray/cameraModel": "string", "kdray/distortion": "string"}
+"""The header attributes `write_exr` adds besides CAMERA_ATTRIBUTES given a camera that
+is not a pinhole (kdray.lens): its model and its coefficients as a JSON array (exact,
+Python's repr of each float64). A file without them holds a pinhole."""
 
 _OPENCV_TO_EXR_CAMERA = np.diag([1.0, -1.0, 1.0, 1.0])
 """OpenCV camera axes (y down) -> OpenEXR's (x right, y up, z forward: left-handed)."""
@@ -211,6 +238,15 @@ def _camera_header(camera, aovs):
         header["kdray/depth"] = DEPTH_CONVENTION
     if "distance" in aovs:
         header["kdray/distance"] = DISTANCE_CONVENTION
+    if camera.model != "pinhole":
+        # worldToNDC is a pinhole's projection: not this camera's
+        del header["worldToNDC"]
+        header["kdray/cameraModel"] = camera.model
+        header["kdray/distortion"] = json.dumps(list(camera.distortion))   # exact: repr
+        if "depth" in aovs:
+            header["kdray/depth"] = MODEL_DEPTH_CONVENTION[camera.model]
+        if "distance" in aovs and camera.model == "orthographic":
+            header["kdray/distance"] = MODEL_DISTANCE_CONVENTION
     return header
 
 
@@ -314,7 +350,7 @@ def read_exr(path):
         names = list(spec.channelnames)
         formats = list(spec.channelformats) or [spec.format] * len(names)
         images = {}
-        for aov in AOVS:
+        for aov in CHANNELS:
             present = [name in names for name in CHANNELS[aov]]
             if not any(present):
                 continue
@@ -324,18 +360,18 @@ def read_exr(path):
             planes = []
             for name in CHANNELS[aov]:
                 c = names.index(name)
-                if aov in UINT_AOVS and formats[c].basetype == oiio.UINT:
+                if aov in UINT_CHANNELS and formats[c].basetype == oiio.UINT:
                     plane = inp.read_image(0, 0, c, c + 1, oiio.UINT)
                 else:
                     plane = inp.read_image(0, 0, c, c + 1, oiio.FLOAT)
                 if plane is None:
                     raise KdrayError(f"cannot read channel {name} of EXR {path}: {inp.geterror()}.")
                 planes.append(np.asarray(plane).reshape(spec.height, spec.width))
-            if aov in UINT_AOVS:
+            if aov in UINT_CHANNELS:
                 plane = planes[0]
                 if plane.dtype.kind != "u":  # an id channel stored as float elsewhere
                     plane = np.rint(plane)
-                images[aov] = plane.astype(np.uint32)
+                images[aov] = plane.astype(np.uint32) if aov != "valid" else plane != 0
             elif len(planes) == 1:
                 images[aov] = planes[0].astype(np.float32)
             else:
@@ -406,10 +442,31 @@ def read_camera(path):
             raise KdrayError(f"EXR {path}: attribute {name} is a {got_type}, expected a {type_name}.")
         values[name] = np.array(value).reshape(shape)
     width, height = (int(n) for n in values["kdray/imageSize"])
+    model, distortion = _camera_model(spec, path)
     try:
-        return Camera(width, height, values["kdray/K"], values["kdray/camToWorld"])
+        return Camera(width, height, values["kdray/K"], values["kdray/camToWorld"], model,
+                      distortion)
     except KdrayError as exc:
         raise KdrayError(f"EXR {path} holds an invalid camera: {exc}") from None
+
+
+def _camera_model(spec, path):
+    """(model, distortion) of the header's kdray/cameraModel and kdray/distortion:
+    ("pinhole", ()) when it has neither."""
+    model = _find_attribute(spec, "kdray/cameraModel")
+    distortion = _find_attribute(spec, "kdray/distortion")
+    if model is None and distortion is None:
+        return "pinhole", ()
+    if model is None or distortion is None or model[0] != "string" or distortion[0] != "string":
+        raise KdrayError(f"EXR {path}: attributes kdray/cameraModel and kdray/distortion must "
+                         f"both be strings.")
+    try:
+        coefficients = json.loads(distortion[1])
+    except ValueError:
+        coefficients = None
+    if not isinstance(coefficients, list):
+        raise KdrayError(f"EXR {path}: attribute kdray/distortion is not a JSON array of numbers.")
+    return model[1], coefficients
 
 
 # PNG previews ----------------------------------------------------------------------------

@@ -343,3 +343,34 @@ def test_cull_keeps_every_face_for_a_camera_model(room):
     assert len(kdray.cull.cull_faces(v, f, Camera(W, H, _K(), pose))) == 0
     fisheye = Camera(W, H, _K(40.0), pose, "fisheye", (0.0, 0.0, 0.0, 0.0))
     assert np.array_equal(kdray.cull.cull_faces(v, f, fisheye), np.arange(5))
+
+
+def test_exr_holds_valid_model_and_coefficients(room, tmp_path):
+    import OpenImageIO as oiio
+    from kdray.images import read_camera, read_exr, write_exr
+    tree, tracer = room
+    camera = Camera(W, H, _K(130.0), _pose(), "opencv", (-0.6, 0.0, 1e-17, 0.0, 0.01 / 3))
+    images = tracer.render(camera, aovs="depth,id")
+    assert not images["valid"].all()
+    write_exr(tmp_path / "m.exr", images, camera)
+    back = read_exr(tmp_path / "m.exr")
+    assert back["valid"].dtype == bool and np.array_equal(back["valid"], images["valid"])
+    assert np.array_equal(back["id"], images["id"])
+    assert read_camera(tmp_path / "m.exr") == camera              # model and coefficients exact
+    spec = oiio.ImageInput.open(str(tmp_path / "m.exr")).spec()
+    assert spec.getattribute("kdray/cameraModel") == "opencv"
+    assert json.loads(spec.getattribute("kdray/distortion")) == list(camera.distortion)
+    assert spec.getattribute("worldToNDC") is None                 # a pinhole's projection
+    assert "distance along" not in spec.getattribute("kdray/depth")
+    assert spec.channelformats[spec.channelnames.index("valid")].basetype == oiio.UINT
+    fisheye = Camera(W, H, _K(), _pose(), "fisheye", FISHEYE)
+    write_exr(tmp_path / "f.exr", tracer.render(fisheye, aovs="depth"), fisheye)
+    assert read_camera(tmp_path / "f.exr") == fisheye
+    spec = oiio.ImageInput.open(str(tmp_path / "f.exr")).spec()
+    assert spec.getattribute("kdray/depth").startswith("distance from the camera centre")
+    pinhole = Camera(W, H, _K(), _pose())
+    write_exr(tmp_path / "p.exr", tracer.render(pinhole, aovs="depth"), pinhole)
+    spec = oiio.ImageInput.open(str(tmp_path / "p.exr")).spec()
+    assert spec.getattribute("kdray/cameraModel") is None
+    assert "valid" not in spec.channelnames
+    assert read_camera(tmp_path / "p.exr") == pinhole
