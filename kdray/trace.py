@@ -592,6 +592,29 @@ class Tracer:
         other._upload(tree)
         return other
 
+    def scan(self, lidar, pose, precision="single"):
+        """A lidar scan: the range image of `lidar` (kdray.lidar.Lidar) at `pose`.
+
+        pose : (4, 4) sensor-to-world rigid transform, sensor axes of ROS REP 103
+            (x forward, y left, z up); checked like a camera pose (CameraError).
+        precision : "single" or "double" (as `trace`; range float64).
+        Returns a dict of (B, C) images, row i beam i (row 0 the highest), column j
+        azimuth step j (kdray.lidar): range float32 (float64 with "double"), metres
+        along the unit beam, +inf on a miss or at max_range and beyond; id uint32, the
+        hit triangle, and object uint32, its object (KdTree.objects), both 0xFFFFFFFF
+        on a miss; points (B, C, 3) float64 world hit points, NaN on a miss.
+        The rays are made on the host in float64 (Lidar.rays: a rotation of the
+        directions the Lidar keeps; bench/bench_lidar.py measures its share) and traced
+        as they are, refined in double where the device has it.
+        """
+        from .lidar import scan_images
+        origin, directions = lidar.rays(pose)
+        # a little beyond max_range, so that the kernel's float32 t cannot lose a hit
+        # just inside it; scan_images cuts at max_range with the final t
+        hits = self.trace(origin, directions, t_max=lidar.max_range * (1 + 2.0**-16),
+                          precision=precision)
+        return scan_images(lidar, origin, directions, hits.t, hits.prim, self.tree.objects)
+
 
 def _precision(precision, tree):
     """True for "double" (KdrayError when the tree has no float64 triangles), False for

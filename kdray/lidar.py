@@ -1,0 +1,359 @@
+"""Lidar: a spinning (or partial field of view) range sensor's beams, from a JSON spec.
+
+    lidar = Lidar.from_json("os1-128.json")         # or Lidar.from_dict({...})
+    d = lidar.directions()                          # (B*C, 3) float64 unit, sensor frame
+    origin, d = lidar.rays(pose)                    # (3,), (B*C, 3) float64 world
+    images = tracer.scan(lidar, pose)               # range, id, object, points (B, C)
+    write_points_ply("scan.ply", images)            # the hit points, binary PLY
+
+Sensor frame (ROS REP 103): x forward, y left, z up. Beam i (row i of a range image,
+row 0 the highest) has elevation `elevations[i]` degrees above the xy plane; column j
+has azimuth
+
+    360 j / columns                                  degrees, horizontal_fov == 360
+    -horizontal_fov / 2 + j horizontal_fov / (columns - 1)   horizontal_fov < 360
+                                                     (both edges included; 0 for 1 column)
+
+counter-clockwise about +z from +x (so a partial field of view is centred on +x and
+column 0 is its right-hand edge), plus the beam's `azimuth_offsets[i]`. The ray of
+beam i, column j is (cos el cos az, cos el sin az, sin el): unit length, so a hit's t
+is its range in metres (world units).
+
+The spec (JSON object; every key but these is an error):
+
+    elevations       list of B degrees, strictly decreasing, in [-90, 90]     } one of
+    channels, fov_up, fov_down   B beams evenly spaced from fov_up down to    } the two
+                     fov_down, both included (fov_up >= fov_down; equal for 1)
+    columns          azimuth steps, 1 .. MAX_COLUMNS
+    horizontal_fov   degrees, (0, 360]; default 360
+    max_range        metres, > 0, finite: hits at max_range or beyond are misses
+    azimuth_offsets  optional list of B degrees, finite: each beam's azimuth shift
+
+Bad specs raise ParameterError (a KdrayError and ValueError) of one line naming the
+spec and what is wrong.
+"""
+import dataclasses
+import functools
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ParameterError
+from .files import atomic_write
+from .layout import MISS
+
+MAX_BEAMS = 1024
+"""The most beams a spec may have: 8 times the largest sensors sold (128 beams: Ouster
+OS-128, Hesai Pandar128), so that a spec of a million beams (a typo, or columns and
+channels swapped) is refused before it allocates rays."""
+
+MAX_COLUMNS = 1 << 16
+"""The most azimuth steps: 0.0055 degrees at 360, finer than any spinning lidar's
+(2048 columns: 0.18 degrees); with MAX_BEAMS, 2^26 rays a scan at most."""
+
+SPEC_KEYS = ("elevations", "channels", "fov_up", "fov_down", "columns", "horizontal_fov",
+             "max_range", "azimuth_offsets")
+"""The keys a spec may hold."""
+
+
+def _number(value, what):
+    """A finite float from a JSON number (not a bool); ParameterError otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ParameterError(f"{what} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ParameterError(f"{what} must be finite, got {value}")
+    return value
+
+
+def _integer(value, what, lo, hi):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ParameterError(f"{what} must be an integer, got {value!r}")
+    if not lo <= value <= hi:
+        raise ParameterError(f"{what} must be from {lo} to {hi}, got {value}")
+    return int(value)
+
+
+def _degrees(values, what):
+    """(B,) float64 of a list of finite numbers, 1 .. MAX_BEAMS of them."""
+    if isinstance(values, (str, bytes, dict)) or not hasattr(values, "__len__"):
+        raise ParameterError(f"{what} must be a list of numbers, got {values!r}")
+    if not 1 <= len(values) <= MAX_BEAMS:
+        raise ParameterError(f"{what} must hold 1 to {MAX_BEAMS} beams (MAX_BEAMS), "
+                             f"got {len(values)}")
+    return np.array([_number(v, f"{what}[{i}]") for i, v in enumerate(values)], dtype=np.float64)
+
+
+def _readonly(array):
+    array = np.array(array, dtype=np.float64)
+    array.flags.writeable = False
+    return array
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Lidar:
+    """A lidar's beams (see the module docstring for the frame and the spec).
+
+    elevations : (B,) float64 degrees, strictly decreasing (row 0 the highest beam),
+        in [-90, 90]; 1 <= B <= MAX_BEAMS
+    columns : int, azimuth steps, 1 .. MAX_COLUMNS
+    max_range : float, metres (world units), > 0 and finite; returns at max_range or
+        beyond are misses
+    horizontal_fov : float degrees in (0, 360]; 360 (default): column j at azimuth
+        360 j / columns; less: columns from -fov/2 to +fov/2, both included
+    azimuth_offsets : (B,) float64 degrees added to each beam's azimuth, default 0
+    Constructing one validates it (ParameterError)."""
+
+    elevations: np.ndarray
+    columns: int
+    max_range: float
+    horizontal_fov: float = 360.0
+    azimuth_offsets: np.ndarray = None
+
+    def __post_init__(self):
+        el = _degrees(self.elevations, "elevations")
+        if np.any(np.abs(el) > 90):
+            bad = el[np.abs(el) > 90][0]
+            raise ParameterError(f"elevations must be in [-90, 90] degrees, got {bad}")
+        if np.any(np.diff(el) >= 0):
+            i = int(np.flatnonzero(np.diff(el) >= 0)[0])
+            raise ParameterError(f"elevations must be strictly decreasing (row 0 the highest "
+                                 f"beam), got {el[i]} then {el[i + 1]} at beams {i} and {i + 1}")
+        columns = _integer(self.columns, "columns", 1, MAX_COLUMNS)
+        max_range = _number(self.max_range, "max_range")
+        if max_range <= 0:
+            raise ParameterError(f"max_range must be positive, got {max_range}")
+        fov = _number(self.horizontal_fov, "horizontal_fov")
+        if not 0 < fov <= 360:
+            raise ParameterError(f"horizontal_fov must be in (0, 360] degrees, got {fov}")
+        if self.azimuth_offsets is None:
+            offsets = np.zeros(len(el))
+        else:
+            offsets = _degrees(self.azimuth_offsets, "azimuth_offsets")
+            if len(offsets) != len(el):
+                raise ParameterError(f"azimuth_offsets must hold one angle per beam ({len(el)}), "
+                                     f"got {len(offsets)}")
+        object.__setattr__(self, "elevations", _readonly(el))
+        object.__setattr__(self, "columns", columns)
+        object.__setattr__(self, "max_range", max_range)
+        object.__setattr__(self, "horizontal_fov", fov)
+        object.__setattr__(self, "azimuth_offsets", _readonly(offsets))
+
+    def __eq__(self, other):
+        if not isinstance(other, Lidar):
+            return NotImplemented
+        return (np.array_equal(self.elevations, other.elevations) and self.columns == other.columns
+                and self.max_range == other.max_range
+                and self.horizontal_fov == other.horizontal_fov
+                and np.array_equal(self.azimuth_offsets, other.azimuth_offsets))
+
+    __hash__ = None
+
+    @property
+    def beams(self):
+        """B, the number of beams (rows)."""
+        return len(self.elevations)
+
+    @property
+    def shape(self):
+        """(beams, columns): a range image's shape."""
+        return self.beams, self.columns
+
+    # -- the spec ------------------------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, spec, source="lidar spec"):
+        """A Lidar from a spec dict (the module docstring lists its keys).
+        ParameterError "<source>: <what is wrong>" for a bad one."""
+        try:
+            if not isinstance(spec, dict):
+                raise ParameterError(f"must be a JSON object, got {type(spec).__name__}")
+            unknown = [k for k in spec if k not in SPEC_KEYS]
+            if unknown:
+                raise ParameterError(f"unknown key {unknown[0]!r}; the keys are "
+                                     f"{', '.join(SPEC_KEYS)}")
+            missing = [k for k in ("columns", "max_range") if k not in spec]
+            if missing:
+                raise ParameterError(f"{missing[0]} is missing")
+            spaced = [k for k in ("channels", "fov_up", "fov_down") if k in spec]
+            if "elevations" in spec:
+                if spaced:
+                    raise ParameterError(f"give elevations or channels, fov_up and fov_down, "
+                                         f"not both ({spaced[0]} with elevations)")
+                elevations = spec["elevations"]
+            elif spaced:
+                elevations = _spaced(spec)
+            else:
+                raise ParameterError("elevations (a list of degrees) or channels, fov_up and "
+                                     "fov_down is missing")
+            return cls(elevations, spec["columns"], spec["max_range"],
+                       spec.get("horizontal_fov", 360.0), spec.get("azimuth_offsets"))
+        except ParameterError as e:
+            raise ParameterError(f"{source}: {e}") from None
+
+    @classmethod
+    def from_json(cls, path):
+        """A Lidar from a JSON spec file; ParameterError naming the file for a missing or
+        unreadable file, bad JSON or a bad spec."""
+        source = f"lidar spec {path}"
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ParameterError(f"{source}: the file does not exist") from None
+        except (OSError, UnicodeDecodeError) as e:
+            raise ParameterError(f"{source}: cannot be read ({getattr(e, 'strerror', None) or e})") from None
+        try:
+            spec = json.loads(text, parse_constant=lambda c: float(c))
+        except ValueError as e:
+            raise ParameterError(f"{source}: not valid JSON ({e})") from None
+        return cls.from_dict(spec, source)
+
+    def to_dict(self):
+        """The spec in the list form (from_dict(to_dict()) == self, exactly)."""
+        return {"elevations": self.elevations.tolist(), "columns": self.columns,
+                "horizontal_fov": self.horizontal_fov, "max_range": self.max_range,
+                "azimuth_offsets": self.azimuth_offsets.tolist()}
+
+    def to_json(self):
+        """to_dict() as a JSON string (floats as Python writes them: exact)."""
+        return json.dumps(self.to_dict())
+
+    # -- rays ----------------------------------------------------------------------------
+
+    def azimuths(self):
+        """(C,) float64 radians: each column's azimuth before the beams' offsets."""
+        j = np.arange(self.columns, dtype=np.float64)
+        if self.horizontal_fov == 360.0:
+            return 2.0 * np.pi * j / self.columns
+        half = np.deg2rad(self.horizontal_fov) / 2.0
+        if self.columns == 1:
+            return np.zeros(1)
+        return -half + j * (2.0 * half / (self.columns - 1))
+
+    @functools.cached_property
+    def _directions(self):
+        el = np.deg2rad(self.elevations)[:, None]
+        az = self.azimuths()[None, :] + np.deg2rad(self.azimuth_offsets)[:, None]
+        d = np.empty((self.beams, self.columns, 3))
+        cos_el = np.cos(el)
+        d[..., 0] = cos_el * np.cos(az)
+        d[..., 1] = cos_el * np.sin(az)
+        d[..., 2] = np.sin(el)
+        d = d.reshape(-1, 3)
+        d.flags.writeable = False
+        return d
+
+    def directions(self):
+        """(B*C, 3) float64 unit vectors in the sensor frame, row-major: ray i*C + j is
+        beam i (row 0 the highest), column j. Computed once per Lidar (read-only)."""
+        return self._directions
+
+    def rays(self, pose):
+        """(origin (3,) float64, directions (B*C, 3) float64) in world coordinates for
+        a (4, 4) sensor-to-world rigid transform (REP 103 sensor axes; validated like a
+        camera pose: CameraError). The directions are rotated and renormalised in
+        float64, so a hit's t is its range."""
+        pose = check_pose(pose)
+        d = self.directions() @ pose[:3, :3].T
+        d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+        return pose[:3, 3].copy(), d
+
+
+def _spaced(spec):
+    """Elevations of the channels form: `channels` from fov_up down to fov_down."""
+    for key in ("channels", "fov_up", "fov_down"):
+        if key not in spec:
+            raise ParameterError(f"{key} is missing (channels, fov_up and fov_down go together)")
+    channels = _integer(spec["channels"], "channels", 1, MAX_BEAMS)
+    up, down = _number(spec["fov_up"], "fov_up"), _number(spec["fov_down"], "fov_down")
+    for key, value in (("fov_up", up), ("fov_down", down)):
+        if abs(value) > 90:
+            raise ParameterError(f"{key} must be in [-90, 90] degrees, got {value}")
+    if up < down or (channels > 1 and up == down):
+        raise ParameterError(f"fov_up ({up}) must be above fov_down ({down})")
+    if channels == 1:
+        if up != down:
+            raise ParameterError(f"one channel needs fov_up == fov_down, got {up} and {down}")
+        return [up]
+    return (up - np.arange(channels) * ((up - down) / (channels - 1))).tolist()
+
+
+def check_pose(pose, name="the sensor pose"):
+    """(4, 4) float64 sensor-to-world rigid transform, checked as camera poses are
+    (kdray.camera: finite, last row [0, 0, 0, 1], orthonormal rotation with det +1
+    to 1e-6); CameraError otherwise."""
+    from .camera import _check_pose
+    return _check_pose(pose, name=name)
+
+
+def scan_images(lidar, origin, directions, t, prim, objects):
+    """The images of a scan from its hits: dict of (B, C) arrays range (t's dtype:
+    float32, or float64 for precision="double"; +inf on a miss), id and object (uint32,
+    MISS on a miss), points (B, C, 3) float64 world (NaN on a miss). Hits at
+    max_range or beyond are made misses here, with the exact t."""
+    from .tree import object_ids
+    t = np.array(t)
+    prim = np.array(prim, dtype=np.uint32)
+    far = ~(t < lidar.max_range)            # beyond max_range, a miss (inf), or NaN
+    np.copyto(t, np.inf, where=far)         # (faster than t[far] = inf)
+    np.copyto(prim, MISS, where=far)
+    shape = lidar.shape
+    # origin + t d, column by column (a third of the time of the (N, 3) expression);
+    # NaN where there is no return
+    t64 = t.astype(np.float64)
+    np.copyto(t64, np.nan, where=far)
+    points = np.empty((len(t), 3))
+    for k in range(3):
+        np.multiply(directions[:, k], t64, out=points[:, k])
+        points[:, k] += origin[k]
+    return {"range": t.reshape(shape), "id": prim.reshape(shape),
+            "object": object_ids(prim, objects).reshape(shape),
+            "points": points.reshape(shape + (3,))}
+
+
+# -- PLY ---------------------------------------------------------------------------------
+
+PLY_FIELDS = (("x", "<f8", "double"), ("y", "<f8", "double"), ("z", "<f8", "double"),
+              ("ring", "<u2", "ushort"), ("column", "<u4", "uint"), ("range", "<f4", "float"),
+              ("id", "<u4", "uint"), ("object", "<u4", "uint"))
+"""The PLY vertex properties of `write_points_ply`: (name, numpy dtype, PLY type), 38
+bytes a point. x y z are float64: world coordinates far from the origin (a georeferenced
+scene at 1e6 m) keep their precision (float32 would be 6 cm there)."""
+
+PLY_DTYPE = np.dtype([(name, dtype) for name, dtype, _ in PLY_FIELDS])
+
+
+def points_array(images):
+    """The hit points of a scan's images as a PLY_DTYPE structured array, row-major
+    (ring 0 first, then columns in order); misses left out."""
+    hit = images["id"] != MISS
+    ring, column = np.nonzero(hit)
+    out = np.empty(len(ring), dtype=PLY_DTYPE)
+    p = images["points"][hit]
+    out["x"], out["y"], out["z"] = p[:, 0], p[:, 1], p[:, 2]
+    out["ring"], out["column"] = ring, column
+    out["range"] = images["range"][hit]
+    out["id"], out["object"] = images["id"][hit], images["object"][hit]
+    return out
+
+
+def write_points_ply(path, images):
+    """Write the hit points of a scan (`Tracer.scan`'s images) as a binary
+    little-endian PLY of one `vertex` element with the properties of PLY_FIELDS,
+    atomically (kdray.files). Returns the number of points written. OutputError naming
+    `path` on failure."""
+    points = points_array(images)
+    header = ["ply", "format binary_little_endian 1.0", "comment written by kdray scan",
+              f"element vertex {len(points)}"]
+    header += [f"property {ply} {name}" for name, _, ply in PLY_FIELDS]
+    header.append("end_header")
+    data = ("\n".join(header) + "\n").encode("ascii") + points.tobytes()
+
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            f.write(data)
+
+    atomic_write(path, write)
+    return len(points)

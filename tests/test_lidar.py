@@ -1,0 +1,205 @@
+"""Lidar scans (kdray.lidar, Tracer.scan): beam directions against the analytic
+formula, ranges in a box room against analytic ray/plane distances."""
+import json
+
+import numpy as np
+import pytest
+
+import kdray
+from kdray.errors import CameraError
+from kdray.layout import MISS
+from kdray.lidar import MAX_BEAMS, Lidar
+
+# -- the box room: 10 x 6 x 3 m, far from the world origin, three objects -------------------
+
+ROOM_ORIGIN = np.array([1000.0, -500.0, 20.0])
+ROOM_SIZE = np.array([10.0, 6.0, 3.0])
+CORNERS = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.float64)
+QUADS = {   # (axis, side) -> corner indices 4x + 2y + z, counter-clockwise seen from inside
+    (2, 0): (0, 2, 6, 4), (2, 1): (1, 5, 7, 3),                        # floor, ceiling
+    (0, 0): (0, 1, 3, 2), (0, 1): (4, 6, 7, 5), (1, 0): (0, 4, 5, 1), (1, 1): (2, 3, 7, 6),
+}
+OBJECT_OF = {(2, 0): 0, (2, 1): 2}   # floor 0, ceiling 2, the walls 1
+NAMES = ("floor", "walls", "ceiling")
+
+
+def room():
+    """(vertices (8, 3), faces (12, 3), objects (12,), face_key (12,) of (axis, side))."""
+    vertices = ROOM_ORIGIN + CORNERS * ROOM_SIZE
+    faces, objects, keys = [], [], []
+    for key, (a, b, c, d) in QUADS.items():
+        faces += [(a, b, c), (a, c, d)]
+        objects += [OBJECT_OF.get(key, 1)] * 2
+        keys += [key, key]
+    return vertices, np.array(faces), np.array(objects, dtype=np.uint32), keys
+
+
+def rotation(yaw, pitch, roll):
+    """R = Rz(yaw) Ry(pitch) Rx(roll), degrees."""
+    y, p, r = np.deg2rad([yaw, pitch, roll])
+    Rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    Ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
+    Rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    return Rz @ Ry @ Rx
+
+
+SENSOR = np.array([6.3, 2.1, 1.7])          # off-centre, in the room's frame
+
+
+def sensor_pose():
+    pose = np.eye(4)
+    pose[:3, :3] = rotation(30.0, 10.0, -5.0)
+    pose[:3, 3] = ROOM_ORIGIN + SENSOR
+    return pose
+
+
+SPEC = {"channels": 32, "fov_up": 30.0, "fov_down": -40.0, "columns": 1000, "max_range": 100.0}
+"""32 x 1000 = 32,000 rays: not a multiple of any work size."""
+
+
+def analytic(origin, d):
+    """(range (N,), (axis, side) of the wall hit (N, 2), margin (N,)) of rays from a point
+    inside the room, float64: the nearest of the six planes. margin: the relative gap to
+    the second nearest (near 0 at an edge of the room, where the face is ambiguous)."""
+    o = origin - ROOM_ORIGIN
+    with np.errstate(divide="ignore", invalid="ignore"):
+        far = np.where(d > 0, ROOM_SIZE, 0.0)
+        t = np.where(d != 0, (far - o) / d, np.inf)
+    order = np.sort(t, axis=1)
+    axis = np.argmin(t, axis=1)
+    side = (d[np.arange(len(d)), axis] > 0).astype(int)
+    return order[:, 0], np.stack([axis, side], axis=1), order[:, 1] / order[:, 0] - 1
+
+
+@pytest.fixture(scope="module")
+def room_tree():
+    vertices, faces, objects, _ = room()
+    return kdray.build(vertices, faces, keep_double=True).with_objects(objects, NAMES)
+
+
+# -- directions ---------------------------------------------------------------------------
+
+
+def test_directions_against_the_analytic_formula():
+    el = [15.0, 2.5, -1.0, -30.0]
+    offsets = [0.5, -1.25, 0.0, 2.0]
+    lidar = Lidar.from_dict({"elevations": el, "columns": 7, "max_range": 10,
+                             "azimuth_offsets": offsets})
+    d = lidar.directions().reshape(4, 7, 3)
+    for i in range(4):
+        for j in range(7):
+            az = 2 * np.pi * j / 7 + np.radians(offsets[i])
+            e = np.radians(el[i])
+            want = [np.cos(e) * np.cos(az), np.cos(e) * np.sin(az), np.sin(e)]
+            np.testing.assert_allclose(d[i, j], want, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=2), 1.0, rtol=0, atol=1e-15)
+    assert np.all(np.diff(d[:, 0, 2]) < 0)                  # row 0 the highest beam
+    # column 0 along +x (elevation 0, no offset); a quarter turn later +y (left)
+    flat = Lidar.from_dict({"elevations": [0.0], "columns": 4, "max_range": 1}).directions()
+    np.testing.assert_allclose(flat, [[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]], atol=1e-15)
+
+
+def test_channels_and_partial_field_of_view():
+    lidar = Lidar.from_dict({"channels": 5, "fov_up": 10, "fov_down": -10, "columns": 5,
+                             "horizontal_fov": 90, "max_range": 1})
+    assert lidar.elevations.tolist() == [10.0, 5.0, 0.0, -5.0, -10.0]   # both ends exact
+    np.testing.assert_allclose(np.degrees(lidar.azimuths()), [-45, -22.5, 0, 22.5, 45],
+                               rtol=0, atol=1e-12)
+    middle = lidar.directions().reshape(5, 5, 3)[2]
+    assert middle[0, 1] < 0 < middle[4, 1]                  # column 0 the right-hand edge
+    np.testing.assert_allclose(middle[2], [1, 0, 0], atol=1e-15)
+    one = Lidar.from_dict({"channels": 1, "fov_up": -3, "fov_down": -3, "columns": 1,
+                           "horizontal_fov": 30, "max_range": 1})
+    np.testing.assert_allclose(one.directions(), [[np.cos(np.radians(3)), 0,
+                                                   -np.sin(np.radians(3))]], atol=1e-15)
+
+
+def test_spec_round_trips_exactly():
+    lidar = Lidar.from_dict({**SPEC, "azimuth_offsets": list(np.linspace(-1.1, 3.3, 32))})
+    assert Lidar.from_dict(json.loads(lidar.to_json())) == lidar
+    assert Lidar.from_dict(lidar.to_dict()).directions().tobytes() == lidar.directions().tobytes()
+
+
+# -- ranges in the box room ----------------------------------------------------------------
+
+
+def test_box_room_ranges_against_analytic_distances(tracers, room_tree):
+    lidar = Lidar.from_dict({**SPEC, "azimuth_offsets": list(np.linspace(-1.1, 3.3, 32))})
+    pose = sensor_pose()
+    scan = tracers(room_tree).scan(lidar, pose)
+    assert scan["range"].shape == (32, 1000) and scan["range"].dtype == np.float32
+    assert scan["id"].dtype == scan["object"].dtype == np.uint32
+    assert scan["points"].shape == (32, 1000, 3) and scan["points"].dtype == np.float64
+    origin, d = pose[:3, 3], lidar.directions() @ pose[:3, :3].T
+    want, face, margin = analytic(origin, d)
+    got = scan["range"].reshape(-1).astype(np.float64)
+    assert np.all(np.isfinite(got)), "a closed room: every beam hits"
+    rel = np.abs(got - want) / want
+    p99, worst = np.percentile(rel, 99), rel.max()
+    print(f"box room: relative range error p99 {p99:.3g}, max {worst:.3g} ({len(rel)} beams)")
+    assert p99 <= 1e-6, f"p99 {p99:.3g}, max {worst:.3g}"
+    assert worst <= 1e-5, f"max {worst:.3g}"
+    # the triangle and its object: those of the wall the analytic ray hits (off the edges)
+    _, _, objects, keys = room()
+    clear = margin > 1e-4
+    ids = scan["id"].reshape(-1)[clear]
+    hit_key = np.array([keys[i] for i in ids])
+    np.testing.assert_array_equal(hit_key, face[clear])
+    np.testing.assert_array_equal(scan["object"].reshape(-1), objects[scan["id"].reshape(-1)])
+    # the points: on the wall, at origin + range * direction
+    points = scan["points"].reshape(-1, 3)
+    np.testing.assert_allclose(points, origin + want[:, None] * d, rtol=0, atol=2e-5)
+
+
+def test_double_precision_ranges(tracers, room_tree):
+    lidar = Lidar.from_dict(SPEC)
+    pose = sensor_pose()
+    scan = tracers(room_tree).scan(lidar, pose, precision="double")
+    assert scan["range"].dtype == np.float64
+    origin, d = pose[:3, 3], lidar.directions() @ pose[:3, :3].T
+    want, _, _ = analytic(origin, d)
+    rel = np.abs(scan["range"].reshape(-1) - want) / want
+    assert rel.max() <= 1e-12, f"max {rel.max():.3g}"
+
+
+def test_beyond_max_range_is_a_miss(tracers, room_tree):
+    lidar = Lidar.from_dict({**SPEC, "max_range": 5.0})
+    pose = sensor_pose()
+    scan = tracers(room_tree).scan(lidar, pose)
+    origin, d = pose[:3, 3], lidar.directions() @ pose[:3, :3].T
+    want, _, _ = analytic(origin, d)
+    got = scan["range"].reshape(-1)
+    near, far = want < 5.0 * (1 - 1e-6), want > 5.0 * (1 + 1e-6)
+    assert near.sum() > 1000 and far.sum() > 1000
+    np.testing.assert_allclose(got[near], want[near], rtol=1e-6)
+    assert np.all(np.isposinf(got[far]))
+    assert np.all(scan["id"].reshape(-1)[far] == MISS)
+    assert np.all(scan["object"].reshape(-1)[far] == MISS)
+    assert np.all(np.isnan(scan["points"].reshape(-1, 3)[far]))
+    # no return at max_range or beyond, whatever the rounding
+    assert np.all(got[np.isfinite(got)] < 5.0)
+
+
+def test_a_return_at_max_range_is_a_miss(tracers, room_tree):
+    # the range the scan reports, then that range as max_range: a miss; a hair more: a hit
+    pose = sensor_pose()
+    spec = {"elevations": [0.0], "columns": 4, "max_range": 100.0}
+    t = tracers(room_tree).scan(Lidar.from_dict(spec), pose)["range"][0, 0]
+    at = tracers(room_tree).scan(Lidar.from_dict({**spec, "max_range": float(t)}), pose)
+    assert np.isposinf(at["range"][0, 0]) and at["id"][0, 0] == MISS
+    above = float(np.nextafter(np.float32(t), np.float32(np.inf)))
+    assert tracers(room_tree).scan(Lidar.from_dict({**spec, "max_range": above}),
+                                   pose)["range"][0, 0] == t
+
+
+def test_pose_is_checked(tracers, room_tree):
+    pose = sensor_pose()
+    pose[0, 0] *= 1.01
+    with pytest.raises(CameraError, match="orthonormal"):
+        tracers(room_tree).scan(Lidar.from_dict(SPEC), pose)
+
+
+def test_max_beams_is_accepted():
+    lidar = Lidar.from_dict({"channels": MAX_BEAMS, "fov_up": 45, "fov_down": -45, "columns": 2,
+                             "max_range": 1})
+    assert lidar.directions().shape == (2 * MAX_BEAMS, 3)
