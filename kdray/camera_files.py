@@ -6,10 +6,11 @@
     for view in views:                        # View(name: str, camera: Camera)
         images = tracer.render(view.camera)   # kdray render writes DIR/<view.name>.exr
 
-Every view is a pinhole `Camera` (OpenCV axes, pixel centres at i + 0.5). A file that
-holds anything else (a fisheye, distortion, a non-rigid pose, a name that is no file
-name) raises `CameraError` with one line naming the file and the frame; nothing is
-guessed silently. The formats (docs/conventions.md, "Camera files (several views)"):
+Every view is a `Camera` (OpenCV axes, pixel centres at i + 0.5): a pinhole, or an
+opencv, fisheye or equirectangular camera (kdray.lens) for the models below. A file
+that holds anything else (another camera model, a coefficient kdray's model lacks, a
+non-rigid pose, a name that is no file name) raises `CameraError` with one line naming
+the file and the frame; nothing is guessed silently. The formats (docs/conventions.md, "Camera files (several views)"):
 
 nerfstudio ``transforms.json``: a JSON object with "frames". Intrinsics ``fl_x fl_y cx cy
 w h`` at the top level, each of which a frame may override with its own. ``fl_y``
@@ -18,12 +19,16 @@ it); ``cx`` and ``cy`` are required, as nerfstudio requires them (instant-ngp wo
 the image centre: a guess kdray does not make). ``transform_matrix`` is camera-to-world
 with OpenGL/Blender camera axes (x right, y up, z back); kdray's OpenCV axes flip the
 camera's y and z: ``cam_to_world = transform_matrix @ diag(1, -1, -1, 1)``. The view's
-name is the stem of ``file_path``. ``camera_model`` (top level or per frame): the models
-nerfstudio renders as a perspective camera (PINHOLE, SIMPLE_PINHOLE, OPENCV,
-SIMPLE_RADIAL, RADIAL; absent means perspective too) are accepted when every
-distortion coefficient (k1 k2 k3 k4 p1 p2, or "distortion_params") is zero or absent;
-any other model (OPENCV_FISHEYE, EQUIRECTANGULAR, ...), instant-ngp's ``is_fisheye``, or
-a nonzero coefficient is refused. Other keys (aabb_scale, mask_path, ...) are ignored.
+name is the stem of ``file_path``. ``camera_model`` (per frame, else top level): the
+models nerfstudio renders as a perspective camera (PINHOLE, SIMPLE_PINHOLE, OPENCV,
+SIMPLE_RADIAL, RADIAL; absent means perspective too) are a pinhole when every
+distortion coefficient (k1 k2 k3 k4 p1 p2, or "distortion_params" in that order) is zero
+or absent, else kdray's ``opencv`` with (k1, k2, p1, p2[, k3]) (nerfstudio's k4 is an
+r^8 term OpenCV's model lacks: refused unless zero); OPENCV_FISHEYE is ``fisheye`` with
+(k1, k2, k3, k4) (p1, p2 must be zero); EQUIRECTANGULAR is ``equirectangular`` with
+K = [[fl_x / pi, 0, cx], [0, fl_y / pi, cy]] (nerfstudio's longitude pi (x - cx) / fl_x,
+latitude -pi (y - cy) / fl_y; no coefficients). Any other model, or instant-ngp's
+``is_fisheye``, is refused. Other keys (aabb_scale, mask_path, ...) are ignored.
 
     Pixel convention: nerfstudio samples pixel (i, j) at (i + 0.5, j + 0.5)
     (``Cameras.get_image_coords``, pixel_offset=0.5) and its perspective ray is
@@ -39,7 +44,11 @@ a nonzero coefficient is refused. Other keys (aabb_scale, mask_path, ...) are ig
 
 COLMAP text model: a folder holding cameras.txt and images.txt (e.g. ``sparse/0``), or
 the path of either (the other beside it). cameras.txt: ``CAMERA_ID MODEL WIDTH HEIGHT
-PARAMS...``, SIMPLE_PINHOLE (f cx cy) and PINHOLE (fx fy cx cy) only. images.txt: two
+PARAMS...``: SIMPLE_PINHOLE (f cx cy), PINHOLE (fx fy cx cy), SIMPLE_RADIAL (f cx cy k),
+RADIAL (f cx cy k1 k2), OPENCV (fx fy cx cy k1 k2 p1 p2) and FULL_OPENCV (... k1 k2 p1 p2
+k3 k4 k5 k6) as kdray's ``opencv`` (a pinhole when every coefficient is zero), and
+OPENCV_FISHEYE (fx fy cx cy k1 k2 k3 k4) as ``fisheye``; COLMAP's distortion models are
+OpenCV's, in its order. Any other model is refused. images.txt: two
 lines per image, ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` then the 2D points (a
 line that may be empty). (q, t) map world to camera, x_cam = R(q) x_world + t, so
 cam_to_world = [R^T | -R^T t]; COLMAP's camera axes are OpenCV's and its pixel (0, 0)
@@ -94,15 +103,30 @@ _WINDOWS = os.name == "nt"
 
 _PERSPECTIVE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "OPENCV", "SIMPLE_RADIAL", "RADIAL")
 """nerfstudio camera_model values that nerfstudio renders as a perspective camera
-(cameras.CAMERA_MODEL_TO_TYPE); with zero distortion each is a pinhole."""
+(cameras.CAMERA_MODEL_TO_TYPE), undistorting with k1 k2 k3 k4 p1 p2 whatever the
+name: with zero distortion a pinhole, else kdray's `opencv` (k1 k2 p1 p2 k3)."""
+
+_NERFSTUDIO_MODELS = _PERSPECTIVE_MODELS + ("OPENCV_FISHEYE", "EQUIRECTANGULAR")
+"""nerfstudio camera_model values kdray renders."""
 
 _DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 """nerfstudio's distortion coefficients, in the order of its "distortion_params"."""
 
-_COLMAP_MODELS = {"SIMPLE_PINHOLE": ("f", "cx", "cy"), "PINHOLE": ("fx", "fy", "cx", "cy")}
-"""COLMAP camera models kdray renders, with their PARAMS."""
+_COLMAP_MODELS = {
+    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
+    "PINHOLE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL": ("f", "cx", "cy", "k"),
+    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+}
+"""COLMAP camera models kdray renders, with their PARAMS (COLMAP's camera_models.h).
+The distortion coefficients follow the focal lengths and principal point in OpenCV's
+order; the radial models are OpenCV's with the missing coefficients zero."""
 
-_NOT_SUPPORTED = "is not supported yet (kdray renders pinhole cameras)"
+_NOT_SUPPORTED = ("is not supported yet (kdray renders pinhole, OpenCV, OpenCV fisheye and "
+                  "equirectangular cameras)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,7 +143,7 @@ def read_cameras(path):
     path : a nerfstudio transforms.json, a COLMAP text model (its folder, cameras.txt
     or images.txt), a JSON list of kdray cameras or a single kdray camera file.
     Raises CameraError (one line naming the file and the frame) for anything that is
-    not a valid set of pinhole views; see the module docstring.
+    not a valid set of views of the cameras kdray renders; see the module docstring.
     """
     path = Path(path)
     if path.is_dir():
@@ -288,7 +312,7 @@ def _nerfstudio_view(meta, frame, index, path):
     name = PurePosixPath(file_path.replace("\\", "/")).stem
     _check_name(name, path, f"{label} (file_path {_show(file_path)})")
     label = f"frame {name}"
-    _check_perspective(meta, frame, path, label)
+    model, distortion = _nerfstudio_model(meta, frame, path, label)
 
     def value(key):
         """(value, how to name it) from the frame, else the top level."""
@@ -303,43 +327,68 @@ def _nerfstudio_view(meta, frame, index, path):
     fx, fy = (_number(*value(key), path, label, positive=True) for key in ("fl_x", "fl_y"))
     cx, cy = (_number(*value(key), path, label) for key in ("cx", "cy"))
     width, height = (_side(*value(key), path, label) for key in ("w", "h"))
+    if model == "equirectangular":
+        # nerfstudio: longitude pi (x - cx) / fl_x, latitude -pi (y - cy) / fl_y
+        fx, fy = fx / math.pi, fy / math.pi
     K = [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
     gl_to_world = _transform_matrix(frame, path, label)
     cam_to_world = gl_to_world @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenGL -> OpenCV axes
     try:
-        return View(name, Camera(width, height, K, cam_to_world))
+        return View(name, Camera(width, height, K, cam_to_world, model, distortion))
     except CameraError as exc:
         raise _fail(path, label, str(exc)) from None
 
 
-def _check_perspective(meta, frame, path, label):
-    """Refuse a camera model or a distortion that is not a pinhole, at the top level
-    (`meta`) or in the frame."""
+def _nerfstudio_model(meta, frame, path, label):
+    """(kdray model, distortion) of a frame: its camera_model (the frame's, else the top
+    level's, else PINHOLE) and coefficients (each the frame's, else the top level's; a
+    level's "distortion_params" before its keys), as nerfstudio renders them."""
     levels = ((meta, "top-level "), (frame, ""))
     for source, where in levels:
         model = source.get("camera_model", "PINHOLE")
         if not isinstance(model, str):
             raise _fail(path, label, f"{where}camera_model must be a string, got {_show(model)}.")
-        if model not in _PERSPECTIVE_MODELS:
+        if model not in _NERFSTUDIO_MODELS:
             raise _fail(path, label, f"camera model {model} {_NOT_SUPPORTED}.")
         if source.get("is_fisheye", False):
-            raise _fail(path, label, f"{where}is_fisheye is set: a fisheye camera {_NOT_SUPPORTED}.")
-    model = frame.get("camera_model", meta.get("camera_model"))
-    camera = f"camera model {model}" if model else "a camera"
+            raise _fail(path, label, f"{where}is_fisheye is set: instant-ngp's fisheye camera "
+                                     f"{_NOT_SUPPORTED}.")
+    model = frame.get("camera_model", meta.get("camera_model", "PINHOLE"))
+    coefficients = dict.fromkeys(_DISTORTION_KEYS, (0.0, None))
     for source, where in levels:
-        coefficients = [(key, source[key]) for key in _DISTORTION_KEYS if key in source]
+        found = {key: (source[key], where + key) for key in _DISTORTION_KEYS if key in source}
         if "distortion_params" in source:
             params = source["distortion_params"]
             if not (isinstance(params, list) and len(params) == len(_DISTORTION_KEYS)):
                 raise _fail(path, label, f"{where}distortion_params must be a list of 6 numbers "
                                          f"(k1 k2 k3 k4 p1 p2), got {_show(params)}.")
-            coefficients += [(f"distortion_params {key}", v)
-                             for key, v in zip(_DISTORTION_KEYS, params)]
-        for key, coefficient in coefficients:
-            number = _number(coefficient, where + key, path, label)
-            if number != 0.0:
-                raise _fail(path, label, f"{where}distortion coefficient {key} = {number!r} is "
-                                         f"not zero: {camera} with distortion {_NOT_SUPPORTED}.")
+            found = {key: (v, f"{where}distortion_params {key}")
+                     for key, v in zip(_DISTORTION_KEYS, params)}
+        for key, (v, name) in found.items():
+            coefficients[key] = (_number(v, name, path, label), name)
+    k = {key: v for key, (v, _) in coefficients.items()}
+
+    def refuse(keys, why):
+        for key in keys:
+            if k[key] != 0.0:
+                name = coefficients[key][1]
+                where = "top-level " if name.startswith("top-level ") else ""
+                raise _fail(path, label, f"{where}distortion coefficient {name[len(where):]} = "
+                                         f"{k[key]!r} is not zero: {why}.")
+
+    if model == "EQUIRECTANGULAR":
+        refuse(_DISTORTION_KEYS, "an equirectangular camera has no distortion (nerfstudio "
+                                 "ignores it; kdray does not guess)")
+        return "equirectangular", ()
+    if model == "OPENCV_FISHEYE":
+        refuse(("p1", "p2"), "OpenCV's fisheye model has no tangential distortion")
+        return "fisheye", (k["k1"], k["k2"], k["k3"], k["k4"])
+    refuse(("k4",), f"camera model {model}'s k4 (nerfstudio's r^8 term) is not in OpenCV's "
+                    f"model, which kdray renders")
+    if not any(k.values()):
+        return "pinhole", ()
+    distortion = (k["k1"], k["k2"], k["p1"], k["p2"], k["k3"])
+    return "opencv", distortion if k["k3"] else distortion[:4]
 
 
 def _number(value, name, path, label, positive=False):
@@ -508,8 +557,16 @@ def _colmap_view(fields, cameras, path, line_no, cameras_path):
                                      f"1 to {MAX_SIDE} (MAX_SIDE), got {_show(text)}.")
         sides.append(int(text))
     values = [_float(text, key, path, f"{label}: {camera}") for key, text in zip(names, params)]
-    fx, fy, cx, cy = values if model == "PINHOLE" else (values[0], *values)
+    if names[0] == "f":
+        values = [values[0], *values]
+    (fx, fy, cx, cy), coefficients = values[:4], values[4:]
     K = [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
+    if model == "OPENCV_FISHEYE":
+        kind, distortion = "fisheye", tuple(coefficients)
+    elif any(coefficients):
+        kind, distortion = "opencv", tuple(coefficients + [0.0] * (4 - len(coefficients)))
+    else:                                   # a perspective model with no distortion
+        kind, distortion = "pinhole", ()
 
     keys = ("QW", "QX", "QY", "QZ", "TX", "TY", "TZ")
     qw, qx, qy, qz, tx, ty, tz = (_float(text, key, path, label) for key, text in zip(keys, pose))
@@ -528,7 +585,7 @@ def _colmap_view(fields, cameras, path, line_no, cameras_path):
     cam_to_world[:3, :3] = R.T
     cam_to_world[:3, 3] = -R.T @ np.array([tx, ty, tz])
     try:
-        return View(name, Camera(sides[0], sides[1], K, cam_to_world))
+        return View(name, Camera(sides[0], sides[1], K, cam_to_world, kind, distortion))
     except CameraError as exc:
         raise _fail(path, label, f"{camera}: {exc}") from None
 

@@ -46,6 +46,7 @@ CAMERAS_TXT = """# Camera list with one line of data per camera:
 1 PINHOLE 64 48 100 110 32 24
 2 SIMPLE_PINHOLE 40 30 50 20 15
 3 SIMPLE_RADIAL 64 48 100 32 24 0.01
+4 THIN_PRISM_FISHEYE 64 48 100 100 32 24 0 0 0 0 0 0 0 0 0 0 0 0
 """
 
 
@@ -143,19 +144,22 @@ def test_nerfstudio_tolerates_its_other_keys_and_forms(tmp_path):
 
 
 @pytest.mark.parametrize("top, per_frame, match", [
-    ({"camera_model": "OPENCV_FISHEYE"}, {},
-     r": frame frame_00012: camera model OPENCV_FISHEYE is not supported yet "
-     r"\(kdray renders pinhole cameras\)\.$"),
-    ({}, {"camera_model": "EQUIRECTANGULAR"}, r"frame frame_00012: camera model EQUIRECTANGULAR is not"),
-    ({"camera_model": "OPENCV", "k1": 0.01}, {},
-     r"frame frame_00012: top-level distortion coefficient k1 = 0.01 is not zero: camera model "
-     r"OPENCV with distortion is not supported yet \(kdray renders pinhole cameras\)"),
-    ({"camera_model": "OPENCV"}, {"p2": -1e-9}, r"frame frame_00012: distortion coefficient p2 = -1e-09"),
-    ({}, {"k4": 0.5}, r"distortion coefficient k4 = 0.5 is not zero: a camera with distortion"),
+    ({"camera_model": "FISHEYE624"}, {},
+     r": frame frame_00012: camera model FISHEYE624 is not supported yet "
+     r"\(kdray renders pinhole, OpenCV, OpenCV fisheye and equirectangular cameras\)\.$"),
+    ({}, {"camera_model": "VR180_L"}, r"frame frame_00012: camera model VR180_L is not"),
+    ({"camera_model": "OPENCV", "k4": 0.01}, {},
+     r"frame frame_00012: top-level distortion coefficient k4 = 0.01 is not zero: camera model "
+     r"OPENCV's k4 \(nerfstudio's r\^8 term\) is not in OpenCV's model"),
+    ({"camera_model": "OPENCV_FISHEYE"}, {"p2": -1e-9},
+     r"frame frame_00012: distortion coefficient p2 = -1e-09 is not zero: OpenCV's fisheye model"),
+    ({"camera_model": "EQUIRECTANGULAR"}, {"k1": 0.5},
+     r"distortion coefficient k1 = 0.5 is not zero: an equirectangular camera has no distortion"),
     ({"distortion_params": [0, 0, 0, 0.2, 0, 0]}, {}, r"distortion_params k4 = 0.2 is not zero"),
     ({"distortion_params": [0, 0]}, {}, r"distortion_params must be a list of 6 numbers"),
     ({}, {"k1": "0.1"}, r"k1 must be a number, got '0.1'"),
-    ({"is_fisheye": True}, {}, r"top-level is_fisheye is set: a fisheye camera is not supported yet"),
+    ({}, {"k1": float("nan")}, r"k1 must be finite, got nan"),
+    ({"is_fisheye": True}, {}, r"top-level is_fisheye is set: instant-ngp's fisheye camera is not"),
     ({"camera_model": 7}, {}, r"top-level camera_model must be a string, got 7"),
 ])
 def test_nerfstudio_refuses_what_is_not_a_pinhole(tmp_path, top, per_frame, match):
@@ -342,10 +346,11 @@ def test_colmap_quaternion_is_normalized(tmp_path):
 
 
 @pytest.mark.parametrize("line, match", [
-    (image_line("images/frame_00012.png", 3),
-     r"images.txt: line 2: image frame_00012: camera model SIMPLE_RADIAL of camera 3 \(cameras.txt "
-     r"line 5\) is not supported yet \(kdray renders pinhole cameras\)\.$"),
-    (image_line("f.png", 4), r"line 2: image f: camera 4 is not in .*cameras.txt\.$"),
+    (image_line("images/frame_00012.png", 4),
+     r"images.txt: line 2: image frame_00012: camera model THIN_PRISM_FISHEYE of camera 4 "
+     r"\(cameras.txt line 6\) is not supported yet \(kdray renders pinhole, OpenCV, OpenCV "
+     r"fisheye and equirectangular cameras\)\.$"),
+    (image_line("f.png", 5), r"line 2: image f: camera 5 is not in .*cameras.txt\.$"),
     (image_line("f.png", q=(0, 0, 0, 0)), r"line 2: image f: the quaternion \(QW QX QY QZ\) = "
      r"\(0.0, 0.0, 0.0, 0.0\) has norm 0; a rotation's is 1 \(to 0.001\)\.$"),
     (image_line("f.png", q=(1.01, 0, 0, 0)), r"image f: the quaternion .* has norm 1.01;"),
@@ -363,7 +368,9 @@ def test_colmap_bad_images(tmp_path, line, match):
 
 
 @pytest.mark.parametrize("camera, match", [
-    ("1 OPENCV 64 48 100 100 32 24 0 0 0 0", r"camera model OPENCV of camera 1 \(cameras.txt line 1\) is not supported yet"),
+    ("1 OPENCV 64 48 100 100 32 24 0 0 0", r"camera 1 \(cameras.txt line 1\): a OPENCV camera has 8 PARAMS \(fx fy cx cy k1 k2 p1 p2\), found 7\.$"),
+    ("1 OPENCV_FISHEYE 64 48 100 100 32 24 0.1 0 nan 0", r"camera 1 \(cameras.txt line 1\): k3 must be finite, got 'nan'\.$"),
+    ("1 RADIAL 64 48 100 32 24 -0.5 x", r"k2 must be a number, got 'x'\.$"),
     ("1 PINHOLE 64 48 100 100 32", r"camera 1 \(cameras.txt line 1\): a PINHOLE camera has 4 PARAMS \(fx fy cx cy\), found 3\.$"),
     ("1 PINHOLE 64.5 48 100 100 32 24", r"camera 1 \(cameras.txt line 1\): WIDTH must be a whole number of pixels from 1 to 65536 \(MAX_SIDE\), got '64.5'\.$"),
     ("1 PINHOLE 64 0 100 100 32 24", r"HEIGHT must be a whole number of pixels .* got '0'\.$"),
@@ -520,3 +527,63 @@ def test_reading_writes_nothing(tmp_path, monkeypatch):
     for path in paths:
         assert len(read_cameras(path)) == 1
     assert sorted((p, p.stat().st_mtime_ns) for p in tmp_path.rglob("*")) == before
+
+
+# Camera models beyond the pinhole -----------------------------------------------------
+
+
+@pytest.mark.parametrize("top, per_frame, model, distortion", [
+    ({"camera_model": "OPENCV", "k1": -0.1, "k2": 0.02, "p1": 1e-3, "p2": -2e-3}, {},
+     "opencv", (-0.1, 0.02, 1e-3, -2e-3)),
+    ({"camera_model": "OPENCV", "k1": -0.1}, {"k3": 0.005, "k1": -0.2},      # the frame's wins
+     "opencv", (-0.2, 0.0, 0.0, 0.0, 0.005)),
+    ({"camera_model": "RADIAL", "distortion_params": [0.1, 0.2, 0.3, 0, 0.4, 0.5]}, {},
+     "opencv", (0.1, 0.2, 0.4, 0.5, 0.3)),
+    ({}, {"camera_model": "SIMPLE_RADIAL", "k1": 0.01}, "opencv", (0.01, 0.0, 0.0, 0.0)),
+    ({"camera_model": "OPENCV_FISHEYE", "k1": 0.1, "k2": -0.01, "k3": 0.002, "k4": -1e-4}, {},
+     "fisheye", (0.1, -0.01, 0.002, -1e-4)),
+    ({"camera_model": "OPENCV_FISHEYE"}, {}, "fisheye", (0.0, 0.0, 0.0, 0.0)),
+    ({"camera_model": "OPENCV", "k1": 0.0, "p2": 0}, {}, "pinhole", ()),
+])
+def test_nerfstudio_camera_models(tmp_path, top, per_frame, model, distortion):
+    path = write(tmp_path, transforms([frame("images/frame_00012.png", **per_frame)], **top))
+    camera = read_cameras(path)[0].camera
+    assert camera.model == model and camera.distortion == distortion
+
+
+def test_nerfstudio_equirectangular_rays_are_nerfstudios(tmp_path):
+    # nerfstudio (cameras.py, EQUIRECTANGULAR): x, y = (u - cx) / fx, -(v - cy) / fy;
+    # theta = -pi x, phi = pi (0.5 - y); direction (-sin theta sin phi, cos phi,
+    # -cos theta sin phi) in OpenGL camera axes
+    w, h = 64, 32
+    gl = [[0, 0, 1, 0.5], [1, 0, 0, -1], [0, 1, 0, 2], [0, 0, 0, 1]]
+    meta = transforms([{"file_path": "p.png", "transform_matrix": gl}], camera_model="EQUIRECTANGULAR",
+                      fl_x=w / 2, fl_y=h, cx=w / 2, cy=h / 2, w=w, h=h)
+    camera = read_cameras(write(tmp_path, meta))[0].camera
+    assert camera.model == "equirectangular"
+    o, d = camera.rays()
+    v, u = np.divmod(np.arange(w * h), w) + np.array([[0.5], [0.5]])
+    x, y = (u - w / 2) / (w / 2), -(v - h / 2) / h
+    theta, phi = -np.pi * x, np.pi * (0.5 - y)
+    local = np.stack([-np.sin(theta) * np.sin(phi), np.cos(phi), -np.cos(theta) * np.sin(phi)], 1)
+    expected = local @ np.array(gl, dtype=float)[:3, :3].T
+    assert np.abs(d - expected).max() < 1e-12
+    assert np.allclose(o, [0.5, -1, 2])
+
+
+@pytest.mark.parametrize("line, model, distortion", [
+    ("1 SIMPLE_RADIAL 64 48 100 32 24 0.01", "opencv", (0.01, 0.0, 0.0, 0.0)),
+    ("1 RADIAL 64 48 100 32 24 0.01 -0.002", "opencv", (0.01, -0.002, 0.0, 0.0)),
+    ("1 OPENCV 64 48 100 110 32 24 0.01 -0.002 1e-4 2e-4", "opencv", (0.01, -0.002, 1e-4, 2e-4)),
+    ("1 FULL_OPENCV 64 48 100 110 32 24 0.1 0.2 0.003 0.004 0.05 0.6 0.07 0.08", "opencv",
+     (0.1, 0.2, 0.003, 0.004, 0.05, 0.6, 0.07, 0.08)),
+    ("1 OPENCV_FISHEYE 64 48 100 110 32 24 0.1 -0.01 0.002 -1e-4", "fisheye", (0.1, -0.01, 0.002, -1e-4)),
+    ("1 OPENCV 64 48 100 110 32 24 0 0 0 0", "pinhole", ()),
+])
+def test_colmap_camera_models(tmp_path, line, model, distortion):
+    root = colmap(tmp_path, line + "\n", image_line("f.png") + "\n\n")
+    camera = read_cameras(root)[0].camera
+    assert (camera.model, camera.distortion) == (model, distortion)
+    fx = 100.0
+    fy = 100.0 if line.split()[1] in ("SIMPLE_RADIAL", "RADIAL") else 110.0
+    np.testing.assert_array_equal(camera.K, [[fx, 0, 32], [0, fy, 24], [0, 0, 1]])
