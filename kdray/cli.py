@@ -397,6 +397,72 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
 
 
 @cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--lidar", "lidar_file", required=True, type=click.Path(dir_okay=False),
+              help="The lidar's JSON spec: elevations or channels/fov_up/fov_down, columns, "
+                   "max_range (docs/sensors.md).")
+@click.option("--pose", required=True, type=click.Path(dir_okay=False),
+              help="4x4 sensor-to-world matrix file (text or .npy), sensor axes x forward, "
+                   "y left, z up (ROS REP 103).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="EXR range image to write: range, id, object [default: SCENE's name with "
+                   ".exr, here].")
+@click.option("--points", type=click.Path(dir_okay=False),
+              help="Also write the hit points as a binary PLY (x y z ring column range id "
+                   "object).")
+@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
+              help="Scan this dumped tree instead of building one.")
+@click.option("--device", default=None,
+              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+@build_options
+def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
+    """Scan SCENE with a lidar: a range image (rows = beams, columns = azimuth steps)
+    to an EXR file, and optionally its hit points to a PLY file."""
+    from .camera import pose_from_file
+    from .images import write_exr
+    from .lidar import Lidar, write_points_ply
+    from .trace import Tracer
+    from .tree import KdTree
+    params = _build_kwargs(kw)
+    if output is None:
+        output = os.path.splitext(os.path.basename(scene))[0] + ".exr"
+    for path in (output, points):
+        for source in (scene, tree_file, lidar_file, pose):
+            _check_not_same(source, path)
+    if points:
+        _check_not_same(output, points)
+    _check_folder(output)
+    if points:
+        _check_folder(points)
+    lidar = Lidar.from_json(lidar_file)          # a bad spec or pose: one line, nothing read
+    sensor_to_world = pose_from_file(pose)
+    step = Steps()
+    if tree_file:
+        with step("loading the tree"):
+            tree = KdTree.load(tree_file)
+    else:
+        from .load import load
+        with step("loading"):
+            mesh = load(scene)
+        with step(f"building the tree of {len(mesh.faces):,} triangles"):
+            tree = _build_mesh(mesh, scene, params).with_objects(mesh.objects, mesh.object_names)
+    with step("setting up the device"):
+        tracer = Tracer(tree, device=device)
+    beams, columns = lidar.shape
+    with step(f"scanning {beams}x{columns} beams"):
+        images = tracer.scan(lidar, sensor_to_world)
+    with step("writing"):
+        write_exr(output, {k: images[k] for k in ("range", "id", "object")},
+                  object_names=tree.object_names, lidar=lidar, sensor_to_world=sensor_to_world)
+        if points:
+            write_points_ply(points, images)
+    step.log()
+    hit = int(np.count_nonzero(images["id"] != 0xFFFFFFFF))
+    click.echo(f"wrote {output}" + (f" and {points}" if points else "")
+               + f" ({beams} beams x {columns} columns, {hit} of {beams * columns} beams hit)")
+
+
+@cli.command()
 @click.argument("scenes", metavar="SCENE...", nargs=-1, type=click.Path(dir_okay=False))
 @click.option("--size", default="512x512", show_default=True, callback=_size, help="Rays: WIDTHxHEIGHT pixels.")
 @click.option("--repeat", type=int, default=5, show_default=True, help="Warm runs timed (median).")

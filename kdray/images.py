@@ -7,6 +7,10 @@
     camera = read_camera("out.exr")       # the same kdray.Camera back, exactly
     write_exr("out.exr", images, camera, object_names=tree.object_names)
     names = read_object_names("out.exr")  # the tuple of names back, or None
+    scan = tracer.scan(lidar, pose)       # a lidar's range image (kdray.lidar)
+    write_exr("scan.exr", {k: scan[k] for k in ("range", "id", "object")},
+              lidar=lidar, sensor_to_world=pose)
+    lidar, pose = read_lidar("scan.exr")  # the same Lidar and pose back, or None
 
 `images` maps AOV names to arrays that share one (H, W):
 
@@ -19,6 +23,7 @@
     object   : (H, W) uint32        channel object (UINT)  miss: 0xFFFFFFFF
     valid    : (H, W) bool          channel valid (UINT 0/1): a camera model's pixels
                                     that have a ray (Tracer.render, kdray.lens)
+    range    : (H, W) float32       channel range          miss: +inf (a scan's: H beams, W columns)
 
 The EXR is a single-part scanline file, full float32 (never half) plus 32-bit
 unsigned integer channels for ids and objects, ZIP-compressed (lossless). It is
@@ -58,8 +63,10 @@ CHANNELS = {
     "position": ("P.X", "P.Y", "P.Z"),
     "object": ("object",),
     "valid": ("valid",),
+    "range": ("range",),
 }
-"""Each AOV's EXR channel names (the public contract)."""
+"""Each AOV's EXR channel names (the public contract). `range` is a lidar scan's
+(Tracer.scan), not a render's."""
 
 UINT_AOVS = ("id", "object")
 """The AOVs stored as 32-bit unsigned integers (exact)."""
@@ -83,7 +90,7 @@ def _channel_arrays(images, path):
     unknown = [name for name in images if name not in CHANNELS]
     if unknown:
         raise OutputError(
-            f"cannot write {path}: unknown AOV {unknown[0]!r}; valid AOVs are {', '.join(AOVS)}."
+            f"cannot write {path}: unknown AOV {unknown[0]!r}; valid AOVs are {', '.join(CHANNELS)}."
         )
     size = None
     channels = []
@@ -250,7 +257,7 @@ def _camera_header(camera, aovs):
     return header
 
 
-def write_exr(path, images, camera=None, object_names=None):
+def write_exr(path, images, camera=None, object_names=None, lidar=None, sensor_to_world=None):
     """Write the AOV images of one render as one multi-channel EXR file, atomically.
 
     images : dict of AOV name -> array (see the module docstring).
@@ -262,8 +269,12 @@ def write_exr(path, images, camera=None, object_names=None):
              `object` or `id`, the header holds them (OBJECT_NAMES_ATTRIBUTE;
              `read_object_names` reads them back); every value of `object` but
              0xFFFFFFFF must then index them.
-    Raises OutputError naming `path` for bad arrays, a camera of another size, bad
-    object names, a missing or unwritable folder, or a failed write.
+    lidar, sensor_to_world : the kdray.lidar.Lidar and (4, 4) pose of a scan
+             (Tracer.scan), or None. Given, the header holds them (LIDAR_ATTRIBUTES;
+             `read_lidar` reads them back exactly) and the images must be the lidar's
+             (beams, columns).
+    Raises OutputError naming `path` for bad arrays, a camera or lidar of another size,
+    bad object names, a missing or unwritable folder, or a failed write.
     """
     channels, (height, width) = _channel_arrays(images, path)
     names = _object_names_header(images, object_names, path)
@@ -280,6 +291,8 @@ def write_exr(path, images, camera=None, object_names=None):
                 f"but the images are {width}x{height}."
             )
         header.update(_camera_header(camera, images))
+    if lidar is not None:
+        header.update(_lidar_header(lidar, sensor_to_world, (height, width), images, path))
     # The binding reads each array's buffer in C order whatever its strides (openexr
     # issue 1929), so every channel is handed over as its own C-ordered copy.
     pixels = {name: np.ascontiguousarray(array) for name, array in channels}
@@ -319,6 +332,72 @@ def _object_names_header(images, object_names, path):
     except UnicodeEncodeError:
         raise OutputError(f"cannot write {path}: an object name is not valid Unicode.") from None
     return value
+
+
+RANGE_CONVENTION = ("metres (world units) from the sensor along the unit beam; +inf on a "
+                    "miss or at max_range and beyond")
+
+LIDAR_ATTRIBUTES = {
+    "kdray/lidar": "string",
+    "kdray/sensorToWorld": "m44d",
+    "kdray/range": "string",
+    "kdray/version": "string",
+}
+"""The header attributes `write_exr` adds given a lidar (kdray/range only with that
+channel): kdray/lidar its spec (Lidar.to_json, the list form, exact), kdray/sensorToWorld
+the float64 sensor-to-world pose (REP 103 sensor axes). See docs/exr.md."""
+
+
+def _lidar_header(lidar, pose, size, images, path):
+    from . import __version__
+    from .errors import CameraError
+    from .lidar import Lidar, check_pose
+    if not isinstance(lidar, Lidar):
+        raise OutputError(f"cannot write {path}: lidar must be a kdray.lidar.Lidar, got "
+                          f"{type(lidar).__name__}.")
+    if tuple(size) != lidar.shape:
+        raise OutputError(f"cannot write {path}: the lidar has {lidar.beams} beams x "
+                          f"{lidar.columns} columns but the images are {size[0]} x {size[1]}.")
+    try:
+        pose = check_pose(pose)
+    except CameraError as e:
+        raise OutputError(f"cannot write {path}: {e}") from None
+    header = {"kdray/lidar": lidar.to_json(),
+              "kdray/sensorToWorld": np.array(pose, dtype=np.float64, order="C"),
+              "kdray/version": str(__version__)}
+    if "range" in images:
+        header["kdray/range"] = RANGE_CONVENTION
+    return header
+
+
+def read_lidar(path):
+    """(kdray.lidar.Lidar, (4, 4) float64 sensor-to-world pose) stored in the header of
+    an EXR written by `write_exr` with a lidar, exactly; None when the file holds none.
+    Raises KdrayError if the file cannot be read or holds part of one, or a bad one."""
+    from .lidar import Lidar, check_pose
+    _, inp = _open_exr(path)
+    try:
+        spec = inp.spec()
+    finally:
+        inp.close()
+    spec_found = _find_attribute(spec, "kdray/lidar")
+    pose_found = _find_attribute(spec, "kdray/sensorToWorld")
+    if spec_found is None and pose_found is None:
+        return None
+    if spec_found is None or pose_found is None:
+        missing = "kdray/lidar" if spec_found is None else "kdray/sensorToWorld"
+        raise KdrayError(f"EXR {path} holds part of a lidar but no attribute {missing}.")
+    if spec_found[0] != "string" or pose_found[0] != "matrixd":
+        raise KdrayError(f"EXR {path}: attributes kdray/lidar and kdray/sensorToWorld must be "
+                         f"a string and a matrixd, got {spec_found[0]} and {pose_found[0]}.")
+    try:
+        spec_dict = json.loads(spec_found[1])
+    except ValueError:
+        raise KdrayError(f"EXR {path}: attribute kdray/lidar is not JSON.") from None
+    lidar = Lidar.from_dict(spec_dict, f"EXR {path}: attribute kdray/lidar")
+    pose = check_pose(np.array(pose_found[1], dtype=np.float64).reshape(4, 4),
+                      f"kdray/sensorToWorld of EXR {path}")
+    return lidar, pose
 
 
 def _oiio():

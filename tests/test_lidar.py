@@ -1,14 +1,17 @@
-"""Lidar scans (kdray.lidar, Tracer.scan): beam directions against the analytic
-formula, ranges in a box room against analytic ray/plane distances."""
+"""Lidar scans (kdray.lidar, Tracer.scan, kdray scan): beam directions against the
+analytic formula, ranges in a box room against analytic ray/plane distances, the EXR
+and PLY files, and one clear line for every bad spec."""
 import json
 
 import numpy as np
 import pytest
 
 import kdray
-from kdray.errors import CameraError
+from kdray.errors import CameraError, ParameterError
+from kdray.images import read_exr, read_lidar
 from kdray.layout import MISS
-from kdray.lidar import MAX_BEAMS, Lidar
+from kdray.lidar import MAX_BEAMS, MAX_COLUMNS, PLY_FIELDS, Lidar
+from helpers import run
 
 # -- the box room: 10 x 6 x 3 m, far from the world origin, three objects -------------------
 
@@ -197,6 +200,163 @@ def test_pose_is_checked(tracers, room_tree):
     pose[0, 0] *= 1.01
     with pytest.raises(CameraError, match="orthonormal"):
         tracers(room_tree).scan(Lidar.from_dict(SPEC), pose)
+
+
+# -- the command: EXR and PLY ----------------------------------------------------------------
+
+
+def write_room(folder):
+    """The room as an OBJ file of three objects, a spec and a pose file."""
+    vertices, faces, objects, _ = room()
+    lines = [f"v {float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in vertices]
+    for k, name in enumerate(NAMES):
+        lines.append(f"o {name}")
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces[objects == k]]
+    (folder / "room.obj").write_text("\n".join(lines) + "\n")
+    (folder / "spec.json").write_text(json.dumps({**SPEC, "max_range": 8.0}))
+    np.savetxt(folder / "pose.txt", sensor_pose())
+    return folder / "room.obj", folder / "spec.json", folder / "pose.txt"
+
+
+def read_ply(path):
+    """(header lines, structured array) of a binary little-endian PLY, by numpy alone."""
+    data = path.read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header = data[:end].decode("ascii").splitlines()
+    types = {"double": "<f8", "float": "<f4", "ushort": "<u2", "uint": "<u4"}
+    fields = [(line.split()[2], types[line.split()[1]]) for line in header
+              if line.startswith("property")]
+    n = int(next(line for line in header if line.startswith("element vertex")).split()[2])
+    points = np.frombuffer(data[end:], dtype=np.dtype(fields))
+    assert len(points) == n
+    return header, points
+
+
+def test_scan_command_writes_the_range_image_and_points(tmp_path, capsys):
+    from kdray.load import load
+    scene, spec, pose_file = write_room(tmp_path)
+    code, out, err = run(capsys, "scan", scene, "--lidar", spec, "--pose", pose_file,
+                         "-o", tmp_path / "scan.exr", "--points", tmp_path / "scan.ply")
+    assert code == 0, err
+    images = read_exr(tmp_path / "scan.exr")
+    assert sorted(images) == ["id", "object", "range"]
+    rng_img, ids, objs = images["range"], images["id"], images["object"]
+    assert rng_img.shape == (32, 1000)
+    hit = ids != MISS
+    assert f"32 beams x 1000 columns, {hit.sum()} of 32000 beams hit" in out
+    lidar, pose = read_lidar(tmp_path / "scan.exr")
+    assert lidar == Lidar.from_json(spec) and np.array_equal(pose, sensor_pose())
+    # ranges: analytic, +inf from max_range (8 m) on
+    d = lidar.directions() @ pose[:3, :3].T
+    want, _, _ = analytic(pose[:3, 3], d)
+    want = want.reshape(32, 1000)
+    assert np.array_equal(hit, np.isfinite(rng_img)) and np.all(rng_img[~hit] == np.inf)
+    clear = np.abs(want / 8.0 - 1) > 1e-6
+    np.testing.assert_array_equal(hit[clear], want[clear] < 8.0)
+    np.testing.assert_allclose(rng_img[hit], want[hit], rtol=1e-6)
+    # ids index the mesh as loaded; objects are theirs
+    mesh = load(scene)
+    np.testing.assert_array_equal(objs[hit], mesh.objects[ids[hit]])
+    assert np.all(objs[~hit] == MISS)
+    # the PLY: the hits, ring-major, with their pixel's values
+    header, points = read_ply(tmp_path / "scan.ply")
+    assert header[1] == "format binary_little_endian 1.0"
+    assert [line.split()[2] for line in header if line.startswith("property")] == \
+        [name for name, _, _ in PLY_FIELDS]
+    ring, column = np.nonzero(hit)
+    assert len(points) == hit.sum()
+    np.testing.assert_array_equal(points["ring"], ring)
+    np.testing.assert_array_equal(points["column"], column)
+    np.testing.assert_array_equal(points["range"], rng_img[hit])
+    np.testing.assert_array_equal(points["id"], ids[hit])
+    np.testing.assert_array_equal(points["object"], objs[hit])
+    xyz = np.stack([points["x"], points["y"], points["z"]], axis=1)
+    rays = d.reshape(32, 1000, 3)[hit]
+    np.testing.assert_allclose(xyz, pose[:3, 3] + want[hit][:, None] * rays, rtol=0, atol=1e-5)
+
+
+def test_scan_command_with_a_dumped_tree(tmp_path, capsys):
+    scene, spec, pose_file = write_room(tmp_path)
+    assert run(capsys, "build", scene, "--dump", tmp_path / "room.kdt")[0] == 0
+    for name, extra in (("built", ()), ("dumped", ("--tree", tmp_path / "room.kdt"))):
+        code, _, err = run(capsys, "scan", scene, "--lidar", spec, "--pose", pose_file,
+                           "-o", tmp_path / f"{name}.exr", *extra)
+        assert code == 0, err
+    built, dumped = read_exr(tmp_path / "built.exr"), read_exr(tmp_path / "dumped.exr")
+    for key in ("range", "id", "object"):
+        np.testing.assert_array_equal(built[key], dumped[key])
+    assert np.count_nonzero(np.isfinite(built["range"])) > 10000
+
+
+BAD_SPECS = {
+    "no beams": ({"elevations": []}, "must hold 1 to 1024 beams"),
+    "a million beams": ({"elevations": list(np.linspace(10, -10, 10**6))},
+                        "must hold 1 to 1024 beams"),
+    "zero channels": ({"channels": 0, "fov_up": 10, "fov_down": -10}, "channels must be from 1"),
+    "a million channels": ({"channels": 10**6, "fov_up": 10, "fov_down": -10},
+                           "channels must be from 1 to 1024"),
+    "unsorted": ({"elevations": [10, -5, 0]}, "strictly decreasing"),
+    "repeated": ({"elevations": [10, 0, 0]}, "strictly decreasing"),
+    "above 90": ({"elevations": [91, 0]}, r"in \[-90, 90\]"),
+    "fov_up below fov_down": ({"channels": 8, "fov_up": -10, "fov_down": 10},
+                              "must be above fov_down"),
+    "fov_down below -90": ({"channels": 8, "fov_up": 10, "fov_down": -95}, r"in \[-90, 90\]"),
+    "channels without fov": ({"channels": 8, "fov_up": 10}, "fov_down is missing"),
+    "both forms": ({"elevations": [1], "channels": 1}, "not both"),
+    "neither form": ({}, "is missing"),
+    "NaN elevation": ({"elevations": [10, float("nan")]}, "must be finite"),
+    "zero columns": ({"columns": 0}, "columns must be from 1"),
+    "too many columns": ({"columns": MAX_COLUMNS + 1}, "columns must be from 1 to 65536"),
+    "fractional columns": ({"columns": 2.5}, "columns must be an integer"),
+    "zero max_range": ({"max_range": 0}, "max_range must be positive"),
+    "infinite max_range": ({"max_range": float("inf")}, "max_range must be finite"),
+    "fov above 360": ({"horizontal_fov": 400}, "horizontal_fov must be in"),
+    "offsets of another length": ({"azimuth_offsets": [0, 1]}, "one angle per beam"),
+    "unknown key": ({"rings": 3}, "unknown key 'rings'"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_SPECS, ids=list(BAD_SPECS))
+def test_bad_specs_one_line_nothing_written(tmp_path, capsys, case):
+    change, message = BAD_SPECS[case]
+    scene, spec, pose_file = write_room(tmp_path)
+    base = {"elevations": [10, 0, -10], "columns": 16, "max_range": 10.0}
+    if "elevations" not in change and any(k in change for k in ("channels", "fov_up")):
+        del base["elevations"]
+    if change == {}:
+        del base["elevations"]
+    spec.write_text(json.dumps({**base, **change}))
+    out_file = tmp_path / "out.exr"
+    code, out, err = run(capsys, "scan", scene, "--lidar", spec, "--pose", pose_file,
+                         "-o", out_file, "--points", tmp_path / "out.ply")
+    assert code == 1 and out == ""
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith(f"kdray: error: lidar spec {spec}: "), err
+    assert __import__("re").search(message, err), err
+    assert not out_file.exists() and not (tmp_path / "out.ply").exists()
+    with pytest.raises(ParameterError):
+        Lidar.from_json(spec)
+
+
+@pytest.mark.parametrize("text, message", [("{", "not valid JSON"), ("[1, 2]", "a JSON object")])
+def test_unreadable_specs(tmp_path, capsys, text, message):
+    scene, spec, pose_file = write_room(tmp_path)
+    spec.write_text(text)
+    code, _, err = run(capsys, "scan", scene, "--lidar", spec, "--pose", pose_file,
+                       "-o", tmp_path / "out.exr")
+    assert code == 1 and len(err.strip().splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "out.exr").exists()
+
+
+def test_bad_pose_file_one_line(tmp_path, capsys):
+    scene, spec, pose_file = write_room(tmp_path)
+    pose = sensor_pose()
+    pose[1, 1] = 3.0
+    np.savetxt(pose_file, pose)
+    code, _, err = run(capsys, "scan", scene, "--lidar", spec, "--pose", pose_file,
+                       "-o", tmp_path / "out.exr")
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "orthonormal" in err, err
+    assert not (tmp_path / "out.exr").exists()
 
 
 def test_max_beams_is_accepted():
