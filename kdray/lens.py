@@ -29,8 +29,10 @@ A pixel with no ray (outside the domain where a model is invertible and monotoni
 a fisheye's field, a latitude beyond +-pi / 2) is not valid: its direction is NaN, and
 `valid` says so.
 """
+import concurrent.futures
 import logging
 import math
+import os
 
 import numpy as np
 
@@ -55,7 +57,7 @@ MAX_ITERATIONS = 100
 """Newton steps at most for one pixel's inversion; one that has not converged by then
 is not valid."""
 
-_STOP = 1e-3
+_STOP = 1e-2
 """The iterations go on until the error is _STOP times the tolerance checked (or stops
 changing), so that a pixel never fails the check by a rounding."""
 
@@ -171,35 +173,6 @@ def _monotonic_limit(g, dg, need, cap, den=None):
         lo, hi = hi, min(2.0 * hi, cap)
 
 
-def _invert_monotonic(g, dg, target, limit):
-    """r in [0, limit] with g(r) = target (g increasing there), by Newton's method kept
-    inside a bisection bracket; float64. Returns (r, converged)."""
-    r = np.minimum(target, limit)
-    lo = np.zeros_like(target)
-    hi = np.full_like(target, limit)
-    stop = _STOP * CONVERGENCE_TOL * (1.0 + target)
-    active = np.arange(len(target))
-    for _ in range(MAX_ITERATIONS):
-        ra, ta = r[active], target[active]
-        f = g(ra) - ta
-        keep = ~(np.abs(f) <= stop[active])
-        active, ra, f = active[keep], ra[keep], f[keep]
-        if not len(active):
-            break
-        lo[active] = np.where(f < 0, ra, lo[active])
-        hi[active] = np.where(f > 0, ra, hi[active])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = ra - f / dg(ra)
-        la, ha = lo[active], hi[active]
-        inside = (step > la) & (step < ha)
-        step = np.where(inside, step, 0.5 * (la + ha))
-        moved = step != ra                # a fixed point in float64: as good as it gets
-        r[active] = step
-        active = active[moved]
-    converged = np.abs(g(r) - target) <= CONVERGENCE_TOL * (1.0 + target)
-    return r, converged
-
-
 def opencv_undistort(a, b, distortion):
     """The undistorted normalized points (x, y) whose OpenCV distortion is (a, b):
     (x, y, valid), float64. Invalid where no such point lies inside the radius up to
@@ -207,25 +180,15 @@ def opencv_undistort(a, b, distortion):
     iteration does not converge, or where the Jacobian there is not positive; x, y are
     NaN there."""
     g, dg, den = _radial(distortion)
-    rd = np.hypot(a, b)
-    need = float(rd.max()) if rd.size else 0.0
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    b = np.ascontiguousarray(b, dtype=np.float64)
+    need = float(np.sqrt((a * a + b * b).max())) if a.size else 0.0
     limit, g_limit = _monotonic_limit(g, dg, need, cap=1e8, den=den)
-    reach = rd < g_limit
-    r = np.full_like(rd, np.nan)
-    r[reach], converged = _invert_monotonic(g, dg, rd[reach], limit)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(rd > 0, r / rd, 1.0)
-    x, y = a * scale, b * scale
-    k1, k2, p1, p2 = _opencv_coefficients(distortion)[:4]
-    if p1 or p2:
-        x, y = _newton_2d(x, y, a, b, distortion)
-    xd, yd = opencv_distort(x, y, distortion)
-    residual = np.hypot(xd - a, yd - b)
-    with np.errstate(invalid="ignore"):
-        valid = (residual <= CONVERGENCE_TOL * (1.0 + rd)) & (np.hypot(x, y) < limit)
-        valid &= _jacobian_det(x, y, distortion) > 0
-    x[~valid] = np.nan
-    y[~valid] = np.nan
+    x, y = np.empty_like(a), np.empty_like(a)
+    valid = np.empty(a.shape, dtype=bool)
+    k = np.array(_opencv_coefficients(distortion), dtype=np.float64)
+    _on_threads(_kernels().opencv_invert, len(a), a, b, k, limit, g_limit, CONVERGENCE_TOL,
+                _STOP, MAX_ITERATIONS, x, y, valid)
     _report(valid, "opencv", distortion, f"monotonic up to the radius {limit:.6g} "
             f"(distorted {g_limit:.6g}) of the normalized image plane")
     return x, y, valid
@@ -237,51 +200,6 @@ def _report(valid, model, distortion, domain):
         log.warning("%s camera %s: %.4g%% of the pixels have a ray (%s); the others are "
                     "misses, flagged in `valid`.", model, list(distortion),
                     100.0 * valid.mean(), domain)
-
-
-def _jacobian(x, y, distortion):
-    """d(xd, yd) / d(x, y) of opencv_distort: four arrays."""
-    k1, k2, p1, p2, k3, k4, k5, k6 = _opencv_coefficients(distortion)
-    r2 = x * x + y * y
-    num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-    dnum = k1 + r2 * (2 * k2 + 3 * r2 * k3)       # d num / d r2
-    dden = k4 + r2 * (2 * k5 + 3 * r2 * k6)
-    radial = num / den
-    drad = (dnum * den - num * dden) / (den * den)  # d radial / d r2
-    j00 = radial + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
-    j01 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-    j10 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
-    j11 = radial + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
-    return j00, j01, j10, j11
-
-
-def _jacobian_det(x, y, distortion):
-    j00, j01, j10, j11 = _jacobian(x, y, distortion)
-    return j00 * j11 - j01 * j10
-
-
-def _newton_2d(x, y, a, b, distortion):
-    """Newton's method on the full model from the radial solution (x, y); float64."""
-    x, y = x.copy(), y.copy()
-    active = np.flatnonzero(np.isfinite(x))
-    tol = _STOP * CONVERGENCE_TOL * (1.0 + np.hypot(a, b))
-    for _ in range(MAX_ITERATIONS):
-        xa, ya = x[active], y[active]
-        xd, yd = opencv_distort(xa, ya, distortion)
-        fx, fy = xd - a[active], yd - b[active]
-        keep = ~(np.hypot(fx, fy) <= tol[active]) & np.isfinite(fx) & np.isfinite(fy)
-        active, xa, ya, fx, fy = active[keep], xa[keep], ya[keep], fx[keep], fy[keep]
-        if not len(active):
-            break
-        j00, j01, j10, j11 = _jacobian(xa, ya, distortion)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            det = j00 * j11 - j01 * j10
-            xn = xa - (j11 * fx - j01 * fy) / det
-            yn = ya - (j00 * fy - j10 * fx) / det
-        x[active], y[active] = xn, yn
-        active = active[(xn != xa) | (yn != ya)]
-    return x, y
 
 
 # OpenCV's fisheye model -----------------------------------------------------------------
@@ -305,21 +223,40 @@ def fisheye_unproject(a, b, distortion):
     """Unit directions (n, 3) of the fisheye points (a, b) and `valid`: theta in [0, pi]
     with theta_d(theta) = |(a, b)|, inside the angle up to which theta_d is monotonic."""
     f, df = _fisheye_polynomial(distortion)
-    rd = np.hypot(a, b)
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    b = np.ascontiguousarray(b, dtype=np.float64)
     limit, f_limit = _monotonic_limit(f, df, math.inf, cap=math.pi)
-    reach = rd <= f_limit if limit == math.pi else rd < f_limit
-    theta = np.full_like(rd, np.nan)
-    theta[reach], converged = _invert_monotonic(f, df, rd[reach], limit)
-    valid = np.zeros(rd.shape, dtype=bool)
-    valid[reach] = converged
-    theta[~valid] = np.nan
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = np.where(rd > 0, np.sin(theta) / rd, 1.0)
-    d = np.stack([a * s, b * s, np.cos(theta)], axis=1)
-    d[~valid] = np.nan
+    d = np.empty((len(a), 3))
+    valid = np.empty(a.shape, dtype=bool)
+    k = np.array(distortion, dtype=np.float64)
+    _on_threads(_kernels().fisheye_invert, len(a), a, b, k, limit, f_limit, limit == math.pi,
+                CONVERGENCE_TOL, _STOP, MAX_ITERATIONS, d, valid)
     _report(valid, "fisheye", distortion, f"theta_d is monotonic up to theta = {limit:.6g} rad"
             if limit < math.pi else f"a field of view of 360 degrees ends at theta_d {f_limit:.6g}")
     return d, valid
+
+
+THREAD_CHUNK = 1 << 16
+"""Pixels per piece of an image the inversions hand to a thread (at least one piece a
+thread, and only images of more than one piece are split)."""
+
+
+def _on_threads(kernel, n, *args):
+    """kernel(*args, start, end) over [0, n) in pieces on threads (the kernels release
+    the GIL); each piece starts its iteration from its own first pixel."""
+    threads = min(os.cpu_count() or 1, -(-n // THREAD_CHUNK))
+    if threads <= 1:
+        kernel(*args, 0, n)
+        return
+    bounds = np.linspace(0, n, threads + 1).astype(np.int64)
+    with concurrent.futures.ThreadPoolExecutor(threads) as pool:
+        list(pool.map(lambda i: kernel(*args, bounds[i], bounds[i + 1]), range(threads)))
+
+
+def _kernels():
+    """kdray._lens_kernels (numba, compiled on first use and cached on disk)."""
+    from . import _lens_kernels
+    return _lens_kernels
 
 
 # All models ---------------------------------------------------------------------------

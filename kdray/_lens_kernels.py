@@ -1,0 +1,150 @@
+"""The per-pixel inversions of kdray.lens's opencv and fisheye models, in numba: a
+safeguarded Newton iteration per pixel, float64 (compiled on first use, cached on disk
+in kdray/__pycache__). Each takes the pixels [start, end) and releases the GIL, so that
+kdray.lens runs parts of an image on threads.
+
+Each pixel's distorted radius rd is inverted on the radial part first: Newton's method
+kept inside a bisection bracket [0, limit] (the radial map is increasing there:
+kdray.lens._monotonic_limit), until the error is `stop` times the tolerance or the
+iterate stops moving; then, for opencv with a tangential part, Newton's method on the
+full 2D model from that point. The result is checked: distortion within tol (1 + rd)
+of the pixel's point, radius below `limit`, and a positive Jacobian.
+"""
+import math
+
+from numba import njit
+
+
+@njit(cache=True)
+def _radial(r, k1, k2, k3, k4, k5, k6):
+    """(g(r) = r num / den, g'(r), den) of OpenCV's rational radial distortion."""
+    s = r * r
+    num = 1.0 + s * (k1 + s * (k2 + s * k3))
+    den = 1.0 + s * (k4 + s * (k5 + s * k6))
+    dnum = 2.0 * r * (k1 + s * (2.0 * k2 + 3.0 * s * k3))
+    dden = 2.0 * r * (k4 + s * (2.0 * k5 + 3.0 * s * k6))
+    return r * num / den, (num + r * dnum) / den - r * num * dden / (den * den), den
+
+
+@njit(cache=True)
+def _distort(x, y, k1, k2, p1, p2, k3, k4, k5, k6):
+    """OpenCV's distortion of (x, y) and its Jacobian: xd, yd, j00, j01, j10, j11."""
+    r2 = x * x + y * y
+    num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    radial = num / den
+    dnum = k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3)
+    dden = k4 + r2 * (2.0 * k5 + 3.0 * r2 * k6)
+    drad = (dnum * den - num * dden) / (den * den)
+    xy = x * y
+    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
+    j00 = radial + 2.0 * x * x * drad + 2.0 * p1 * y + 6.0 * p2 * x
+    j01 = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y
+    j11 = radial + 2.0 * y * y * drad + 6.0 * p1 * y + 2.0 * p2 * x
+    return xd, yd, j00, j01, j01, j11
+
+
+@njit(cache=True, nogil=True)
+def opencv_invert(a, b, k, limit, g_limit, tol, stop, max_iterations, x, y, valid, start,
+                  end):
+    k1, k2, p1, p2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7]
+    tangential = p1 != 0.0 or p2 != 0.0
+    scale = 1.0                       # r / rd of the pixel before: the next one's start
+    for i in range(start, end):
+        ai, bi = a[i], b[i]
+        rd = math.sqrt(ai * ai + bi * bi)
+        if not rd < g_limit:
+            x[i] = y[i] = math.nan
+            valid[i] = False
+            continue
+        bound = stop * tol * (1.0 + rd)
+        lo, hi = 0.0, limit
+        r = min(rd * scale, 0.5 * limit + 0.5 * rd * scale) if rd * scale >= limit else rd * scale
+        for _ in range(max_iterations):
+            g, dg, _den = _radial(r, k1, k2, k3, k4, k5, k6)
+            f = g - rd
+            if abs(f) <= bound:
+                break
+            if f < 0.0:
+                lo = r
+            else:
+                hi = r
+            step = r - f / dg
+            if not (lo < step < hi):
+                step = 0.5 * (lo + hi)
+            if step == r:
+                break
+            r = step
+        s = r / rd if rd > 0.0 else 1.0
+        if rd > 0.0:
+            scale = s
+        xi, yi = ai * s, bi * s
+        if tangential:
+            for _ in range(max_iterations):
+                xd, yd, j00, j01, j10, j11 = _distort(xi, yi, k1, k2, p1, p2, k3, k4, k5, k6)
+                fx, fy = xd - ai, yd - bi
+                if not (math.sqrt(fx * fx + fy * fy) > bound):
+                    break
+                det = j00 * j11 - j01 * j10
+                xn = xi - (j11 * fx - j01 * fy) / det
+                yn = yi - (j00 * fy - j10 * fx) / det
+                if abs(xn - xi) + abs(yn - yi) <= 1e-16 * (abs(xi) + abs(yi)):
+                    xi, yi = xn, yn
+                    break           # moving by roundings: as near as float64 gets
+                xi, yi = xn, yn
+        xd, yd, j00, j01, j10, j11 = _distort(xi, yi, k1, k2, p1, p2, k3, k4, k5, k6)
+        fx, fy = xd - ai, yd - bi
+        ok = (math.sqrt(fx * fx + fy * fy) <= tol * (1.0 + rd)
+              and math.sqrt(xi * xi + yi * yi) < limit and j00 * j11 - j01 * j10 > 0.0)
+        valid[i] = ok
+        x[i] = xi if ok else math.nan
+        y[i] = yi if ok else math.nan
+
+
+@njit(cache=True, nogil=True)
+def fisheye_invert(a, b, k, limit, f_limit, closed, tol, stop, max_iterations, d, valid,
+                   start, end):
+    k1, k2, k3, k4 = k[0], k[1], k[2], k[3]
+    scale = 1.0                       # theta / rd of the pixel before: the next one's start
+    for i in range(start, end):
+        ai, bi = a[i], b[i]
+        rd = math.sqrt(ai * ai + bi * bi)
+        reach = rd <= f_limit if closed else rd < f_limit
+        ok = False
+        theta = 0.0
+        if reach:
+            bound = stop * tol * (1.0 + rd)
+            lo, hi = 0.0, limit
+            theta = rd * scale
+            if not theta < limit:
+                theta = 0.5 * (limit + min(rd, limit))
+            for _ in range(max_iterations):
+                s = theta * theta
+                f = theta * (1.0 + s * (k1 + s * (k2 + s * (k3 + s * k4)))) - rd
+                if abs(f) <= bound:
+                    break
+                if f < 0.0:
+                    lo = theta
+                else:
+                    hi = theta
+                df = 1.0 + s * (3.0 * k1 + s * (5.0 * k2 + s * (7.0 * k3 + s * 9.0 * k4)))
+                step = theta - f / df
+                if not (lo < step < hi):
+                    step = 0.5 * (lo + hi)
+                if step == theta:
+                    break
+                theta = step
+            s = theta * theta
+            f = theta * (1.0 + s * (k1 + s * (k2 + s * (k3 + s * k4)))) - rd
+            ok = abs(f) <= tol * (1.0 + rd)
+            if ok and rd > 0.0:
+                scale = theta / rd
+        valid[i] = ok
+        if not ok:
+            d[i, 0] = d[i, 1] = d[i, 2] = math.nan
+            continue
+        sin_over = math.sin(theta) / rd if rd > 0.0 else 1.0
+        d[i, 0] = ai * sin_over
+        d[i, 1] = bi * sin_over
+        d[i, 2] = math.cos(theta)
