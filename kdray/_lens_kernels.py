@@ -27,6 +27,21 @@ def _radial(r, k1, k2, k3, k4, k5, k6):
 
 
 @njit(cache=True)
+def _bracketed_newton(r, f, df, lo, hi):
+    """One step for f(r) = 0, f increasing on [lo, hi]: the bracket narrowed by r's
+    sign, and Newton's step, or the bracket's midpoint where that leaves it.
+    Returns (next r, lo, hi)."""
+    if f < 0.0:
+        lo = r
+    else:
+        hi = r
+    step = r - f / df
+    if not (lo < step < hi):
+        step = 0.5 * (lo + hi)
+    return step, lo, hi
+
+
+@njit(cache=True)
 def _distort(x, y, k1, k2, p1, p2, k3, k4, k5, k6):
     """OpenCV's distortion of (x, y) and its Jacobian: xd, yd, j00, j01, j10, j11."""
     r2 = x * x + y * y
@@ -66,13 +81,7 @@ def opencv_invert(a, b, k, limit, g_limit, tol, stop, max_iterations, x, y, vali
             f = g - rd
             if abs(f) <= bound:
                 break
-            if f < 0.0:
-                lo = r
-            else:
-                hi = r
-            step = r - f / dg
-            if not (lo < step < hi):
-                step = 0.5 * (lo + hi)
+            step, lo, hi = _bracketed_newton(r, f, dg, lo, hi)
             if step == r:
                 break
             r = step
@@ -124,14 +133,8 @@ def fisheye_invert(a, b, k, limit, f_limit, closed, tol, stop, max_iterations, d
                 f = theta * (1.0 + s * (k1 + s * (k2 + s * (k3 + s * k4)))) - rd
                 if abs(f) <= bound:
                     break
-                if f < 0.0:
-                    lo = theta
-                else:
-                    hi = theta
                 df = 1.0 + s * (3.0 * k1 + s * (5.0 * k2 + s * (7.0 * k3 + s * 9.0 * k4)))
-                step = theta - f / df
-                if not (lo < step < hi):
-                    step = 0.5 * (lo + hi)
+                step, lo, hi = _bracketed_newton(theta, f, df, lo, hi)
                 if step == theta:
                     break
                 theta = step
