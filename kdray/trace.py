@@ -498,7 +498,11 @@ class Tracer:
     def camera_rays(self, camera):
         """The rays `render` traces, computed on the host with the kernel's float32
         arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
-        row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c)."""
+        row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c).
+        A camera of another model than the pinhole is traced from its float64 rays:
+        Camera.rays() (NaN directions where a pixel has no ray)."""
+        if camera.model != "pinhole":
+            return camera.rays()
         return _render.camera_rays(camera, self._origin, self._scale)
 
     def render(self, camera, aovs=DEFAULT_AOVS, precision="single"):

@@ -374,3 +374,12 @@ def test_exr_holds_valid_model_and_coefficients(room, tmp_path):
     assert spec.getattribute("kdray/cameraModel") is None
     assert "valid" not in spec.channelnames
     assert read_camera(tmp_path / "p.exr") == pinhole
+
+
+def test_tracer_camera_rays_are_the_renders(room):
+    tree, tracer = room
+    camera = Camera(W, H, _K(130.0), _pose(), "opencv", (-0.6, 0.0, 1e-3, 0.0))
+    images = tracer.render(camera, aovs="depth,id")
+    hits = tracer.trace(*tracer.camera_rays(camera))
+    assert np.array_equal(hits.prim.reshape(H, W), images["id"])
+    assert np.array_equal(hits.t.reshape(H, W), images["depth"])
