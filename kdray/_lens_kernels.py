@@ -1,7 +1,8 @@
 """The per-pixel inversions of kdray.lens's opencv and fisheye models, in numba: a
 safeguarded Newton iteration per pixel, float64 (compiled on first use, cached on disk
-in kdray/__pycache__). Each takes the pixels [start, end) and releases the GIL, so that
-kdray.lens runs parts of an image on threads.
+in kdray/__pycache__). Each takes the pixels [start, end) of a row-major image `width` wide, makes their
+normalized points K^-1 (i + 0.5, j + 0.5, 1) itself, writes the directions turned by R
+(world axes) and releases the GIL, so that kdray.lens runs parts of an image on threads.
 
 Each pixel's distorted radius rd is inverted on the radial part first: Newton's method
 kept inside a bisection bracket [0, limit] (the radial map is increasing there:
@@ -60,17 +61,32 @@ def _distort(x, y, k1, k2, p1, p2, k3, k4, k5, k6):
     return xd, yd, j00, j01, j01, j11
 
 
+@njit(cache=True)
+def _pixel_point(i, Kinv, width):
+    """(a, b) = K^-1 (u, v, 1) of pixel i (row-major), u, v its centre."""
+    u = (i % width) + 0.5
+    v = (i // width) + 0.5
+    return Kinv[0, 0] * u + Kinv[0, 1] * v + Kinv[0, 2], Kinv[1, 1] * v + Kinv[1, 2]
+
+
+@njit(cache=True)
+def _store(d, i, R, x, y, z):
+    """d[i] = R (x, y, z), row by row."""
+    for c in range(3):
+        d[i, c] = x * R[c, 0] + y * R[c, 1] + z * R[c, 2]
+
+
 @njit(cache=True, nogil=True)
-def opencv_invert(a, b, k, limit, g_limit, tol, stop, max_iterations, x, y, valid, start,
-                  end):
+def opencv_rays(Kinv, width, R, k, limit, g_limit, tol, stop, max_iterations, d, valid, start,
+                end):
     k1, k2, p1, p2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7]
     tangential = p1 != 0.0 or p2 != 0.0
     scale = 1.0                       # r / rd of the pixel before: the next one's start
     for i in range(start, end):
-        ai, bi = a[i], b[i]
+        ai, bi = _pixel_point(i, Kinv, width)
         rd = math.sqrt(ai * ai + bi * bi)
         if not rd < g_limit:
-            x[i] = y[i] = math.nan
+            d[i, 0] = d[i, 1] = d[i, 2] = math.nan
             valid[i] = False
             continue
         bound = stop * tol * (1.0 + rd)
@@ -107,17 +123,19 @@ def opencv_invert(a, b, k, limit, g_limit, tol, stop, max_iterations, x, y, vali
         ok = (math.sqrt(fx * fx + fy * fy) <= tol * (1.0 + rd)
               and math.sqrt(xi * xi + yi * yi) < limit and j00 * j11 - j01 * j10 > 0.0)
         valid[i] = ok
-        x[i] = xi if ok else math.nan
-        y[i] = yi if ok else math.nan
+        if ok:
+            _store(d, i, R, xi, yi, 1.0)
+        else:
+            d[i, 0] = d[i, 1] = d[i, 2] = math.nan
 
 
 @njit(cache=True, nogil=True)
-def fisheye_invert(a, b, k, limit, f_limit, closed, tol, stop, max_iterations, d, valid,
-                   start, end):
+def fisheye_rays(Kinv, width, R, k, limit, f_limit, closed, tol, stop, max_iterations, d, valid,
+                 start, end):
     k1, k2, k3, k4 = k[0], k[1], k[2], k[3]
     scale = 1.0                       # theta / rd of the pixel before: the next one's start
     for i in range(start, end):
-        ai, bi = a[i], b[i]
+        ai, bi = _pixel_point(i, Kinv, width)
         rd = math.sqrt(ai * ai + bi * bi)
         reach = rd <= f_limit if closed else rd < f_limit
         ok = False
@@ -148,6 +166,4 @@ def fisheye_invert(a, b, k, limit, f_limit, closed, tol, stop, max_iterations, d
             d[i, 0] = d[i, 1] = d[i, 2] = math.nan
             continue
         sin_over = math.sin(theta) / rd if rd > 0.0 else 1.0
-        d[i, 0] = ai * sin_over
-        d[i, 1] = bi * sin_over
-        d[i, 2] = math.cos(theta)
+        _store(d, i, R, ai * sin_over, bi * sin_over, math.cos(theta))

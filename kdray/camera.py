@@ -451,15 +451,16 @@ class Camera:
             return origins, directions, np.ones(len(directions), dtype=bool)
         return origins, directions
 
-    def _model_rays(self, valid):
-        o_cam, d_cam, ok = lens.model_rays(self.model, self.K, self.distortion,
-                                           self.width, self.height)
+    def _model_rays(self, valid, copy=True):
+        """rays() of a model that is not the pinhole; copy=False: a central model's
+        origins are a read-only broadcast of the eye (Tracer.render)."""
         R = self.rotation
-        directions = np.empty_like(d_cam)
-        for k in range(3):      # by column: numpy's loops over rows of 3 are slow
-            directions[:, k] = d_cam[:, 0] * R[k, 0] + d_cam[:, 1] * R[k, 1] + d_cam[:, 2] * R[k, 2]
+        o_cam, directions, ok = lens.model_rays(self.model, self.K, self.distortion,
+                                                self.width, self.height, R)
         if o_cam is None:
-            origins = np.broadcast_to(self.eye, directions.shape).copy()
+            origins = np.broadcast_to(self.eye, directions.shape)
+            if copy:
+                origins = origins.copy()
         else:
             origins = np.empty_like(o_cam)
             for k in range(3):

@@ -1,7 +1,7 @@
 """Camera models beyond the pinhole: pixel -> ray in camera axes, and back.
 
-    rays_cam = model_rays("fisheye", K, (k1, k2, k3, k4), width, height)
-    origins, directions, valid = rays_cam        # camera axes; origins None: the eye
+    origins, directions, valid = model_rays("fisheye", K, (k1, k2, k3, k4), width, height)
+    # camera axes (world axes given R); origins None: every ray leaves the eye
     pixels, depth = project_camera("opencv", K, distortion, points_cam)
 
 Every model uses OpenCV's camera axes (x right, y down, z forward) and kdray's pixels
@@ -13,7 +13,7 @@ the normalized image coordinates of the pixel point (u, v) (docs/conventions.md,
 - ``opencv``: OpenCV's radial-tangential model, coefficients (k1, k2, p1, p2[, k3[,
   k4, k5, k6]]) in OpenCV's order. (a, b) is the *distorted* point; the ray goes
   through the undistorted (x, y) whose distortion is (a, b), found in float64 by a
-  safeguarded Newton iteration and checked (`opencv_undistort`); direction (x, y, 1).
+  safeguarded Newton iteration and checked (`opencv_rays`); direction (x, y, 1).
 - ``fisheye``: OpenCV's fisheye (Kannala-Brandt) model, (k1, k2, k3, k4): the distorted
   radius theta_d = |(a, b)| is theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4
   theta^8) of the angle theta from the optical axis, which may pass pi / 2 (a field of
@@ -173,25 +173,39 @@ def _monotonic_limit(g, dg, need, cap, den=None):
         lo, hi = hi, min(2.0 * hi, cap)
 
 
-def opencv_undistort(a, b, distortion):
-    """The undistorted normalized points (x, y) whose OpenCV distortion is (a, b):
-    (x, y, valid), float64. Invalid where no such point lies inside the radius up to
-    which the radial distortion is monotonic (and its denominator positive), where the
-    iteration does not converge, or where the Jacobian there is not positive; x, y are
-    NaN there."""
+def opencv_rays(K, distortion, width, height, R=None):
+    """Directions R (x, y, 1) of every pixel (row-major, (H*W, 3) float64), where (x, y)
+    is the undistorted point whose OpenCV distortion is the pixel's (a, b), and `valid`
+    (H*W,) bool. Invalid where no such point lies inside the radius up to which the
+    radial distortion is monotonic (and its denominator positive), where the iteration
+    does not converge, or where the Jacobian there is not positive; NaN there."""
     g, dg, den = _radial(distortion)
-    a = np.ascontiguousarray(a, dtype=np.float64)
-    b = np.ascontiguousarray(b, dtype=np.float64)
-    need = float(np.sqrt((a * a + b * b).max())) if a.size else 0.0
-    limit, g_limit = _monotonic_limit(g, dg, need, cap=1e8, den=den)
-    x, y = np.empty_like(a), np.empty_like(a)
-    valid = np.empty(a.shape, dtype=bool)
+    Kinv = np.linalg.inv(np.asarray(K, dtype=np.float64))
+    limit, g_limit = _monotonic_limit(g, dg, _corner_radius(Kinv, width, height), cap=1e8,
+                                      den=den)
+    n = width * height
+    d = np.empty((n, 3))
+    valid = np.empty(n, dtype=bool)
     k = np.array(_opencv_coefficients(distortion), dtype=np.float64)
-    _on_threads(_kernels().opencv_invert, len(a), a, b, k, limit, g_limit, CONVERGENCE_TOL,
-                _STOP, MAX_ITERATIONS, x, y, valid)
+    _on_threads(_kernels().opencv_rays, n, Kinv, width, _rotation(R), k, limit, g_limit,
+                CONVERGENCE_TOL, _STOP, MAX_ITERATIONS, d, valid)
     _report(valid, "opencv", distortion, f"monotonic up to the radius {limit:.6g} "
             f"(distorted {g_limit:.6g}) of the normalized image plane")
-    return x, y, valid
+    return d, valid
+
+
+def _corner_radius(Kinv, width, height):
+    """The largest |(a, b)| of the image's pixel centres: at a corner (a norm of an
+    affine map of the pixel is convex)."""
+    u = np.array([0.5, width - 0.5, 0.5, width - 0.5])
+    v = np.array([0.5, 0.5, height - 0.5, height - 0.5])
+    a = Kinv[0, 0] * u + Kinv[0, 1] * v + Kinv[0, 2]
+    b = Kinv[1, 1] * v + Kinv[1, 2]
+    return float(np.hypot(a, b).max())
+
+
+def _rotation(R):
+    return np.eye(3) if R is None else np.ascontiguousarray(R, dtype=np.float64)
 
 
 def _report(valid, model, distortion, domain):
@@ -219,18 +233,20 @@ def _fisheye_polynomial(distortion):
     return f, df
 
 
-def fisheye_unproject(a, b, distortion):
-    """Unit directions (n, 3) of the fisheye points (a, b) and `valid`: theta in [0, pi]
-    with theta_d(theta) = |(a, b)|, inside the angle up to which theta_d is monotonic."""
+def fisheye_rays(K, distortion, width, height, R=None):
+    """Unit directions R (sin theta (a, b) / |(a, b)|, cos theta) of every pixel
+    (row-major, (H*W, 3) float64) and `valid` (H*W,) bool: theta in [0, pi] with
+    theta_d(theta) = |(a, b)|, inside the angle up to which theta_d is monotonic; NaN
+    where not valid."""
     f, df = _fisheye_polynomial(distortion)
-    a = np.ascontiguousarray(a, dtype=np.float64)
-    b = np.ascontiguousarray(b, dtype=np.float64)
+    Kinv = np.linalg.inv(np.asarray(K, dtype=np.float64))
     limit, f_limit = _monotonic_limit(f, df, math.inf, cap=math.pi)
-    d = np.empty((len(a), 3))
-    valid = np.empty(a.shape, dtype=bool)
+    n = width * height
+    d = np.empty((n, 3))
+    valid = np.empty(n, dtype=bool)
     k = np.array(distortion, dtype=np.float64)
-    _on_threads(_kernels().fisheye_invert, len(a), a, b, k, limit, f_limit, limit == math.pi,
-                CONVERGENCE_TOL, _STOP, MAX_ITERATIONS, d, valid)
+    _on_threads(_kernels().fisheye_rays, n, Kinv, width, _rotation(R), k, limit, f_limit,
+                limit == math.pi, CONVERGENCE_TOL, _STOP, MAX_ITERATIONS, d, valid)
     _report(valid, "fisheye", distortion, f"theta_d is monotonic up to theta = {limit:.6g} rad"
             if limit < math.pi else f"a field of view of 360 degrees ends at theta_d {f_limit:.6g}")
     return d, valid
@@ -272,25 +288,28 @@ def pixel_points(K, width, height):
     return a, b
 
 
-def model_rays(model, K, distortion, width, height):
-    """(origins, directions, valid) of every pixel in camera axes, row-major, float64.
+def model_rays(model, K, distortion, width, height, R=None):
+    """(origins, directions, valid) of every pixel, row-major, float64.
 
+    R : (3, 3) the camera's rotation (Camera.rotation): directions in world axes; None:
+        camera axes.
     origins : None for a central model (every ray leaves the eye), else (H*W, 3): the
-        orthographic camera's points on its image plane. directions : (H*W, 3), NaN
-        where not valid; camera-z 1 for pinhole and opencv, unit otherwise.
-    valid : (H*W,) bool.
+        orthographic camera's points on its image plane, camera axes (not rotated).
+    directions : (H*W, 3), NaN where not valid; camera-z 1 for pinhole and opencv, unit
+        otherwise. valid : (H*W,) bool.
     """
+    if model == "opencv":
+        d, valid = opencv_rays(K, distortion, width, height, R)
+        return None, d, valid
+    if model == "fisheye":
+        d, valid = fisheye_rays(K, distortion, width, height, R)
+        return None, d, valid
     a, b = pixel_points(K, width, height)
     n = len(a)
     valid = np.ones(n, dtype=bool)
     origins = None
     if model == "pinhole":
         d = np.stack([a, b, np.ones(n)], axis=1)
-    elif model == "opencv":
-        x, y, valid = opencv_undistort(a, b, distortion)
-        d = np.stack([x, y, np.where(valid, 1.0, np.nan)], axis=1)
-    elif model == "fisheye":
-        d, valid = fisheye_unproject(a, b, distortion)
     elif model == "equirectangular":
         valid = np.abs(b) <= math.pi / 2
         cb = np.cos(b)
@@ -301,6 +320,11 @@ def model_rays(model, K, distortion, width, height):
         d = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (n, 3)).copy()
     else:
         raise CameraError(f"unknown camera model {model!r}.")
+    if R is not None:
+        world = np.empty_like(d)
+        for k in range(3):      # by column: numpy's loops over rows of 3 are slow
+            world[:, k] = d[:, 0] * R[k, 0] + d[:, 1] * R[k, 1] + d[:, 2] * R[k, 2]
+        d = world
     return origins, d, valid
 
 

@@ -571,8 +571,8 @@ class Tracer:
         w, h = int(camera.width), int(camera.height)
         check_host_memory(w * h * (_render.host_bytes_per_pixel(aovs) + _render.MODEL_RAY_BYTES),
                           f"a {w}x{h} {camera.model} render of {', '.join(aovs)}")
-        o, d, valid = camera.rays(valid=True)
-        origins = o if camera.model == "orthographic" else camera.eye   # one origin: no copy
+        o, d, valid = camera._model_rays(valid=True, copy=False)   # one origin: no copy
+        origins = o if camera.model == "orthographic" else camera.eye
         hits = self.trace(origins, d, precision=precision)
         return _render.ray_images(hits, o, d, valid, camera, aovs)
 
