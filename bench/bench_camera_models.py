@@ -1,0 +1,96 @@
+"""What a camera model costs against the plain pinhole: 1024 x 1024 renders of the bunny.
+
+usage: python bench/bench_camera_models.py [--mesh bunny] [--size 1024] [--repeat 7]
+                                           [--aovs depth,normal,id] [--device SPEC]
+
+Cameras, all looking at the bunny from the framing camera's pose (Camera.frame, 45
+degrees vertical): `pinhole` (rays made by the render kernel), `pinhole rays` (the same
+pinhole's float64 rays from Camera.rays traced by Tracer.trace: the host path without
+a lens), `opencv` (k1 k2 p1 p2 k3 = -0.28 0.07 8e-4 -1.1e-3 0.01: barrel distortion
+with a tangential part), `opencv radial` (the same without p1 p2: no 2D Newton),
+`fisheye` (k1..k4 = 0.08 -0.02 0.004 -5e-4, focal length for a 180-degree diagonal).
+Timed in turns (bench/timing.py round_robin), the median of --repeat rounds: the
+whole Tracer.render call, and apart the host's ray generation (Camera.rays) alone, so
+that ray generation / (render - ray generation) is the host's rays against the
+trace and the images. Prints Mrays/s and each
+camera's time over the pinhole's (median of the per-round ratios).
+"""
+import argparse
+import math
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from meshes import mesh as bench_mesh  # noqa: E402
+
+import kdray  # noqa: E402
+from kdray import Camera  # noqa: E402
+from timing import median_ratio, round_robin  # noqa: E402
+
+OPENCV = (-0.28, 0.07, 8e-4, -1.1e-3, 0.01)
+FISHEYE = (0.08, -0.02, 0.004, -5e-4)
+
+
+def cameras(tree, size):
+    lo, hi = tree.world_box()
+    pinhole = Camera.frame(lo, hi, size, size)
+    K, pose = pinhole.K, pinhole.cam_to_world
+    f_fisheye = math.hypot(size / 2, size / 2) / (math.pi / 2)
+    K_fisheye = np.array([[f_fisheye, 0, size / 2], [0, f_fisheye, size / 2], [0, 0, 1]])
+    return {
+        "pinhole": pinhole,
+        "opencv": Camera(size, size, K, pose, "opencv", OPENCV),
+        "opencv radial": Camera(size, size, K, pose, "opencv", OPENCV[:2] + (0.0, 0.0, OPENCV[4])),
+        "fisheye": Camera(size, size, K_fisheye, pose, "fisheye", FISHEYE),
+    }
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--mesh", default="bunny")
+    parser.add_argument("--size", type=int, default=1024)
+    parser.add_argument("--repeat", type=int, default=7)
+    parser.add_argument("--aovs", default="depth,normal,id")
+    parser.add_argument("--device", default=None)
+    args = parser.parse_args(argv)
+
+    m = bench_mesh(args.mesh)
+    tree = kdray.build(m.vertices, m.faces)
+    tracer = kdray.Tracer(tree, device=args.device)
+    cams = cameras(tree, args.size)
+    n = args.size * args.size
+    pinhole = cams["pinhole"]
+    o, d = pinhole.rays()
+
+    fns = {name: (lambda c=c: tracer.render(c, aovs=args.aovs)) for name, c in cams.items()}
+    fns["pinhole rays"] = lambda: tracer.trace(pinhole.eye, d)
+    for name, c in cams.items():
+        if name != "pinhole":
+            # the rays as render makes them (a central model's origins not copied)
+            fns[f"{name}: rays"] = lambda c=c: c._model_rays(valid=True, copy=False)
+    wall, _, results = round_robin(fns, args.repeat)
+
+    print(f"{args.mesh} ({len(m.faces)} triangles), {args.size} x {args.size}, aovs "
+          f"{args.aovs}, device {tracer.device.name.strip()}, median of {args.repeat} rounds")
+    print(f"{'camera':<24}{'ms':>9}{'Mrays/s':>10}{'/ pinhole':>11}{'valid':>8}")
+    for name in fns:
+        if name.endswith(": rays"):
+            continue
+        ms = 1e3 * np.median(wall[name])
+        ratio = median_ratio(wall[name], wall["pinhole"])
+        images = results[name]
+        valid = images["valid"].mean() if isinstance(images, dict) and "valid" in images else 1.0
+        print(f"{name:<24}{ms:9.1f}{n / ms / 1e3:10.2f}{ratio:11.2f}{valid:8.3f}")
+    print("host ray generation (Camera.rays) against the rest of the render:")
+    for name in cams:
+        if name == "pinhole":
+            continue
+        rays, total = np.median(wall[f"{name}: rays"]), np.median(wall[name])
+        print(f"  {name:<22}rays {1e3 * rays:7.1f} ms, trace and images {1e3 * (total - rays):7.1f}"
+              f" ms: ratio {rays / (total - rays):.2f}")
+
+
+if __name__ == "__main__":
+    main()
