@@ -245,6 +245,11 @@ class Lidar:
         d.flags.writeable = False
         return d
 
+    @functools.cached_property
+    def _components(self):
+        """The directions' x, y and z as three contiguous (B*C,) arrays."""
+        return np.ascontiguousarray(self._directions.T)
+
     def directions(self):
         """(B*C, 3) float64 unit vectors in the sensor frame, row-major: ray i*C + j is
         beam i (row 0 the highest), column j. Computed once per Lidar (read-only)."""
@@ -256,9 +261,18 @@ class Lidar:
         camera pose: CameraError). The directions are rotated and renormalised in
         float64, so a hit's t is its range."""
         pose = check_pose(pose)
-        d = self.directions() @ pose[:3, :3].T
-        d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
-        return pose[:3, 3].copy(), d
+        R = pose[:3, :3]
+        s = self._components
+        # R d, component by component: numpy's matmul would call BLAS, whose threads
+        # go on spinning after it returns and take cores from the trace that follows
+        # (a 128 x 2048 scan on 2 cores: 79 ms instead of 51)
+        w = np.empty((3, len(s[0])))
+        for k in range(3):
+            np.multiply(s[0], R[k, 0], out=w[k])
+            w[k] += s[1] * R[k, 1]
+            w[k] += s[2] * R[k, 2]
+        w /= np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+        return pose[:3, 3].copy(), np.ascontiguousarray(w.T)
 
 
 def _spaced(spec):

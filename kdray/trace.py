@@ -608,8 +608,9 @@ class Tracer:
         hit triangle, and object uint32, its object (KdTree.objects), both 0xFFFFFFFF
         on a miss; points (B, C, 3) float64 world hit points, NaN on a miss.
         The rays are made on the host in float64 (Lidar.rays: a rotation of the
-        directions the Lidar keeps; bench/bench_lidar.py measures its share) and traced
-        as they are, refined in double where the device has it.
+        directions the Lidar keeps, 3 ms of a 46 ms 128 x 2048 scan of 1.6M triangles
+        on 2 cores, bench/bench_lidar.py) and traced as they are, refined in double
+        where the device has it.
         """
         from .lidar import scan_images
         origin, directions = lidar.rays(pose)
