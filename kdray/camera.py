@@ -31,7 +31,15 @@ Camera files (JSON) hold one object in either of two forms::
 
 ``up`` (default [0, 1, 0]) and ``fov`` (vertical, degrees, default 45) are optional in
 the first form; ``K`` may also be given as {"fx": .., "fy": .., "cx": .., "cy": ..}.
+Either form may add ``"model"`` and ``"distortion"`` (kdray.lens: "opencv" with k1 k2 p1
+p2 [k3 [k4 k5 k6]], "fisheye" with k1 k2 k3 k4, "equirectangular", "orthographic").
 ``to_json`` writes the second form, which round-trips exactly.
+
+Models other than the pinhole (docs/conventions.md, "Camera models"):
+
+    camera = Camera(640, 480, K, pose, model="opencv", distortion=(k1, k2, p1, p2, k3))
+    camera = Camera.panorama(pose, 2048, 1024)              # 360 x 180 degrees
+    origins, directions, valid = camera.rays(valid=True)    # NaN where no ray
 
 Pose files (``pose_from_file``) hold a (4, 4) camera-to-world matrix: a ``.npy``
 array, or text with 16 numbers separated by whitespace or commas, row by row
