@@ -545,9 +545,10 @@ def batch(jobs_file, workers, scheduler, no_cache, overwrite, device):
 @click.option("--device", default=None,
               help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
 def setup(device):
-    """Compile the tree builder (once per install) and the kernels of a default render
-    on the device, so that the first render does not wait for them."""
-    from . import builder
+    """Compile the tree builder (once per install), the kernels of a default render
+    on the device and the camera models' inversions, so that the first render does not
+    wait for them."""
+    from . import builder, lens
     from .trace import Tracer
     step = Steps()
     if builder.compiled():
@@ -560,6 +561,9 @@ def setup(device):
     with step("compiling the kernels"):
         tracer = Tracer(tree, device=device).compile()
     click.echo(f"kernels: compiled for {tracer.device.name.strip()}")
+    with step("compiling the camera models' inversions"):
+        lens.compile_kernels()
+    click.echo("camera models: compiled")
     step.log()
 
 

@@ -323,6 +323,7 @@ def test_setup_and_cache_commands(capsys, tmp_path, cache_dir):
     code, out, err = run_cli(capsys, "setup")
     assert code == 0, err
     assert "tree builder: compiled" in out and "kernels: compiled for" in out
+    assert "camera models: compiled" in out
     run_cli(capsys, "render", real_mesh("teapot.obj"), "--cameras", orbit(tmp_path / "c.json", 1),
             "-o", tmp_path / "v")
     code, out, _ = run_cli(capsys, "cache")
