@@ -91,7 +91,9 @@ def opencv_rays(Kinv, width, R, k, limit, g_limit, tol, stop, max_iterations, d,
             continue
         bound = stop * tol * (1.0 + rd)
         lo, hi = 0.0, limit
-        r = min(rd * scale, 0.5 * limit + 0.5 * rd * scale) if rd * scale >= limit else rd * scale
+        r = rd * scale
+        if not r < limit:             # start inside the bracket
+            r = 0.5 * limit
         for _ in range(max_iterations):
             g, dg, _den = _radial(r, k1, k2, k3, k4, k5, k6)
             f = g - rd
@@ -144,8 +146,8 @@ def fisheye_rays(Kinv, width, R, k, limit, f_limit, closed, tol, stop, max_itera
             bound = stop * tol * (1.0 + rd)
             lo, hi = 0.0, limit
             theta = rd * scale
-            if not theta < limit:
-                theta = 0.5 * (limit + min(rd, limit))
+            if not theta < limit:     # start inside the bracket
+                theta = 0.5 * limit
             for _ in range(max_iterations):
                 s = theta * theta
                 f = theta * (1.0 + s * (k1 + s * (k2 + s * (k3 + s * k4)))) - rd

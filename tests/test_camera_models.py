@@ -383,3 +383,19 @@ def test_tracer_camera_rays_are_the_renders(room):
     hits = tracer.trace(*tracer.camera_rays(camera))
     assert np.array_equal(hits.prim.reshape(H, W), images["id"])
     assert np.array_equal(hits.t.reshape(H, W), images["depth"])
+
+
+def test_opencv_strong_barrel_inverts_every_pixel_inside_its_limit():
+    # strong barrel distortion: r / rd grows fast towards the monotonic limit; every
+    # pixel inside it is found, to the tolerance, and none outside
+    k1 = -0.25
+    camera = Camera(W, H, _K(60.0), np.eye(4), "opencv", (k1, 0.0, 0.0, 0.0))
+    o, d, valid = camera.rays(valid=True)
+    r_max = math.sqrt(-1.0 / (3.0 * k1))
+    a, b = lens.pixel_points(camera.K, W, H)
+    rd = np.hypot(a, b)
+    expected = rd < r_max * (1 + k1 * r_max**2)
+    assert np.array_equal(valid, expected) and 0.3 < valid.mean() < 0.99
+    x, y = d[valid, 0], d[valid, 1]
+    r = np.hypot(x, y)
+    assert np.abs(r * (1 + k1 * r**2) - rd[valid]).max() < 1e-12
