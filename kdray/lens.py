@@ -30,6 +30,7 @@ a fisheye's field, a latitude beyond +-pi / 2) is not valid: its direction is Na
 `valid` says so.
 """
 import concurrent.futures
+import functools
 import logging
 import math
 import os
@@ -297,6 +298,12 @@ def pixel_points(K, width, height):
     return a, b
 
 
+MAPS_KEPT = 4
+"""Camera-axis ray maps `model_rays` keeps (the most recently used), each 25 bytes a
+pixel: the views of a calibrated camera share its intrinsics, so a dataset inverts its
+lens once and every further view only rotates the map (BENCHMARKS.md)."""
+
+
 def model_rays(model, K, distortion, width, height, R=None):
     """(origins, directions, valid) of every pixel, row-major, float64.
 
@@ -306,12 +313,48 @@ def model_rays(model, K, distortion, width, height, R=None):
         orthographic camera's points on its image plane, camera axes (not rotated).
     directions : (H*W, 3), NaN where not valid; camera-z 1 for pinhole and opencv, unit
         otherwise. valid : (H*W,) bool.
+
+    The camera-axis rays of a (model, K, distortion, size) are computed once and kept
+    (MAPS_KEPT, read-only); each call rotates them into new arrays.
     """
+    origins, d, valid = camera_axis_rays(model, K, distortion, width, height)
+    if R is not None:
+        R = np.asarray(R, dtype=np.float64)
+        world = np.empty_like(d)
+        for k in range(3):      # by column: numpy's loops over rows of 3 are slow
+            world[:, k] = d[:, 0] * R[k, 0] + d[:, 1] * R[k, 1] + d[:, 2] * R[k, 2]
+        d = world
+    else:
+        d = d.copy()
+    return (None if origins is None else origins.copy()), d, valid.copy()
+
+
+def camera_axis_rays(model, K, distortion, width, height):
+    """(origins, directions, valid) in camera axes, as `model_rays` with R None, but the
+    kept read-only arrays themselves (no copies)."""
+    K = np.asarray(K, dtype=np.float64)
+    return _camera_axis_rays(model, K.tobytes(), tuple(map(float, distortion)), int(width),
+                             int(height))
+
+
+@functools.lru_cache(maxsize=MAPS_KEPT)
+def _camera_axis_rays(model, K_bytes, distortion, width, height):
+    """model_rays in camera axes, kept by lru_cache: read-only arrays."""
+    K = np.frombuffer(K_bytes, dtype=np.float64).reshape(3, 3)
+    origins, d, valid = _model_rays(model, K, distortion, width, height)
+    for array in (origins, d, valid):
+        if array is not None:
+            array.setflags(write=False)
+    return origins, d, valid
+
+
+def _model_rays(model, K, distortion, width, height):
+    """model_rays in camera axes, computed."""
     if model == "opencv":
-        d, valid = opencv_rays(K, distortion, width, height, R)
+        d, valid = opencv_rays(K, distortion, width, height)
         return None, d, valid
     if model == "fisheye":
-        d, valid = fisheye_rays(K, distortion, width, height, R)
+        d, valid = fisheye_rays(K, distortion, width, height)
         return None, d, valid
     a, b = pixel_points(K, width, height)
     n = len(a)
@@ -329,11 +372,6 @@ def model_rays(model, K, distortion, width, height, R=None):
         d = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (n, 3)).copy()
     else:
         raise CameraError(f"unknown camera model {model!r}.")
-    if R is not None:
-        world = np.empty_like(d)
-        for k in range(3):      # by column: numpy's loops over rows of 3 are slow
-            world[:, k] = d[:, 0] * R[k, 0] + d[:, 1] * R[k, 1] + d[:, 2] * R[k, 2]
-        d = world
     return origins, d, valid
 
 

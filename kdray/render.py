@@ -61,21 +61,50 @@ def kernel_outputs(aovs):
     return tuple(name for name in KERNEL_OUTPUTS if name in wanted)
 
 
+MAP_MODELS = ("opencv", "fisheye", "equirectangular")
+"""The central camera models whose rays the render kernel makes from a ray map
+(RAY_MAP): each pixel's camera-axis direction, computed once per intrinsics on the
+host (kdray.lens), turned by the pose on the device. The orthographic camera's rays
+do not share an origin; it and precision="double" renders trace host rays."""
+
+
+def ray_map(camera):
+    """(map (H*W, 3) float32, valid (H*W,) bool) of a camera of MAP_MODELS: each pixel's
+    camera-axis direction as the kernel reads it, row-major, NaN where the pixel has no
+    ray (the float64 directions of kdray.lens rounded once)."""
+    from . import lens
+    _, d, valid = lens.camera_axis_rays(camera.model, camera.K, camera.distortion,
+                                        int(camera.width), int(camera.height))
+    return d.astype(np.float32), valid
+
+
 def camera_constants(camera, origin, scale=1.0):
-    """(M, eye): float32 R K^-1 (3, 3) and the eye relative to `origin` ((3,) float64,
-    the tree's origin) in units of `scale` (the tree's) as (3,) float32, exactly as the
-    kernel receives them."""
+    """(M, eye): float32 R K^-1 (3, 3) (R for a camera of MAP_MODELS, whose directions
+    come from its ray map) and the eye relative to `origin` ((3,) float64, the tree's
+    origin) in units of `scale` (the tree's) as (3,) float32, exactly as the kernel
+    receives them."""
     c2w = np.asarray(camera.cam_to_world, dtype=np.float64)
-    M = c2w[:3, :3] @ np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
+    if camera.model in MAP_MODELS:
+        M = c2w[:3, :3]
+    else:
+        M = c2w[:3, :3] @ np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
     eye = (c2w[:3, 3] - np.asarray(origin, dtype=np.float64)) / scale
     return M.astype(np.float32), eye.astype(np.float32)
 
 
-def camera_directions(camera):
+def camera_directions(camera, map32=None):
     """The kernel's float32 ray directions of every pixel, row-major (row j, then
-    column i): a list of three (H*W,) float32 arrays (x, y, z components)."""
+    column i): a list of three (H*W,) float32 arrays (x, y, z components). For a camera
+    of MAP_MODELS, from its ray map (`ray_map`, or map32 when given); a pixel with no
+    ray gets the optical axis, so that its miss has distance +inf, not NaN."""
     M, _ = camera_constants(camera, np.zeros(3))
     w, h = int(camera.width), int(camera.height)
+    if camera.model in MAP_MODELS:
+        v = ray_map(camera)[0] if map32 is None else map32
+        x, y, z = v[:, 0].copy(), v[:, 1].copy(), v[:, 2].copy()
+        none = np.isnan(x)
+        x[none], y[none], z[none] = 0.0, 0.0, 1.0
+        return [M[r, 0] * x + M[r, 1] * y + M[r, 2] * z for r in range(3)]
     x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
     y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
     return [M[r, 0] * x + M[r, 1] * y + M[r, 2] for r in range(3)]
@@ -90,8 +119,11 @@ def camera_eye(camera, origin, scale=1.0):
 def camera_rays(camera, origin, scale=1.0):
     """The rays the render kernel traces, computed on the host with its float32
     arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
-    row-major. Tracing them gives the render's hits."""
+    row-major. Tracing them gives the render's hits (a pixel of a MAP_MODELS camera
+    with no ray: a NaN direction, which misses)."""
     d = np.stack(camera_directions(camera), axis=1)
+    if camera.model in MAP_MODELS:
+        d[~ray_map(camera)[1]] = np.nan
     origins = np.broadcast_to(camera_eye(camera, origin, scale), d.shape)
     return origins, d
 
@@ -120,13 +152,14 @@ def output_shapes(n, outputs):
             for k in outputs}
 
 
-def images(out, camera, origin, aovs, scale=1.0, objects=None):
+def images(out, camera, origin, aovs, scale=1.0, objects=None, map32=None):
     """The AOV images of a render from the kernel's outputs.
 
     out : {output: array} of H*W rows each (T (H*W,) float32, UV (H*W, 2), NORMAL
         (H*W, 3), ID (H*W,) uint32), as `kernel_outputs(aovs)` asked
     objects : the tree's object table (KdTree.objects: (n_input_tris,) uint32, or None:
         one object, 0), for `object`
+    map32 : a MAP_MODELS camera's ray map (`ray_map`), when the caller has it
     Returns a dict in the order of `aovs`: depth (H, W) z-depth, +inf on a miss;
     distance (H, W) along the ray; normal (H, W, 3); bary (H, W, 2) u, v; id (H, W)
     uint32; position (H, W, 3) world hit point (NaN on a miss); object (H, W) uint32
@@ -137,7 +170,7 @@ def images(out, camera, origin, aovs, scale=1.0, objects=None):
     if "distance" in aovs or "position" in aovs:
         # float64 from the kernel's float32 rays, column by column (numpy's loops
         # over rows of 3 are slow): |d| = sqrt((dx^2 + dy^2) + dz^2), p = o + t d
-        d = [c.astype(np.float64) for c in camera_directions(camera)]
+        d = [c.astype(np.float64) for c in camera_directions(camera, map32)]
         t = out["T"].astype(np.float64)
     for name in aovs:
         if name == "depth":

@@ -61,7 +61,11 @@ _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
 larger than any triangle id): a test can then see any element the kernel missed."""
 
-_OUTPUTS = KERNEL_OUTPUTS + ("STATS",)   # the kernels' output arguments, in order
+_OUTPUTS = KERNEL_OUTPUTS + ("STATS",)
+
+MAPS_KEPT = 2
+"""Ray maps of camera models a Tracer keeps (12 bytes a pixel on the host and 12 on
+the device each): a dataset's views share their camera's intrinsics."""   # the kernels' output arguments, in order
 
 
 @dataclasses.dataclass(eq=False)
@@ -94,8 +98,11 @@ class Hits:
 
     def __getitem__(self, index):
         """The hits of a subset of the rays (a slice, mask or index array)."""
-        return Hits(self.t[index], self.prim[index], self.u[index], self.v[index],
-                    self.normal[index], object_table=self.object_table)
+        def part(a):
+            return None if a is None else a[index]
+
+        return Hits(self.t[index], self.prim[index], part(self.u), part(self.v),
+                    part(self.normal), object_table=self.object_table)
 
 
 STACK_SIZES = (8, 16, 32, MAX_DEPTH_LIMIT)
@@ -197,6 +204,7 @@ class Tracer:
             raise KdrayError(f"batch_size ({self.batch_size}) must be a multiple of local_size "
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")
         self._programs = {}
+        self._maps = {}                       # camera models' ray maps (`_ray_map`)
         self._poison_outputs = False
         # packets: how a leaf is tested (kernels/packet.cl, kd_packet_leaf): None = by
         # the kernel's rule; tests set 0 (triangle by triangle) or inf (ray by ray)
@@ -271,15 +279,18 @@ class Tracer:
         self._origin = np.asarray(tree.origin, dtype=np.float64)
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
 
-    def program(self, outputs, stats=False, rays_double=False):
+    def program(self, outputs, stats=False, rays_double=False, ray_map=False):
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
         with its kernels: {"program": Program, "trace_rays": Kernel, ...}. rays_double:
-        trace_rays takes float64 rays in world coordinates (render.cl, RAYS_DOUBLE)."""
+        trace_rays takes float64 rays in world coordinates (render.cl, RAYS_DOUBLE).
+        ray_map: render_camera reads a camera model's ray map (render.cl, RAY_MAP)."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
                    "BATCH_SIZE": self.batch_size, "TILE_W": _render.RENDER_TILE[0],
                    "TILE_H": _render.RENDER_TILE[1]}
         if rays_double:
             defines["RAYS_DOUBLE"] = None
+        if ray_map:
+            defines["RAY_MAP"] = None
         if self.refine:
             defines["REFINE"] = None
         if self._scale != 1.0:
@@ -325,7 +336,7 @@ class Tracer:
         out = {k: page_aligned_empty(shape, dtype)
                for k, (shape, dtype) in _render.output_shapes(1, outputs).items()}
         self._launch("render_camera", outputs, _render.tile_slots(1, 1),
-                     (camera_buf, np.uint32(1), np.uint32(0), np.uint32(1)), out)
+                     (camera_buf, None, np.uint32(1), np.uint32(0), np.uint32(1)), out)
         if trace:
             for dtype in (np.float64, np.float32):
                 self._trace(np.zeros((1, 3), dtype), np.zeros((1, 3), dtype))
@@ -333,14 +344,15 @@ class Tracer:
 
     # -- launching ---------------------------------------------------------------------
 
-    def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_double=False):
+    def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_double=False,
+                ray_map=False):
         """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
         slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
         args: the kernel's arguments between the tree and the counter."""
         cl = _device._cl()
         if n == 0:
             return
-        kernel = self.program(outputs, stats, rays_double)[kernel_name]
+        kernel = self.program(outputs, stats, rays_double, ray_map)[kernel_name]
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
@@ -464,14 +476,19 @@ class Tracer:
         return Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal,
                     object_table=hits.object_table)
 
-    def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False):
+    def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False,
+               outputs=KERNEL_OUTPUTS):
+        """(Hits, STATS or None) of the rays; outputs: the kernel outputs computed and
+        stored (KERNEL_OUTPUTS order; T and ID always), the others None in Hits."""
+        outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | {"T", "ID"})
         t_min, t_max = float(t_min), float(t_max)
         if not (t_min >= 0.0 and t_max >= t_min):
             raise KdrayError(f"need 0 <= t_min <= t_max, got t_min={t_min}, t_max={t_max}")
         o, d, o_step, rays_double = self._rays(origins, directions)
         n = len(d)
         out = {name: page_aligned_empty((n, width) if width > 1 else (n,), dtype)
-               for name, (width, dtype) in OUTPUT_WIDTH.items() if stats or name != "STATS"}
+               for name, (width, dtype) in OUTPUT_WIDTH.items()
+               if name in outputs or (stats and name == "STATS")}
         ray_t = _RAY_BYTES["double" if rays_double else "float"]
         widths = [ray_t] * (1 + o_step) + [OUTPUT_WIDTH[k][0] * 4 for k in out]
         per_launch = self._launch_size(widths)
@@ -482,15 +499,17 @@ class Tracer:
             # with double rays the kernel takes the tree's origin and shifts them itself
             origin = tuple(np.float64(x) for x in self._origin) if rays_double else ()
             # t in the tree's units is t / scale (directions are not scaled)
-            self._launch("trace_rays", ("T", "UV", "NORMAL", "ID"), stop - start,
+            self._launch("trace_rays", outputs, stop - start,
                          (o_buf, d_buf, np.uint32(o_step), np.uint32(stop - start),
                           np.float32(t_min / self._scale), np.float32(t_max / self._scale),
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
                          rays_double=rays_double)
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
-        hits = Hits(t=out["T"], prim=out["ID"], u=out["UV"][:, 0], v=out["UV"][:, 1],
-                    normal=out["NORMAL"], object_table=self.tree.objects)
+        uv = out.get("UV")
+        hits = Hits(t=out["T"], prim=out["ID"], u=None if uv is None else uv[:, 0],
+                    v=None if uv is None else uv[:, 1], normal=out.get("NORMAL"),
+                    object_table=self.tree.objects)
         return hits, out.get("STATS")
 
     # -- cameras -------------------------------------------------------------------------
@@ -499,9 +518,9 @@ class Tracer:
         """The rays `render` traces, computed on the host with the kernel's float32
         arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c).
-        A camera of another model than the pinhole is traced from its float64 rays:
-        Camera.rays() (NaN directions where a pixel has no ray)."""
-        if camera.model != "pinhole":
+        An orthographic camera is traced from its float64 rays: Camera.rays(). A pixel
+        with no ray has NaN directions."""
+        if camera.model not in ("pinhole",) + _render.MAP_MODELS:
             return camera.rays()
         return _render.camera_rays(camera, self._origin, self._scale)
 
@@ -518,14 +537,18 @@ class Tracer:
         distance, position and bary in float64 from each pixel's exact float64 ray
         (Camera.rays) and the tree's float64 triangles (render.double_images).
         A camera of another model than the pinhole (opencv, fisheye, equirectangular,
-        orthographic: kdray.lens) is traced from its float64 rays (Camera.rays), and
-        its images hold `valid` too: (H, W) bool, the pixels that have a ray (the others
-        are misses). Its depth is the z-depth for opencv and orthographic cameras, the
-        distance along the ray for fisheye and equirectangular ones.
+        orthographic: kdray.lens) adds `valid` to its images: (H, W) bool, the pixels
+        that have a ray (the others are misses). Its depth is the z-depth for opencv
+        and orthographic cameras, the distance along the ray for fisheye and
+        equirectangular ones. The opencv, fisheye and equirectangular cameras' rays are
+        made by the render kernel from a ray map (render.MAP_MODELS: the lens inverted
+        once per intrinsics on the host, in float64, then rounded to float32 like a
+        pinhole's directions); the orthographic camera, and every model with
+        precision="double", is traced from its float64 rays (Camera.rays).
         """
         double = _precision(precision, self.tree)
         aovs = _render.parse_aovs(aovs)
-        if camera.model != "pinhole":
+        if camera.model != "pinhole" and (double or camera.model not in _render.MAP_MODELS):
             return self._render_model(camera, aovs, precision)
         if double:
             # the kernel finds the triangles (ids, objects) and the normals; the rest is
@@ -550,6 +573,8 @@ class Tracer:
                for k, (shape, dtype) in _render.output_shapes(n, outputs).items()}
         M, eye = _render.camera_constants(camera, self._origin, self._scale)
         camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]).astype(np.float32))
+        lens = None if camera.model == "pinhole" else self._ray_map(camera)
+        map_buf = None if lens is None else lens[1]
         # launches of whole rows: as many as fit on the device, MAX_RAYS_PER_LAUNCH
         # pixels or one row at most
         rows_per_launch = self._launch_size([w * OUTPUT_WIDTH[k][0] * 4 for k in outputs],
@@ -559,10 +584,34 @@ class Tracer:
             n_rows = min(h - row0, rows_per_launch)
             start, stop = row0 * w, (row0 + n_rows) * w
             self._launch("render_camera", outputs, tile_slots(w, n_rows),
-                         (camera_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
-                         {k: v[start:stop] for k, v in out.items()})
-        return _render.images(out, camera, self._origin, aovs, self._scale,
-                              objects=self.tree.objects)
+                         (camera_buf, map_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
+                         {k: v[start:stop] for k, v in out.items()}, ray_map=lens is not None)
+        if lens is None:
+            return _render.images(out, camera, self._origin, aovs, self._scale,
+                                  objects=self.tree.objects)
+        map32, _, valid = lens
+        none = ~valid                   # pixels with no ray: the kernel left them out
+        for name, array in out.items():
+            array[none] = np.inf if name == "T" else (MISS if name == "ID" else 0)
+        images = _render.images(out, camera, self._origin, aovs, self._scale,
+                                objects=self.tree.objects, map32=map32)
+        images["valid"] = valid.reshape(h, w)
+        return images
+
+    def _ray_map(self, camera):
+        """(map32 (H*W, 3) float32, its device buffer, valid (H*W,) bool) of a camera of
+        render.MAP_MODELS: made on the host once per intrinsics (kdray.lens keeps the
+        float64 maps) and kept on the device for the MAPS_KEPT most recent ones."""
+        key = (camera.model, camera.K.tobytes(), tuple(camera.distortion), camera.width,
+               camera.height)
+        entry = self._maps.pop(key, None)
+        if entry is None:
+            map32, valid = _render.ray_map(camera)
+            entry = (map32, self._buffer(map32.reshape(-1)), valid)
+            while len(self._maps) >= MAPS_KEPT:
+                self._maps.pop(next(iter(self._maps)))
+        self._maps[key] = entry             # the most recent last
+        return entry
 
     def _render_model(self, camera, aovs, precision):
         """`render` of a camera that is not a pinhole (kdray.lens): its float64 rays
@@ -608,16 +657,19 @@ class Tracer:
         hit triangle, and object uint32, its object (KdTree.objects), both 0xFFFFFFFF
         on a miss; points (B, C, 3) float64 world hit points, NaN on a miss.
         The rays are made on the host in float64 (Lidar.rays: a rotation of the
-        directions the Lidar keeps, 3 ms of a 46 ms 128 x 2048 scan of 1.6M triangles
-        on 2 cores, bench/bench_lidar.py) and traced as they are, refined in double
-        where the device has it.
+        directions the Lidar keeps; bench/bench_lidar.py measures it beside the trace)
+        and traced as they are, refined in double where the device has it.
         """
         from .lidar import scan_images
+        double = _precision(precision, self.tree)
         origin, directions = lidar.rays(pose)
         # a little beyond max_range, so that the kernel's float32 t cannot lose a hit
-        # just inside it; scan_images cuts at max_range with the final t
-        hits = self.trace(origin, directions, t_max=lidar.max_range * (1 + 2.0**-16),
-                          precision=precision)
+        # just inside it; scan_images cuts at max_range with the final t. Only t and
+        # the triangle are computed: a scan has no normal or barycentric image.
+        hits, _ = self._trace(origin, directions, t_max=lidar.max_range * (1 + 2.0**-16),
+                              outputs=("T", "ID"))
+        if double:
+            hits = self._double_hits(hits, origin, directions)
         return scan_images(lidar, origin, directions, hits.t, hits.prim, self.tree.objects)
 
 

@@ -302,6 +302,10 @@ void trace_rays(KD_TREE_ARGS,
  * camera: 12 floats, M = R K^-1 row-major (9), then the eye relative to the tree's
  * origin in its units (3). Pixel (i, j) (column, row): direction M [i + 0.5, j + 0.5,
  * 1], not normalized, so t (times t_scale) is the z-depth.
+ * RAY_MAP (a central camera model: kdray.lens): M = R, and pixel p's direction is
+ * M ray_map[p], ray_map holding 3 floats a pixel of the whole image (camera axes);
+ * a pixel whose map entry is NaN has no ray and is not traced nor written (the host
+ * writes its miss). ray_map is NULL without RAY_MAP.
  *
  * Pixels are taken in tiles of TILE_W x TILE_H (tiles row-major, rows within a tile;
  * a batch is best one tile), so the rays a group traces one after another are
@@ -315,7 +319,7 @@ void trace_rays(KD_TREE_ARGS,
 #define TILE_H 8
 #endif
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
-void render_camera(KD_TREE_ARGS, __global const float *camera,
+void render_camera(KD_TREE_ARGS, __global const float *camera, __global const float *ray_map,
                    uint width, uint row0, uint n_rows,
                    __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
@@ -353,13 +357,8 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
             float x0 = (float)col0 + 0.5f, x1 = (float)(col0 + 1u) + 0.5f;
             float x2 = (float)(col0 + 2u) + 0.5f, x3 = (float)(col0 + 3u) + 0.5f;
             float y0 = (float)(row0 + row0_b) + 0.5f, y1 = (float)(row0 + row0_b + 1u) + 0.5f;
-            float8 x = (float8)(x0, x1, x2, x3, x0, x1, x2, x3);
-            float8 y = (float8)(y0, y0, y0, y0, y1, y1, y1, y1);
             KdF8 ox, oy, oz, dx, dy, dz;
             ox.v = (float8)(eye.x); oy.v = (float8)(eye.y); oz.v = (float8)(eye.z);
-            dx.v = m0.x * x + m0.y * y + m0.z;
-            dy.v = m1.x * x + m1.y * y + m1.z;
-            dz.v = m2.x * x + m2.y * y + m2.z;
             KdI8 on;
             uint idx[KD_PACKET];
             for (uint l = 0; l < KD_PACKET; l++) {
@@ -367,6 +366,26 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
                 on.s[l] = col < width && row < n_rows ? -1 : 0;
                 idx[l] = row * width + col;
             }
+#ifdef RAY_MAP
+            /* each pixel's camera-axis direction from the map (NaN: no ray, not traced) */
+            KdF8 x, y, z;
+            for (uint l = 0; l < KD_PACKET; l++) {
+                float3 v = on.s[l] ? vload3((size_t)row0 * width + idx[l], ray_map)
+                                   : (float3)(0.0f, 0.0f, 1.0f);
+                if (isnan(v.x))
+                    on.s[l] = 0;
+                x.s[l] = v.x; y.s[l] = v.y; z.s[l] = on.s[l] ? v.z : 1.0f;
+            }
+            dx.v = m0.x * x.v + m0.y * y.v + m0.z * z.v;
+            dy.v = m1.x * x.v + m1.y * y.v + m1.z * z.v;
+            dz.v = m2.x * x.v + m2.y * y.v + m2.z * z.v;
+#else
+            float8 x = (float8)(x0, x1, x2, x3, x0, x1, x2, x3);
+            float8 y = (float8)(y0, y0, y0, y0, y1, y1, y1, y1);
+            dx.v = m0.x * x + m0.y * y + m0.z;
+            dy.v = m1.x * x + m1.y * y + m1.z;
+            dz.v = m2.x * x + m2.y * y + m2.z;
+#endif
             trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, 0.0f, INFINITY, KD_TREE_PASS,
                                    KD_OUTPUT_PASS, idx KD_NO_EXACT);
 #else
@@ -374,13 +393,22 @@ void render_camera(KD_TREE_ARGS, __global const float *camera,
             uint row = tile_row + in_tile / TILE_W;
             if (col >= width || row >= n_rows)
                 continue;
-            float x = (float)col + 0.5f;
-            float y = (float)(row0 + row) + 0.5f;
             uint idx = row * width + col;
             float3 o = eye;
+#ifdef RAY_MAP
+            float3 v = vload3((size_t)row0 * width + idx, ray_map);
+            if (isnan(v.x))          /* no ray: the host writes the miss */
+                continue;
+            float3 d = (float3)(m0.x * v.x + m0.y * v.y + m0.z * v.z,
+                                m1.x * v.x + m1.y * v.y + m1.z * v.z,
+                                m2.x * v.x + m2.y * v.y + m2.z * v.z);
+#else
+            float x = (float)col + 0.5f;
+            float y = (float)(row0 + row) + 0.5f;
             float3 d = (float3)(m0.x * x + m0.y * y + m0.z,
                                 m1.x * x + m1.y * y + m1.z,
                                 m2.x * x + m2.y * y + m2.z);
+#endif
             trace_and_store(1, &o, &d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, &idx
                             KD_NO_EXACT);
 #endif

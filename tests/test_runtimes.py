@@ -130,3 +130,44 @@ def test_render_is_trace_of_the_camera_rays(runtime, scene):
     assert np.array_equal(images["bary"].reshape(-1, 2), np.stack([hits.u, hits.v], 1))
     assert np.array_equal(images["normal"].reshape(-1, 3), hits.normal)
     assert (images["id"] != 0xFFFFFFFF).sum() > w * h // 10
+
+
+@pytest.mark.parametrize("model", ["opencv", "fisheye", "equirectangular"])
+def test_camera_model_render_is_trace_of_its_rays(runtime, model):
+    """A camera model's render (its rays made in the kernel from a ray map, RAY_MAP)
+    writes every pixel, poisoned first: the hit of its own ray (Tracer.camera_rays:
+    the map turned by the pose with the kernel's float32 arithmetic), or a miss where
+    the pixel has no ray (a fisheye whose image circle is smaller than the image, a
+    distortion that folds over); with packets and without, at GPU and CPU work sizes."""
+    from kdray import Camera
+    tree = scene_tree("sphere")
+    w, h = runtime.small((77, 53), (23, 13))
+    pin = camera_for(tree, w, h)
+    f = 0.15 * w if model != "equirectangular" else w / (2 * np.pi)
+    K = np.array([[f, 0, w / 2], [0, f if model != "equirectangular" else h / np.pi, h / 2],
+                  [0, 0, 1]])
+    distortion = {"opencv": (-0.45, 0.08, 1e-3, -2e-3, 0.05), "fisheye": (0.05, -0.01, 0.0, 0.0),
+                  "equirectangular": ()}[model]
+    if model == "opencv":
+        K = pin.K
+    cam = Camera(w, h, K, pin.cam_to_world, model, distortion)
+    sizes = [(PACKET, 8, 64 * PACKET, 4), (1, 64, 256, 2)] if not runtime.simulator else [(1, 4, 12, 3)]
+    for packet, local, batch, groups in sizes:
+        tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local, batch_size=batch,
+                    groups=groups)
+        tr._poison_outputs = True
+        images = tr.render(cam, aovs=("depth", "normal", "bary", "id", "distance", "position"))
+        o, d = tr.camera_rays(cam)
+        hits = tr.trace(o, d)
+        valid = images["valid"].ravel()
+        assert np.array_equal(valid, ~np.isnan(d[:, 0]))
+        assert np.array_equal(images["depth"].ravel(), hits.t)
+        assert np.array_equal(images["id"].ravel(), hits.prim)
+        assert np.array_equal(images["bary"].reshape(-1, 2), np.stack([hits.u, hits.v], 1))
+        assert np.array_equal(images["normal"].reshape(-1, 3), hits.normal)
+        assert np.all(np.isinf(images["distance"].ravel()[~valid]))
+        assert np.all(np.isnan(images["position"].reshape(-1, 3)[~valid]))
+        hit = images["id"].ravel() != 0xFFFFFFFF
+        assert hit.sum() >= (1 if runtime.simulator else 20) and not hit[~valid].any()
+        if model == "fisheye":
+            assert 0 < (~valid).sum() < w * h // 2        # the corners are past its field
