@@ -7,6 +7,7 @@
     hits = tracer.trace(origins, directions)        # t, prim, u, v, normal
     camera = kdray.Camera.look_at(eye, target)
     images = tracer.render(camera, aovs=("depth", "id"))
+    scan = tracer.scan(kdray.Lidar.from_json("lidar.json"), sensor_to_world)  # range image
     tree, n_left_out = kdray.cull.build_for_camera(mesh.vertices, mesh.faces, camera)  # seen part
 
 The public API is what this module exports, nothing else.
@@ -21,6 +22,7 @@ _register_runtimes()
 from . import cull
 from .builder import build
 from .camera import Camera
+from .lidar import Lidar
 from .errors import (CameraError, DeviceError, KdrayError, KernelBuildError, MeshError,
                      OutputError, ParameterError, TreeError, TreeFileError)
 from .load import load
@@ -30,6 +32,6 @@ from .tree import BuildParams, KdTree
 
 __version__ = "0.1.0"
 
-__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera",
+__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera", "Lidar",
            "KdrayError", "MeshError", "TreeError", "TreeFileError", "DeviceError",
            "KernelBuildError", "CameraError", "OutputError", "ParameterError"]

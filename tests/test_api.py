@@ -8,7 +8,7 @@ import kdray
 
 def test_public_names():
     for name in ("load", "build", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera",
-                 "KdrayError", "MeshError", "TreeFileError", "DeviceError", "KernelBuildError"):
+                 "Lidar", "KdrayError", "MeshError", "TreeFileError", "DeviceError", "KernelBuildError"):
         assert hasattr(kdray, name), name
     assert issubclass(kdray.KernelBuildError, kdray.DeviceError)
     assert issubclass(kdray.TreeFileError, kdray.KdrayError)
