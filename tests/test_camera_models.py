@@ -399,3 +399,39 @@ def test_opencv_strong_barrel_inverts_every_pixel_inside_its_limit():
     x, y = d[valid, 0], d[valid, 1]
     r = np.hypot(x, y)
     assert np.abs(r * (1 + k1 * r**2) - rd[valid]).max() < 1e-12
+
+
+@pytest.mark.parametrize("model, distortion, f", [("opencv", MODERATE, 110.0),
+                                                  ("fisheye", FISHEYE, 70.0),
+                                                  ("equirectangular", (), None)])
+def test_models_at_any_offset_and_scale(room, model, distortion, f):
+    """The room moved 3e6 from the world origin, and scaled by 2^70: the same hits,
+    depths as accurate relative to the scene, and (opencv, fisheye) hit points (from
+    the depth) that project back onto their pixel centres there too."""
+    from kdray.trace import Tracer
+    tree, tracer = room
+    v = tree.triangles64.reshape(-1, 3)
+    faces = np.arange(len(v)).reshape(-1, 3)
+    K = lens.equirectangular_K(W, H) if model == "equirectangular" else _K(f)
+    pose = _pose()
+    base = tracer.render(Camera(W, H, K, pose, model, distortion), "depth,id,position")
+    for shift, scale in ((np.array([3e6, -2e6, 1e6]), 1.0), (np.zeros(3), 2.0 ** 70)):
+        moved = kdray.build(v * scale + shift, faces)
+        p = pose.copy()
+        p[:3, 3] = p[:3, 3] * scale + shift
+        camera = Camera(W, H, K, p, model, distortion)
+        images = Tracer(moved).render(camera, "depth,id,position")
+        same = images["id"] == base["id"]
+        assert same.mean() > 0.995 and np.array_equal(images["valid"], base["valid"])
+        rel = np.abs(images["depth"][same] / scale - base["depth"][same]) / base["depth"][same]
+        assert rel.max() < 2e-6, rel.max()
+        if model != "equirectangular":
+            # hit points in float64 from the float32 depth (the float32 `position` of a
+            # point 3e6 from the origin is rounded to 0.25)
+            hit = (images["id"] != 0xFFFFFFFF).reshape(-1)
+            o, d = camera.rays()
+            points = o[hit] + images["depth"].reshape(-1)[hit, None].astype(np.float64) * d[hit]
+            cam = (points - camera.eye) @ camera.rotation
+            front = cam[:, 2] > 1e-3 * np.linalg.norm(cam, axis=1)
+            error = np.abs(_opencv_project(camera, points[front]) - _pixel_centres(hit)[front])
+            assert error.max() < 5e-4, error.max()
