@@ -10,11 +10,12 @@ surface) and "outside" (0.8 box diagonals from its centre at mid-height, x towar
 it: about one beam in twenty hits, the rest go out into the void). Timed in turns (bench/timing.py round_robin, each call 0.1 s after
 the one before), median of --repeat rounds:
 
-  kdray scan          Tracer.scan(lidar, pose): rays on the host in float64, trace,
-                      range/id/object images and world points (the whole call)
-  kdray rays          Lidar.rays(pose) alone: the host's share of the scan (the
-                      sensor-frame directions cached on the Lidar, as in the scan)
-  kdray trace         Tracer.trace of the rays made beforehand, to max_range
+  kdray scan          Tracer.scan(lidar, pose): rays made by the render kernel from the
+                      Lidar's direction map, trace, range/id/object images and world
+                      points (the whole call)
+  kdray rays          Lidar.rays(pose) alone: what making the float64 rays on the
+                      host would add (precision="double" scans do)
+  kdray trace         Tracer.trace of those float64 rays made beforehand, to max_range
   open3d cast         the same float64 rays -> float32 tensor -> cast_rays -> t as
                       numpy, max_range applied (Open3D has no t_max)
 
@@ -131,7 +132,8 @@ def main():
             print(f"{name:<8} {method:<12} {s:>8.4f} {1 / s:>8.2f} {n / s / 1e6:>8.2f} {hits:>6}{acc}",
                   flush=True)
         share = median_ratio(seconds["kdray rays"], seconds["kdray scan"])
-        print(f"# {name}: host ray generation is {100 * share:.1f} % of a scan (median of rounds)")
+        print(f"# {name}: float64 rays made on the host would be {100 * share:.1f} % of a scan "
+              f"(median of rounds)")
         if "open3d cast" in seconds:
             print(f"# {name}: kdray scan / open3d cast = "
                   f"{median_ratio(seconds['open3d cast'], seconds['kdray scan']):.2f} "

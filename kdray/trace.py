@@ -575,17 +575,7 @@ class Tracer:
         camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]).astype(np.float32))
         lens = None if camera.model == "pinhole" else self._ray_map(camera)
         map_buf = None if lens is None else lens[1]
-        # launches of whole rows: as many as fit on the device, MAX_RAYS_PER_LAUNCH
-        # pixels or one row at most
-        rows_per_launch = self._launch_size([w * OUTPUT_WIDTH[k][0] * 4 for k in outputs],
-                                            what=f"row of {w} pixels",
-                                            cap=max(1, MAX_RAYS_PER_LAUNCH // w))
-        for row0 in range(0, h, rows_per_launch):
-            n_rows = min(h - row0, rows_per_launch)
-            start, stop = row0 * w, (row0 + n_rows) * w
-            self._launch("render_camera", outputs, tile_slots(w, n_rows),
-                         (camera_buf, map_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
-                         {k: v[start:stop] for k, v in out.items()}, ray_map=lens is not None)
+        self._render_rows(camera_buf, map_buf, w, h, outputs, out)
         if lens is None:
             return _render.images(out, camera, self._origin, aovs, self._scale,
                                   objects=self.tree.objects)
@@ -597,6 +587,20 @@ class Tracer:
                                 objects=self.tree.objects, map32=map32)
         images["valid"] = valid.reshape(h, w)
         return images
+
+    def _render_rows(self, camera_buf, map_buf, w, h, outputs, out):
+        """Launch render_camera over h rows of w pixels (RAY_MAP when map_buf is not
+        None) writing `out` (dict output -> (h*w, ...) host array): as many whole rows a
+        launch as fit on the device, MAX_RAYS_PER_LAUNCH pixels or one row at most."""
+        rows_per_launch = self._launch_size([w * OUTPUT_WIDTH[k][0] * 4 for k in outputs],
+                                            what=f"row of {w} pixels",
+                                            cap=max(1, MAX_RAYS_PER_LAUNCH // w))
+        for row0 in range(0, h, rows_per_launch):
+            n_rows = min(h - row0, rows_per_launch)
+            start, stop = row0 * w, (row0 + n_rows) * w
+            self._launch("render_camera", outputs, _render.tile_slots(w, n_rows),
+                         (camera_buf, map_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
+                         {k: v[start:stop] for k, v in out.items()}, ray_map=map_buf is not None)
 
     def _ray_map(self, camera):
         """(map32 (H*W, 3) float32, its device buffer, valid (H*W,) bool) of a camera of
@@ -656,12 +660,15 @@ class Tracer:
         along the unit beam, +inf on a miss or at max_range and beyond; id uint32, the
         hit triangle, and object uint32, its object (KdTree.objects), both 0xFFFFFFFF
         on a miss; points (B, C, 3) float64 world hit points, NaN on a miss.
-        The rays are made on the host in float64 (Lidar.rays: a rotation of the
-        directions the Lidar keeps; bench/bench_lidar.py measures it beside the trace)
-        and traced as they are, refined in double where the device has it.
+        The render kernel makes the rays, as a camera model's (RAY_MAP): the Lidar's
+        sensor-frame directions, rounded to float32 once and kept on the device, turned
+        by the pose; hits are refined in double where the device has it. With
+        precision="double" the float64 rays (Lidar.rays) are traced from the host.
         """
-        from .lidar import scan_images
+        from .lidar import check_pose, scan_images
         double = _precision(precision, self.tree)
+        if not double:
+            return self._scan_on_device(lidar, check_pose(pose))
         origin, directions = lidar.rays(pose)
         # a little beyond max_range, so that the kernel's float32 t cannot lose a hit
         # just inside it; scan_images cuts at max_range with the final t. Only t and
@@ -671,6 +678,37 @@ class Tracer:
         if double:
             hits = self._double_hits(hits, origin, directions)
         return scan_images(lidar, origin, directions, hits.t, hits.prim, self.tree.objects)
+
+    def _scan_on_device(self, lidar, pose):
+        """`scan` with the rays made by render_camera from the Lidar's direction map:
+        rows are beams, columns azimuth steps; only t and the triangle are computed."""
+        from .lidar import scan_images
+        rows, columns = lidar.shape
+        key = ("lidar", lidar.to_json())
+        entry = self._maps.pop(key, None)
+        if entry is None:
+            map32 = np.ascontiguousarray(lidar.directions(), dtype=np.float32)
+            entry = (map32, self._buffer(map32.reshape(-1)), None)
+            while len(self._maps) >= MAPS_KEPT:
+                self._maps.pop(next(iter(self._maps)))
+        self._maps[key] = entry
+        map32, map_buf, _ = entry
+        M = pose[:3, :3].astype(np.float32)
+        eye = ((pose[:3, 3] - self._origin) / self._scale).astype(np.float32)
+        camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]))
+        n = rows * columns
+        outputs = ("T", "ID")
+        out = {k: page_aligned_empty(shape, dtype)
+               for k, (shape, dtype) in _render.output_shapes(n, outputs).items()}
+        self._render_rows(camera_buf, map_buf, columns, rows, outputs, out)
+        # the kernel's rays on the host, for the hit points: the map turned by M in
+        # float32 with the kernel's arithmetic, from the eye as the kernel has it
+        d = np.empty((n, 3))
+        x, y, z = map32[:, 0], map32[:, 1], map32[:, 2]
+        for r in range(3):
+            d[:, r] = M[r, 0] * x + M[r, 1] * y + M[r, 2] * z
+        origin = self._origin + self._scale * eye.astype(np.float64)
+        return scan_images(lidar, origin, d, out["T"], out["ID"], self.tree.objects)
 
 
 def _precision(precision, tree):

@@ -171,3 +171,33 @@ def test_camera_model_render_is_trace_of_its_rays(runtime, model):
         assert hit.sum() >= (1 if runtime.simulator else 20) and not hit[~valid].any()
         if model == "fisheye":
             assert 0 < (~valid).sum() < w * h // 2        # the corners are past its field
+
+
+def test_lidar_scan_is_trace_of_its_rays(runtime):
+    """A scan (its rays made in the kernel from the Lidar's direction map, RAY_MAP; rows
+    beams, columns azimuth steps) gives, for every beam, the hit of its own ray: the
+    map turned by the pose with the kernel's float32 arithmetic, from inside a sphere
+    (every beam hits) and with max_range cutting some; with packets and without."""
+    from kdray import Lidar
+    from kdray.layout import MISS
+    tree = scene_tree("sphere")
+    channels, columns = runtime.small((16, 131), (5, 19))
+    lidar = Lidar.from_dict({"channels": channels, "fov_up": 40.0, "fov_down": -60.0,
+                             "columns": columns, "max_range": 1.05})
+    c, s = np.cos(0.7), np.sin(0.7)
+    pose = np.array([[c, -s, 0, 0.1], [s, c, 0, -0.2], [0, 0, 1, 0.05], [0, 0, 0, 1.0]])
+    M = pose[:3, :3].astype(np.float32)
+    v = lidar.directions().astype(np.float32)
+    d = np.stack([M[r, 0] * v[:, 0] + M[r, 1] * v[:, 1] + M[r, 2] * v[:, 2] for r in range(3)], 1)
+    sizes = [(PACKET, 8, 64 * PACKET, 4), (1, 64, 256, 2)] if not runtime.simulator else [(1, 4, 12, 3)]
+    for packet, local, batch, groups in sizes:
+        tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local, batch_size=batch,
+                    groups=groups)
+        tr._poison_outputs = True
+        scan = tr.scan(lidar, pose)
+        eye = tr._origin + tr._scale * ((pose[:3, 3] - tr._origin) / tr._scale).astype(np.float32)
+        hits = tr.trace(eye, d)
+        near = hits.t < lidar.max_range
+        assert np.array_equal(scan["range"].ravel(), np.where(near, hits.t, np.inf))
+        assert np.array_equal(scan["id"].ravel(), np.where(near, hits.prim, MISS))
+        assert hits.hit.all() and 0 < near.sum() < near.size        # max_range cuts some
