@@ -27,7 +27,8 @@ render: $(STAMP)
 	mkdir -p $(OUT)
 	$(BIN)/kdray render $(SCENE) --camera $(CAMERA) -o $(OUT)/cornell.exr --preview $(OUT)/cornell.png
 
-# The test suite (under 10 minutes on 2 cores): tests/test_runtimes.py on every OpenCL
+# The test suite (about 4 minutes on 2 cores with warm caches; a fresh clone, whose
+# kernels and numba functions compile first, 10-12): tests/test_runtimes.py on every OpenCL
 # implementation that works here, the rest on the default device; the summary says
 # which were covered. Long checks are `make test-long`.
 test: $(STAMP)

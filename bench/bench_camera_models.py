@@ -8,7 +8,9 @@ degrees vertical): `pinhole` (rays made by the render kernel), `pinhole rays` (t
 pinhole's float64 rays from Camera.rays traced by Tracer.trace: the host path without
 a lens), `opencv` (k1 k2 p1 p2 k3 = -0.28 0.07 8e-4 -1.1e-3 0.01: barrel distortion
 with a tangential part), `opencv radial` (the same without p1 p2: no 2D Newton),
-`fisheye` (k1..k4 = 0.08 -0.02 0.004 -5e-4, focal length for a 180-degree diagonal).
+`fisheye` (k1..k4 = 0.08 -0.02 0.004 -5e-4, focal length for a 180-degree diagonal),
+`orthographic` (the box's largest side across 90 % of the image; its rays do not
+share an origin, so they are made on the host and traced by Tracer.trace).
 Timed in turns (bench/timing.py round_robin), the median of --repeat rounds: the
 whole Tracer.render call (each camera's ray map kept from the first call, as over the
 views of a dataset: the render kernel turns the map by the pose, traces and the host
@@ -40,11 +42,15 @@ def cameras(tree, size):
     K, pose = pinhole.K, pinhole.cam_to_world
     f_fisheye = math.hypot(size / 2, size / 2) / (math.pi / 2)
     K_fisheye = np.array([[f_fisheye, 0, size / 2], [0, f_fisheye, size / 2], [0, 0, 1]])
+    f_ortho = 0.9 * size / float(np.max(hi - lo))
     return {
         "pinhole": pinhole,
         "opencv": Camera(size, size, K, pose, "opencv", OPENCV),
         "opencv radial": Camera(size, size, K, pose, "opencv", OPENCV[:2] + (0.0, 0.0, OPENCV[4])),
         "fisheye": Camera(size, size, K_fisheye, pose, "fisheye", FISHEYE),
+        # pixels per world unit: the box's largest side across 90 % of the image
+        "orthographic": Camera(size, size, np.array([[f_ortho, 0, size / 2], [0, f_ortho, size / 2],
+                                                     [0, 0, 1]]), pose, "orthographic"),
     }
 
 
