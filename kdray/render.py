@@ -64,8 +64,40 @@ def kernel_outputs(aovs):
 MAP_MODELS = ("opencv", "fisheye", "equirectangular")
 """The central camera models whose rays the render kernel makes from a ray map
 (RAY_MAP): each pixel's camera-axis direction, computed once per intrinsics on the
-host (kdray.lens), turned by the pose on the device. The orthographic camera's rays
-do not share an origin; it and precision="double" renders trace host rays."""
+host (kdray.lens), turned by the pose on the device. The render kernel makes the
+orthographic camera's rays itself (ORTHOGRAPHIC); precision="double" renders of every
+model but the pinhole trace the camera's float64 rays."""
+
+
+def camera_values(camera, origin, scale=1.0):
+    """The float32 values of the render kernel's `camera` buffer: M (3, 3) row-major and
+    the eye relative to `origin` in units of `scale` (`camera_constants`); for an
+    orthographic camera M = R K^-1 / scale, the eye less the forward axis / scale, then
+    the unit forward axis (15 values: kernels/render.cl, ORTHOGRAPHIC)."""
+    M, eye = camera_constants(camera, origin, scale)
+    if camera.model != "orthographic":
+        return np.concatenate([M.reshape(9), eye])
+    return np.concatenate([M.reshape(9), eye, _forward(camera)])
+
+
+def _forward(camera):
+    return np.asarray(camera.cam_to_world, dtype=np.float64)[:3, 2].astype(np.float32)
+
+
+def camera_origins(camera, origin, scale=1.0):
+    """(H*W, 3) float64 world: an orthographic camera's ray origins as the kernel makes
+    them (eye + M [i + 0.5, j + 0.5, 1] in float32, in the tree's frame, taken back to
+    the world); None for a camera whose rays all leave its eye."""
+    if camera.model != "orthographic":
+        return None
+    M, eye = camera_constants(camera, origin, scale)
+    w, h = int(camera.width), int(camera.height)
+    x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
+    y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
+    o = np.empty((w * h, 3))
+    for r in range(3):
+        o[:, r] = (eye[r] + (M[r, 0] * x + M[r, 1] * y + M[r, 2])).astype(np.float64)
+    return np.asarray(origin, dtype=np.float64) + scale * o
 
 
 def ray_map(camera):
@@ -89,6 +121,9 @@ def camera_constants(camera, origin, scale=1.0):
     else:
         M = c2w[:3, :3] @ np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
     eye = (c2w[:3, 3] - np.asarray(origin, dtype=np.float64)) / scale
+    if camera.model == "orthographic":
+        M = M / scale
+        eye = eye - c2w[:3, 2] / scale
     return M.astype(np.float32), eye.astype(np.float32)
 
 
@@ -99,6 +134,8 @@ def camera_directions(camera, map32=None):
     ray gets the optical axis, so that its miss has distance +inf, not NaN."""
     M, _ = camera_constants(camera, np.zeros(3))
     w, h = int(camera.width), int(camera.height)
+    if camera.model == "orthographic":
+        return [np.full(w * h, c, dtype=np.float32) for c in _forward(camera)]
     if camera.model in MAP_MODELS:
         v = ray_map(camera)[0] if map32 is None else map32
         x, y, z = v[:, 0].copy(), v[:, 1].copy(), v[:, 2].copy()
@@ -124,6 +161,9 @@ def camera_rays(camera, origin, scale=1.0):
     d = np.stack(camera_directions(camera), axis=1)
     if camera.model in MAP_MODELS:
         d[~ray_map(camera)[1]] = np.nan
+    origins = camera_origins(camera, origin, scale)
+    if origins is not None:
+        return origins, d
     origins = np.broadcast_to(camera_eye(camera, origin, scale), d.shape)
     return origins, d
 
@@ -179,7 +219,8 @@ def images(out, camera, origin, aovs, scale=1.0, objects=None, map32=None):
             dist = t * np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
             result[name] = dist.astype(np.float32).reshape(h, w)
         elif name == "position":
-            eye = camera_eye(camera, origin, scale)
+            eye = camera_origins(camera, origin, scale)
+            eye = camera_eye(camera, origin, scale) if eye is None else eye.T
             p = np.empty((w * h, 3), dtype=np.float32)
             with np.errstate(invalid="ignore"):
                 for k in range(3):

@@ -279,18 +279,21 @@ class Tracer:
         self._origin = np.asarray(tree.origin, dtype=np.float64)
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
 
-    def program(self, outputs, stats=False, rays_double=False, ray_map=False):
+    def program(self, outputs, stats=False, rays_double=False, rays="pinhole"):
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
         with its kernels: {"program": Program, "trace_rays": Kernel, ...}. rays_double:
         trace_rays takes float64 rays in world coordinates (render.cl, RAYS_DOUBLE).
-        ray_map: render_camera reads a camera model's ray map (render.cl, RAY_MAP)."""
+        rays: how render_camera makes its rays: "pinhole", "map" (a camera model's ray
+        map, RAY_MAP) or "orthographic" (ORTHOGRAPHIC); render.cl says how."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
                    "BATCH_SIZE": self.batch_size, "TILE_W": _render.RENDER_TILE[0],
                    "TILE_H": _render.RENDER_TILE[1]}
         if rays_double:
             defines["RAYS_DOUBLE"] = None
-        if ray_map:
+        if rays == "map":
             defines["RAY_MAP"] = None
+        elif rays == "orthographic":
+            defines["ORTHOGRAPHIC"] = None
         if self.refine:
             defines["REFINE"] = None
         if self._scale != 1.0:
@@ -345,14 +348,14 @@ class Tracer:
     # -- launching ---------------------------------------------------------------------
 
     def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_double=False,
-                ray_map=False):
+                rays="pinhole"):
         """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
         slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
         args: the kernel's arguments between the tree and the counter."""
         cl = _device._cl()
         if n == 0:
             return
-        kernel = self.program(outputs, stats, rays_double, ray_map)[kernel_name]
+        kernel = self.program(outputs, stats, rays_double, rays)[kernel_name]
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
@@ -518,10 +521,7 @@ class Tracer:
         """The rays `render` traces, computed on the host with the kernel's float32
         arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c).
-        An orthographic camera is traced from its float64 rays: Camera.rays(). A pixel
-        with no ray has NaN directions."""
-        if camera.model not in ("pinhole",) + _render.MAP_MODELS:
-            return camera.rays()
+        A pixel with no ray has NaN directions."""
         return _render.camera_rays(camera, self._origin, self._scale)
 
     def render(self, camera, aovs=DEFAULT_AOVS, precision="single"):
@@ -540,15 +540,16 @@ class Tracer:
         orthographic: kdray.lens) adds `valid` to its images: (H, W) bool, the pixels
         that have a ray (the others are misses). Its depth is the z-depth for opencv
         and orthographic cameras, the distance along the ray for fisheye and
-        equirectangular ones. The opencv, fisheye and equirectangular cameras' rays are
-        made by the render kernel from a ray map (render.MAP_MODELS: the lens inverted
-        once per intrinsics on the host, in float64, then rounded to float32 like a
-        pinhole's directions); the orthographic camera, and every model with
-        precision="double", is traced from its float64 rays (Camera.rays).
+        equirectangular ones. The render kernel makes every model's rays: the opencv,
+        fisheye and equirectangular cameras' from a ray map (render.MAP_MODELS: the lens
+        inverted once per intrinsics on the host, in float64, then rounded to float32
+        like a pinhole's directions), the orthographic camera's from K and the pose;
+        with precision="double" every model but the pinhole is traced from its float64
+        rays (Camera.rays).
         """
         double = _precision(precision, self.tree)
         aovs = _render.parse_aovs(aovs)
-        if camera.model != "pinhole" and (double or camera.model not in _render.MAP_MODELS):
+        if camera.model != "pinhole" and double:
             return self._render_model(camera, aovs, precision)
         if double:
             # the kernel finds the triangles (ids, objects) and the normals; the rest is
@@ -571,14 +572,17 @@ class Tracer:
         outputs = _render.kernel_outputs(aovs)
         out = {k: page_aligned_empty(shape, dtype)
                for k, (shape, dtype) in _render.output_shapes(n, outputs).items()}
-        M, eye = _render.camera_constants(camera, self._origin, self._scale)
-        camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]).astype(np.float32))
-        lens = None if camera.model == "pinhole" else self._ray_map(camera)
+        camera_buf = self._buffer(_render.camera_values(camera, self._origin, self._scale))
+        lens = self._ray_map(camera) if camera.model in _render.MAP_MODELS else None
         map_buf = None if lens is None else lens[1]
-        self._render_rows(camera_buf, map_buf, w, h, outputs, out)
+        rays = "map" if lens is not None else camera.model
+        self._render_rows(camera_buf, map_buf, w, h, outputs, out, rays)
         if lens is None:
-            return _render.images(out, camera, self._origin, aovs, self._scale,
-                                  objects=self.tree.objects)
+            images = _render.images(out, camera, self._origin, aovs, self._scale,
+                                    objects=self.tree.objects)
+            if camera.model == "orthographic":          # every pixel has a ray
+                images["valid"] = np.ones((h, w), dtype=bool)
+            return images
         map32, _, valid = lens
         none = ~valid                   # pixels with no ray: the kernel left them out
         for name, array in out.items():
@@ -588,10 +592,11 @@ class Tracer:
         images["valid"] = valid.reshape(h, w)
         return images
 
-    def _render_rows(self, camera_buf, map_buf, w, h, outputs, out):
-        """Launch render_camera over h rows of w pixels (RAY_MAP when map_buf is not
-        None) writing `out` (dict output -> (h*w, ...) host array): as many whole rows a
-        launch as fit on the device, MAX_RAYS_PER_LAUNCH pixels or one row at most."""
+    def _render_rows(self, camera_buf, map_buf, w, h, outputs, out, rays):
+        """Launch render_camera over h rows of w pixels, its rays made as `rays` says
+        (`program`; map_buf: the ray map of rays="map", else None), writing `out` (dict
+        output -> (h*w, ...) host array): as many whole rows a launch as fit on the
+        device, MAX_RAYS_PER_LAUNCH pixels or one row at most."""
         rows_per_launch = self._launch_size([w * OUTPUT_WIDTH[k][0] * 4 for k in outputs],
                                             what=f"row of {w} pixels",
                                             cap=max(1, MAX_RAYS_PER_LAUNCH // w))
@@ -600,7 +605,7 @@ class Tracer:
             start, stop = row0 * w, (row0 + n_rows) * w
             self._launch("render_camera", outputs, _render.tile_slots(w, n_rows),
                          (camera_buf, map_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
-                         {k: v[start:stop] for k, v in out.items()}, ray_map=map_buf is not None)
+                         {k: v[start:stop] for k, v in out.items()}, rays=rays)
 
     def _ray_map(self, camera):
         """(map32 (H*W, 3) float32, its device buffer, valid (H*W,) bool) of a camera of
@@ -700,7 +705,7 @@ class Tracer:
         outputs = ("T", "ID")
         out = {k: page_aligned_empty(shape, dtype)
                for k, (shape, dtype) in _render.output_shapes(n, outputs).items()}
-        self._render_rows(camera_buf, map_buf, columns, rows, outputs, out)
+        self._render_rows(camera_buf, map_buf, columns, rows, outputs, out, "map")
         # the kernel's rays on the host, for the hit points: the map turned by M in
         # float32 with the kernel's arithmetic, from the eye as the kernel has it
         d = np.empty((n, 3))

@@ -306,6 +306,10 @@ void trace_rays(KD_TREE_ARGS,
  * M ray_map[p], ray_map holding 3 floats a pixel of the whole image (camera axes);
  * a pixel whose map entry is NaN has no ray and is not traced nor written (the host
  * writes its miss). ray_map is NULL without RAY_MAP.
+ * ORTHOGRAPHIC: camera holds 15 floats, M = R K^-1 / scale, then the eye less the
+ * forward axis, relative to the origin in the tree's units, then the unit forward
+ * axis: pixel (i, j)'s ray leaves eye + M [i + 0.5, j + 0.5, 1] along the forward
+ * axis (its origin on the plane through the camera's eye).
  *
  * Pixels are taken in tiles of TILE_W x TILE_H (tiles row-major, rows within a tile;
  * a batch is best one tile), so the rays a group traces one after another are
@@ -329,6 +333,9 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
     float3 m1 = vload3(1, camera);
     float3 m2 = vload3(2, camera);
     float3 eye = vload3(3, camera);
+#ifdef ORTHOGRAPHIC
+    float3 fwd = vload3(4, camera);      /* every ray's direction */
+#endif
     uint tiles_x = (width + TILE_W - 1u) / TILE_W;
     uint tiles_y = (n_rows + TILE_H - 1u) / TILE_H;
     uint n_slots = tiles_x * tiles_y * (TILE_W * TILE_H);   /* < 2^32: checked on the host */
@@ -379,6 +386,13 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             dx.v = m0.x * x.v + m0.y * y.v + m0.z * z.v;
             dy.v = m1.x * x.v + m1.y * y.v + m1.z * z.v;
             dz.v = m2.x * x.v + m2.y * y.v + m2.z * z.v;
+#elif defined(ORTHOGRAPHIC)
+            float8 x = (float8)(x0, x1, x2, x3, x0, x1, x2, x3);
+            float8 y = (float8)(y0, y0, y0, y0, y1, y1, y1, y1);
+            ox.v = eye.x + (m0.x * x + m0.y * y + m0.z);
+            oy.v = eye.y + (m1.x * x + m1.y * y + m1.z);
+            oz.v = eye.z + (m2.x * x + m2.y * y + m2.z);
+            dx.v = (float8)(fwd.x); dy.v = (float8)(fwd.y); dz.v = (float8)(fwd.z);
 #else
             float8 x = (float8)(x0, x1, x2, x3, x0, x1, x2, x3);
             float8 y = (float8)(y0, y0, y0, y0, y1, y1, y1, y1);
@@ -402,6 +416,13 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             float3 d = (float3)(m0.x * v.x + m0.y * v.y + m0.z * v.z,
                                 m1.x * v.x + m1.y * v.y + m1.z * v.z,
                                 m2.x * v.x + m2.y * v.y + m2.z * v.z);
+#elif defined(ORTHOGRAPHIC)
+            float x = (float)col + 0.5f;
+            float y = (float)(row0 + row) + 0.5f;
+            o = (float3)(eye.x + (m0.x * x + m0.y * y + m0.z),
+                         eye.y + (m1.x * x + m1.y * y + m1.z),
+                         eye.z + (m2.x * x + m2.y * y + m2.z));
+            float3 d = fwd;
 #else
             float x = (float)col + 0.5f;
             float y = (float)(row0 + row) + 0.5f;

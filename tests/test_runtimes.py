@@ -132,7 +132,7 @@ def test_render_is_trace_of_the_camera_rays(runtime, scene):
     assert (images["id"] != 0xFFFFFFFF).sum() > w * h // 10
 
 
-@pytest.mark.parametrize("model", ["opencv", "fisheye", "equirectangular"])
+@pytest.mark.parametrize("model", ["opencv", "fisheye", "equirectangular", "orthographic"])
 def test_camera_model_render_is_trace_of_its_rays(runtime, model):
     """A camera model's render (its rays made in the kernel from a ray map, RAY_MAP)
     writes every pixel, poisoned first: the hit of its own ray (Tracer.camera_rays:
@@ -147,9 +147,12 @@ def test_camera_model_render_is_trace_of_its_rays(runtime, model):
     K = np.array([[f, 0, w / 2], [0, f if model != "equirectangular" else h / np.pi, h / 2],
                   [0, 0, 1]])
     distortion = {"opencv": (-0.45, 0.08, 1e-3, -2e-3, 0.05), "fisheye": (0.05, -0.01, 0.0, 0.0),
-                  "equirectangular": ()}[model]
+                  "equirectangular": (), "orthographic": ()}[model]
     if model == "opencv":
         K = pin.K
+    if model == "orthographic":             # the sphere (radius 1) across most of the image
+        distortion = ()
+        K = np.array([[0.4 * w, 0, w / 2], [0, 0.4 * w, h / 2], [0, 0, 1]])
     cam = Camera(w, h, K, pin.cam_to_world, model, distortion)
     sizes = [(PACKET, 8, 64 * PACKET, 4), (1, 64, 256, 2)] if not runtime.simulator else [(1, 4, 12, 3)]
     for packet, local, batch, groups in sizes:
