@@ -91,13 +91,27 @@ def camera_origins(camera, origin, scale=1.0):
     if camera.model != "orthographic":
         return None
     M, eye = camera_constants(camera, origin, scale)
-    w, h = int(camera.width), int(camera.height)
-    x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
-    y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
-    o = np.empty((w * h, 3))
+    x, y = _pixel_centres(camera)
+    o = np.empty((len(x), 3))
     for r in range(3):
         o[:, r] = (eye[r] + (M[r, 0] * x + M[r, 1] * y + M[r, 2])).astype(np.float64)
     return np.asarray(origin, dtype=np.float64) + scale * o
+
+
+def _pixel_centres(camera):
+    """(x, y): (H*W,) float32 each, the centres i + 0.5, j + 0.5 of every pixel,
+    row-major, as the render kernel makes them."""
+    w, h = int(camera.width), int(camera.height)
+    x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
+    y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
+    return x, y
+
+
+def turn(M, v):
+    """The render kernel's RAY_MAP directions: M (3, 3) float32 times each row of v
+    (n, 3) float32, with its float32 arithmetic; a list of three (n,) float32 arrays."""
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return [M[r, 0] * x + M[r, 1] * y + M[r, 2] * z for r in range(3)]
 
 
 def ray_map(camera):
@@ -132,18 +146,15 @@ def camera_directions(camera, map32=None):
     column i): a list of three (H*W,) float32 arrays (x, y, z components). For a camera
     of MAP_MODELS, from its ray map (`ray_map`, or map32 when given); a pixel with no
     ray gets the optical axis, so that its miss has distance +inf, not NaN."""
-    M, _ = camera_constants(camera, np.zeros(3))
-    w, h = int(camera.width), int(camera.height)
     if camera.model == "orthographic":
-        return [np.full(w * h, c, dtype=np.float32) for c in _forward(camera)]
+        n = int(camera.width) * int(camera.height)
+        return [np.full(n, c, dtype=np.float32) for c in _forward(camera)]
+    M, _ = camera_constants(camera, np.zeros(3))
     if camera.model in MAP_MODELS:
-        v = ray_map(camera)[0] if map32 is None else map32
-        x, y, z = v[:, 0].copy(), v[:, 1].copy(), v[:, 2].copy()
-        none = np.isnan(x)
-        x[none], y[none], z[none] = 0.0, 0.0, 1.0
-        return [M[r, 0] * x + M[r, 1] * y + M[r, 2] * z for r in range(3)]
-    x = np.tile(np.arange(w, dtype=np.float32) + np.float32(0.5), h)
-    y = np.repeat(np.arange(h, dtype=np.float32) + np.float32(0.5), w)
+        v = (ray_map(camera)[0] if map32 is None else map32).copy()
+        v[np.isnan(v[:, 0])] = (0.0, 0.0, 1.0)
+        return turn(M, v)
+    x, y = _pixel_centres(camera)
     return [M[r, 0] * x + M[r, 1] * y + M[r, 2] for r in range(3)]
 
 
@@ -158,9 +169,12 @@ def camera_rays(camera, origin, scale=1.0):
     arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
     row-major. Tracing them gives the render's hits (a pixel of a MAP_MODELS camera
     with no ray: a NaN direction, which misses)."""
-    d = np.stack(camera_directions(camera), axis=1)
     if camera.model in MAP_MODELS:
-        d[~ray_map(camera)[1]] = np.nan
+        map32, valid = ray_map(camera)
+        d = np.stack(camera_directions(camera, map32), axis=1)
+        d[~valid] = np.nan
+    else:
+        d = np.stack(camera_directions(camera), axis=1)
     origins = camera_origins(camera, origin, scale)
     if origins is not None:
         return origins, d

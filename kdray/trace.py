@@ -61,11 +61,11 @@ _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
 larger than any triangle id): a test can then see any element the kernel missed."""
 
-_OUTPUTS = KERNEL_OUTPUTS + ("STATS",)
+_OUTPUTS = KERNEL_OUTPUTS + ("STATS",)   # the kernels' output arguments, in order
 
 MAPS_KEPT = 2
-"""Ray maps of camera models a Tracer keeps (12 bytes a pixel on the host and 12 on
-the device each): a dataset's views share their camera's intrinsics."""   # the kernels' output arguments, in order
+"""Ray maps (camera models', lidars') a Tracer keeps (12 bytes a ray on the host and
+12 on the device each): a dataset's views share their camera's intrinsics."""
 
 
 @dataclasses.dataclass(eq=False)
@@ -613,9 +613,15 @@ class Tracer:
         float64 maps) and kept on the device for the MAPS_KEPT most recent ones."""
         key = (camera.model, camera.K.tobytes(), tuple(camera.distortion), camera.width,
                camera.height)
+        return self._kept_map(key, lambda: _render.ray_map(camera))
+
+    def _kept_map(self, key, make):
+        """(map32, its device buffer, valid) kept under `key` (the MAPS_KEPT most
+        recently used); make() -> (map32 (n, 3) float32, valid (n,) bool or None) when
+        it is not kept."""
         entry = self._maps.pop(key, None)
         if entry is None:
-            map32, valid = _render.ray_map(camera)
+            map32, valid = make()
             entry = (map32, self._buffer(map32.reshape(-1)), valid)
             while len(self._maps) >= MAPS_KEPT:
                 self._maps.pop(next(iter(self._maps)))
@@ -680,8 +686,7 @@ class Tracer:
         # the triangle are computed: a scan has no normal or barycentric image.
         hits, _ = self._trace(origin, directions, t_max=lidar.max_range * (1 + 2.0**-16),
                               outputs=("T", "ID"))
-        if double:
-            hits = self._double_hits(hits, origin, directions)
+        hits = self._double_hits(hits, origin, directions)
         return scan_images(lidar, origin, directions, hits.t, hits.prim, self.tree.objects)
 
     def _scan_on_device(self, lidar, pose):
@@ -689,15 +694,9 @@ class Tracer:
         rows are beams, columns azimuth steps; only t and the triangle are computed."""
         from .lidar import scan_images
         rows, columns = lidar.shape
-        key = ("lidar", lidar.to_json())
-        entry = self._maps.pop(key, None)
-        if entry is None:
-            map32 = np.ascontiguousarray(lidar.directions(), dtype=np.float32)
-            entry = (map32, self._buffer(map32.reshape(-1)), None)
-            while len(self._maps) >= MAPS_KEPT:
-                self._maps.pop(next(iter(self._maps)))
-        self._maps[key] = entry
-        map32, map_buf, _ = entry
+        map32, map_buf, _ = self._kept_map(
+            ("lidar", lidar.to_json()),
+            lambda: (np.ascontiguousarray(lidar.directions(), dtype=np.float32), None))
         M = pose[:3, :3].astype(np.float32)
         eye = ((pose[:3, 3] - self._origin) / self._scale).astype(np.float32)
         camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]))
@@ -709,9 +708,8 @@ class Tracer:
         # the kernel's rays on the host, for the hit points: the map turned by M in
         # float32 with the kernel's arithmetic, from the eye as the kernel has it
         d = np.empty((n, 3))
-        x, y, z = map32[:, 0], map32[:, 1], map32[:, 2]
-        for r in range(3):
-            d[:, r] = M[r, 0] * x + M[r, 1] * y + M[r, 2] * z
+        for r, component in enumerate(_render.turn(M, map32)):
+            d[:, r] = component
         origin = self._origin + self._scale * eye.astype(np.float64)
         return scan_images(lidar, origin, d, out["T"], out["ID"], self.tree.objects)
 
