@@ -16,7 +16,8 @@ whole Tracer.render call (each camera's ray map kept from the first call, as ove
 views of a dataset: the render kernel turns the map by the pose, traces and the host
 makes the images), and apart the lens's inversion alone (what the first view of a
 camera's intrinsics adds). Prints Mrays/s and each camera's time over the pinhole's
-(median of the per-round ratios).
+(median of the per-round ratios). Then, for the opencv and fisheye cameras, how far
+their renders' hit points land from the pixel centres when OpenCV projects them.
 """
 import argparse
 import math
@@ -101,6 +102,39 @@ def main(argv=None):
         print(f"  {name:<22}inversion {1e3 * rays:7.1f} ms against a render of {1e3 * total:7.1f} "
               f"ms: a first view takes about {1e3 * (rays + total):7.1f} ms "
               f"({(rays + total) / np.median(wall['pinhole']):.2f} x the pinhole)")
+
+    reprojection(tracer, cams)
+
+
+def reprojection(tracer, cams):
+    """Print, for the opencv and fisheye cameras, how far the hit points of a render
+    (float32 `position`) land from their pixel centres when OpenCV projects them
+    (cv2.projectPoints / cv2.fisheye.projectPoints; points in front of the camera)."""
+    try:
+        import cv2
+    except ImportError:
+        print("reprojection: OpenCV not installed (opencv-python-headless)")
+        return
+    print("hit points projected by OpenCV, distance from their pixel centres (pixels):")
+    for name, c in cams.items():
+        if c.model not in ("opencv", "fisheye"):
+            continue
+        images = tracer.render(c, aovs="position,id")
+        hit = images["id"].reshape(-1) != 0xFFFFFFFF
+        p = images["position"].reshape(-1, 3)[hit].astype(np.float64)
+        cam = (p - c.eye) @ c.rotation
+        front = cam[:, 2] > 1e-3 * np.linalg.norm(cam, axis=1)
+        R = c.rotation.T
+        rvec, tvec, k = cv2.Rodrigues(R)[0], -R @ c.eye, np.array(c.distortion)
+        obj = np.ascontiguousarray(p[front]).reshape(-1, 1, 3)
+        if c.model == "fisheye":
+            px = cv2.fisheye.projectPoints(obj, rvec, tvec, c.K, k)[0].reshape(-1, 2)
+        else:
+            px = cv2.projectPoints(obj, rvec, tvec, c.K, k)[0].reshape(-1, 2)
+        j, i = np.divmod(np.flatnonzero(hit)[front], c.width)
+        err = np.hypot(px[:, 0] - (i + 0.5), px[:, 1] - (j + 0.5))
+        print(f"  {name:<22}max {err.max():.2e}, p99 {np.percentile(err, 99):.2e} "
+              f"({len(err)} points)")
 
 
 if __name__ == "__main__":
