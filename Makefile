@@ -60,13 +60,14 @@ bench-deps: $(STAMP)
 	  (apt-get install -y -q libusb-1.0-0 || (apt-get update -q && apt-get install -y -q libusb-1.0-0)); } || \
 	  echo "note: Open3D needs libusb-1.0 (apt-get install libusb-1.0-0); it is left out of the comparison"
 
-bench-trace: bench-deps
-	$(BIN)/python bench/bench_trace.py
-
-# Speed against Open3D and embreex on the same rays (1024x1024, the bunny and a
-# 1.6M-triangle mesh, with the ratios of issue 6's two workflows), then
-# bench/bench_error.py: error against run time for kdray's settings, Open3D and embreex.
+# Speed against Open3D, Mitsuba 3 and embreex on the same rays (1024x1024, the bunny and
+# a 1.6M-triangle mesh, with the ratios of issue 6's two workflows against Open3D and
+# issue 20's against Mitsuba), then bench/bench_error.py: error against run time for
+# kdray's settings and the peers.
 BENCH_MESHES ?= bunny,bunny-1.6M
+bench-trace: bench-deps
+	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
+
 bench: bench-deps
 	mkdir -p $(OUT)
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)

@@ -1,28 +1,42 @@
-"""Primary-ray speed and accuracy: kdray beside Open3D (and embreex) on the same rays.
+"""Primary-ray speed and accuracy: kdray beside Open3D, Mitsuba 3 (and embreex) on the
+same rays.
 
-usage: python bench/bench_trace.py [--meshes bunny,teapot-x256] [--size 1024]
+usage: python bench/bench_trace.py [--meshes bunny,bunny-1.6M] [--size 1024]
                                    [--repeat 5] [--sample 20000] [--device SPEC]
 
-For each mesh: build time, then for 1024 x 1024 primary rays of a framing camera
-(warm, median of --repeat rounds; kdray's and Open3D's methods run round-robin, one
-call each per round, each 0.1 s after the one before, so that the machine's drift
-hits them alike and no call pays for the one before's worker threads):
-  kdray render depth   Tracer.render(camera, ["depth"]): rays made on the device
-  kdray render default Tracer.render(camera) with depth, normal, bary, id
-  kdray trace          Tracer.trace(origins, directions) from numpy to numpy
-  open3d pinhole depth create_rays_pinhole(K, pose) + cast_rays + t_hit to numpy
-  open3d cast          RaycastingScene.cast_rays on a prepared tensor (cast only)
-  open3d numpy         numpy rays -> tensor -> cast_rays -> numpy
-  embreex              trimesh's embreex front end, numpy to numpy (if installed)
-and the ratios of the two workflows of issue 6: kdray render depth / open3d pinhole
-depth and kdray trace / open3d numpy (>= 1: kdray is faster), each the median of the
-per-round ratios of Open3D's time to kdray's.
+A header names the CPU, kdray's OpenCL device and the peers' versions. For each mesh:
+build time, then for 1024 x 1024 primary rays of a framing camera (warm, median of
+--repeat rounds; kdray's, Open3D's and Mitsuba's methods run round-robin, one call
+each per round, each 0.1 s after the one before, so that the machine's drift hits
+them alike and no call pays for the one before's worker threads):
+  kdray render depth      Tracer.render(camera, ["depth"]): rays made on the device
+  kdray render default    Tracer.render(camera) with depth, normal, bary, id
+  kdray trace             Tracer.trace(origins, directions) from numpy to numpy
+  open3d pinhole depth    create_rays_pinhole(K, pose) + cast_rays + t_hit to numpy
+  open3d cast             RaycastingScene.cast_rays on a prepared tensor (cast only)
+  open3d numpy            numpy rays -> tensor -> cast_rays -> numpy
+  mitsuba prelim coherent numpy rays (kdray trace's) -> Ray3f ->
+                          ray_intersect_preliminary(coherent=True) -> numpy t, prim
+  mitsuba intersect       the same through ray_intersect(RayFlags.All, coherent=True):
+                          the whole SurfaceInteraction evaluated, t and prim to numpy
+  mitsuba depth           the pixel rays (numpy) -> ray_intersect_preliminary -> an
+                          (H, W) z-depth image in numpy (the rays' camera-z is 1, so t
+                          along them is kdray's depth)
+  embreex                 trimesh's embreex front end, numpy to numpy (if installed)
+and the ratios of the two workflows of issue 6, kdray render depth / open3d pinhole
+depth and kdray trace / open3d numpy, and of issue 20 against Mitsuba 3's CPU ray
+casting, kdray trace / mitsuba prelim coherent and kdray render depth / mitsuba depth
+(>= 1: kdray is faster), each the median of the per-round ratios of the peer's time to
+kdray's. Mitsuba runs as bench/peers.py's MITSUBA_VARIANT (llvm_ad_rgb); a peer that
+is not installed is left out with a note.
 Accuracy on --sample random pixels against a float64 reference (the input mesh in
 float64, candidates from kdray's tree): hit/miss disagreements, relative depth error
 (99th percentile and max, over rays both hit).
 """
 import argparse
+import importlib.metadata
 import os
+import platform
 import sys
 import time
 
@@ -34,7 +48,8 @@ from meshes import mesh as bench_mesh  # noqa: E402
 import kdray  # noqa: E402
 from kdray import reference  # noqa: E402
 from kdray.render import DEFAULT_AOVS  # noqa: E402
-from peers import embreex_hits, open3d_cast, open3d_scene  # noqa: E402
+from peers import (embreex_hits, mitsuba_cast, mitsuba_module, mitsuba_rays,  # noqa: E402
+                   mitsuba_scene, mitsuba_version, open3d_cast, open3d_scene)
 from timing import median_ratio, round_robin  # noqa: E402
 
 
@@ -53,14 +68,46 @@ def accuracy(t, prim, ref_t, ref_prim, sample):
     }
 
 
+def cpu_model():
+    """The CPU's model name (/proc/cpuinfo), or what the platform module says."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.partition(":")[2].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def peer_versions():
+    """({peer: its version text, or None when it is left out}, ["# peer left out: why"]).
+    Imports the peers: call after kdray's first Tracer (see main)."""
+    def open3d():
+        import open3d as o3d
+        return f"Open3D {o3d.__version__}"
+
+    def embreex():
+        import embreex
+        try:
+            return f"embreex {importlib.metadata.version('embreex')}"
+        except importlib.metadata.PackageNotFoundError:
+            return f"embreex {getattr(embreex, '__version__', '(version unknown)')}"
+
+    versions, notes = {}, []
+    for name, version in (("open3d", open3d), ("mitsuba", mitsuba_version), ("embreex", embreex)):
+        try:
+            versions[name] = version()
+        except Exception as e:          # ImportError; OSError: Open3D without libusb-1.0
+            versions[name] = None
+            notes.append(f"# {name} left out: {e}")
+    return versions, notes
+
+
 def open3d_calls(m, o, d, camera):
     """Open3D's methods as zero-argument calls returning (t, prim or None), and its
-    build seconds; ({}, None) without Open3D."""
-    try:
-        import open3d as o3d
-    except ImportError as e:
-        print(f"# open3d left out: {e}", flush=True)
-        return {}, None
+    build seconds."""
+    import open3d as o3d
     scene, build = open3d_scene(m)
     rays = o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32))
     K = o3d.core.Tensor(np.asarray(camera.K, dtype=np.float64))
@@ -81,19 +128,42 @@ def open3d_calls(m, o, d, camera):
             "open3d numpy": lambda: open3d_cast(scene, o, d)[:2]}, build
 
 
+def mitsuba_calls(m, o, d, camera):
+    """Mitsuba 3's methods as zero-argument calls returning (t, prim or None), and its
+    build seconds. Each starts from kdray trace's numpy rays and ends in numpy arrays,
+    which waits for Dr.Jit's asynchronous kernels."""
+    mi = mitsuba_module()
+    import drjit as dr
+    scene, build = mitsuba_scene(m)
+    shape = (int(camera.height), int(camera.width))
+
+    def prelim():
+        return mitsuba_cast(scene, o, d, coherent=True)
+
+    def intersect():
+        si = scene.ray_intersect(mitsuba_rays(o, d), mi.RayFlags.All, True)
+        prim = dr.select(si.is_valid(), mi.Int64(si.prim_index), -1)
+        dr.eval(si, prim)       # all of it (p, n, uv, frames, partials), as its caller has it
+        return si.t.numpy(), prim.numpy()
+
+    def depth():
+        # an (H, W) image: t along the camera's rays, whose camera-z is 1, is the z-depth
+        # kdray renders (+inf on a miss)
+        pi = scene.ray_intersect_preliminary(mitsuba_rays(o, d), coherent=True)
+        return pi.t.numpy().reshape(shape)
+
+    return {"mitsuba prelim coherent": prelim, "mitsuba intersect": intersect,
+            "mitsuba depth": lambda: (depth().ravel(), None)}, build
+
+
 def embreex_runs(m, o, d, repeat):
-    try:
-        import embreex  # noqa: F401
-    except ImportError as e:
-        print(f"# embreex left out: {e}", flush=True)
-        return []
     build, s, t, prim, _ = embreex_hits(m, o, d, max(1, repeat // 2))
     return [("embreex", build, s, t, prim)]
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--meshes", default="bunny,teapot-x256")
+    ap.add_argument("--meshes", default="bunny,bunny-1.6M")
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--sample", type=int, default=20000)
@@ -101,13 +171,22 @@ def main():
     args = ap.parse_args()
     n_rays = args.size * args.size
     rng = np.random.default_rng(0)
+    # kdray's OpenCL device before any peer: Intel's CPU runtime fails to load in a
+    # process that has imported Open3D (which bundles an older TBB). Mitsuba imported
+    # first does no harm (checked with 3.9.1), but it comes after kdray too.
+    first = kdray.build(np.eye(3), np.array([[0, 1, 2]]))         # compiles the builder
+    device = kdray.Tracer(first, device=args.device).device
+    versions, notes = peer_versions()
+    print(f"# CPU {cpu_model()}; kdray on {device.name.strip()} ({device.platform.name.strip()}); "
+          + "; ".join(v for v in versions.values() if v))
+    for note in notes:
+        print(note)
     print(f"# {n_rays} primary rays ({args.size}x{args.size}), median of {args.repeat} warm rounds")
-    header = f"{'mesh':<12} {'tris':>9} {'method':<22} {'build s':>8} {'trace s':>8} {'Mrays/s':>8} " \
+    header = f"{'mesh':<12} {'tris':>9} {'method':<23} {'build s':>8} {'trace s':>8} {'Mrays/s':>8} " \
              f"{'disagree':>8} {'prim!=':>6} {'depth p99':>10} {'depth max':>10}"
     print(header)
     for name in args.meshes.split(","):
         m = bench_mesh(name)
-        kdray.build(m.vertices[:3], np.array([[0, 1, 2]]))           # compile the builder
         t0 = time.perf_counter()
         tree = kdray.build(m.vertices, m.faces)
         build_s = time.perf_counter() - t0
@@ -129,11 +208,16 @@ def main():
         calls = {"kdray render depth": lambda: render(("depth",)),
                  "kdray render default": lambda: render(DEFAULT_AOVS),
                  "kdray trace": trace}
-        open3d, o3d_build = open3d_calls(m, o, d, camera)
-        seconds, _, results = round_robin({**calls, **open3d}, args.repeat)
-        runs = [(method, build_s if method.startswith("kdray") else o3d_build,
-                 float(np.median(seconds[method])), *results[method]) for method in seconds]
-        runs += embreex_runs(m, o, d, args.repeat)
+        builds = {"kdray": build_s}
+        for peer, peer_calls in (("open3d", open3d_calls), ("mitsuba", mitsuba_calls)):
+            if versions[peer]:
+                more, builds[peer] = peer_calls(m, o, d, camera)
+                calls.update(more)
+        seconds, _, results = round_robin(calls, args.repeat)
+        runs = [(method, builds[method.split()[0]], float(np.median(seconds[method])),
+                 *results[method]) for method in seconds]
+        if versions["embreex"]:
+            runs += embreex_runs(m, o, d, args.repeat)
         for method, b, s, t, prim in runs:
             if prim is None:
                 prim = np.where(np.isfinite(t), 0, -1)
@@ -141,12 +225,15 @@ def main():
             else:
                 prim = np.where(np.isfinite(t), np.asarray(prim).astype(np.int64), -1)
                 acc = accuracy(t, prim, ref.t, ref.prim, sample)
-            print(f"{name:<12} {len(m.faces):>9} {method:<22} {b:>8.3f} {s:>8.4f} {n_rays / s / 1e6:>8.2f} "
+            print(f"{name:<12} {len(m.faces):>9} {method:<23} {b:>8.3f} {s:>8.4f} {n_rays / s / 1e6:>8.2f} "
                   f"{acc['disagree']:>8} {acc['prim_diff']:>6} {acc['p99']:>10.2e} {acc['max']:>10.2e}",
                   flush=True)
-        # the issue's two workflows, kdray against Open3D (>= 1 means kdray is faster)
+        # issue 6's two workflows, kdray against Open3D, and issue 20's against Mitsuba 3
+        # (>= 1 means kdray is faster)
         for ours, theirs in [("kdray render depth", "open3d pinhole depth"),
-                             ("kdray trace", "open3d numpy")]:
+                             ("kdray trace", "open3d numpy"),
+                             ("kdray trace", "mitsuba prelim coherent"),
+                             ("kdray render depth", "mitsuba depth")]:
             if theirs in seconds:
                 print(f"# {name}: {ours} / {theirs} = {median_ratio(seconds[theirs], seconds[ours]):.2f}"
                       f" (median of {len(seconds[ours])} rounds)", flush=True)

@@ -1,10 +1,12 @@
-"""Other ray casters on kdray's rays, for the bench/ scripts: Open3D's RaycastingScene
-and embreex through trimesh (the `bench` extra: pip install -e '.[bench]').
+"""Other ray casters on kdray's rays, for the bench/ scripts: Open3D's RaycastingScene,
+embreex through trimesh and Mitsuba 3 (the `bench` extra: pip install -e '.[bench]').
 
 Each `*_hits(mesh, o, d, repeat)` returns (build s, median trace s, t, prim (-1 on a
 miss), normal or None) on numpy rays, numpy hits out: the method protocol of
-`kdray.bench.run`, which `PEERS` wraps (`peer("open3d")`). Open3D and embreex are
-imported only when used.
+`kdray.bench.run`, which `PEERS` wraps (`peer("open3d")`). Open3D, embreex and Mitsuba
+are imported only when used.
+Mitsuba runs as its variant MITSUBA_VARIANT, llvm_ad_rgb (the CPU: Dr.Jit's LLVM backend
+on Mitsuba's Embree BVH), which is set at its first use here (`mitsuba_module`).
 """
 import time
 from dataclasses import dataclass
@@ -65,7 +67,87 @@ def embreex_hits(mesh, o, d, repeat):
     return build_s, s, t, prim, None
 
 
-PEERS = {"open3d": open3d_hits, "embreex": embreex_hits}
+MITSUBA_VARIANT = "llvm_ad_rgb"
+"""Mitsuba 3's variant for the peer: its CPU back end (Dr.Jit's LLVM JIT, Embree's BVH),
+RGB (the cheapest of the LLVM variants; ray casting does not depend on it)."""
+
+
+def mitsuba_module():
+    """mitsuba, imported and set to MITSUBA_VARIANT at the first call."""
+    import mitsuba as mi
+    if mi.variant() != MITSUBA_VARIANT:
+        mi.set_variant(MITSUBA_VARIANT)
+    return mi
+
+
+def mitsuba_version():
+    """Mitsuba's version and what it runs on, for a bench's header:
+    'Mitsuba 3.9.1 (llvm_ad_rgb, Dr.Jit 1.5.0, 2 threads)'."""
+    mi = mitsuba_module()
+    import drjit as dr
+    return f"Mitsuba {mi.__version__} ({mi.variant()}, Dr.Jit {dr.__version__}, " \
+           f"{dr.thread_count()} threads)"
+
+
+def mitsuba_rays(o, d):
+    """numpy (N, 3) origins and directions -> mi.Ray3f (float32, maxt +inf).
+
+    Each array is made float32 in numpy (one pass over a contiguous array), copied flat
+    into Dr.Jit and split into x, y, z by dr.unravel, a gather that runs in Dr.Jit's
+    threads. Of the conversions tried (bunny, 1024x1024 rays, a shared 2-core machine:
+    the whole cast, numpy to numpy) this was the fastest, 15-17.5 ms against 18-21 ms
+    with a (3, N) array (np.ascontiguousarray(o.T, np.float32)) or three mi.Float
+    columns per array."""
+    mi = mitsuba_module()
+    import drjit as dr
+    return mi.Ray3f(dr.unravel(mi.Point3f, mi.Float(np.ascontiguousarray(o, np.float32).ravel())),
+                    dr.unravel(mi.Vector3f, mi.Float(np.ascontiguousarray(d, np.float32).ravel())))
+
+
+def mitsuba_scene(mesh):
+    """Mitsuba 3's scene of one mesh in float32 world coordinates (no vertex normals:
+    face normals), its BVH built (Embree's, when the scene is loaded) and a first
+    one-ray cast made, as `open3d_scene` does (it compiles the cast's kernel, or loads
+    it from Dr.Jit's kernel cache). Returns (scene, build seconds)."""
+    mi = mitsuba_module()
+    t0 = time.perf_counter()
+    shape = mi.Mesh("mesh", vertex_count=len(mesh.vertices), face_count=len(mesh.faces),
+                    has_vertex_normals=False, has_vertex_texcoords=False)
+    params = mi.traverse(shape)
+    params["vertex_positions"] = mi.Float(np.ascontiguousarray(mesh.vertices, np.float32).ravel())
+    params["faces"] = mi.UInt32(np.ascontiguousarray(mesh.faces, np.uint32).ravel())
+    params.update()
+    scene = mi.load_dict({"type": "scene", "mesh": shape})
+    mitsuba_cast(scene, np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+    return scene, time.perf_counter() - t0
+
+
+def mitsuba_cast(scene, o, d, coherent=True):
+    """numpy rays -> Mitsuba's ray_intersect_preliminary -> numpy (t float32 +inf on a
+    miss, prim int64 -1 on a miss). coherent: Mitsuba's hint to Embree that neighbouring
+    rays are alike (a camera's are).
+
+    Dr.Jit is lazy and asynchronous: t and prim are evaluated together, in one kernel
+    with the cast, and .numpy() waits for it. (Calling .numpy() on each alone would
+    run the cast twice: about twice the time.)"""
+    mi = mitsuba_module()
+    import drjit as dr
+    pi = scene.ray_intersect_preliminary(mitsuba_rays(o, d), coherent=coherent)
+    prim = dr.select(dr.isfinite(pi.t), mi.Int64(pi.prim_index), -1)
+    dr.eval(pi.t, prim)
+    return pi.t.numpy(), prim.numpy()
+
+
+def mitsuba_hits(mesh, o, d, repeat):
+    """Mitsuba 3 (MITSUBA_VARIANT), numpy rays to numpy hits through
+    ray_intersect_preliminary (coherent; float32 world coordinates). Returns (build s,
+    median trace s, t, prim (-1 on a miss), None)."""
+    scene, build_s = mitsuba_scene(mesh)
+    s, (t, prim) = timed(lambda: mitsuba_cast(scene, o, d), repeat)
+    return build_s, s, t, prim, None
+
+
+PEERS = {"open3d": open3d_hits, "embreex": embreex_hits, "mitsuba": mitsuba_hits}
 """name -> method; the module each needs has the same name."""
 
 
@@ -79,9 +161,14 @@ class Peer:
 
 
 def installed(name):
-    """Whether the peer's module imports (Open3D also needs the system's libusb-1.0)."""
+    """Whether the peer's module imports (Open3D also needs the system's libusb-1.0) and,
+    for Mitsuba, its variant can be set (the LLVM back end needs a libLLVM shared library
+    on the system, or DRJIT_LIBLLVM_PATH)."""
     try:
-        __import__(name)
+        if name == "mitsuba":
+            mitsuba_module()
+        else:
+            __import__(name)
         return True
     except Exception:
         return False
