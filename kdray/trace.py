@@ -29,6 +29,7 @@ The kernels are compiled once per option set (outputs, stack size, work sizes) a
 kept on the Tracer; the kernels compute and store only the outputs asked for.
 """
 import concurrent.futures
+import ctypes
 import copy
 import dataclasses
 import functools
@@ -118,17 +119,25 @@ def default_stack_size(tree):
     return next((size for size in STACK_SIZES if size >= need), MAX_DEPTH_LIMIT)
 
 
-PACKET = 8
-"""Rays per work-item in packet mode (float8 lanes, kernels/packet.cl)."""
+PACKETS = (8, 16)
+"""Rays per work-item in packet mode: the lanes of one vector register (kernels/lanes.h),
+8 floats with AVX2, 16 with AVX-512."""
+PACKET = PACKETS[0]
+"""The narrower packet, which every CPU runtime runs at full width."""
+
 
 def default_packet(device):
-    """Rays per work-item: PACKET on CPU devices, 1 on others.
+    """Rays per work-item: on CPU devices a packet as wide as the device's native float
+    vector (16 on AVX-512, else 8), 1 on others.
 
-    PoCL runs a work-item's traversal loop scalar (a data-dependent loop does not
-    vectorize across work-items), so on a CPU 8 coherent rays share one work-item in
-    float8 lanes. A GPU already runs work-items in lock-step (SIMT): one ray each.
+    CPU runtimes run a work-item's traversal loop scalar (a data-dependent loop does not
+    vectorize across work-items), so on a CPU coherent rays share one work-item in
+    vector lanes. A GPU already runs work-items in lock-step (SIMT): one ray each.
     """
-    return PACKET if _device.is_cpu(device) else 1
+    if not _device.is_cpu(device):
+        return 1
+    width = int(getattr(device, "native_vector_width_float", 0) or 0)
+    return max(p for p in PACKETS if p <= max(width, PACKETS[0]))
 
 
 def default_work_sizes(device, packet=1):
@@ -161,8 +170,9 @@ class Tracer:
         kdray.device.choose_device) or a PYOPENCL_CTX-style string ("0:1", "intel", "pocl")
     stack_size : short-stack entries (1..64); default `default_stack_size(tree)`.
         Results do not depend on it; smaller stacks restart more often.
-    packet : rays per work-item, 1 or PACKET (8: float8 packets); default
-        `default_packet(device)`: 8 on CPUs, 1 on GPUs. Results do not depend on it.
+    packet : rays per work-item, 1, 8 or 16 (packets in vector lanes: PACKETS); default
+        `default_packet(device)`: 16 on AVX-512 CPUs, 8 on other CPUs, 1 on GPUs.
+        Results do not depend on it.
     local_size, batch_size, groups : work-group size, rays a group takes at a time
         (a multiple of local_size * packet) and work-groups launched; defaults per
         device kind (`default_work_sizes`).
@@ -189,8 +199,8 @@ class Tracer:
         self.context, self.device = _device.create_context(device)
         self.queue = cl.CommandQueue(self.context)
         self.packet = int(default_packet(self.device) if packet is None else packet)
-        if self.packet not in (1, PACKET):
-            raise KdrayError(f"packet must be 1 or {PACKET}, got {packet!r}")
+        if self.packet not in (1, *PACKETS):
+            raise KdrayError(f"packet must be 1, {' or '.join(map(str, PACKETS))}, got {packet!r}")
         d_local, d_batch, d_groups = default_work_sizes(self.device, self.packet)
         self.local_size = int(local_size or d_local)
         # default batch: the device's, rounded up to a multiple of a round's rays
@@ -301,7 +311,7 @@ class Tracer:
             defines["SCALE"] = f"{self._scale.hex()}f"
             defines["SCALE_INV"] = (1.0 / self._scale).hex()
         if self.packet > 1:
-            defines["PACKET"] = None
+            defines["PACKET"] = self.packet
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
             if self._lane_ratio is not None:
                 defines["KD_LANE_RATIO"] = f"{min(float(self._lane_ratio), 1e30):.9e}f"
@@ -377,17 +387,29 @@ class Tracer:
         self.queue.finish()
 
     def _input_buffer(self, array):
-        """A read-only device buffer of a contiguous host array: on a CPU device the
-        array itself (USE_HOST_PTR, no copy; on Intel's runtime a page-aligned copy when
-        it does not start on a page, which costs less than the runtime's copy), else a
-        copy."""
+        """(buffer, offset): a read-only device buffer holding a contiguous host array
+        from element `offset` on. On a CPU device the buffer is the host's memory
+        (USE_HOST_PTR, no copy), else a copy with offset 0.
+
+        Intel's CPU runtime works in place only on memory that starts on a page, and
+        copies anything else itself, slowly. So an array that does not start on a page
+        is passed from the start of its page, with its offset in elements: the runtime
+        and the kernel only read from it, and the page is mapped (the array is in it).
+        The caller keeps `array` alive until the launch has finished."""
         cl = _device._cl()
-        if self._page_inputs and array.ctypes.data % PAGE:
-            aligned = page_aligned_empty(array.shape, array.dtype)
-            np.copyto(aligned, array)
-            array = aligned
+        offset = 0
+        lead = array.ctypes.data % PAGE
+        if self._page_inputs and lead:
+            if lead % array.itemsize == 0:
+                region = (ctypes.c_uint8 * (lead + array.nbytes)).from_address(array.ctypes.data - lead)
+                offset = lead // array.itemsize
+                array = np.frombuffer(region, dtype=np.uint8)
+            else:
+                aligned = page_aligned_empty(array.shape, array.dtype)
+                np.copyto(aligned, array)
+                array = aligned
         flag = cl.mem_flags.USE_HOST_PTR if self._zero_copy else cl.mem_flags.COPY_HOST_PTR
-        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | flag, hostbuf=array)
+        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | flag, hostbuf=array), offset
 
     def _output_buffer(self, array):
         """A write-only device buffer for a contiguous host array: on a CPU device the
@@ -497,13 +519,14 @@ class Tracer:
         per_launch = self._launch_size(widths)
         for start in range(0, n, per_launch):
             stop = min(n, start + per_launch)
-            o_buf = self._input_buffer(o[start:stop] if o_step else o)
-            d_buf = self._input_buffer(d[start:stop])
+            o_buf, o_offset = self._input_buffer(o[start:stop] if o_step else o)
+            d_buf, d_offset = self._input_buffer(d[start:stop])
             # with double rays the kernel takes the tree's origin and shifts them itself
             origin = tuple(np.float64(x) for x in self._origin) if rays_double else ()
             # t in the tree's units is t / scale (directions are not scaled)
             self._launch("trace_rays", outputs, stop - start,
-                         (o_buf, d_buf, np.uint32(o_step), np.uint32(stop - start),
+                         (o_buf, d_buf, np.uint32(o_offset), np.uint32(d_offset),
+                          np.uint32(o_step), np.uint32(stop - start),
                           np.float32(t_min / self._scale), np.float32(t_max / self._scale),
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,

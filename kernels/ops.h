@@ -23,25 +23,6 @@ KD_INLINE bool kd_isnan(float x) { return x != x; }
 KD_INLINE
 bool kd_finite3(float3 v) { return v.x - v.x == 0.0f && v.y - v.y == 0.0f && v.z - v.z == 0.0f; }
 
-KD_INLINE float8 kd_abs8(float8 x) { return as_float8(as_uint8(x) & (uint8)(0x7FFFFFFFu)); }
-/* lanes of b where mask m is set, else of a (select(a, b, m)), as OpenCL's vector
- * ternary: Oclgrind 21.10 gets the same select written with & and | wrong, in the
- * packets' shear axes and barycentrics (tests/repros/oclgrind_vector_select.py) */
-KD_INLINE float8 kd_select8(float8 a, float8 b, int8 m) { return m ? b : a; }
-KD_INLINE int8 kd_select8i(int8 a, int8 b, int8 m) { return m ? b : a; }
-KD_INLINE uint8 kd_select8u(uint8 a, uint8 b, int8 m) { return m ? b : a; }
-KD_INLINE float8 kd_max8(float8 a, float8 b) { return kd_select8(b, a, a > b); }
-KD_INLINE float8 kd_min8(float8 a, float8 b) { return kd_select8(b, a, a < b); }
-KD_INLINE float8 kd_clamp8(float8 x, float8 lo, float8 hi) { return kd_min8(kd_max8(x, lo), hi); }
-/* some lane of mask m is set */
-KD_INLINE
-bool kd_any8(int8 m)
-{
-    int4 a = m.lo | m.hi;
-    int2 b = a.lo | a.hi;
-    return (b.x | b.y) != 0;
-}
-
 KD_INLINE
 float3 kd_cross(float3 a, float3 b)
 {

@@ -1,10 +1,13 @@
-/* kernels/packet.cl: packets of 8 rays traversed together, in float8 (Wald, Slusallek,
- * Benthin & Wagner 2001, "Interactive Rendering with Coherent Ray Tracing": the
- * packet visits the union of its rays' nodes, each ray masked to its own).
+/* kernels/packet.cl: packets of KD_PACKET rays (8 or 16) traversed together, a lane
+ * each of the vector types floatP, intP, uintP (lanes.h) (Wald, Slusallek, Benthin &
+ * Wagner 2001, "Interactive Rendering with Coherent Ray Tracing": the packet visits
+ * the union of its rays' nodes, each ray masked to its own).
  *
- * Why: PoCL runs a work-item's data-dependent loop scalar, one eighth of an AVX2 core
- * (BENCHMARKS.md); the same loop on float8 lanes runs at full width. Coherent rays
- * (a 4 x 2 block of pixels) share most nodes, so a packet costs little more than a ray.
+ * Why: CPU runtimes run a work-item's data-dependent loop scalar, one eighth or one
+ * sixteenth of a core's vector width (BENCHMARKS.md); the same loop on vector lanes
+ * runs at full width: 8 lanes fill an AVX2 register, 16 an AVX-512 one. Coherent rays
+ * (a block of 4 x 2 or 4 x 4 pixels) share most nodes, so a packet costs little more
+ * than a ray.
  *
  * Each lane makes exactly the decisions the scalar traversal (traverse.cl) makes for
  * its ray: the same t_split, slack, child ranges and early exit, and its triangle
@@ -29,7 +32,9 @@
 #include "triangle.cl"
 #include "traverse.cl"
 
-#define KD_PACKET 8
+/* the packet's width: PACKET (-D PACKET=8 or 16) */
+#define KD_PACKET PACKET
+#include "lanes.h"
 
 #ifndef PACKET_STACK_SIZE
 #define PACKET_STACK_SIZE 64
@@ -37,8 +42,8 @@
 
 #ifdef STATS
 /* per lane: x = interior nodes, y = leaves, z = triangle tests (as traverse.cl) */
-typedef struct { uint8 x, y, z; } KdPacketStats;
-#define KD_PSTAT(field, mask) ((*pstats).field += as_uint8(mask) & (uint8)(1u))
+typedef struct { uintP x, y, z; } KdPacketStats;
+#define KD_PSTAT(field, mask) ((*pstats).field += as_uintP(mask) & (uintP)(1u))
 #define KD_PSTATS_PARAM , KdPacketStats *pstats
 #define KD_PSTATS_ARG , pstats
 #else
@@ -48,43 +53,43 @@ typedef struct { uint8 x, y, z; } KdPacketStats;
 #endif
 
 typedef struct {
-    float8 okx, oky, okz;                /* origin components along each lane's kx, ky, kz */
-    float8 Sx, Sy, Sz;                   /* shear constants (RayShear) per lane */
-    int8 kx, ky, kz;                     /* shear axes per lane */
+    floatP okx, oky, okz;                /* origin components along each lane's kx, ky, kz */
+    floatP Sx, Sy, Sz;                   /* shear constants (RayShear) per lane */
+    intP kx, ky, kz;                     /* shear axes per lane */
     bool uniform;                        /* every lane has the same axes ... */
     uint ukx, uky, ukz;                  /* ... these */
-    float8 o[3], d[3];                   /* origin and direction per axis, for the planes */
-    float8 t_min, t_max;                 /* the rays' range: t_min < t < t_max */
+    floatP o[3], d[3];                   /* origin and direction per axis, for the planes */
+    floatP t_min, t_max;                 /* the rays' range: t_min < t < t_max */
 } KdPacket;
 
 /* A vector and its lanes (OpenCL C allows reading a union member other than the one
- * written last); cheaper on PoCL than vload8/vstore8 on private arrays. */
-typedef union { float8 v; float s[KD_PACKET]; } KdF8;
-typedef union { int8 v; int s[KD_PACKET]; } KdI8;
-typedef union { uint8 v; uint s[KD_PACKET]; } KdU8;
+ * written last); cheaper on PoCL than vloadn/vstoren on private arrays. */
+typedef union { floatP v; float s[KD_PACKET]; } KdFP;
+typedef union { intP v; int s[KD_PACKET]; } KdIP;
+typedef union { uintP v; uint s[KD_PACKET]; } KdUP;
 
 typedef struct {
-    float8 t;                            /* nearest t so far; t_max while none */
-    float8 V, W, det;                    /* of the nearest hit: u = V / det, v = W / det */
-    uint8 tri;                           /* its triangle index, KD_NO_HIT while none */
+    floatP t;                            /* nearest t so far; t_max while none */
+    floatP V, W, det;                    /* of the nearest hit: u = V / det, v = W / det */
+    uintP tri;                           /* its triangle index, KD_NO_HIT while none */
 } KdPacketHit;
 
-/* Where the 8 (ray, triangle) pairs of a test come from, for the rare lanes decided
+/* Where the KD_PACKET (ray, triangle) pairs of a test come from, for the rare lanes decided
  * again in double: the packet's rays and one triangle (lane < 0: p0, p1, p2), or
- * lane `lane`'s ray and 8 triangles (q: 9 vectors, v0 x y z, v1 x y z, v2 x y z). */
+ * lane `lane`'s ray and KD_PACKET triangles (q: 9 vectors, v0 x y z, v1 x y z, v2 x y z). */
 typedef struct {
     const KdPacket *r;
     int lane;
     float3 p0, p1, p2;
-    const KdF8 *q;
+    const KdFP *q;
 } KdPairs;
 
 /* Lane l's shear and origin. */
 KD_INLINE
 void kd_lane_shear(const KdPacket *r, uint l, RayShear *s, float3 *o)
 {
-    KdI8 kx, ky, kz;
-    KdF8 Sx, Sy, Sz, ox, oy, oz;
+    KdIP kx, ky, kz;
+    KdFP Sx, Sy, Sz, ox, oy, oz;
     kx.v = r->kx; ky.v = r->ky; kz.v = r->kz;
     Sx.v = r->Sx; Sy.v = r->Sy; Sz.v = r->Sz;
     ox.v = r->o[0]; oy.v = r->o[1]; oz.v = r->o[2];
@@ -106,7 +111,7 @@ double kd_pair_t_double(const KdPairs *src, uint l, double *bound)
         return kd_t_double(&s, o, src->p0, src->p1, src->p2, bound);
     }
     kd_lane_shear(src->r, (uint)src->lane, &s, &o);
-    const KdF8 *q = src->q;
+    const KdFP *q = src->q;
     float3 p0 = (float3)(q[0].s[l], q[1].s[l], q[2].s[l]);
     float3 p1 = (float3)(q[3].s[l], q[4].s[l], q[5].s[l]);
     float3 p2 = (float3)(q[6].s[l], q[7].s[l], q[8].s[l]);
@@ -114,38 +119,38 @@ double kd_pair_t_double(const KdPairs *src, uint l, double *bound)
 }
 #endif
 
-/* The test of triangle.cl on 8 (ray, triangle) pairs, one per lane, for the lanes in
+/* The test of triangle.cl on KD_PACKET (ray, triangle) pairs, one per lane, for the lanes in
  * `act`: the vertices P along each lane's shear axes (kx, ky, kz), the ray's origin
  * along them and its shear constants, its range (t_min, t_max) and best hit so far
- * (best_t, best_tri), the triangle's index tri8 (tri_ids: input ids, for ties).
+ * (best_t, best_tri), the triangle's index triP (tri_ids: input ids, for ties).
  * Returns the lanes that hit before their best, with t, V, W and det (u = V / det,
  * v = W / det). */
 KD_INLINE  /* a call would pass its vectors through memory */
-int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, float8 P1z,
-                   float8 P2x, float8 P2y, float8 P2z,
-                   float8 okx, float8 oky, float8 okz, float8 Sx, float8 Sy, float8 Sz,
-                   float8 t_min, float8 t_max, float8 best_t, uint8 best_tri, uint8 tri8,
-                   __global const uint *tri_ids, int8 act, const KdPairs *src,
-                   float8 *t_out, float8 *V_out, float8 *W_out, float8 *det_out)
+intP kd_test_pairs(floatP P0x, floatP P0y, floatP P0z, floatP P1x, floatP P1y, floatP P1z,
+                   floatP P2x, floatP P2y, floatP P2z,
+                   floatP okx, floatP oky, floatP okz, floatP Sx, floatP Sy, floatP Sz,
+                   floatP t_min, floatP t_max, floatP best_t, uintP best_tri, uintP triP,
+                   __global const uint *tri_ids, intP act, const KdPairs *src,
+                   floatP *t_out, floatP *V_out, floatP *W_out, floatP *det_out)
 {
     /* Vertices relative to the ray origins, sheared (intersect_triangle's steps) */
-    float8 Az = P0z - okz, Bz = P1z - okz, Cz = P2z - okz;
-    float8 Ax = (P0x - okx) - Sx * Az;
-    float8 Ay = (P0y - oky) - Sy * Az;
-    float8 Bx = (P1x - okx) - Sx * Bz;
-    float8 By = (P1y - oky) - Sy * Bz;
-    float8 Cx = (P2x - okx) - Sx * Cz;
-    float8 Cy = (P2y - oky) - Sy * Cz;
+    floatP Az = P0z - okz, Bz = P1z - okz, Cz = P2z - okz;
+    floatP Ax = (P0x - okx) - Sx * Az;
+    floatP Ay = (P0y - oky) - Sy * Az;
+    floatP Bx = (P1x - okx) - Sx * Bz;
+    floatP By = (P1y - oky) - Sy * Bz;
+    floatP Cx = (P2x - okx) - Sx * Cz;
+    floatP Cy = (P2y - oky) - Sy * Cz;
 
-    float8 U = Cx * By - Cy * Bx;
-    float8 V = Ax * Cy - Ay * Cx;
-    float8 W = Bx * Ay - By * Ax;
+    floatP U = Cx * By - Cy * Bx;
+    floatP V = Ax * Cy - Ay * Cx;
+    floatP W = Bx * Ay - By * Ax;
 #ifdef cl_khr_fp64
-    int8 zero = act & ((U == 0.0f) | (V == 0.0f) | (W == 0.0f));
-    if (kd_any8(zero)) {
-        /* lane by lane (double8 to float8 conversions crash PoCL's LLVM) */
-        KdF8 ax, ay, bx, by, cx, cy, u, v, w;
-        KdI8 z;
+    intP zero = act & ((U == 0.0f) | (V == 0.0f) | (W == 0.0f));
+    if (kd_anyP(zero)) {
+        /* lane by lane (double vector to float vector conversions crash PoCL's LLVM) */
+        KdFP ax, ay, bx, by, cx, cy, u, v, w;
+        KdIP z;
         ax.v = Ax; ay.v = Ay; bx.v = Bx; by.v = By; cx.v = Cx; cy.v = Cy;
         u.v = U; v.v = V; w.v = W; z.v = zero;
         for (uint l = 0; l < KD_PACKET; l++) {
@@ -160,24 +165,24 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
         W = w.v;
     }
 #endif
-    int8 cand = act & (((U >= 0.0f) & (V >= 0.0f) & (W >= 0.0f))
+    intP cand = act & (((U >= 0.0f) & (V >= 0.0f) & (W >= 0.0f))
                        | ((U <= 0.0f) & (V <= 0.0f) & (W <= 0.0f)));
-    if (!kd_any8(cand))
+    if (!kd_anyP(cand))
         return cand;
-    float8 det = U + V + W;
-    float8 T = U * (Sz * Az) + V * (Sz * Bz) + W * (Sz * Cz);
-    float8 det_abs = kd_abs8(det);
-    float8 t = T / det;
+    floatP det = U + V + W;
+    floatP T = U * (Sz * Az) + V * (Sz * Bz) + W * (Sz * Cz);
+    floatP det_abs = kd_absP(det);
+    floatP t = T / det;
     cand &= (det != 0.0f);
 #if defined(REFINE) && defined(cl_khr_fp64)
     /* t of a far-reaching triangle from double before it is compared (intersect_triangle) */
-    int8 in_double = cand & !(kd_abs8(Sz) * kd_max8(kd_abs8(Az), kd_max8(kd_abs8(Bz), kd_abs8(Cz)))
-                              <= KD_FAR_REACH * kd_abs8(t));
-    if (kd_any8(in_double)) {
-        KdI8 in_l, ok_l;
-        KdF8 t_l;
+    intP in_double = cand & !(kd_absP(Sz) * kd_maxP(kd_absP(Az), kd_maxP(kd_absP(Bz), kd_absP(Cz)))
+                              <= KD_FAR_REACH * kd_absP(t));
+    if (kd_anyP(in_double)) {
+        KdIP in_l, ok_l;
+        KdFP t_l;
         in_l.v = in_double; t_l.v = t;
-        ok_l.v = (int8)(-1);
+        ok_l.v = (intP)(-1);
         for (uint l = 0; l < KD_PACKET; l++) {
             if (!in_l.s[l])
                 continue;
@@ -193,32 +198,32 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
     }
 #endif
     cand &= (t > t_min) & (t < t_max);
-    int8 tie = cand & (t == best_t);     /* rare: compare input ids (kd_before) */
+    intP tie = cand & (t == best_t);     /* rare: compare input ids (kd_before) */
     cand &= t < best_t;
-    if (kd_any8(tie)) {
-        KdI8 tie_l, win;
-        KdU8 a, b;
-        tie_l.v = tie; a.v = tri8; b.v = best_tri;
-        win.v = (int8)(0);
+    if (kd_anyP(tie)) {
+        KdIP tie_l, win;
+        KdUP a, b;
+        tie_l.v = tie; a.v = triP; b.v = best_tri;
+        win.v = (intP)(0);
         for (uint l = 0; l < KD_PACKET; l++)
             if (tie_l.s[l] && tri_ids[a.s[l]] < tri_ids[b.s[l]])
                 win.s[l] = -1;
         cand |= win.v;
     }
-    if (!kd_any8(cand))
+    if (!kd_anyP(cand))
         return cand;
 
     /* The bound on t's rounding error (triangle.cl) */
-    KD_T_ERROR_BOUND(float8, kd_abs8, kd_max8, KD_GAMMA, Sz, det_abs, delta_t)
+    KD_T_ERROR_BOUND(floatP, kd_absP, kd_maxP, KD_GAMMA, Sz, det_abs, delta_t)
 #if defined(REFINE) && defined(cl_khr_fp64)
-    int8 doubt = cand & ~in_double & !(t > delta_t);
+    intP doubt = cand & ~in_double & !(t > delta_t);
 #else
-    int8 doubt = cand & !(t > delta_t);
+    intP doubt = cand & !(t > delta_t);
 #endif
-    if (kd_any8(doubt)) {
-        KdI8 doubt_l, ok_l;
+    if (kd_anyP(doubt)) {
+        KdIP doubt_l, ok_l;
         doubt_l.v = doubt;
-        ok_l.v = (int8)(0);
+        ok_l.v = (intP)(0);
 #ifdef cl_khr_fp64
         for (uint l = 0; l < KD_PACKET; l++) {
             double bound;
@@ -237,79 +242,79 @@ int8 kd_test_pairs(float8 P0x, float8 P0y, float8 P0z, float8 P1x, float8 P1y, f
 
 /* Component k of p for each lane (k per lane: 0, 1, 2). */
 KD_INLINE
-float8 kd_pick8(float3 p, int8 k)
+floatP kd_pickP(float3 p, intP k)
 {
-    return kd_select8(kd_select8((float8)(p.x), (float8)(p.y), k == 1), (float8)(p.z), k == 2);
+    return kd_selectP(kd_selectP((floatP)(p.x), (floatP)(p.y), k == 1), (floatP)(p.z), k == 2);
 }
 
 /* Every lane in `act` against triangle `tri` (p0, p1, p2); lanes where it hits before
  * their best hit take it. */
 KD_INLINE
 void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uint tri,
-                         __global const uint *tri_ids, int8 act, KdPacketHit *h)
+                         __global const uint *tri_ids, intP act, KdPacketHit *h)
 {
-    float8 P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
+    floatP P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
     if (r->uniform) {
-        P0x = (float8)(kd_comp(p0, r->ukx)); P0y = (float8)(kd_comp(p0, r->uky));
-        P0z = (float8)(kd_comp(p0, r->ukz));
-        P1x = (float8)(kd_comp(p1, r->ukx)); P1y = (float8)(kd_comp(p1, r->uky));
-        P1z = (float8)(kd_comp(p1, r->ukz));
-        P2x = (float8)(kd_comp(p2, r->ukx)); P2y = (float8)(kd_comp(p2, r->uky));
-        P2z = (float8)(kd_comp(p2, r->ukz));
+        P0x = (floatP)(kd_comp(p0, r->ukx)); P0y = (floatP)(kd_comp(p0, r->uky));
+        P0z = (floatP)(kd_comp(p0, r->ukz));
+        P1x = (floatP)(kd_comp(p1, r->ukx)); P1y = (floatP)(kd_comp(p1, r->uky));
+        P1z = (floatP)(kd_comp(p1, r->ukz));
+        P2x = (floatP)(kd_comp(p2, r->ukx)); P2y = (floatP)(kd_comp(p2, r->uky));
+        P2z = (floatP)(kd_comp(p2, r->ukz));
     } else {
-        P0x = kd_pick8(p0, r->kx); P0y = kd_pick8(p0, r->ky); P0z = kd_pick8(p0, r->kz);
-        P1x = kd_pick8(p1, r->kx); P1y = kd_pick8(p1, r->ky); P1z = kd_pick8(p1, r->kz);
-        P2x = kd_pick8(p2, r->kx); P2y = kd_pick8(p2, r->ky); P2z = kd_pick8(p2, r->kz);
+        P0x = kd_pickP(p0, r->kx); P0y = kd_pickP(p0, r->ky); P0z = kd_pickP(p0, r->kz);
+        P1x = kd_pickP(p1, r->kx); P1y = kd_pickP(p1, r->ky); P1z = kd_pickP(p1, r->kz);
+        P2x = kd_pickP(p2, r->kx); P2y = kd_pickP(p2, r->ky); P2z = kd_pickP(p2, r->kz);
     }
     KdPairs src;
     src.r = r; src.lane = -1; src.p0 = p0; src.p1 = p1; src.p2 = p2; src.q = 0;
-    uint8 tri8 = (uint8)(tri);
-    float8 t, V, W, det;
-    int8 cand = kd_test_pairs(P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z,
+    uintP triP = (uintP)(tri);
+    floatP t, V, W, det;
+    intP cand = kd_test_pairs(P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z,
                               r->okx, r->oky, r->okz, r->Sx, r->Sy, r->Sz, r->t_min, r->t_max,
-                              h->t, h->tri, tri8, tri_ids, act, &src, &t, &V, &W, &det);
-    if (!kd_any8(cand))
+                              h->t, h->tri, triP, tri_ids, act, &src, &t, &V, &W, &det);
+    if (!kd_anyP(cand))
         return;
-    h->t = kd_select8(h->t, t, cand);
-    h->V = kd_select8(h->V, V, cand);
-    h->W = kd_select8(h->W, W, cand);
-    h->det = kd_select8(h->det, det, cand);
-    h->tri = kd_select8u(h->tri, tri8, cand);
+    h->t = kd_selectP(h->t, t, cand);
+    h->V = kd_selectP(h->V, V, cand);
+    h->W = kd_selectP(h->W, W, cand);
+    h->det = kd_selectP(h->det, det, cand);
+    h->tri = kd_selectPu(h->tri, triP, cand);
 }
 
-/* Lane l's ray against up to 8 triangles at once, the lanes of q in `valid` (indices
- * tri8): the pairs and arithmetic of kd_packet_intersect with rays and triangles
+/* Lane l's ray against up to KD_PACKET triangles at once, the lanes of q in `valid` (indices
+ * triP): the pairs and arithmetic of kd_packet_intersect with rays and triangles
  * swapped. Lane l of h takes the first hit in the order (t, index). */
 KD_INLINE
-void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int8 valid,
+void kd_lane_intersect(const KdPacket *r, uint l, const KdFP *q, uintP triP, intP valid,
                        __global const uint *tri_ids, KdPacketHit *h)
 {
     RayShear s;
     float3 o;
     kd_lane_shear(r, l, &s, &o);
-    KdF8 t_min, t_max, ht;
-    KdU8 htri;
+    KdFP t_min, t_max, ht;
+    KdUP htri;
     t_min.v = r->t_min; t_max.v = r->t_max;
     ht.v = h->t; htri.v = h->tri;
     uint ax = s.kx, ay = s.ky, az = s.kz;
     KdPairs src;
     src.r = r; src.lane = (int)l; src.q = q;
-    float8 t, V, W, det;
-    int8 cand = kd_test_pairs(q[ax].v, q[ay].v, q[az].v, q[3 + ax].v, q[3 + ay].v, q[3 + az].v,
+    floatP t, V, W, det;
+    intP cand = kd_test_pairs(q[ax].v, q[ay].v, q[az].v, q[3 + ax].v, q[3 + ay].v, q[3 + az].v,
                               q[6 + ax].v, q[6 + ay].v, q[6 + az].v,
-                              (float8)(kd_comp(o, ax)), (float8)(kd_comp(o, ay)),
-                              (float8)(kd_comp(o, az)),
-                              (float8)(s.Sx), (float8)(s.Sy), (float8)(s.Sz),
-                              (float8)(t_min.s[l]), (float8)(t_max.s[l]),
-                              (float8)(ht.s[l]), (uint8)(htri.s[l]), tri8, tri_ids, valid, &src,
+                              (floatP)(kd_comp(o, ax)), (floatP)(kd_comp(o, ay)),
+                              (floatP)(kd_comp(o, az)),
+                              (floatP)(s.Sx), (floatP)(s.Sy), (floatP)(s.Sz),
+                              (floatP)(t_min.s[l]), (floatP)(t_max.s[l]),
+                              (floatP)(ht.s[l]), (uintP)(htri.s[l]), triP, tri_ids, valid, &src,
                               &t, &V, &W, &det);
-    if (!kd_any8(cand))
+    if (!kd_anyP(cand))
         return;
     /* the first candidate in the order (t, index); each one is before lane l's best */
-    KdI8 c;
-    KdF8 tl, Vl, Wl, dl, hV, hW, hd;
-    KdU8 il;
-    c.v = cand; tl.v = t; Vl.v = V; Wl.v = W; dl.v = det; il.v = tri8;
+    KdIP c;
+    KdFP tl, Vl, Wl, dl, hV, hW, hd;
+    KdUP il;
+    c.v = cand; tl.v = t; Vl.v = V; Wl.v = W; dl.v = det; il.v = triP;
     uint best = KD_PACKET;
     for (uint j = 0; j < KD_PACKET; j++)
         if (c.s[j] && (best == KD_PACKET || kd_before(tl.s[j], il.s[j], tl.s[best], il.s[best], tri_ids)))
@@ -320,43 +325,33 @@ void kd_lane_intersect(const KdPacket *r, uint l, const KdF8 *q, uint8 tri8, int
     h->t = ht.v; h->V = hV.v; h->W = hW.v; h->det = hd.v; h->tri = htri.v;
 }
 
-/* The number of lanes set in mask m. */
-KD_INLINE
-uint kd_count8(int8 m)
-{
-    uint8 b = as_uint8(m) >> 31;
-    uint4 a = b.lo + b.hi;
-    uint2 c = a.lo + a.hi;
-    return c.x + c.y;
-}
-
 #ifndef KD_LANE_RATIO
 #define KD_LANE_RATIO 0.5f
 #endif
 
 /* Leaf: every lane in `act` tests the leaf's triangles. Where few lanes reach a leaf
  * (most leaves, once triangles are smaller than a packet's footprint) the leaf is
- * tested ray by ray against 8 triangles at a time: a * ceil(n / 8) tests of 8 lanes
- * instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for gathering the
+ * tested ray by ray against P = KD_PACKET triangles at a time: a * ceil(n / P) tests
+ * of P lanes instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for gathering the
  * triangles. The pairs and their arithmetic are the same either way. */
 KD_INLINE
 void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
-                    const KdPacket *r, int8 act, KdPacketHit *h KD_PSTATS_PARAM)
+                    const KdPacket *r, intP act, KdPacketHit *h KD_PSTATS_PARAM)
 {
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
-    uint a = kd_count8(act);
+    uint a = kd_countP(act);
     if ((float)(a * ((count + KD_PACKET - 1) / KD_PACKET)) < KD_LANE_RATIO * (float)count) {
-        KdI8 act_l;
+        KdIP act_l;
         act_l.v = act;
         for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
             uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
             /* lanes past the leaf's end hold zeros and stay off */
-            KdF8 q[9];
+            KdFP q[9];
             for (uint c = 0; c < 9; c++)
-                q[c].v = (float8)(0.0f);
+                q[c].v = (floatP)(0.0f);
             /* the leaf's triangles are a run (layout.h): lane j is triangle first + i0 + j */
-            uint8 tri8 = (uint8)(first + i0) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7);
+            uintP triP = (uintP)(first + i0) + KD_LANE_INDEX_U;
             __global const float *p = tris + 9 * (size_t)(first + i0);
             for (uint j = 0; j < m; j++) {
                 /* unrolled, so that LLVM gathers 4 triangles at a time into SSE vectors
@@ -365,18 +360,18 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
                 for (uint c = 0; c < 9; c++)
                     q[c].s[j] = p[9 * j + c];
             }
-            KdI8 valid;
-            valid.v = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)((int)m);
+            KdIP valid;
+            valid.v = KD_LANE_INDEX < (intP)((int)m);
             for (uint l = 0; l < KD_PACKET; l++) {
                 if (!act_l.s[l])
                     continue;
 #ifdef STATS
-                KdU8 z;
+                KdUP z;
                 z.v = (*pstats).z;
                 z.s[l] += m;
                 (*pstats).z = z.v;
 #endif
-                kd_lane_intersect(r, l, q, tri8, valid.v, tri_ids, h);
+                kd_lane_intersect(r, l, q, triP, valid.v, tri_ids, h);
             }
         }
         return;
@@ -395,52 +390,52 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
 KD_INLINE
 void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
                         __global const float *tris, __global const uint *tri_ids,
-                        const KdPacket *r, int8 act, float8 t_enter, float8 t_exit,
-                        KdPacketHit *h, int8 *fallback KD_PSTATS_PARAM)
+                        const KdPacket *r, intP act, floatP t_enter, floatP t_exit,
+                        KdPacketHit *h, intP *fallback KD_PSTATS_PARAM)
 {
     uint stack_node[PACKET_STACK_SIZE];
-    float8 stack_t_min[PACKET_STACK_SIZE];
-    float8 stack_t_max[PACKET_STACK_SIZE];
-    int8 stack_act[PACKET_STACK_SIZE];
+    floatP stack_t_min[PACKET_STACK_SIZE];
+    floatP stack_t_max[PACKET_STACK_SIZE];
+    intP stack_act[PACKET_STACK_SIZE];
     uint count = 0;
-    int8 live = act;                     /* lanes still looking for their hit */
+    intP live = act;                     /* lanes still looking for their hit */
     uint leaves = 0;
 
     uint node = 0;
-    float8 t_min_cur = t_enter;
-    float8 t_max_cur = t_exit;
+    floatP t_min_cur = t_enter;
+    floatP t_max_cur = t_exit;
 
     for (;;) {
         KdNode n = nodes[node];
-        while (!kd_is_leaf(n) && kd_any8(act)) {
+        while (!kd_is_leaf(n) && kd_anyP(act)) {
             KD_PSTAT(x, act);
             uint axis = kd_split_axis(n);
             float split = kd_split(n);
-            float8 o_k = r->o[axis];
-            float8 d_k = r->d[axis];
-            float8 t_split = (split - o_k) / d_k;
+            floatP o_k = r->o[axis];
+            floatP d_k = r->d[axis];
+            floatP t_split = (split - o_k) / d_k;
             uint below = node + 1u;
             uint above = kd_above_child(n);
 
             /* Each lane's own near child and the children it needs (traverse.cl) */
-            int8 below_first_l = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
-            float8 t_lo = t_min_cur * (1.0f - KD_T_SLACK);
-            float8 t_hi = t_max_cur * (1.0f + KD_T_SLACK);
-            int8 near_only = (t_split > t_hi) | (t_split <= 0.0f);
-            int8 far_only = ~near_only & (t_split < t_lo);
-            int8 both = act & ~near_only & ~far_only;
+            intP below_first_l = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
+            floatP t_lo = t_min_cur * (1.0f - KD_T_SLACK);
+            floatP t_hi = t_max_cur * (1.0f + KD_T_SLACK);
+            intP near_only = (t_split > t_hi) | (t_split <= 0.0f);
+            intP far_only = ~near_only & (t_split < t_lo);
+            intP both = act & ~near_only & ~far_only;
             /* The packet's order is that of the lanes needing both children; a lane in
              * the plane (t_split NaN), or needing both in the other order, leaves */
-            int8 leave = act & (t_split != t_split);
-            bool below_first = kd_any8(both & ~leave & below_first_l)
-                               || !kd_any8(both & ~leave) && kd_any8(act & ~leave & below_first_l);
+            intP leave = act & (t_split != t_split);
+            bool below_first = kd_anyP(both & ~leave & below_first_l)
+                               || !kd_anyP(both & ~leave) && kd_anyP(act & ~leave & below_first_l);
             leave |= both & (below_first ? ~below_first_l : below_first_l);
-            if (kd_any8(leave)) {
+            if (kd_anyP(leave)) {
                 *fallback |= leave;
                 live &= ~leave;
                 act &= ~leave;
                 both &= ~leave;
-                if (!kd_any8(act))
+                if (!kd_anyP(act))
                     break;
             }
             uint first = below_first ? below : above;
@@ -448,13 +443,13 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
             /* A lane with the packet's order needs first (its near child) unless
              * far_only and second unless near_only; one with the other order needs a
              * single child: first if that is its far one */
-            int8 same = below_first ? below_first_l : ~below_first_l;
-            int8 need_first = act & kd_select8i(far_only, ~far_only, same);
-            int8 need_second = act & kd_select8i(near_only, ~near_only, same);
-            float8 t_mid = kd_clamp8(t_split, t_min_cur, t_max_cur);
-            if (!kd_any8(need_second)) {
+            intP same = below_first ? below_first_l : ~below_first_l;
+            intP need_first = act & kd_selectPi(far_only, ~far_only, same);
+            intP need_second = act & kd_selectPi(near_only, ~near_only, same);
+            floatP t_mid = kd_clampP(t_split, t_min_cur, t_max_cur);
+            if (!kd_anyP(need_second)) {
                 node = first;
-            } else if (!kd_any8(need_first)) {
+            } else if (!kd_anyP(need_first)) {
                 node = second;
             } else {
                 if (count == PACKET_STACK_SIZE) {
@@ -463,18 +458,18 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
                     return;
                 }
                 stack_node[count] = second;
-                stack_t_min[count] = kd_select8(t_min_cur, t_mid, both);
+                stack_t_min[count] = kd_selectP(t_min_cur, t_mid, both);
                 stack_t_max[count] = t_max_cur;
                 stack_act[count] = need_second;
                 count++;
                 node = first;
-                t_max_cur = kd_select8(t_max_cur, t_mid, both);
+                t_max_cur = kd_selectP(t_max_cur, t_mid, both);
                 act = need_first;
             }
             n = nodes[node];
         }
 
-        if (kd_any8(act)) {
+        if (kd_anyP(act)) {
             if (++leaves > max_leaves)
                 return;
             KD_PSTAT(y, act);
@@ -484,15 +479,15 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
         }
 
         /* Pop the next entry with a live lane */
-        act = (int8)(0);
-        while (count > 0 && !kd_any8(act)) {
+        act = (intP)(0);
+        while (count > 0 && !kd_anyP(act)) {
             count--;
             node = stack_node[count];
             t_min_cur = stack_t_min[count];
             t_max_cur = stack_t_max[count];
             act = stack_act[count] & live;
         }
-        if (!kd_any8(act))
+        if (!kd_anyP(act))
             return;
     }
 }
@@ -500,21 +495,21 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
 /* One axis of trace_ray's box clip (kd_slab) for every lane: t0, t1 narrowed where d
  * is not zero; returns the lanes still inside. */
 KD_INLINE
-int8 kd_slab8(float8 o, float8 d, float lo, float hi, float8 *t0, float8 *t1)
+intP kd_slabP(floatP o, floatP d, float lo, float hi, floatP *t0, floatP *t1)
 {
-    int8 flat = d == 0.0f;
-    float8 ta = (lo - o) / d;
-    float8 tb = (hi - o) / d;
-    *t0 = kd_select8(kd_max8(*t0, kd_min8(ta, tb)), *t0, flat);
-    *t1 = kd_select8(kd_min8(*t1, kd_max8(ta, tb)), *t1, flat);
+    intP flat = d == 0.0f;
+    floatP ta = (lo - o) / d;
+    floatP tb = (hi - o) / d;
+    *t0 = kd_selectP(kd_maxP(*t0, kd_minP(ta, tb)), *t0, flat);
+    *t1 = kd_selectP(kd_minP(*t1, kd_maxP(ta, tb)), *t1, flat);
     return ~flat | ((o >= lo) & (o <= hi));
 }
 
 /* Component k (per lane: 0, 1, 2) of the vector (x, y, z) per lane. */
 KD_INLINE
-float8 kd_comp8(float8 x, float8 y, float8 z, int8 k)
+floatP kd_compP(floatP x, floatP y, floatP z, intP k)
 {
-    return kd_select8(kd_select8(x, y, k == 1), z, k == 2);
+    return kd_selectP(kd_selectP(x, y, k == 1), z, k == 2);
 }
 
 /* Nearest hits of the rays o + t d (per lane, relative to the tree's origin) with
@@ -523,86 +518,86 @@ float8 kd_comp8(float8 x, float8 y, float8 z, int8 k)
  * miss) per lane, and with STATS per-lane counts. */
 KD_INLINE
 void trace_packet(__global const KdNode *nodes, uint n_nodes,
-                  __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax, int8 on,
-                  float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz,
+                  __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax, intP on,
+                  floatP ox, floatP oy, floatP oz, floatP dx, floatP dy, floatP dz,
                   float t_min, float t_max,
-                  float8 *t_out, float8 *u_out, float8 *v_out, uint8 *tri_out
+                  floatP *t_out, floatP *u_out, floatP *v_out, uintP *tri_out
 #ifdef STATS
-                  , KdU8 *stat_x, KdU8 *stat_y, KdU8 *stat_z, KdU8 *stat_w
+                  , KdUP *stat_x, KdUP *stat_y, KdUP *stat_z, KdUP *stat_w
 #endif
                   )
 {
     /* trace_ray's checks and box clip, lane by lane in vectors */
-    int8 finite = (ox - ox == 0.0f) & (oy - oy == 0.0f) & (oz - oz == 0.0f)
+    intP finite = (ox - ox == 0.0f) & (oy - oy == 0.0f) & (oz - oz == 0.0f)
                   & (dx - dx == 0.0f) & (dy - dy == 0.0f) & (dz - dz == 0.0f);
     on &= finite & ~((dx == 0.0f) & (dy == 0.0f) & (dz == 0.0f));
-    float8 t_enter = (float8)(t_min), t_exit = (float8)(t_max);
-    on &= kd_slab8(ox, dx, bmin.x, bmax.x, &t_enter, &t_exit);
-    on &= kd_slab8(oy, dy, bmin.y, bmax.y, &t_enter, &t_exit);
-    on &= kd_slab8(oz, dz, bmin.z, bmax.z, &t_enter, &t_exit);
+    floatP t_enter = (floatP)(t_min), t_exit = (floatP)(t_max);
+    on &= kd_slabP(ox, dx, bmin.x, bmax.x, &t_enter, &t_exit);
+    on &= kd_slabP(oy, dy, bmin.y, bmax.y, &t_enter, &t_exit);
+    on &= kd_slabP(oz, dz, bmin.z, bmax.z, &t_enter, &t_exit);
     on &= t_enter <= t_exit;
 
     /* ray_shear for every lane */
     KdPacket r;
-    float8 ax = kd_abs8(dx), ay = kd_abs8(dy), az = kd_abs8(dz);
-    int8 kz = kd_select8i(kd_select8i((int8)(2), (int8)(1), ay >= az),
-                          kd_select8i((int8)(2), (int8)(0), ax >= az), ax >= ay);
-    int8 kx = kd_select8i(kz + 1, (int8)(0), kz == 2);
-    int8 ky = kd_select8i(kx + 1, (int8)(0), kx == 2);
-    float8 d_kz = kd_comp8(dx, dy, dz, kz);
-    int8 flip = d_kz < 0.0f;              /* swap kx, ky: keeps the winding */
-    int8 k = kx;
-    kx = kd_select8i(kx, ky, flip);
-    ky = kd_select8i(ky, k, flip);
+    floatP ax = kd_absP(dx), ay = kd_absP(dy), az = kd_absP(dz);
+    intP kz = kd_selectPi(kd_selectPi((intP)(2), (intP)(1), ay >= az),
+                          kd_selectPi((intP)(2), (intP)(0), ax >= az), ax >= ay);
+    intP kx = kd_selectPi(kz + 1, (intP)(0), kz == 2);
+    intP ky = kd_selectPi(kx + 1, (intP)(0), kx == 2);
+    floatP d_kz = kd_compP(dx, dy, dz, kz);
+    intP flip = d_kz < 0.0f;              /* swap kx, ky: keeps the winding */
+    intP k = kx;
+    kx = kd_selectPi(kx, ky, flip);
+    ky = kd_selectPi(ky, k, flip);
     r.kx = kx; r.ky = ky; r.kz = kz;
-    r.Sx = kd_comp8(dx, dy, dz, kx) / d_kz;
-    r.Sy = kd_comp8(dx, dy, dz, ky) / d_kz;
+    r.Sx = kd_compP(dx, dy, dz, kx) / d_kz;
+    r.Sy = kd_compP(dx, dy, dz, ky) / d_kz;
     r.Sz = 1.0f / d_kz;
-    r.okx = kd_comp8(ox, oy, oz, kx);
-    r.oky = kd_comp8(ox, oy, oz, ky);
-    r.okz = kd_comp8(ox, oy, oz, kz);
+    r.okx = kd_compP(ox, oy, oz, kx);
+    r.oky = kd_compP(ox, oy, oz, ky);
+    r.okz = kd_compP(ox, oy, oz, kz);
     r.o[0] = ox; r.o[1] = oy; r.o[2] = oz;
     r.d[0] = dx; r.d[1] = dy; r.d[2] = dz;
-    r.t_min = (float8)(t_min);
-    r.t_max = (float8)(t_max);
+    r.t_min = (floatP)(t_min);
+    r.t_max = (floatP)(t_max);
     /* uniform axes: those of the first lane that is on, shared by every lane on */
-    KdI8 on_l, kx_l, ky_l, kz_l;
+    KdIP on_l, kx_l, ky_l, kz_l;
     on_l.v = on; kx_l.v = kx; ky_l.v = ky; kz_l.v = kz;
     uint first = 0;
     while (first < KD_PACKET - 1 && !on_l.s[first])
         first++;
     r.ukx = (uint)kx_l.s[first]; r.uky = (uint)ky_l.s[first]; r.ukz = (uint)kz_l.s[first];
-    r.uniform = !kd_any8(on & ((kx != (int)r.ukx) | (ky != (int)r.uky) | (kz != (int)r.ukz)));
+    r.uniform = !kd_anyP(on & ((kx != (int)r.ukx) | (ky != (int)r.uky) | (kz != (int)r.ukz)));
 
     KdPacketHit h;
-    h.t = (float8)(t_max);
-    h.V = (float8)(0.0f);
-    h.W = (float8)(0.0f);
-    h.det = (float8)(1.0f);
-    h.tri = (uint8)(KD_NO_HIT);
-    KdI8 fallback;
-    fallback.v = (int8)(0);
+    h.t = (floatP)(t_max);
+    h.V = (floatP)(0.0f);
+    h.W = (floatP)(0.0f);
+    h.det = (floatP)(1.0f);
+    h.tri = (uintP)(KD_NO_HIT);
+    KdIP fallback;
+    fallback.v = (intP)(0);
 #ifdef STATS
     KdPacketStats ps;
-    ps.x = (uint8)(0u); ps.y = (uint8)(0u); ps.z = (uint8)(0u);
+    ps.x = (uintP)(0u); ps.y = (uintP)(0u); ps.z = (uintP)(0u);
     KdPacketStats *pstats = &ps;
 #endif
-    if (kd_any8(on))
+    if (kd_anyP(on))
         kd_packet_traverse(nodes, 2u * n_nodes + 2u, tris, tri_ids, &r, on, t_enter, t_exit,
                            &h, &fallback.v KD_PSTATS_ARG);
 
-    KdF8 t_l, u_l, v_l;
-    KdU8 tri_l;
+    KdFP t_l, u_l, v_l;
+    KdUP tri_l;
     t_l.v = h.t;
     u_l.v = h.V / h.det;
     v_l.v = h.W / h.det;
     tri_l.v = h.tri;
 #ifdef STATS
-    stat_x->v = ps.x; stat_y->v = ps.y; stat_z->v = ps.z; stat_w->v = (uint8)(0u);
+    stat_x->v = ps.x; stat_y->v = ps.y; stat_z->v = ps.z; stat_w->v = (uintP)(0u);
 #endif
-    if (kd_any8(fallback.v)) {
+    if (kd_anyP(fallback.v)) {
         /* lanes the packet handed over: the scalar kernel from the start */
-        KdF8 oxl, oyl, ozl, dxl, dyl, dzl;
+        KdFP oxl, oyl, ozl, dxl, dyl, dzl;
         oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
         for (uint l = 0; l < KD_PACKET; l++) {
             if (!fallback.s[l])
@@ -625,10 +620,10 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
         }
     }
     /* a miss: t_max, 0, 0 (as trace_ray) */
-    int8 miss = as_int8(tri_l.v == (uint8)(KD_NO_HIT));
-    *t_out = kd_select8(t_l.v, (float8)(t_max), miss);
-    *u_out = kd_select8(u_l.v, (float8)(0.0f), miss);
-    *v_out = kd_select8(v_l.v, (float8)(0.0f), miss);
+    intP miss = as_intP(tri_l.v == (uintP)(KD_NO_HIT));
+    *t_out = kd_selectP(t_l.v, (floatP)(t_max), miss);
+    *u_out = kd_selectP(u_l.v, (floatP)(0.0f), miss);
+    *v_out = kd_selectP(v_l.v, (floatP)(0.0f), miss);
     *tri_out = tri_l.v;
 }
 

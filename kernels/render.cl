@@ -11,10 +11,11 @@
  * work-items one after another between barriers).
  *
  * Options (-D): LOCAL_SIZE (work-group size, required), BATCH_SIZE (a multiple of it,
- * times 8 with PACKET), STACK_SIZE (see traverse.cl), TILE_W and TILE_H (render_camera's
- * tiles); PACKET: each work-item traces 8 rays as a float8 packet (packet.cl, with
- * PACKET_STACK_SIZE; for CPU devices): 8 consecutive rays of trace_rays, a 4 x 2 block
- * of pixels of render_camera; else one ray. Outputs, each only when asked: OUT_T (t,
+ * times PACKET with PACKET), STACK_SIZE (see traverse.cl), TILE_W and TILE_H
+ * (render_camera's tiles); PACKET (8 or 16): each work-item traces that many rays as a
+ * packet in vector lanes (packet.cl, with PACKET_STACK_SIZE; for CPU devices): as many
+ * consecutive rays of trace_rays, a block of 4 x PACKET / 4 pixels of render_camera;
+ * else one ray. Outputs, each only when asked: OUT_T (t,
  * +inf on a miss), OUT_UV (u, v; 0 on a miss), OUT_NORMAL (unit geometric normal; 0 on
  * a miss), OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
  * Output buffers that are not compiled in may be passed as NULL. SCALE (a float
@@ -125,14 +126,14 @@ void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
 /* Trace the packet of rays (ox, oy, oz) + t (dx, dy, dz) and store the outputs of each
  * lane l in `on` at index idx[l]. */
 KD_INLINE
-void trace_packet_and_store(KdF8 ox, KdF8 oy, KdF8 oz, KdF8 dx, KdF8 dy, KdF8 dz, KdI8 on,
+void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP on,
                             float t_min, float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS,
                             const uint *idx KD_EXACT_PARAMS)
 {
-    KdF8 t_l, u_l, v_l;
-    KdU8 tri_l;
+    KdFP t_l, u_l, v_l;
+    KdUP tri_l;
 #ifdef STATS
-    KdU8 sx, sy, sz, sw;
+    KdUP sx, sy, sz, sw;
     trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
                  &sx, &sy, &sz, &sw);
@@ -164,8 +165,8 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
                      float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx
                      KD_EXACT_PARAMS)
 {
-    KdF8 ox, oy, oz, dx, dy, dz;
-    KdI8 on;
+    KdFP ox, oy, oz, dx, dy, dz;
+    KdIP on;
     for (uint l = 0; l < KD_PACKET; l++) {
         uint j = l < count ? l : 0u;     /* lanes past count copy ray 0 and stay off */
         ox.s[l] = o[j].x; oy.s[l] = o[j].y; oz.s[l] = o[j].z;
@@ -254,6 +255,8 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
 
 /* Nearest hits of n_rays rays: origin k * o_step (o_step 1, or 0 for one origin shared
  * by all rays) and direction k of each ray k.
+ * o_offset, d_offset: where the rays start in their buffers, in elements (a buffer
+ * over the host's array from the page it starts in: kdray/trace.py, _input_buffer).
  *
  * The slots of a batch a work-item takes: with item_runs (CPU devices) one run of
  * BATCH_SIZE / LOCAL_SIZE in a row, so that a group, whose work-items PoCL runs one
@@ -265,9 +268,12 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
 void trace_rays(KD_TREE_ARGS,
                 __global const KD_RAY_T *origins, __global const KD_RAY_T *directions,
+                uint o_offset, uint d_offset,
                 uint o_step, uint n_rays, float t_min, float t_max, uint item_runs
                 KD_ORIGIN_PARAMS, __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
+    origins += o_offset;
+    directions += d_offset;
     float3 bmin = vload3(0, bounds);
     float3 bmax = vload3(1, bounds);
     uint run = BATCH_SIZE / LOCAL_SIZE;
@@ -315,7 +321,7 @@ void trace_rays(KD_TREE_ARGS,
  * a batch is best one tile), so the rays a group traces one after another are
  * neighbours in both directions and find the tree's nodes in the cache. Slots of the
  * tiling past the image's right or bottom edge are skipped. With PACKET a packet is a
- * block of 4 x 2 pixels of a tile (TILE_W a multiple of 4, TILE_H of 2). */
+ * block of 4 x PACKET / 4 pixels of a tile (TILE_W a multiple of 4, TILE_H of PACKET / 4). */
 #ifndef TILE_W
 #define TILE_W 64
 #endif
@@ -354,19 +360,22 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             uint tile_col = (tile % tiles_x) * TILE_W;
             uint tile_row = (tile / tiles_x) * TILE_H;           /* from row0 */
 #ifdef PACKET
-            /* a packet is a block of 4 x 2 pixels (closer together than a row of 8),
-             * its rays made in vectors with the arithmetic of the one-ray case below */
+            /* a packet is a block of 4 x KD_PACKET / 4 pixels (closer together than a
+             * row), its rays made in vectors with the arithmetic of the one-ray case
+             * below: lane l is pixel (col0 + l % 4, row0_b + l / 4) */
             uint block = in_tile / KD_PACKET;
             uint col0 = tile_col + (block % (TILE_W / 4u)) * 4u;
-            uint row0_b = tile_row + (block / (TILE_W / 4u)) * 2u;
+            uint row0_b = tile_row + (block / (TILE_W / 4u)) * (KD_PACKET / 4u);
             if (col0 >= width || row0_b >= n_rows)
                 continue;
-            float x0 = (float)col0 + 0.5f, x1 = (float)(col0 + 1u) + 0.5f;
-            float x2 = (float)(col0 + 2u) + 0.5f, x3 = (float)(col0 + 3u) + 0.5f;
-            float y0 = (float)(row0 + row0_b) + 0.5f, y1 = (float)(row0 + row0_b + 1u) + 0.5f;
-            KdF8 ox, oy, oz, dx, dy, dz;
-            ox.v = (float8)(eye.x); oy.v = (float8)(eye.y); oz.v = (float8)(eye.z);
-            KdI8 on;
+#ifndef RAY_MAP
+            /* exact: pixel indices are below 2^24 */
+            floatP x = convert_floatP((uintP)(col0) + (KD_LANE_INDEX_U & 3u)) + 0.5f;
+            floatP y = convert_floatP((uintP)(row0 + row0_b) + (KD_LANE_INDEX_U >> 2)) + 0.5f;
+#endif
+            KdFP ox, oy, oz, dx, dy, dz;
+            ox.v = (floatP)(eye.x); oy.v = (floatP)(eye.y); oz.v = (floatP)(eye.z);
+            KdIP on;
             uint idx[KD_PACKET];
             for (uint l = 0; l < KD_PACKET; l++) {
                 uint col = col0 + l % 4u, row = row0_b + l / 4u;
@@ -375,7 +384,7 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             }
 #ifdef RAY_MAP
             /* each pixel's camera-axis direction from the map (NaN: no ray, not traced) */
-            KdF8 x, y, z;
+            KdFP x, y, z;
             for (uint l = 0; l < KD_PACKET; l++) {
                 float3 v = on.s[l] ? vload3((size_t)row0 * width + idx[l], ray_map)
                                    : (float3)(0.0f, 0.0f, 1.0f);
@@ -387,15 +396,11 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             dy.v = m1.x * x.v + m1.y * y.v + m1.z * z.v;
             dz.v = m2.x * x.v + m2.y * y.v + m2.z * z.v;
 #elif defined(ORTHOGRAPHIC)
-            float8 x = (float8)(x0, x1, x2, x3, x0, x1, x2, x3);
-            float8 y = (float8)(y0, y0, y0, y0, y1, y1, y1, y1);
             ox.v = eye.x + (m0.x * x + m0.y * y + m0.z);
             oy.v = eye.y + (m1.x * x + m1.y * y + m1.z);
             oz.v = eye.z + (m2.x * x + m2.y * y + m2.z);
-            dx.v = (float8)(fwd.x); dy.v = (float8)(fwd.y); dz.v = (float8)(fwd.z);
+            dx.v = (floatP)(fwd.x); dy.v = (floatP)(fwd.y); dz.v = (floatP)(fwd.z);
 #else
-            float8 x = (float8)(x0, x1, x2, x3, x0, x1, x2, x3);
-            float8 y = (float8)(y0, y0, y0, y0, y1, y1, y1, y1);
             dx.v = m0.x * x + m0.y * y + m0.z;
             dy.v = m1.x * x + m1.y * y + m1.z;
             dz.v = m2.x * x + m2.y * y + m2.z;

@@ -15,14 +15,15 @@ import pytest
 import trees
 from helpers import SCENES, camera_for, check_hits, random_rays, soup, split_plane_rays
 from kdray.load import load
-from kdray.trace import PACKET, Tracer
+from kdray.trace import PACKETS, Tracer
 
 # (rays per work-item, local size, batch size, groups): one item at a time, odd sizes,
 # the sizes GPUs use (32: a warp, 64: a wavefront, 128, 256), the same with packets
 WORK_SIZES = [(1, 1, 1, 1), (1, 4, 12, 3), (1, 16, 64, 4), (1, 32, 64, 2), (1, 64, 256, 2),
               (1, 128, 256, 2), (1, 256, 512, 1),
               (8, 1, 8, 1), (8, 4, 96, 3), (8, 16, 128, 5), (8, 32, 256, 2), (8, 64, 512, 2),
-              (8, 128, 1024, 1), (8, 256, 2048, 1)]
+              (8, 128, 1024, 1), (8, 256, 2048, 1),
+              (16, 1, 16, 1), (16, 8, 1024, 4), (16, 32, 512, 2)]
 
 _TREES = {}
 
@@ -110,26 +111,29 @@ def test_stack_sizes_do_not_change_results(runtime):
     assert restarts[1] > restarts[4] > 0 and restarts[32] == 0
     for size in (1, 2, 4):
         same_hits(results[size][0], results[32][0])
-    same_hits(Tracer(tree, device=runtime.spec, packet=PACKET).trace(o, d), results[32][0])
+    for packet in PACKETS:
+        same_hits(Tracer(tree, device=runtime.spec, packet=packet).trace(o, d), results[32][0])
 
 
 @pytest.mark.parametrize("scene", ["cornell", "sphere"])
 def test_render_is_trace_of_the_camera_rays(runtime, scene):
-    """A render (pixels in tiles, packets of 4 x 2 pixels on CPUs) writes every pixel,
-    poisoned first, with the hit of its own ray; on Oclgrind, a device of 128 MiB, the
-    launches are sized to its memory. Sizes that fit no tile or packet."""
+    """A render (pixels in tiles; on CPUs packets of 4 x 2 or 4 x 4 pixels) writes every
+    pixel, poisoned first, with the hit of its own ray; on Oclgrind, a device of 128 MiB,
+    the launches are sized to its memory. Sizes that fit no tile or packet."""
     tree = scene_tree(scene)
-    tr = Tracer(tree, device=runtime.spec)
-    tr._poison_outputs = True
+    default = Tracer(tree, device=runtime.spec).packet
     w, h = runtime.small((131, 67), (29, 11))
     cam = camera_for(tree, w, h)
-    images = tr.render(cam, aovs=("depth", "normal", "bary", "id"))
-    hits = tr.trace(*tr.camera_rays(cam))
-    assert np.array_equal(images["depth"].ravel(), hits.t)
-    assert np.array_equal(images["id"].ravel(), hits.prim)
-    assert np.array_equal(images["bary"].reshape(-1, 2), np.stack([hits.u, hits.v], 1))
-    assert np.array_equal(images["normal"].reshape(-1, 3), hits.normal)
-    assert (images["id"] != 0xFFFFFFFF).sum() > w * h // 10
+    for packet in PACKETS if default > 1 else (default,):
+        tr = Tracer(tree, device=runtime.spec, packet=packet)
+        tr._poison_outputs = True
+        images = tr.render(cam, aovs=("depth", "normal", "bary", "id"))
+        hits = tr.trace(*tr.camera_rays(cam))
+        assert np.array_equal(images["depth"].ravel(), hits.t)
+        assert np.array_equal(images["id"].ravel(), hits.prim)
+        assert np.array_equal(images["bary"].reshape(-1, 2), np.stack([hits.u, hits.v], 1))
+        assert np.array_equal(images["normal"].reshape(-1, 3), hits.normal)
+        assert (images["id"] != 0xFFFFFFFF).sum() > w * h // 10
 
 
 @pytest.mark.parametrize("model", ["opencv", "fisheye", "equirectangular", "orthographic"])
@@ -154,7 +158,8 @@ def test_camera_model_render_is_trace_of_its_rays(runtime, model):
         distortion = ()
         K = np.array([[0.4 * w, 0, w / 2], [0, 0.4 * w, h / 2], [0, 0, 1]])
     cam = Camera(w, h, K, pin.cam_to_world, model, distortion)
-    sizes = [(PACKET, 8, 64 * PACKET, 4), (1, 64, 256, 2)] if not runtime.simulator else [(1, 4, 12, 3)]
+    sizes = ([(p, 8, 64 * p, 4) for p in PACKETS] + [(1, 64, 256, 2)] if not runtime.simulator
+             else [(1, 4, 12, 3)])
     for packet, local, batch, groups in sizes:
         tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local, batch_size=batch,
                     groups=groups)
@@ -192,7 +197,8 @@ def test_lidar_scan_is_trace_of_its_rays(runtime):
     M = pose[:3, :3].astype(np.float32)
     v = lidar.directions().astype(np.float32)
     d = np.stack([M[r, 0] * v[:, 0] + M[r, 1] * v[:, 1] + M[r, 2] * v[:, 2] for r in range(3)], 1)
-    sizes = [(PACKET, 8, 64 * PACKET, 4), (1, 64, 256, 2)] if not runtime.simulator else [(1, 4, 12, 3)]
+    sizes = ([(p, 8, 64 * p, 4) for p in PACKETS] + [(1, 64, 256, 2)] if not runtime.simulator
+             else [(1, 4, 12, 3)])
     for packet, local, batch, groups in sizes:
         tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local, batch_size=batch,
                     groups=groups)

@@ -14,7 +14,7 @@ from helpers import (RTOL_T, assert_watertight, camera_for, check_hits, random_r
 from kdray import layout
 from kdray.errors import KdrayError
 from kdray.reference import brute_force
-from kdray.trace import MISS, Tracer, default_stack_size
+from kdray.trace import MISS, PACKETS, Tracer, default_stack_size
 
 
 
@@ -240,19 +240,21 @@ def packet_rays(tree, camera_size=67):
     return o, d
 
 
+@pytest.mark.parametrize("packet", PACKETS)
 @pytest.mark.parametrize("kind", ["median", "sah"])
 @pytest.mark.parametrize("leaf", ["rule", "by triangle", "by ray"])
-def test_packets_equal_single_rays(kind, leaf, tracers):
-    """Packets of 8 rays in float8 lanes (CPU default) give bit for bit what one ray per
+def test_packets_equal_single_rays(packet, kind, leaf, tracers):
+    """Packets of 8 or 16 rays in vector lanes (CPUs) give bit for bit what one ray per
     work-item gives, for coherent and incoherent rays, rays the packet hands to the
     scalar kernel (split planes, diverging origins) and invalid rays; also with t_min
     and t_max, for a camera render, and with a packet count that leaves lanes empty.
-    Leaves tested by the kernel's rule, always triangle by triangle (8 rays against one
-    triangle) and always ray by ray (one ray against 8 triangles) agree."""
+    Leaves tested by the kernel's rule, always triangle by triangle (a packet's rays
+    against one triangle) and always ray by ray (one ray against a packet's width of
+    triangles) agree."""
     tree = deep_tree() if kind == "median" else mesh_tree("teapot.obj", "sah")
     o, d = packet_rays(tree)
     single = tracers(tree, packet=1)
-    packed = Tracer(tree, packet=8)
+    packed = Tracer(tree, packet=packet)
     packed._lane_ratio = {"rule": None, "by triangle": 0.0, "by ray": np.inf}[leaf]
     for t_min, t_max in [(0.0, np.inf), (surface_t_min(tree), np.inf), (0.3, 2.5)]:
         a = single.trace(o, d, t_min=t_min, t_max=t_max)
@@ -281,7 +283,7 @@ def reversed_leaves(tree):
     return dataclasses.replace(tree, leaf_tris=leaf_tris)
 
 
-@pytest.mark.parametrize("packet", [1, 8])
+@pytest.mark.parametrize("packet", [1, *PACKETS])
 def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet):
     """The device keeps a copy of each triangle per leaf, in the leaves' order
     (layout.device_triangles); a tie in t still goes to the lowest input id, whatever
@@ -321,7 +323,7 @@ def test_device_triangles_are_each_leafs_run():
         assert np.array_equal(ids[off:off + n], tree.tri_ids[listed])
 
 
-@pytest.mark.parametrize("packet", [1, 8])
+@pytest.mark.parametrize("packet", [1, *PACKETS])
 def test_rays_converted_in_the_kernel(packet, tracers):
     """float64 rays shifted and rounded by trace_rays (RAYS_DOUBLE) give bit for bit what
     the host's conversion gives: rays near and far (1e6) from the tree's origin, one
@@ -356,15 +358,47 @@ def test_rays_converted_in_the_kernel(packet, tracers):
     assert np.allclose(a.t, b.t, rtol=1e-5, equal_nan=True)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_rays_anywhere_in_memory(dtype, tracers):
+    """Ray arrays at any address give the hits of page-aligned copies: slices of larger
+    arrays (origins and directions at different element offsets within a page) and
+    arrays not even aligned to their element size. (On Intel's runtime the first are
+    read in place from the start of their page, the others copied: _input_buffer.)"""
+    from kdray.host import page_aligned_empty
+    tree = mesh_tree("teapot.obj", "sah")
+    o, d = random_rays(tree, 1001, seed=3)
+    tracer = tracers(tree)
+
+    def placed(a, shift):
+        """a (N, 3) as `dtype`, starting `shift` bytes after a page boundary"""
+        raw = page_aligned_empty((a.nbytes + shift + 8,), np.uint8)
+        out = np.ndarray(a.shape, dtype, buffer=raw, offset=shift)
+        out[...] = a
+        return out
+
+    base = tracer.trace(placed(o, 0), placed(d, 0))
+    assert np.count_nonzero(base.hit) > 0.2 * len(d)
+    size = np.dtype(dtype).itemsize
+    for o_shift, d_shift in [(size, 3 * size), (170 * size, 511 * size), (1, 3), (0, 4095)]:
+        oo, dd = placed(o, o_shift), placed(d, d_shift)
+        assert oo.ctypes.data % 4096 == o_shift
+        for hits in (tracer.trace(oo, dd), tracer.trace(oo[7], dd[7:])):
+            ref = base if len(hits) == len(d) else tracer.trace(placed(o[7], 0), placed(d[7:], 0))
+            for field in ("t", "prim", "u", "v", "normal"):
+                assert np.array_equal(getattr(hits, field), getattr(ref, field), equal_nan=True), \
+                    (o_shift, d_shift, field)
+
+
 def test_packet_stats_count_the_same_work(tracers):
     """On coherent camera rays a packet's lanes visit the nodes and leaves the single
     rays visit (lanes are masked to their own), and restarts never happen."""
     tree = mesh_tree("teapot.obj", "sah")
     o, d = camera_for(tree, 64, 48).rays()
     _, s1 = tracers(tree, packet=1)._trace(o, d, stats=True)
-    _, s8 = tracers(tree, packet=8)._trace(o, d, stats=True)
-    assert np.array_equal(s1[:, :3], s8[:, :3])
-    assert s8[:, 3].sum() == 0
+    for packet in PACKETS:
+        _, sp = tracers(tree, packet=packet)._trace(o, d, stats=True)
+        assert np.array_equal(s1[:, :3], sp[:, :3]), packet
+        assert sp[:, 3].sum() == 0
 
 
 def test_default_stack_size(tracers):

@@ -1,0 +1,88 @@
+/* kernels/lanes.h: the vector types of a packet of KD_PACKET rays (8 or 16 lanes) and
+ * the operations packet.cl does on them.
+ *
+ * A packet's width is its rays' lanes in one vector register: 8 floats in an AVX2
+ * register, 16 in an AVX-512 one. The Tracer picks the width from the device's native
+ * float vector width (kdray/trace.py, default_packet); the kernels are the same code
+ * either way, so every lane makes the same decisions at either width.
+ *
+ * floatP, intP, uintP: KD_PACKET lanes of float, int (masks: each lane all ones or all
+ * zeros) and uint. KD_LANE_INDEX (intP) and KD_LANE_INDEX_U (uintP): 0, 1, 2, ...
+ *
+ * The operations are plain operators, not builtins, for the reason ops.h gives; they
+ * are bit for bit the builtins for the values kdray gives them.
+ */
+#ifndef KDRAY_LANES_H
+#define KDRAY_LANES_H
+
+#include "inline.h"
+
+#ifndef KD_PACKET
+#define KD_PACKET 8
+#endif
+
+#if KD_PACKET == 16
+typedef float16 floatP;
+typedef int16 intP;
+typedef uint16 uintP;
+#define as_floatP as_float16
+#define as_intP as_int16
+#define as_uintP as_uint16
+#define convert_floatP convert_float16
+#define KD_LANE_INDEX (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
+#define KD_LANE_INDEX_U (uint16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
+#elif KD_PACKET == 8
+typedef float8 floatP;
+typedef int8 intP;
+typedef uint8 uintP;
+#define as_floatP as_float8
+#define as_intP as_int8
+#define as_uintP as_uint8
+#define convert_floatP convert_float8
+#define KD_LANE_INDEX (int8)(0, 1, 2, 3, 4, 5, 6, 7)
+#define KD_LANE_INDEX_U (uint8)(0, 1, 2, 3, 4, 5, 6, 7)
+#else
+#error "KD_PACKET must be 8 or 16"
+#endif
+
+KD_INLINE floatP kd_absP(floatP x) { return as_floatP(as_uintP(x) & (uintP)(0x7FFFFFFFu)); }
+/* lanes of b where mask m is set, else of a (select(a, b, m)), as OpenCL's vector
+ * ternary: Oclgrind 21.10 gets the same select written with & and | wrong, in the
+ * packets' shear axes and barycentrics (tests/repros/oclgrind_vector_select.py) */
+KD_INLINE floatP kd_selectP(floatP a, floatP b, intP m) { return m ? b : a; }
+KD_INLINE intP kd_selectPi(intP a, intP b, intP m) { return m ? b : a; }
+KD_INLINE uintP kd_selectPu(uintP a, uintP b, intP m) { return m ? b : a; }
+KD_INLINE floatP kd_maxP(floatP a, floatP b) { return kd_selectP(b, a, a > b); }
+KD_INLINE floatP kd_minP(floatP a, floatP b) { return kd_selectP(b, a, a < b); }
+KD_INLINE floatP kd_clampP(floatP x, floatP lo, floatP hi) { return kd_minP(kd_maxP(x, lo), hi); }
+
+/* some lane of mask m is set: halves or-ed down to 2 lanes */
+KD_INLINE
+bool kd_anyP(intP m)
+{
+#if KD_PACKET == 16
+    int8 e = m.lo | m.hi;
+#else
+    int8 e = m;
+#endif
+    int4 a = e.lo | e.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) != 0;
+}
+
+/* the number of lanes set in mask m */
+KD_INLINE
+uint kd_countP(intP m)
+{
+    uintP one = as_uintP(m) >> 31;
+#if KD_PACKET == 16
+    uint8 e = one.lo + one.hi;
+#else
+    uint8 e = one;
+#endif
+    uint4 a = e.lo + e.hi;
+    uint2 c = a.lo + a.hi;
+    return c.x + c.y;
+}
+
+#endif
