@@ -11,7 +11,9 @@ each per round, each 0.1 s after the one before, so that the machine's drift hit
 them alike and no call pays for the one before's worker threads):
   kdray render depth      Tracer.render(camera, ["depth"]): rays made on the device
   kdray render default    Tracer.render(camera) with depth, normal, bary, id
-  kdray trace             Tracer.trace(origins, directions) from numpy to numpy
+  kdray trace             Tracer.trace(origins, directions) from numpy to numpy: t,
+                          prim, u, v and normal
+  kdray trace t,prim      the same with outputs=(): t and prim, as Mitsuba's below
   open3d pinhole depth    create_rays_pinhole(K, pose) + cast_rays + t_hit to numpy
   open3d cast             RaycastingScene.cast_rays on a prepared tensor (cast only)
   open3d numpy            numpy rays -> tensor -> cast_rays -> numpy
@@ -25,7 +27,8 @@ them alike and no call pays for the one before's worker threads):
   embreex                 trimesh's embreex front end, numpy to numpy (if installed)
 and the ratios of the two workflows of issue 6, kdray render depth / open3d pinhole
 depth and kdray trace / open3d numpy, and of issue 20 against Mitsuba 3's CPU ray
-casting, kdray trace / mitsuba prelim coherent and kdray render depth / mitsuba depth
+casting, kdray trace t,prim / mitsuba prelim coherent and kdray render depth / mitsuba
+depth
 (>= 1: kdray is faster), each the median of the per-round ratios of the peer's time to
 kdray's. Mitsuba runs as bench/peers.py's MITSUBA_VARIANT (llvm_ad_rgb); a peer that
 is not installed is left out with a note.
@@ -48,6 +51,7 @@ from meshes import mesh as bench_mesh  # noqa: E402
 import kdray  # noqa: E402
 from kdray import reference  # noqa: E402
 from kdray.render import DEFAULT_AOVS  # noqa: E402
+from kdray.trace import TRACE_OUTPUTS  # noqa: E402
 from peers import (embreex_hits, mitsuba_cast, mitsuba_module, mitsuba_rays,  # noqa: E402
                    mitsuba_scene, mitsuba_version, open3d_cast, open3d_scene)
 from timing import median_ratio, round_robin  # noqa: E402
@@ -201,13 +205,14 @@ def main():
             img = tracer.render(camera, aovs=aovs)
             return img["depth"].ravel(), img["id"].ravel() if "id" in img else None
 
-        def trace():
-            hits = tracer.trace(o, d)
+        def trace(outputs):
+            hits = tracer.trace(o, d, outputs=outputs)
             return hits.t, hits.prim
 
         calls = {"kdray render depth": lambda: render(("depth",)),
                  "kdray render default": lambda: render(DEFAULT_AOVS),
-                 "kdray trace": trace}
+                 "kdray trace": lambda: trace(TRACE_OUTPUTS),
+                 "kdray trace t,prim": lambda: trace(())}
         builds = {"kdray": build_s}
         for peer, peer_calls in (("open3d", open3d_calls), ("mitsuba", mitsuba_calls)):
             if versions[peer]:
@@ -232,7 +237,7 @@ def main():
         # (>= 1 means kdray is faster)
         for ours, theirs in [("kdray render depth", "open3d pinhole depth"),
                              ("kdray trace", "open3d numpy"),
-                             ("kdray trace", "mitsuba prelim coherent"),
+                             ("kdray trace t,prim", "mitsuba prelim coherent"),
                              ("kdray render depth", "mitsuba depth")]:
             if theirs in seconds:
                 print(f"# {name}: {ours} / {theirs} = {median_ratio(seconds[theirs], seconds[ours]):.2f}"

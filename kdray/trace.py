@@ -16,6 +16,8 @@ Arrays returned::
                                   tree with no table); 0xFFFFFFFF on a miss. Looked up
                                   on first access
 
+u, v and normal are None when `trace` was asked to leave them out (outputs=).
+
 With precision="double", t, u and v are float64 (kdray.double).
 
 Precision: the tree's float32 data is relative to its float64 `origin`, in units of
@@ -49,6 +51,9 @@ from .render import DEFAULT_AOVS
 from .tree import object_ids
 
 log = logging.getLogger(__name__)
+
+TRACE_OUTPUTS = ("uv", "normal")
+"""What `Tracer.trace` computes besides t and prim when asked (all by default)."""
 
 MAX_RAYS_PER_LAUNCH = 1 << 22
 """Rays per kernel launch at most: keeps the 32-bit batch counter far from overflow and
@@ -475,7 +480,8 @@ class Tracer:
             convert(chunks[0])
         return o32, d32, o_step, False
 
-    def trace(self, origins, directions, t_min=0.0, t_max=np.inf, precision="single"):
+    def trace(self, origins, directions, t_min=0.0, t_max=np.inf, precision="single",
+              outputs=TRACE_OUTPUTS):
         """Nearest hit of every ray o + t d with t_min < t < t_max.
 
         origins : (N, 3) or (3,) float64 or float32, world coordinates
@@ -484,12 +490,26 @@ class Tracer:
         precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
             v in float64 from the tree's float64 triangles (KdTree.triangles64) and
             the rays as given (kdray.double)
+        outputs : which of TRACE_OUTPUTS ("uv", "normal") to compute besides t and
+            prim (always); the others are None in Hits, and the kernel neither
+            computes nor stores them.
         Returns Hits. Rays with non-finite components or a zero direction miss.
         """
         double = _precision(precision, self.tree)
-        hits, _ = self._trace(origins, directions, t_min, t_max)
+        if isinstance(outputs, str):
+            outputs = (outputs,)
+        unknown = sorted(set(outputs) - set(TRACE_OUTPUTS))
+        if unknown:
+            raise KdrayError(f"unknown trace outputs {unknown}: choose from {list(TRACE_OUTPUTS)} "
+                             f"(t and prim always)")
+        kernel = tuple(name.upper() for name in outputs)
+        if double:
+            kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
+        hits, _ = self._trace(origins, directions, t_min, t_max, outputs=kernel)
         if double:
             hits = self._double_hits(hits, origins, directions)
+            if "uv" not in outputs:
+                hits = dataclasses.replace(hits, u=None, v=None)
         return hits
 
     def _double_hits(self, hits, origins, directions):

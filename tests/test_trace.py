@@ -389,6 +389,36 @@ def test_rays_anywhere_in_memory(dtype, tracers):
                     (o_shift, d_shift, field)
 
 
+def test_trace_outputs_leave_out_what_is_not_asked(tracers):
+    """trace(outputs=) computes only what it is asked besides t and prim, and what it
+    computes is what the full trace gives; precision="double" too. Unknown names are
+    a KdrayError."""
+    tree = mesh_tree("teapot.obj", "sah")
+    o, d = random_rays(tree, 1003, seed=5)
+    tracer = tracers(tree)
+    full = tracer.trace(o, d)
+    assert np.count_nonzero(full.hit) > 0.2 * len(d)
+    for outputs in [(), ("uv",), ("normal",), "normal", ("normal", "uv")]:
+        hits = tracer.trace(o, d, outputs=outputs)
+        asked = {outputs} if isinstance(outputs, str) else set(outputs)
+        assert np.array_equal(hits.t, full.t) and np.array_equal(hits.prim, full.prim)
+        for name, fields in (("uv", ("u", "v")), ("normal", ("normal",))):
+            for field in fields:
+                value = getattr(hits, field)
+                if name in asked:
+                    assert np.array_equal(value, getattr(full, field)), (outputs, field)
+                else:
+                    assert value is None, (outputs, field)
+    with pytest.raises(KdrayError, match="unknown trace outputs"):
+        tracer.trace(o, d, outputs=("depth",))
+    from kdray.builder import build
+    tracer64 = tracers(build(*mesh("teapot.obj"), keep_double=True))
+    full = tracer64.trace(o, d, precision="double")
+    hits = tracer64.trace(o, d, precision="double", outputs=())
+    assert np.array_equal(hits.t, full.t) and np.array_equal(hits.prim, full.prim)
+    assert hits.u is None and hits.v is None and hits.normal is None and full.u.dtype == np.float64
+
+
 def test_packet_stats_count_the_same_work(tracers):
     """On coherent camera rays a packet's lanes visit the nodes and leaves the single
     rays visit (lanes are masked to their own), and restarts never happen."""
