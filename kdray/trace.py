@@ -294,17 +294,19 @@ class Tracer:
         self._origin = np.asarray(tree.origin, dtype=np.float64)
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
 
-    def program(self, outputs, stats=False, rays_double=False, rays="pinhole"):
+    def program(self, outputs, stats=False, rays_world=None, rays="pinhole"):
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
-        with its kernels: {"program": Program, "trace_rays": Kernel, ...}. rays_double:
-        trace_rays takes float64 rays in world coordinates (render.cl, RAYS_DOUBLE).
+        with its kernels: {"program": Program, "trace_rays": Kernel, ...}. rays_world:
+        None, or trace_rays takes rays in world coordinates, (origin type, direction
+        type), each "float" or "double" (render.cl, RAYS_WORLD).
         rays: how render_camera makes its rays: "pinhole", "map" (a camera model's ray
         map, RAY_MAP) or "orthographic" (ORTHOGRAPHIC); render.cl says how."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
                    "BATCH_SIZE": self.batch_size, "TILE_W": _render.RENDER_TILE[0],
                    "TILE_H": _render.RENDER_TILE[1]}
-        if rays_double:
-            defines["RAYS_DOUBLE"] = None
+        if rays_world:
+            defines["RAYS_WORLD"] = None
+            defines["ORIGIN_T"], defines["DIRECTION_T"] = rays_world
         if rays == "map":
             defines["RAY_MAP"] = None
         elif rays == "orthographic":
@@ -362,7 +364,7 @@ class Tracer:
 
     # -- launching ---------------------------------------------------------------------
 
-    def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_double=False,
+    def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_world=None,
                 rays="pinhole"):
         """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
         slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
@@ -370,7 +372,7 @@ class Tracer:
         cl = _device._cl()
         if n == 0:
             return
-        kernel = self.program(outputs, stats, rays_double, rays)[kernel_name]
+        kernel = self.program(outputs, stats, rays_world, rays)[kernel_name]
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
@@ -433,13 +435,15 @@ class Tracer:
     # -- rays ----------------------------------------------------------------------------
 
     def _rays(self, origins, directions):
-        """The rays as trace_rays takes them: (o, d, o_step, rays_double).
+        """The rays as trace_rays takes them: (o, d, o_step, rays_world).
 
         On a device with double precision, when it is a CPU or refines its hits
-        (`_rays_in_kernel`), float64 rays go to the kernel as they are (on a CPU no
-        copy when C-contiguous), which shifts and rounds them itself;
-        else o (M, 3) float32 relative to the tree's origin and d (N, 3) float32. M is
-        N, or 1 with o_step 0 when all rays share one (3,) origin."""
+        (`_rays_in_kernel`), float64 and float32 rays go to the kernel as they are (on
+        a CPU no copy when C-contiguous), which shifts and rounds them itself;
+        rays_world is then their (origin, direction) C types ("double" or "float").
+        Else o (M, 3) float32 relative to the tree's origin and d (N, 3) float32, and
+        rays_world None. M is N, or 1 with o_step 0 when all rays share one (3,)
+        origin."""
         d = np.asarray(directions)
         if d.ndim != 2 or d.shape[1] != 3:
             raise KdrayError(f"directions must be an (N, 3) array, got shape {d.shape}")
@@ -448,9 +452,12 @@ class Tracer:
             o = o.reshape(1, 3)
         elif o.shape != d.shape:
             raise KdrayError(f"origins {o.shape} and directions {d.shape} must both be (N, 3)")
+        if len(o) > 1 and o.strides[0] == 0:
+            o = o[:1]                # one origin broadcast to every ray: read it once
         o_step = 0 if len(o) == 1 and len(d) != 1 else 1
-        if self._rays_in_kernel and o.dtype == np.float64 and d.dtype == np.float64:
-            return np.ascontiguousarray(o), np.ascontiguousarray(d), o_step, True
+        if self._rays_in_kernel and o.dtype in _C_TYPES and d.dtype in _C_TYPES:
+            return (np.ascontiguousarray(o), np.ascontiguousarray(d), o_step,
+                    (_C_TYPES[o.dtype], _C_TYPES[d.dtype]))
         o = o.astype(np.float64, copy=False)
         # o - origin in float64, rounded to float32 on the way out (buffered: no
         # float64 temporary of the whole array); large arrays in chunks on threads
@@ -478,7 +485,7 @@ class Tracer:
                 list(pool.map(convert, chunks))
         elif chunks:
             convert(chunks[0])
-        return o32, d32, o_step, False
+        return o32, d32, o_step, None
 
     def trace(self, origins, directions, t_min=0.0, t_max=np.inf, precision="single",
               outputs=TRACE_OUTPUTS):
@@ -529,20 +536,20 @@ class Tracer:
         t_min, t_max = float(t_min), float(t_max)
         if not (t_min >= 0.0 and t_max >= t_min):
             raise KdrayError(f"need 0 <= t_min <= t_max, got t_min={t_min}, t_max={t_max}")
-        o, d, o_step, rays_double = self._rays(origins, directions)
+        o, d, o_step, rays_world = self._rays(origins, directions)
         n = len(d)
         out = {name: page_aligned_empty((n, width) if width > 1 else (n,), dtype)
                for name, (width, dtype) in OUTPUT_WIDTH.items()
                if name in outputs or (stats and name == "STATS")}
-        ray_t = _RAY_BYTES["double" if rays_double else "float"]
-        widths = [ray_t] * (1 + o_step) + [OUTPUT_WIDTH[k][0] * 4 for k in out]
+        o_bytes, d_bytes = (_RAY_BYTES[t] for t in rays_world or ("float", "float"))
+        widths = [o_bytes] * o_step + [d_bytes] + [OUTPUT_WIDTH[k][0] * 4 for k in out]
         per_launch = self._launch_size(widths)
         for start in range(0, n, per_launch):
             stop = min(n, start + per_launch)
             o_buf, o_offset = self._input_buffer(o[start:stop] if o_step else o)
             d_buf, d_offset = self._input_buffer(d[start:stop])
             # with double rays the kernel takes the tree's origin and shifts them itself
-            origin = tuple(np.float64(x) for x in self._origin) if rays_double else ()
+            origin = tuple(np.float64(x) for x in self._origin) if rays_world else ()
             # t in the tree's units is t / scale (directions are not scaled)
             self._launch("trace_rays", outputs, stop - start,
                          (o_buf, d_buf, np.uint32(o_offset), np.uint32(d_offset),
@@ -550,7 +557,7 @@ class Tracer:
                           np.float32(t_min / self._scale), np.float32(t_max / self._scale),
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
-                         rays_double=rays_double)
+                         rays_world=rays_world)
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
         uv = out.get("UV")
         hits = Hits(t=out["T"], prim=out["ID"], u=None if uv is None else uv[:, 0],
@@ -771,6 +778,8 @@ def _precision(precision, tree):
 
 _RAY_BYTES = {"float": 12, "double": 24}
 """Bytes of a ray's origin or direction as trace_rays reads it."""
+_C_TYPES = {np.dtype(np.float32): "float", np.dtype(np.float64): "double"}
+"""The ray arrays trace_rays reads as they are (RAYS_WORLD): numpy dtype -> C type."""
 
 
 def rays_per_launch(global_mem, max_alloc, tree_bytes, widths, cap=None):

@@ -20,8 +20,9 @@
  * a miss), OUT_ID (input triangle id; 0xFFFFFFFF on a miss), STATS (uint4 per ray).
  * Output buffers that are not compiled in may be passed as NULL. SCALE (a float
  * literal, the tree's scale when it is not 1) multiplies every stored t, and its
- * inverse SCALE_INV (a double literal) the rays trace_rays shifts. RAYS_DOUBLE:
- * trace_rays reads double rays in world coordinates (and takes the tree's origin).
+ * inverse SCALE_INV (a double literal) the rays trace_rays shifts. RAYS_WORLD:
+ * trace_rays reads rays in world coordinates, origins of type ORIGIN_T and directions
+ * of DIRECTION_T (float or double), and takes the tree's origin.
  * REFINE: t, u, v of each hit recomputed in double (triangle.cl, kd_refine_hit).
  */
 #pragma OPENCL FP_CONTRACT OFF
@@ -64,13 +65,14 @@
 #define KD_TREE_PASS nodes, tris, tri_ids, bmin, bmax, n_nodes
 #define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
 
-/* The caller's double rays, when trace_rays reads them (RAYS_DOUBLE): what the hits
- * are refined from (store_hit); render_camera passes NULL. */
-#if defined(RAYS_DOUBLE) && defined(REFINE) && defined(cl_khr_fp64)
-#define KD_EXACT_PARAMS , __global const double *exact_o, __global const double *exact_d, \
+/* The caller's rays in world coordinates, when trace_rays reads them (RAYS_WORLD):
+ * what the hits are refined from (store_hit); render_camera passes NULL. */
+#if defined(RAYS_WORLD) && defined(REFINE) && defined(cl_khr_fp64)
+#define KD_EXACT_PARAMS , __global const ORIGIN_T *exact_o, __global const DIRECTION_T *exact_d, \
     uint exact_o_step, double3 exact_origin
 #define KD_EXACT_PASS , exact_o, exact_d, exact_o_step, exact_origin
-#define KD_NO_EXACT , (__global const double *)0, (__global const double *)0, 0u, (double3)(0.0)
+#define KD_NO_EXACT , (__global const ORIGIN_T *)0, (__global const DIRECTION_T *)0, 0u, \
+    (double3)(0.0)
 #else
 #define KD_EXACT_PARAMS
 #define KD_EXACT_PASS
@@ -79,7 +81,7 @@
 
 /* Write the outputs of ray k (o + t d, t_min < t < t_max): only those compiled in.
  * With REFINE (and double on the device) t, u and v of a hit are recomputed in
- * double first (kd_refine_hit), from the caller's double ray when there is one. */
+ * double first (kd_refine_hit), from the caller's ray when there is one. */
 KD_INLINE
 void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
                __global const float *tris, __global const uint *tri_ids, KD_OUTPUT_ARGS
@@ -89,10 +91,11 @@ void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
 #if defined(REFINE) && defined(cl_khr_fp64) && (defined(OUT_T) || defined(OUT_UV))
     if (found) {
         double3 od = convert_double3(o), dd = convert_double3(d);
-#if defined(RAYS_DOUBLE)
+#if defined(RAYS_WORLD)
         if (exact_o) {
-            od = (vload3((size_t)k * exact_o_step, exact_o) - exact_origin) * KD_SCALE_INV;
-            dd = vload3(k, exact_d);
+            od = (convert_double3(vload3((size_t)k * exact_o_step, exact_o)) - exact_origin)
+                 * KD_SCALE_INV;
+            dd = convert_double3(vload3(k, exact_d));
         }
 #endif
         kd_refine_hit(od, dd, kd_vertex(tris, hit->tri, 0), kd_vertex(tris, hit->tri, 1),
@@ -214,40 +217,44 @@ uint fetch_batch(__local uint *slot, __global volatile uint *counter)
 }
 
 /* The rays' input type: float, origins relative to the tree's origin in its units
- * (the host converted them), or with RAYS_DOUBLE the caller's double rays in world
- * coordinates, converted here as the host would: (float)((o - origin) / scale),
- * (float)d, each one rounding to nearest (the scale is a power of two). The tree's
+ * (the host converted them), or with RAYS_WORLD the caller's rays in world
+ * coordinates, origins of type ORIGIN_T and directions of DIRECTION_T (float or
+ * double: -D options), converted here as the host would: (float)(((double)o -
+ * origin) / scale), (float)d, each one rounding to nearest (the scale is a power of
+ * two). The tree's
  * origin is a kernel argument (KD_ORIGIN_PARAMS), not a -D option, so that one
  * program serves every tree of scale 1. Directions are not scaled: t is found in the
  * tree's units, t / scale, and SCALE turns it back when stored. */
-#if defined(RAYS_DOUBLE) && defined(REFINE) && defined(cl_khr_fp64)
+#if defined(RAYS_WORLD) && defined(REFINE) && defined(cl_khr_fp64)
 #define KD_TRACE_EXACT , origins, directions, o_step, (double3)(origin_x, origin_y, origin_z)
 #else
 #define KD_TRACE_EXACT
 #endif
-#ifdef RAYS_DOUBLE
-#define KD_RAY_T double
+#ifdef RAYS_WORLD
+#define KD_ORIGIN_T ORIGIN_T
+#define KD_DIRECTION_T DIRECTION_T
 #define KD_ORIGIN_PARAMS , double origin_x, double origin_y, double origin_z
 #define KD_RAY_ORIGIN(p, i) kd_ray_origin(p, i, (double3)(origin_x, origin_y, origin_z))
 KD_INLINE
-float3 kd_ray_origin(__global const double *p, size_t i, double3 origin)
+float3 kd_ray_origin(__global const ORIGIN_T *p, size_t i, double3 origin)
 {
     p += 3 * i;
+    double x = (double)p[0] - origin.x, y = (double)p[1] - origin.y, z = (double)p[2] - origin.z;
 #ifdef SCALE
-    return (float3)((float)((p[0] - origin.x) * KD_SCALE_INV), (float)((p[1] - origin.y) * KD_SCALE_INV),
-                    (float)((p[2] - origin.z) * KD_SCALE_INV));
+    return (float3)((float)(x * KD_SCALE_INV), (float)(y * KD_SCALE_INV), (float)(z * KD_SCALE_INV));
 #else
-    return (float3)((float)(p[0] - origin.x), (float)(p[1] - origin.y), (float)(p[2] - origin.z));
+    return (float3)((float)x, (float)y, (float)z);
 #endif
 }
 KD_INLINE
-float3 kd_ray_direction(__global const double *p, size_t i)
+float3 kd_ray_direction(__global const DIRECTION_T *p, size_t i)
 {
     p += 3 * i;
     return (float3)((float)p[0], (float)p[1], (float)p[2]);
 }
 #else
-#define KD_RAY_T float
+#define KD_ORIGIN_T float
+#define KD_DIRECTION_T float
 #define KD_ORIGIN_PARAMS
 #define KD_RAY_ORIGIN(p, i) kd_load3(p, i)
 KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd_load3(p, i); }
@@ -267,7 +274,7 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
  * compiled the same either way. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
 void trace_rays(KD_TREE_ARGS,
-                __global const KD_RAY_T *origins, __global const KD_RAY_T *directions,
+                __global const KD_ORIGIN_T *origins, __global const KD_DIRECTION_T *directions,
                 uint o_offset, uint d_offset,
                 uint o_step, uint n_rays, float t_min, float t_max, uint item_runs
                 KD_ORIGIN_PARAMS, __global volatile uint *counter, KD_OUTPUT_ARGS)
