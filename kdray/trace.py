@@ -127,8 +127,6 @@ def default_stack_size(tree):
 PACKETS = (8, 16)
 """Rays per work-item in packet mode: the lanes of one vector register (kernels/lanes.h),
 8 floats with AVX2, 16 with AVX-512."""
-PACKET = PACKETS[0]
-"""The narrower packet, which every CPU runtime runs at full width."""
 
 
 def default_packet(device):
