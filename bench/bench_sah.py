@@ -12,7 +12,7 @@ drift in speed hits every K_T alike; x K_T0 is the median of the rounds' time ra
 to the first K_T listed (< 1: faster). Per ray, the interior nodes, leaves and triangle
 tests the kernel counted (its STATS build). The default, K_T = 170, was chosen from
 this table: on the packet kernels a node visit costs more than W&H's 15 (mostly cache
-misses), while a leaf's triangles are tested 8 lanes at a time.
+misses), while a leaf's triangles are tested a packet's 8 or 16 lanes at a time.
 """
 import argparse
 import os

@@ -546,7 +546,7 @@ class Tracer:
             stop = min(n, start + per_launch)
             o_buf, o_offset = self._input_buffer(o[start:stop] if o_step else o)
             d_buf, d_offset = self._input_buffer(d[start:stop])
-            # with double rays the kernel takes the tree's origin and shifts them itself
+            # with world rays the kernel takes the tree's origin and shifts them itself
             origin = tuple(np.float64(x) for x in self._origin) if rays_world else ()
             # t in the tree's units is t / scale (directions are not scaled)
             self._launch("trace_rays", outputs, stop - start,

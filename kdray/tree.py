@@ -45,7 +45,7 @@ class BuildParams:
     K_T: float = 170.0
     """Cost of one traversal step, relative to K_I. W&H's Table 1 has 15 (for 20); on
     kdray's packet kernels a node visit costs more than that, mostly in cache misses,
-    while a triangle test of 8 lanes is one float8 pass. The value is the one that
+    while a triangle test of a packet's 8 or 16 lanes is one vector pass. The value is the one that
     builds fastest, with the fewest nodes, among those that trace as fast as any
     (bench/bench_sah.py; the figures are in BENCHMARKS.md)."""
     K_I: float = 20.0

@@ -221,9 +221,8 @@ uint fetch_batch(__local uint *slot, __global volatile uint *counter)
  * coordinates, origins of type ORIGIN_T and directions of DIRECTION_T (float or
  * double: -D options), converted here as the host would: (float)(((double)o -
  * origin) / scale), (float)d, each one rounding to nearest (the scale is a power of
- * two). The tree's
- * origin is a kernel argument (KD_ORIGIN_PARAMS), not a -D option, so that one
- * program serves every tree of scale 1. Directions are not scaled: t is found in the
+ * two). The tree's origin is a kernel argument (KD_ORIGIN_PARAMS), not a -D option,
+ * so that one program serves every tree of scale 1. Directions are not scaled: t is found in the
  * tree's units, t / scale, and SCALE turns it back when stored. */
 #if defined(RAYS_WORLD) && defined(REFINE) && defined(cl_khr_fp64)
 #define KD_TRACE_EXACT , origins, directions, o_step, (double3)(origin_x, origin_y, origin_z)

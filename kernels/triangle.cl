@@ -68,10 +68,11 @@ RayShear ray_shear(float3 d)
 }
 
 /* The bound on t's rounding error (pbrt-v4, after Woop et al.; the reasoning is at
- * its use in intersect_triangle), written once for float, double and float8: declares
- * `delta_t` of type T from the sheared coordinates Ax .. Cz and edge functions U, V, W
- * in scope, the shear's Sz and |det|. ABS, MAX and GAMMA are the type's absolute
- * value, maximum and gamma(n); the operations and their order are the same for all. */
+ * its use in intersect_triangle), written once for float, double and a packet's
+ * floatP: declares `delta_t` of type T from the sheared coordinates Ax .. Cz and edge
+ * functions U, V, W in scope, the shear's Sz and |det|. ABS, MAX and GAMMA are the
+ * type's absolute value, maximum and gamma(n); the operations and their order are the
+ * same for all. */
 #define KD_T_ERROR_BOUND(T, ABS, MAX, GAMMA, Sz, det_abs, delta_t)                          \
     T delta_t;                                                                             \
     {                                                                                      \

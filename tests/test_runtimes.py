@@ -136,6 +136,18 @@ def test_render_is_trace_of_the_camera_rays(runtime, scene):
         assert (images["id"] != 0xFFFFFFFF).sum() > w * h // 10
 
 
+def poisoned_tracers(runtime, tree):
+    """Tracers of `tree` with poisoned outputs at a CPU's work sizes with each packet
+    width and at a GPU's without packets (on a simulator, one small size)."""
+    sizes = ([(p, 8, 64 * p, 4) for p in PACKETS] + [(1, 64, 256, 2)] if not runtime.simulator
+             else [(1, 4, 12, 3)])
+    for packet, local, batch, groups in sizes:
+        tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local, batch_size=batch,
+                    groups=groups)
+        tr._poison_outputs = True
+        yield tr
+
+
 @pytest.mark.parametrize("model", ["opencv", "fisheye", "equirectangular", "orthographic"])
 def test_camera_model_render_is_trace_of_its_rays(runtime, model):
     """A camera model's render (its rays made in the kernel from a ray map, RAY_MAP)
@@ -158,12 +170,7 @@ def test_camera_model_render_is_trace_of_its_rays(runtime, model):
         distortion = ()
         K = np.array([[0.4 * w, 0, w / 2], [0, 0.4 * w, h / 2], [0, 0, 1]])
     cam = Camera(w, h, K, pin.cam_to_world, model, distortion)
-    sizes = ([(p, 8, 64 * p, 4) for p in PACKETS] + [(1, 64, 256, 2)] if not runtime.simulator
-             else [(1, 4, 12, 3)])
-    for packet, local, batch, groups in sizes:
-        tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local, batch_size=batch,
-                    groups=groups)
-        tr._poison_outputs = True
+    for tr in poisoned_tracers(runtime, tree):
         images = tr.render(cam, aovs=("depth", "normal", "bary", "id", "distance", "position"))
         o, d = tr.camera_rays(cam)
         hits = tr.trace(o, d)
@@ -197,12 +204,7 @@ def test_lidar_scan_is_trace_of_its_rays(runtime):
     M = pose[:3, :3].astype(np.float32)
     v = lidar.directions().astype(np.float32)
     d = np.stack([M[r, 0] * v[:, 0] + M[r, 1] * v[:, 1] + M[r, 2] * v[:, 2] for r in range(3)], 1)
-    sizes = ([(p, 8, 64 * p, 4) for p in PACKETS] + [(1, 64, 256, 2)] if not runtime.simulator
-             else [(1, 4, 12, 3)])
-    for packet, local, batch, groups in sizes:
-        tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local, batch_size=batch,
-                    groups=groups)
-        tr._poison_outputs = True
+    for tr in poisoned_tracers(runtime, tree):
         scan = tr.scan(lidar, pose)
         eye = tr._origin + tr._scale * ((pose[:3, 3] - tr._origin) / tr._scale).astype(np.float32)
         hits = tr.trace(eye, d)
