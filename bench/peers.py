@@ -94,10 +94,9 @@ def mitsuba_rays(o, d):
 
     Each array is made float32 in numpy (one pass over a contiguous array), copied flat
     into Dr.Jit and split into x, y, z by dr.unravel, a gather that runs in Dr.Jit's
-    threads. Of the conversions tried (bunny, 1024x1024 rays, a shared 2-core machine:
-    the whole cast, numpy to numpy) this was the fastest, 15-17.5 ms against 18-21 ms
-    with a (3, N) array (np.ascontiguousarray(o.T, np.float32)) or three mi.Float
-    columns per array."""
+    threads: the fastest of the conversions tried, faster than a (3, N) array or three
+    mi.Float columns, whose transpose in numpy costs more (commit 4aeee7e has the
+    figures)."""
     mi = mitsuba_module()
     import drjit as dr
     return mi.Ray3f(dr.unravel(mi.Point3f, mi.Float(np.ascontiguousarray(o, np.float32).ravel())),
@@ -129,7 +128,7 @@ def mitsuba_cast(scene, o, d, coherent=True):
 
     Dr.Jit is lazy and asynchronous: t and prim are evaluated together, in one kernel
     with the cast, and .numpy() waits for it. (Calling .numpy() on each alone would
-    run the cast twice: about twice the time.)"""
+    run the cast twice.)"""
     mi = mitsuba_module()
     import drjit as dr
     pi = scene.ray_intersect_preliminary(mitsuba_rays(o, d), coherent=coherent)
