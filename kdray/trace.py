@@ -151,9 +151,10 @@ def default_work_sizes(device, packet=1):
     keep the per-group barrier cheap and many groups (4 per core) balance the load
     through the counter; a batch is 8 rounds of the group (with packets, 512 rays: one
     64 x 8 render tile). On PoCL the size makes no difference from 1 to 16 work-items;
-    Intel's runtime vectorizes groups of 16 and more across work-items, which makes
-    both single rays in lockstep and packets slower (bench/tune_work_sizes.py,
-    BENCHMARKS.md).
+    Intel's runtime vectorizes a group as wide as its vector unit (8 with AVX2, 16 with
+    AVX-512) across work-items, which makes single rays in lockstep slower
+    (bench/tune_work_sizes.py, BENCHMARKS.md); packet kernels tell it not to
+    (render.cl, KD_VEC_HINT).
     GPU: 64 work-items (two warps / one wavefront), batches of 4 rays each, and about
     one full device of resident groups.
     """

@@ -44,6 +44,16 @@
 #include "packet.cl"
 #endif
 
+/* A packet kernel is vectorized by hand (floatP): vec_type_hint says so. Without it
+ * Intel's CPU runtime vectorizes a work-group across its work-items as soon as the
+ * group is as wide as its vector unit (8 work-items with AVX2), and a packet kernel
+ * so transposed runs about 30 times slower (BENCHMARKS.md, issue 20). PoCL and
+ * Oclgrind ignore the hint. */
+#ifdef PACKET
+#define KD_VEC_HINT __attribute__((vec_type_hint(floatP)))
+#else
+#define KD_VEC_HINT
+#endif
 #ifndef LOCAL_SIZE
 #define LOCAL_SIZE 64
 #endif
@@ -271,7 +281,7 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
  * (coalesced on a GPU). A kernel
  * argument, not a -D option, so that one program serves both and render_camera is
  * compiled the same either way. */
-__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_VEC_HINT
 void trace_rays(KD_TREE_ARGS,
                 __global const KD_ORIGIN_T *origins, __global const KD_DIRECTION_T *directions,
                 uint o_offset, uint d_offset,
@@ -334,7 +344,7 @@ void trace_rays(KD_TREE_ARGS,
 #ifndef TILE_H
 #define TILE_H 8
 #endif
-__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1)))
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_VEC_HINT
 void render_camera(KD_TREE_ARGS, __global const float *camera, __global const float *ray_map,
                    uint width, uint row0, uint n_rows,
                    __global volatile uint *counter, KD_OUTPUT_ARGS)
