@@ -536,6 +536,19 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     on &= kd_slabP(oy, dy, bmin.y, bmax.y, &t_enter, &t_exit);
     on &= kd_slabP(oz, dz, bmin.z, bmax.z, &t_enter, &t_exit);
     on &= t_enter <= t_exit;
+    if (!kd_anyP(on)) {
+        /* every ray misses the scene's box (most packets of a camera framing the
+         * scene): nothing to set up */
+        *t_out = (floatP)(t_max);
+        *u_out = (floatP)(0.0f);
+        *v_out = (floatP)(0.0f);
+        *tri_out = (uintP)(KD_NO_HIT);
+#ifdef STATS
+        stat_x->v = (uintP)(0u); stat_y->v = (uintP)(0u); stat_z->v = (uintP)(0u);
+        stat_w->v = (uintP)(0u);
+#endif
+        return;
+    }
 
     /* ray_shear for every lane */
     KdPacket r;
