@@ -404,7 +404,7 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             for (uint l = 0; l < KD_PACKET; l++) {
                 float3 v = on.s[l] ? vload3((size_t)row0 * width + idx[l], ray_map)
                                    : (float3)(0.0f, 0.0f, 1.0f);
-                if (isnan(v.x))
+                if (kd_isnan(v.x))
                     on.s[l] = 0;
                 x.s[l] = v.x; y.s[l] = v.y; z.s[l] = on.s[l] ? v.z : 1.0f;
             }
@@ -432,7 +432,7 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             float3 o = eye;
 #ifdef RAY_MAP
             float3 v = vload3((size_t)row0 * width + idx, ray_map);
-            if (isnan(v.x))          /* no ray: the host writes the miss */
+            if (kd_isnan(v.x))       /* no ray: the host writes the miss */
                 continue;
             float3 d = (float3)(m0.x * v.x + m0.y * v.y + m0.z * v.z,
                                 m1.x * v.x + m1.y * v.y + m1.z * v.z,

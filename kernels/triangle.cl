@@ -132,6 +132,8 @@ bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, fl
 #endif
 
 #if defined(REFINE) && defined(cl_khr_fp64)
+/* x is neither infinite nor NaN (isfinite(), which PoCL calls out of line: ops.h) */
+KD_INLINE bool kd_finite_d(double x) { return x - x == 0.0; }
 KD_INLINE double kd_dot_d(double ax, double ay, double az, double bx, double by, double bz)
 {
     return (ax * bx + ay * by) + az * bz;
@@ -167,7 +169,7 @@ void kd_refine_hit(double3 o, double3 d, float3 p0, float3 p1, float3 p2, float 
     double vv = kd_dot_d(e1y * hz - e1z * hy, e1z * hx - e1x * hz, e1x * hy - e1y * hx,
                          nx, ny, nz) / nn;
     float tf = (float)tt;
-    if (!(tf > t_min && tf < t_max && isfinite(uu) && isfinite(vv)))
+    if (!(tf > t_min && tf < t_max && kd_finite_d(uu) && kd_finite_d(vv)))
         return;
     /* within the triangle up to rounding: clamped to its closure */
     float uf = kd_clamp((float)uu, 0.0f, 1.0f);
