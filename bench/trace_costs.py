@@ -1,0 +1,84 @@
+"""Where `Tracer.trace`'s time goes beside `render`'s on the same rays: the order the
+rays come in, their type, a shared origin and the double-precision refinement, each
+timed in turns against the others.
+
+usage: python bench/trace_costs.py [--meshes bunny,bunny-1.6M] [--size 1024]
+                                   [--repeat 7] [--device intel]
+
+For each mesh, the framing camera's rays (`Camera.rays`: float64 origins and
+directions, row-major pixels) are traced as:
+
+  render depth         Tracer.render(camera, ["depth"]): the same rays, made on the
+                       device, in packets of 4 x 2 (AVX2) or 4 x 4 pixels
+  trace rows f64       Tracer.trace(o, d, outputs=()): what bench_trace.py times
+  trace blocks f64     the same rays reordered into blocks of 4 x 2 pixels first (the
+                       reordering is not timed): the cost of a caller's row order
+  trace rows f32       float32 copies of o and d: the cost of reading float64
+  trace one origin     the camera's eye (3,) for every ray, float64 directions
+  trace no refine      a Tracer(refine=False): t, u, v not recomputed in double
+  render no refine     the same for render
+
+all in one round robin (`timing.round_robin`), medians of --repeat rounds. Every
+variant's t equals the plain trace's for the rays it shares bit for bit, except
+those without refinement.
+"""
+import argparse
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from meshes import mesh as bench_mesh  # noqa: E402
+from timing import median_ratio, round_robin  # noqa: E402
+
+import kdray  # noqa: E402
+
+
+def block_order(size, w=4, h=2):
+    """Indices of a size x size row-major image's pixels in blocks of w x h, the blocks
+    row-major (size a multiple of both)."""
+    return np.arange(size * size).reshape(size // h, h, size // w, w).transpose(0, 2, 1, 3).reshape(-1)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--meshes", default="bunny,bunny-1.6M")
+    ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--device", default=None)
+    args = ap.parse_args()
+    for name in args.meshes.split(","):
+        m = bench_mesh(name)
+        tree = kdray.build(m.vertices, m.faces)
+        lo, hi = tree.world_box()
+        camera = kdray.Camera.frame(lo, hi, args.size, args.size)
+        o, d = camera.rays()
+        order = block_order(args.size)
+        ob, db = np.ascontiguousarray(o[order]), np.ascontiguousarray(d[order])
+        o32, d32 = o.astype(np.float32), d.astype(np.float32)
+        tracer = kdray.Tracer(tree, device=args.device)
+        plain = kdray.Tracer(tree, device=args.device, refine=False)
+        calls = {"render depth": lambda: tracer.render(camera, ["depth"])["depth"].ravel(),
+                 "trace rows f64": lambda: tracer.trace(o, d, outputs=()).t,
+                 "trace blocks f64": lambda: tracer.trace(ob, db, outputs=()).t,
+                 "trace rows f32": lambda: tracer.trace(o32, d32, outputs=()).t,
+                 "trace one origin": lambda: tracer.trace(camera.eye, d, outputs=()).t,
+                 "trace no refine": lambda: plain.trace(o, d, outputs=()).t,
+                 "render no refine": lambda: plain.render(camera, ["depth"])["depth"].ravel()}
+        seconds, _, results = round_robin(calls, args.repeat)
+        t = results["trace rows f64"]
+        same = {"trace blocks f64": np.array_equal(results["trace blocks f64"], t[order]),
+                "trace one origin": np.array_equal(results["trace one origin"], t)}
+        print(f"## {name}: {len(m.faces):,} triangles, {args.size}x{args.size} rays, "
+              f"{tracer.device.name.strip()} ({tracer.device.platform.name.strip()}), "
+              f"packets of {tracer.packet}")
+        print(f"{'call':<18} {'ms':>7} {'x trace rows f64':>17}  same t")
+        for call, s in seconds.items():
+            ratio = median_ratio(s, seconds["trace rows f64"])
+            print(f"{call:<18} {np.median(s) * 1e3:>7.1f} {ratio:>17.3f}  {same.get(call, '')}",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()
