@@ -26,7 +26,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from meshes import mesh as bench_mesh  # noqa: E402
+from meshes import framed  # noqa: E402
 
 import kdray  # noqa: E402
 from kdray import layout  # noqa: E402
@@ -88,11 +88,7 @@ def main():
     args = ap.parse_args()
     print(f"{'mesh':<12} {'group':<8} {'miss box':>8} {'entry depth':>11} {'steps':>6} {'share':>6}")
     for name in args.meshes.split(","):
-        m = bench_mesh(name)
-        tree = kdray.build(m.vertices, m.faces)
-        lo, hi = tree.world_box()
-        camera = kdray.Camera.frame(lo, hi, args.size, args.size)
-        o, d = camera.rays()
+        _, tree, _, o, d = framed(name, args.size)
         steps = kdray.Tracer(tree, device=args.device)._trace(o, d, stats=True)[1][:, 0]
         o = o - tree.origin
         for shape in args.shapes.split(","):

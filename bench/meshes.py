@@ -52,3 +52,17 @@ def mesh(name):
         v, f = subdivide(m.vertices, m.faces, times)
         m = Mesh.from_arrays(v, f, name=name)
     return m
+
+
+def framed(name, size):
+    """(mesh, tree, camera, o, d) of the mesh `name`: its tree (default parameters), the
+    camera framing the tree's box at size x size pixels (`Camera.frame`) and that
+    camera's rays (`Camera.rays`: (size * size, 3) float64 origins and directions,
+    row-major pixels)."""
+    import kdray
+    m = mesh(name)
+    tree = kdray.build(m.vertices, m.faces)
+    lo, hi = tree.world_box()
+    camera = kdray.Camera.frame(lo, hi, size, size)
+    o, d = camera.rays()
+    return m, tree, camera, o, d

@@ -29,7 +29,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from meshes import mesh as bench_mesh  # noqa: E402
+from meshes import framed  # noqa: E402
 from timing import median_ratio, round_robin  # noqa: E402
 
 import kdray  # noqa: E402
@@ -49,11 +49,7 @@ def main():
     ap.add_argument("--device", default=None)
     args = ap.parse_args()
     for name in args.meshes.split(","):
-        m = bench_mesh(name)
-        tree = kdray.build(m.vertices, m.faces)
-        lo, hi = tree.world_box()
-        camera = kdray.Camera.frame(lo, hi, args.size, args.size)
-        o, d = camera.rays()
+        m, tree, camera, o, d = framed(name, args.size)
         order = block_order(args.size)
         ob, db = np.ascontiguousarray(o[order]), np.ascontiguousarray(d[order])
         o32, d32 = o.astype(np.float32), d.astype(np.float32)
