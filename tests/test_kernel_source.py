@@ -43,14 +43,3 @@ def test_the_check_sees_a_function_without_it():
     text = "KD_INLINE float a(float x) { return x; }\nfloat3 b(float3 v)\n{\n    return v;\n}\n"
     assert functions(text) == [("a", True), ("b", False)]
 
-
-def test_every_entry_point_says_a_packet_is_vectorized_by_hand():
-    """Intel's CPU runtime transposes a work-group's packets across its vector lanes
-    unless the kernel's vec_type_hint names the packet's vector type (render.cl,
-    KD_VEC_HINT): about 30 times slower with AVX2."""
-    text = (KERNEL_DIR / "render.cl").read_text(encoding="utf-8")
-    kernels = re.findall(r"^__kernel\b(.*)$", text, flags=re.M)
-    assert len(kernels) == 2
-    assert all("KD_VEC_HINT" in line for line in kernels), kernels
-    hint = re.search(r"#ifdef PACKET\s*\n#define KD_VEC_HINT (.*)\n", text)
-    assert hint and hint.group(1).strip() == "__attribute__((vec_type_hint(floatP)))"
