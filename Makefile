@@ -28,8 +28,8 @@ render: $(STAMP)
 	$(BIN)/kdray render $(SCENE) --camera $(CAMERA) -o $(OUT)/cornell.exr --preview $(OUT)/cornell.png
 
 # The test suite (about 4.5 minutes on 2 cores with warm caches; a fresh clone, whose
-# kernels (both packet widths) and numba functions compile first, about 19 on Intel's
-# CPU runtime, which builds a program in about 5 s): tests/test_runtimes.py on every OpenCL
+# kernels (both packet widths) and numba functions compile first, 19-23: Intel's CPU
+# runtime builds a program in about 5 s, PoCL in under 1): tests/test_runtimes.py on every OpenCL
 # implementation that works here, the rest on the default device; the summary says
 # which were covered. Long checks are `make test-long`.
 test: $(STAMP)
