@@ -9,6 +9,8 @@ that is right on PoCL (work-items one after another) can be wrong there
 interleaved slots, copied buffers) on small cases and fails a test on any invalid
 access, data race or divergent barrier it sees. Scenes come from scenes/ and from
 random triangles, so these tests need nothing outside the repository."""
+import warnings
+
 import numpy as np
 import pytest
 
@@ -215,22 +217,24 @@ def test_lidar_scan_is_trace_of_its_rays(runtime):
 
 
 @pytest.mark.parametrize("packet", PACKETS)
-def test_packet_kernels_say_they_are_vectorized_by_hand(runtime, packet):
+def test_packet_kernels_say_they_are_vectorized_by_hand(runtime, packet, tmp_path):
     """Both entry points of a packet program carry vec_type_hint of the packet's float
     vector (render.cl, KD_VEC_HINT), as the implementation reports them
     (CL_KERNEL_ATTRIBUTES). Without it Intel's CPU runtime transposes a work-group's
     packets across its vector lanes: about 30 times slower with AVX2. Built from
-    source (a define no other build has: a program loaded from pyopencl's binary cache
-    reports no attributes on Intel's runtime); an implementation that reports none is
-    skipped."""
-    import uuid
-
+    source with pyopencl's binary cache in a folder of its own (a program loaded from
+    that cache reports no attributes on Intel's runtime); an implementation that
+    reports none is skipped."""
     from kdray import device as _device
     cl = _device._cl()
-    context = cl.Context([_device.choose_device(runtime.spec)])
-    program = _device.build_program(context, "render.cl", {
-        "LOCAL_SIZE": 8, "BATCH_SIZE": 8 * packet, "PACKET": packet, "OUT_T": None,
-        "KD_FRESH_BUILD": f"0x{uuid.uuid4().hex[:8]}"})
+    device = _device.choose_device(runtime.spec)
+    options = _device.build_options(device, {"LOCAL_SIZE": 8, "BATCH_SIZE": 8 * packet,
+                                             "PACKET": packet, "OUT_T": None})
+    source = (_device.KERNEL_DIR / "render.cl").read_text(encoding="utf-8")
+    context = cl.Context([device])
+    with warnings.catch_warnings():          # PoCL's and Intel's harmless notes
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        program = cl.Program(context, source).build(options, cache_dir=str(tmp_path))
     for name in ("trace_rays", "render_camera"):
         try:
             attributes = cl.Kernel(program, name).get_info(cl.kernel_info.ATTRIBUTES)
