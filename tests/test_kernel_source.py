@@ -42,4 +42,3 @@ def test_every_function_is_inlined():
 def test_the_check_sees_a_function_without_it():
     text = "KD_INLINE float a(float x) { return x; }\nfloat3 b(float3 v)\n{\n    return v;\n}\n"
     assert functions(text) == [("a", True), ("b", False)]
-
