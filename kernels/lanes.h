@@ -29,6 +29,7 @@ typedef uint16 uintP;
 #define as_intP as_int16
 #define as_uintP as_uint16
 #define convert_floatP convert_float16
+#define vloadP vload16
 #define KD_LANE_INDEX (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
 #define KD_LANE_INDEX_U (uint16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
 #elif KD_PACKET == 8
@@ -39,10 +40,23 @@ typedef uint8 uintP;
 #define as_intP as_int8
 #define as_uintP as_uint8
 #define convert_floatP convert_float8
+#define vloadP vload8
 #define KD_LANE_INDEX (int8)(0, 1, 2, 3, 4, 5, 6, 7)
 #define KD_LANE_INDEX_U (uint8)(0, 1, 2, 3, 4, 5, 6, 7)
 #else
 #error "KD_PACKET must be 8 or 16"
+#endif
+
+/* doubleP: KD_PACKET lanes of double, where the device has doubles (the includer
+ * enables cl_khr_fp64) */
+#ifdef cl_khr_fp64
+#if KD_PACKET == 16
+typedef double16 doubleP;
+#define convert_doubleP convert_double16
+#else
+typedef double8 doubleP;
+#define convert_doubleP convert_double8
+#endif
 #endif
 
 KD_INLINE floatP kd_absP(floatP x) { return as_floatP(as_uintP(x) & (uintP)(0x7FFFFFFFu)); }

@@ -269,6 +269,56 @@ float3 kd_ray_direction(__global const DIRECTION_T *p, size_t i)
 KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd_load3(p, i); }
 #endif
 
+#ifdef PACKET
+/* The KD_PACKET rays k0 .. k0 + KD_PACKET - 1 (k0 a multiple of KD_PACKET) as a
+ * packet's lanes, each converted as KD_RAY_ORIGIN and kd_ray_direction convert it
+ * (the same operations on the same values: bit for bit), but in vectors: the 3 x
+ * KD_PACKET numbers of the directions, and of the origins unless all rays share one
+ * (o_step 0: o_shared, converted), are 3 vector loads, shifted and rounded as vectors
+ * and only then dealt out to the x, y, z lanes. */
+typedef union { floatP v[3]; float s[3 * KD_PACKET]; } KdFP3;
+#ifdef RAYS_WORLD
+/* the tree's origin repeated x, y, z, x, ... over 3 x KD_PACKET lanes */
+typedef union { doubleP v[3]; double s[3 * KD_PACKET]; } KdDP3;
+#define KD_ORIGIN_PATTERN_PARAM , const KdDP3 *origin_pattern
+#define KD_ORIGIN_PATTERN_ARG , &origin_pattern
+#else
+#define KD_ORIGIN_PATTERN_PARAM
+#define KD_ORIGIN_PATTERN_ARG
+#endif
+KD_INLINE
+void kd_load_packet(__global const KD_ORIGIN_T *origins,
+                    __global const KD_DIRECTION_T *directions, uint k0, uint o_step,
+                    float3 o_shared, KdFP *ox, KdFP *oy, KdFP *oz, KdFP *dx, KdFP *dy, KdFP *dz
+                    KD_ORIGIN_PATTERN_PARAM)
+{
+    KdFP3 o, d;
+    size_t chunk = 3 * (size_t)(k0 / KD_PACKET);
+    for (uint i = 0; i < 3; i++) {
+#ifdef RAYS_WORLD
+        /* (float)(((double)o - origin) * (1 / scale)): KD_SCALE_INV is 1.0 at scale 1 */
+        if (o_step)
+            o.v[i] = convert_floatP((convert_doubleP(vloadP(chunk + i, origins))
+                                     - origin_pattern->v[i]) * KD_SCALE_INV);
+        d.v[i] = convert_floatP(vloadP(chunk + i, directions));
+#else
+        if (o_step)
+            o.v[i] = vloadP(chunk + i, origins);
+        d.v[i] = vloadP(chunk + i, directions);
+#endif
+    }
+    if (!o_step) {
+        ox->v = (floatP)(o_shared.x); oy->v = (floatP)(o_shared.y); oz->v = (floatP)(o_shared.z);
+    }
+    for (uint l = 0; l < KD_PACKET; l++) {
+        if (o_step) {
+            ox->s[l] = o.s[3 * l]; oy->s[l] = o.s[3 * l + 1]; oz->s[l] = o.s[3 * l + 2];
+        }
+        dx->s[l] = d.s[3 * l]; dy->s[l] = d.s[3 * l + 1]; dz->s[l] = d.s[3 * l + 2];
+    }
+}
+#endif
+
 /* Nearest hits of n_rays rays: origin k * o_step (o_step 1, or 0 for one origin shared
  * by all rays) and direction k of each ray k.
  * o_offset, d_offset: where the rays start in their buffers, in elements (a buffer
@@ -296,6 +346,14 @@ void trace_rays(KD_TREE_ARGS,
     uint first = get_local_id(0) * (item_runs ? run : KD_RAYS_PER_ITEM);
     uint end = item_runs ? first + run : BATCH_SIZE;
     uint step = item_runs ? KD_RAYS_PER_ITEM : LOCAL_SIZE * KD_RAYS_PER_ITEM;
+#ifdef PACKET
+    float3 o_shared = o_step ? (float3)(0.0f) : KD_RAY_ORIGIN(origins, 0);
+#ifdef RAYS_WORLD
+    KdDP3 origin_pattern;
+    for (uint i = 0; i < 3 * KD_PACKET; i++)
+        origin_pattern.s[i] = i % 3 == 0 ? origin_x : i % 3 == 1 ? origin_y : origin_z;
+#endif
+#endif
     __local uint batch;
     for (;;) {
         uint start = fetch_batch(&batch, counter);
@@ -306,6 +364,24 @@ void trace_rays(KD_TREE_ARGS,
             if (k0 >= n_rays)
                 break;
             uint count = min((uint)KD_RAYS_PER_ITEM, n_rays - k0);
+#ifdef PACKET
+            if (count == KD_PACKET) {
+                KdFP ox, oy, oz, dx, dy, dz;
+                KdIP on;
+                /* every lane is on, but computed: with a constant mask Oclgrind 21.10
+                 * gets other hits than PoCL and Intel's runtime (the soup scene of
+                 * tests/test_runtimes.py), as with its constant selects (lanes.h) */
+                on.v = (intP)((int)k0) + KD_LANE_INDEX < (intP)((int)n_rays);
+                uint idx[KD_PACKET];
+                for (uint l = 0; l < KD_PACKET; l++)
+                    idx[l] = k0 + l;
+                kd_load_packet(origins, directions, k0, o_step, o_shared, &ox, &oy, &oz, &dx, &dy, &dz
+                               KD_ORIGIN_PATTERN_ARG);
+                trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
+                                       KD_OUTPUT_PASS, idx KD_TRACE_EXACT);
+                continue;
+            }
+#endif
             float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
             uint idx[KD_RAYS_PER_ITEM];
             for (uint l = 0; l < count; l++) {
