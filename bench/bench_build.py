@@ -53,12 +53,6 @@ SIZES = ["bunny-10k", "bunny-20k", "bunny-40k", "bunny", "bunny-x4", "bunny-x16"
 def make_mesh(name):
     """name -> (vertices (n,3) float64, faces (m,3) int64)."""
     from meshes import mesh as bench_mesh
-    if name.startswith("bunny-") and name.endswith("k"):
-        m = bench_mesh("bunny")
-        keep = int(name[len("bunny-"):-1]) * 1000
-        height = m.vertices[m.faces].mean(axis=1)[:, 1]
-        faces = m.faces[np.sort(np.argsort(height, kind="stable")[:keep])]
-        return m.vertices, faces
     m = bench_mesh(name)
     return m.vertices, m.faces
 

@@ -5,7 +5,8 @@ deterministic subdivisions of them.
 (each triangle split into 4 once: 277,804), "teapot-x256" (1,617,920), ...
 A suffix -x4^k subdivides k times (midpoint subdivision, deterministic); "bunny-1.6M"
 is the bunny subdivided twice and its first 162,928 faces a third time (1,600,000),
-"bunny-6M" three times and then part of a fourth (5,999,998): PARTIAL.
+"bunny-6M" three times and then part of a fourth (5,999,998): PARTIAL. A suffix -<N>k
+cuts the mesh by a horizontal plane to its lowest N thousand triangles ("bunny-10k").
 """
 import math
 from pathlib import Path
@@ -43,6 +44,13 @@ def mesh(name):
         v, f = trimesh.remesh.subdivide(v, f, face_index=np.arange(extra))
         return Mesh.from_arrays(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64),
                                 name=name)
+    base, _, cut = name.partition("-")
+    if cut.endswith("k") and cut[:-1].isdigit():
+        # the faces whose centroids are lowest (y), in their order in the file
+        m = mesh(base)
+        height = m.vertices[m.faces].mean(axis=1)[:, 1]
+        keep = np.sort(np.argsort(height, kind="stable")[:int(cut[:-1]) * 1000])
+        return Mesh.from_arrays(m.vertices, m.faces[keep], name=name)
     base, _, factor = name.partition("-x")
     m = load(MESHES / f"{FILES[base]}.gz")
     if factor:
