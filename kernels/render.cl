@@ -371,7 +371,7 @@ void trace_rays(KD_TREE_ARGS,
                 /* every lane is on, but computed: with a constant mask Oclgrind 21.10
                  * gets other hits than PoCL and Intel's runtime (the soup scene of
                  * tests/test_runtimes.py), as with its constant selects (lanes.h) */
-                on.v = (intP)((int)k0) + KD_LANE_INDEX < (intP)((int)n_rays);
+                on.v = (uintP)(k0) + KD_LANE_INDEX_U < (uintP)(n_rays);
                 uint idx[KD_PACKET];
                 for (uint l = 0; l < KD_PACKET; l++)
                     idx[l] = k0 + l;
