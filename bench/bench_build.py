@@ -47,14 +47,10 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+from meshes import mesh as bench_mesh  # noqa: E402
 
 SIZES = ["bunny-10k", "bunny-20k", "bunny-40k", "bunny", "bunny-x4", "bunny-x16", "bunny-1.6M",
          "bunny-x64", "bunny-6M"]
-def make_mesh(name):
-    """name -> (vertices (n,3) float64, faces (m,3) int64)."""
-    from meshes import mesh as bench_mesh
-    m = bench_mesh(name)
-    return m.vertices, m.faces
 
 
 def proc_status(field):
@@ -138,12 +134,13 @@ def main():
           f"{'t/(n lg n)':>11}{'ns/node':>9}{'O3D s':>8}{'x O3D':>7}")
     with tempfile.TemporaryDirectory() as tmp:
         for name in SIZES:
-            vertices, faces = make_mesh(name)
+            m = bench_mesh(name)
+            vertices, faces = m.vertices, m.faces
             if len(faces) > args.max_tris:
                 continue
             path = os.path.join(tmp, "mesh.npz")
             np.savez(path, vertices=vertices, faces=faces)
-            del vertices, faces
+            del m, vertices, faces
             cmd = [sys.executable, __file__, "--child", path, "--repeat", str(args.repeat)]
             if args.threads is not None:
                 cmd += ["--threads", str(args.threads)]

@@ -32,7 +32,7 @@ def subdivide(vertices, faces, times):
 
 
 def mesh(name):
-    """'bunny', 'bunny-x4', 'teapot-x256', ... -> kdray.mesh.Mesh."""
+    """'bunny', 'bunny-x4', 'teapot-x256', 'bunny-10k', ... -> kdray.mesh.Mesh."""
     from kdray.load import load
     from kdray.mesh import Mesh
     if name in PARTIAL:
