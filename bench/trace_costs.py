@@ -11,8 +11,9 @@ directions, row-major pixels) are traced as:
   render depth         Tracer.render(camera, ["depth"]): the same rays, made on the
                        device, in packets of 4 x 2 (AVX2) or 4 x 4 pixels
   trace rows f64       Tracer.trace(o, d, outputs=()): what bench_trace.py times
-  trace blocks f64     the same rays reordered into blocks of 4 x 2 pixels first (the
-                       reordering is not timed): the cost of a caller's row order
+  trace blocks f64     the same rays reordered into render's blocks of 4 x 2 or 4 x 4
+                       pixels first (the reordering is not timed): the cost of a
+                       caller's row order
   trace rows f32       float32 copies of o and d: the cost of reading float64
   trace one origin     the camera's eye (3,) for every ray, float64 directions
   trace no refine      a Tracer(refine=False): t, u, v not recomputed in double
@@ -50,10 +51,11 @@ def main():
     args = ap.parse_args()
     for name in args.meshes.split(","):
         m, tree, camera, o, d = framed(name, args.size)
-        order = block_order(args.size)
+        tracer = kdray.Tracer(tree, device=args.device)
+        # blocks of 4 x packet / 4 pixels: the packets render_camera makes
+        order = block_order(args.size, 4, max(tracer.packet // 4, 1))
         ob, db = np.ascontiguousarray(o[order]), np.ascontiguousarray(d[order])
         o32, d32 = o.astype(np.float32), d.astype(np.float32)
-        tracer = kdray.Tracer(tree, device=args.device)
         plain = kdray.Tracer(tree, device=args.device, refine=False)
         calls = {"render depth": lambda: tracer.render(camera, ["depth"])["depth"].ravel(),
                  "trace rows f64": lambda: tracer.trace(o, d, outputs=()).t,
