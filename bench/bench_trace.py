@@ -14,6 +14,8 @@ them alike and no call pays for the one before's worker threads):
   kdray trace             Tracer.trace(origins, directions) from numpy to numpy: t,
                           prim, u, v and normal
   kdray trace t,prim      the same with outputs=(): t and prim, as Mitsuba's below
+  kdray trace HxW t,prim  the same rays shaped (H, W, 3), as an image's are: traced in
+                          packets of 4 x 2 or 4 x 4 pixels (hits (H, W), flattened)
   open3d pinhole depth    create_rays_pinhole(K, pose) + cast_rays + t_hit to numpy
   open3d cast             RaycastingScene.cast_rays on a prepared tensor (cast only)
   open3d numpy            numpy rays -> tensor -> cast_rays -> numpy
@@ -27,8 +29,8 @@ them alike and no call pays for the one before's worker threads):
   embreex                 trimesh's embreex front end, numpy to numpy (if installed)
 and the ratios of the two workflows of issue 6, kdray render depth / open3d pinhole
 depth and kdray trace / open3d numpy, and of issue 20 against Mitsuba 3's CPU ray
-casting, kdray trace t,prim / mitsuba prelim coherent and kdray render depth / mitsuba
-depth
+casting, kdray trace t,prim (and HxW t,prim) / mitsuba prelim coherent and kdray render
+depth / mitsuba depth
 (>= 1: kdray is faster), each the median of the per-round ratios of the peer's time to
 kdray's. Mitsuba runs as bench/peers.py's MITSUBA_VARIANT (llvm_ad_rgb); a peer that
 is not installed is left out with a note.
@@ -205,14 +207,15 @@ def main():
             img = tracer.render(camera, aovs=aovs)
             return img["depth"].ravel(), img["id"].ravel() if "id" in img else None
 
-        def trace(outputs):
-            hits = tracer.trace(o, d, outputs=outputs)
-            return hits.t, hits.prim
+        def trace(outputs, shape=(-1,)):
+            hits = tracer.trace(o.reshape(shape + (3,)), d.reshape(shape + (3,)), outputs=outputs)
+            return hits.t.ravel(), hits.prim.ravel()
 
         calls = {"kdray render depth": lambda: render(("depth",)),
                  "kdray render default": lambda: render(DEFAULT_AOVS),
                  "kdray trace": lambda: trace(TRACE_OUTPUTS),
-                 "kdray trace t,prim": lambda: trace(())}
+                 "kdray trace t,prim": lambda: trace(()),
+                 "kdray trace HxW t,prim": lambda: trace((), (args.size, args.size))}
         builds = {"kdray": build_s}
         for peer, peer_calls in (("open3d", open3d_calls), ("mitsuba", mitsuba_calls)):
             if versions[peer]:
@@ -238,6 +241,7 @@ def main():
         for ours, theirs in [("kdray render depth", "open3d pinhole depth"),
                              ("kdray trace", "open3d numpy"),
                              ("kdray trace t,prim", "mitsuba prelim coherent"),
+                             ("kdray trace HxW t,prim", "mitsuba prelim coherent"),
                              ("kdray render depth", "mitsuba depth")]:
             if theirs in seconds:
                 print(f"# {name}: {ours} / {theirs} = {median_ratio(seconds[theirs], seconds[ours]):.2f}"

@@ -5,7 +5,8 @@
     hits.t, hits.prim, hits.u, hits.v, hits.normal, hits.object
     images = tracer.render(camera, aovs=("depth", "normal", "bary", "id"))
 
-Arrays returned::
+Arrays returned (for (N, 3) rays; rays shaped (..., 3) give arrays of their shape
+(...) and normal (..., 3))::
 
     Hits.t       (N,) float32     ray parameter in units of |direction|; +inf on a miss
     Hits.prim    (N,) uint32      input triangle id; 0xFFFFFFFF on a miss
@@ -101,6 +102,15 @@ class Hits:
 
     def __len__(self):
         return len(self.t)
+
+    def _reshaped(self, shape):
+        """The same hits as arrays of `shape` (the rays' shape; normal shape + (3,)):
+        views where numpy can make them."""
+        def part(a, tail=()):
+            return None if a is None else a.reshape(shape + tail)
+
+        return Hits(part(self.t), part(self.prim), part(self.u), part(self.v),
+                    part(self.normal, (3,)), object_table=self.object_table)
 
     def __getitem__(self, index):
         """The hits of a subset of the rays (a slice, mask or index array)."""
@@ -492,6 +502,11 @@ class Tracer:
 
         origins : (N, 3) or (3,) float64 or float32, world coordinates
         directions : (N, 3), any length (t is in units of |direction|)
+            Image-shaped rays, (H, W, 3) (or (..., H, W, 3)) for directions and
+            origins (or (3,) origins), give Hits of shape (H, W) (normal (H, W, 3)):
+            on a CPU they are traced in packets of 4 x 2 or 4 x 4 neighbouring pixels,
+            as `render` traces its own, which share more of the tree than a row's,
+            with the same hits bit for bit.
         t_min : >= 0 (default 0: hits behind the origin or at it never count)
         precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
             v in float64 from the tree's float64 triangles (KdTree.triangles64) and
@@ -511,12 +526,15 @@ class Tracer:
         kernel = tuple(name.upper() for name in outputs)
         if double:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
-        hits, _ = self._trace(origins, directions, t_min, t_max, outputs=kernel)
+        origins, directions, shape = _flat_rays(origins, directions)
+        image_w = shape[-1] if len(shape) >= 2 else 0
+        hits, _ = self._trace(origins, directions, t_min, t_max, outputs=kernel,
+                              image_w=image_w)
         if double:
             hits = self._double_hits(hits, origins, directions)
             if "uv" not in outputs:
                 hits = dataclasses.replace(hits, u=None, v=None)
-        return hits
+        return hits if len(shape) == 1 else hits._reshaped(shape)
 
     def _double_hits(self, hits, origins, directions):
         """`hits` with t, u, v (float64) recomputed from the float64 triangles."""
@@ -528,9 +546,11 @@ class Tracer:
                     object_table=hits.object_table)
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False,
-               outputs=KERNEL_OUTPUTS):
+               outputs=KERNEL_OUTPUTS, image_w=0):
         """(Hits, STATS or None) of the rays; outputs: the kernel outputs computed and
-        stored (KERNEL_OUTPUTS order; T and ID always), the others None in Hits."""
+        stored (KERNEL_OUTPUTS order; T and ID always), the others None in Hits.
+        image_w: 0, or the rays are rows of an image that wide (N a multiple of it),
+        traced in packets of blocks of pixels (render.cl, trace_rays)."""
         outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | {"T", "ID"})
         t_min, t_max = float(t_min), float(t_max)
         if not (t_min >= 0.0 and t_max >= t_min):
@@ -543,16 +563,27 @@ class Tracer:
         o_bytes, d_bytes = (_RAY_BYTES[t] for t in rays_world or ("float", "float"))
         widths = [o_bytes] * o_step + [d_bytes] + [OUTPUT_WIDTH[k][0] * 4 for k in out]
         per_launch = self._launch_size(widths)
+        # with image blocks a launch takes whole rows of blocks (4 rows with packets
+        # of 16); a band that does not fit in one launch is traced in rows
+        band_rows = self.packet // 4 if image_w and self.packet > 1 else 0
+        if band_rows and image_w * band_rows <= per_launch:
+            per_launch -= per_launch % (image_w * band_rows)
+        else:
+            image_w = 0
         for start in range(0, n, per_launch):
             stop = min(n, start + per_launch)
+            slots = stop - start
+            if image_w:
+                rows = slots // image_w
+                slots = -(-image_w // 4) * -(-rows // band_rows) * self.packet
             o_buf, o_offset = self._input_buffer(o[start:stop] if o_step else o)
             d_buf, d_offset = self._input_buffer(d[start:stop])
             # with world rays the kernel takes the tree's origin and shifts them itself
             origin = tuple(np.float64(x) for x in self._origin) if rays_world else ()
             # t in the tree's units is t / scale (directions are not scaled)
-            self._launch("trace_rays", outputs, stop - start,
+            self._launch("trace_rays", outputs, slots,
                          (o_buf, d_buf, np.uint32(o_offset), np.uint32(d_offset),
-                          np.uint32(o_step), np.uint32(stop - start),
+                          np.uint32(o_step), np.uint32(stop - start), np.uint32(image_w),
                           np.float32(t_min / self._scale), np.float32(t_max / self._scale),
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
@@ -773,6 +804,22 @@ def _precision(precision, tree):
     if missing:
         raise KdrayError(missing)
     return precision == "double"
+
+
+def _flat_rays(origins, directions):
+    """(origins, directions, shape) for `Tracer.trace`: directions (..., 3) as (N, 3)
+    and origins, (3,) or of the directions' shape, as (N, 3) or (3,) (views where numpy
+    can make them); shape: the rays' shape, directions.shape[:-1]. KdrayError for
+    other shapes."""
+    d = np.asarray(directions)
+    if d.ndim < 2 or d.shape[-1] != 3:
+        raise KdrayError(f"directions must be an (N, 3) or (H, W, 3) array, got shape {d.shape}")
+    o = np.asarray(origins)
+    if o.shape != (3,) and o.shape != d.shape:
+        raise KdrayError(f"origins {o.shape} must be (3,) or the directions' shape {d.shape}")
+    if d.ndim == 2:
+        return o, d, d.shape[:1]
+    return (o if o.shape == (3,) else o.reshape(-1, 3)), d.reshape(-1, 3), d.shape[:-1]
 
 
 _RAY_BYTES = {"float": 12, "double": 24}

@@ -323,6 +323,10 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
  * by all rays) and direction k of each ray k.
  * o_offset, d_offset: where the rays start in their buffers, in elements (a buffer
  * over the host's array from the page it starts in: kdray/trace.py, _input_buffer).
+ * image_w: 0, or the rays are the rows of an image image_w rays wide (n_rays a
+ * multiple of it) and, with PACKET, a packet is a block of 4 x KD_PACKET / 4 of them,
+ * as render_camera's (closer together than a row of KD_PACKET); its lanes past the
+ * image's right or bottom edge are left out. Without PACKET it changes nothing.
  *
  * The slots of a batch a work-item takes: with item_runs (CPU devices) one run of
  * BATCH_SIZE / LOCAL_SIZE in a row, so that a group, whose work-items PoCL runs one
@@ -335,8 +339,8 @@ __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_VEC_HINT
 void trace_rays(KD_TREE_ARGS,
                 __global const KD_ORIGIN_T *origins, __global const KD_DIRECTION_T *directions,
                 uint o_offset, uint d_offset,
-                uint o_step, uint n_rays, float t_min, float t_max, uint item_runs
-                KD_ORIGIN_PARAMS, __global volatile uint *counter, KD_OUTPUT_ARGS)
+                uint o_step, uint n_rays, uint image_w, float t_min, float t_max,
+                uint item_runs KD_ORIGIN_PARAMS, __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
     origins += o_offset;
     directions += d_offset;
@@ -354,15 +358,47 @@ void trace_rays(KD_TREE_ARGS,
         origin_pattern.s[i] = i % 3 == 0 ? origin_x : i % 3 == 1 ? origin_y : origin_z;
 #endif
 #endif
+    /* the work slots: the rays, or with image blocks KD_PACKET slots a block (those
+     * past the image's edges empty lanes) */
+    uint n_slots = n_rays;
+#ifdef PACKET
+    uint blocks_x = (image_w + 3u) / 4u;
+    uint n_rows = image_w ? n_rays / image_w : 0u;
+    if (image_w)
+        n_slots = blocks_x * ((n_rows + KD_PACKET / 4u - 1u) / (KD_PACKET / 4u)) * KD_PACKET;
+#endif
     __local uint batch;
     for (;;) {
         uint start = fetch_batch(&batch, counter);
-        if (start >= n_rays)             /* the same for the whole group */
+        if (start >= n_slots)            /* the same for the whole group */
             break;
         for (uint j = first; j < end; j += step) {
             uint k0 = start + j;
-            if (k0 >= n_rays)
+            if (k0 >= n_slots)
                 break;
+#ifdef PACKET
+            if (image_w) {
+                /* block q: lane l is ray (col0 + l % 4, row0 + l / 4), the lanes inside
+                 * the image first */
+                uint q = k0 / KD_PACKET;
+                uint col0 = (q % blocks_x) * 4u, row0 = (q / blocks_x) * (KD_PACKET / 4u);
+                float3 o[KD_PACKET], d[KD_PACKET];
+                uint idx[KD_PACKET];
+                uint count = 0;
+                for (uint l = 0; l < KD_PACKET; l++) {
+                    uint col = col0 + l % 4u, row = row0 + l / 4u;
+                    if (col < image_w && row < n_rows) {
+                        uint k = row * image_w + col;
+                        o[count] = KD_RAY_ORIGIN(origins, (size_t)k * o_step);
+                        d[count] = kd_ray_direction(directions, k);
+                        idx[count++] = k;
+                    }
+                }
+                trace_and_store(count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, idx
+                                KD_TRACE_EXACT);
+                continue;
+            }
+#endif
             uint count = min((uint)KD_RAYS_PER_ITEM, n_rays - k0);
 #ifdef PACKET
             if (count == KD_PACKET) {

@@ -70,6 +70,12 @@ def test_double_trace_is_exact_to_1e_12(case):
     # and the float32 answer is the double one to float32 precision
     rel = np.abs(single.t[hit] - double.t[hit]) / double.t[hit]
     assert np.percentile(rel, 99) <= 1e-6
+    # image-shaped rays: the same answers, shaped as the rays
+    image = tracer.trace(o[:1000].reshape(20, 50, 3), d[:1000].reshape(20, 50, 3),
+                         precision="double")
+    for field in ("t", "prim", "u", "v"):
+        assert np.array_equal(getattr(image, field).ravel(), getattr(double, field)[:1000])
+    assert image.t.shape == (20, 50) and image.normal.shape == (20, 50, 3)
 
 
 def test_double_render():

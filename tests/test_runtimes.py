@@ -74,12 +74,15 @@ def test_work_sizes_do_not_change_results(runtime, scene):
     """Local size, batch size, group count, packets and the slots each work-item takes
     (runs of the batch, as on CPUs, or every local_size-th packet, as on GPUs) change
     the schedule, never the answer: bit for bit the result of one ray at a time, with
-    every poisoned output written. Sizes the device cannot take are left out."""
+    every poisoned output written; with packets, rays shaped as an image 13 wide too
+    (packets of 4 x packet / 4 of them). Sizes the device cannot take are left out."""
     tree = scene_tree(scene)
     o, d = rays(runtime, tree, 4001, 307, seed=22)
     base = Tracer(tree, device=runtime.spec, packet=1, local_size=1, batch_size=1,
                   groups=1).trace(o, d)
     assert base.hit.sum() > len(o) // 4
+    m = len(o) // 13 * 13
+    image = (o[:m].reshape(-1, 13, 3), d[:m].reshape(-1, 13, 3))
     tried = 0
     for packet, local, batch, groups in WORK_SIZES:
         tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=1, batch_size=packet,
@@ -95,6 +98,8 @@ def test_work_sizes_do_not_change_results(runtime, scene):
             tr._item_runs = item_runs
             tr._poison_outputs = True
             same_hits(tr.trace(o, d), base)
+            if packet > 1:
+                same_hits(tr.trace(*image), base[:m]._reshaped((m // 13, 13)))
             tried += 1
     assert tried >= (len(WORK_SIZES) - 4 if runtime.simulator else 2 * len(WORK_SIZES) - 4)
 

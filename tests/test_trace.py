@@ -575,6 +575,49 @@ def test_bad_rays_miss(tracers):
     assert np.all(hits.prim == MISS) and np.all(np.isposinf(hits.t))
 
 
+@pytest.mark.parametrize("packet", [1, *PACKETS])
+def test_image_shaped_rays(monkeypatch, packet, tracers):
+    """Rays shaped (H, W, 3) or (B, H, W, 3), which trace_rays takes in packets of 4 x
+    packet / 4 pixels, give the hits of the same rays in (N, 3) rows bit for bit, shaped
+    as the rays (normal (..., 3)), every poisoned output written: sizes that no block
+    fits, one origin or one a ray, float32 and float64, several launches of whole bands
+    of blocks, and a band wider than a launch (traced in rows)."""
+    import kdray.trace
+    tree = mesh_tree("spot.obj", "sah")
+    tr = tracers(tree, packet=packet)
+    tr._poison_outputs = True
+    rng = np.random.default_rng(5)
+    for (w, h), max_rays in [((1, 1), None), ((7, 3), None), ((65, 9), None),
+                             ((13, 11), 120), ((13, 11), 50)]:
+        if max_rays:
+            monkeypatch.setattr(kdray.trace, "MAX_RAYS_PER_LAUNCH", max_rays)
+        cam = camera_for(tree, w, h)
+        eye, d = tr.camera_rays(cam)
+        o = eye + rng.normal(scale=1e-3, size=d.shape)        # an origin a ray
+        d64 = d.astype(np.float64)
+        for oo, dd in [(o, d), (eye[0], d64), (o.astype(np.float32), d64)]:
+            rows = tr.trace(oo, dd)
+            shaped = oo if oo.shape == (3,) else oo.reshape(h, w, 3)
+            image = tr.trace(shaped, dd.reshape(h, w, 3))
+            for field in ("t", "prim", "u", "v", "normal"):
+                got, want = getattr(image, field), getattr(rows, field)
+                assert got.shape == (h, w) + want.shape[1:], (w, h, field)
+                assert np.array_equal(got.reshape(want.shape), want, equal_nan=True), (w, h, field)
+        # a batch of images: the second the first upside down
+        both = np.stack([d.reshape(h, w, 3), d.reshape(h, w, 3)[::-1]])
+        hits = tr.trace(np.stack([o.reshape(h, w, 3), o.reshape(h, w, 3)[::-1]]), both)
+        assert hits.t.shape == (2, h, w) and hits.normal.shape == (2, h, w, 3)
+        assert np.array_equal(hits.prim[1], hits.prim[0][::-1])
+        assert np.array_equal(hits.t[1], hits.t[0][::-1], equal_nan=True)
+        assert np.array_equal(hits.prim[0].ravel(), tr.trace(o, d).prim)
+        monkeypatch.undo()
+    assert np.count_nonzero(hits.hit) > 0.1 * hits.hit.size
+    # outputs left out stay None; the object lookup keeps the shape
+    hits = tr.trace(eye[0], d.reshape(h, w, 3), outputs=())
+    assert hits.u is None and hits.normal is None and hits.object.shape == (h, w)
+    tr._poison_outputs = False
+
+
 def test_input_checks(tracers):
     tree = mesh_tree("teapot.obj", "sah")
     tr = tracers(tree)
@@ -582,6 +625,12 @@ def test_input_checks(tracers):
         tr.trace(np.zeros((3, 3)), np.ones((4, 3)))
     with pytest.raises(KdrayError):
         tr.trace(np.zeros((3, 2)), np.ones((3, 2)))
+    with pytest.raises(KdrayError, match="directions"):
+        tr.trace(np.zeros(3), np.ones(3))
+    with pytest.raises(KdrayError, match="origins"):
+        tr.trace(np.zeros((4, 2, 3)), np.ones((2, 4, 3)))
+    with pytest.raises(KdrayError, match="origins"):
+        tr.trace(np.zeros((8, 3)), np.ones((2, 4, 3)))
     # a single origin broadcasts; float32 input works
     hits = tr.trace(tree.origin - [0, 0, 10], np.array([[0, 0, 1]], dtype=np.float32))
     assert len(hits) == 1
