@@ -716,8 +716,9 @@ class Tracer:
         check_host_memory(w * h * (_render.host_bytes_per_pixel(aovs) + _render.MODEL_RAY_BYTES),
                           f"a {w}x{h} {camera.model} render of {', '.join(aovs)}")
         o, d, valid = camera._model_rays(valid=True, copy=False)   # one origin: no copy
-        origins = o if camera.model == "orthographic" else camera.eye
-        hits = self.trace(origins, d, precision=precision)
+        origins = o.reshape(h, w, 3) if camera.model == "orthographic" else camera.eye
+        # image-shaped: traced in blocks of pixels, as render_camera traces them
+        hits = self.trace(origins, d.reshape(h, w, 3), precision=precision)._reshaped((h * w,))
         return _render.ray_images(hits, o, d, valid, camera, aovs)
 
     def render_many(self, cameras, aovs=DEFAULT_AOVS, precision="single"):
