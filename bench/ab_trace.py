@@ -9,10 +9,12 @@ The base commit's `kdray/` and `kernels/` are exported (git archive) into a temp
 folder, and with --work another commit's too (so that a past change can be measured
 against its parent: --base C~1 --work C); without it "work" is the working tree. For each mesh the working tree builds the tree once and saves it (tree file
 version 1, which both must read); then two worker processes, one per version, load
-it, make a Tracer and warm up. Each round asks each worker for three timed calls in
+it, make a Tracer and warm up. Each round asks each worker for four timed calls in
 turns, the order of the workers reversed every other round and every call 0.1 s
-after the one before: `render` (depth only), `render` (the default AOVs) and `trace`
-(numpy to numpy, the camera's 1024 x 1024 rays in row-major order). Separate
+after the one before: `render` (depth only), `render` (the default AOVs), `trace`
+(numpy to numpy, the camera's 1024 x 1024 rays in row-major order) and `trace HxW`
+(the same rays shaped (1024, 1024, 3), t and prim only; NaN for a kdray without
+image-shaped rays). Separate
 processes, so each version has its own memory layout and OpenCL context. Prints each
 version's median times, the median of the rounds' ratios (working tree / base: < 1
 means faster) and whether the two gave bit-identical images and hits.
@@ -31,7 +33,7 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 from ab_build import git_export  # noqa: E402
 
-CALLS = ("render depth", "render default", "trace")
+CALLS = ("render depth", "render default", "trace", "trace HxW")
 
 
 def worker(tree_path, size, out_path):
@@ -44,19 +46,25 @@ def worker(tree_path, size, out_path):
     camera = kdray.Camera.frame(lo, hi, size, size)
     o, d = camera.rays()
     tracer = kdray.Tracer(tree)
+    shape = (size, size, 3)
     calls = {"render depth": lambda: tracer.render(camera, aovs=("depth",)),
              "render default": lambda: tracer.render(camera),
-             "trace": lambda: tracer.trace(o, d)}
+             "trace": lambda: tracer.trace(o, d),
+             "trace HxW": lambda: tracer.trace(o.reshape(shape), d.reshape(shape), outputs=())}
     images = calls["render default"]()
     hits = calls["trace"]()
     calls["render depth"]()
+    try:
+        calls["trace HxW"]()
+    except kdray.KdrayError:               # a kdray before image-shaped rays: not timed
+        calls["trace HxW"] = lambda: None
     np.savez(out_path, **{f"render {k}": v for k, v in images.items()},
              **{f"trace {k}": getattr(hits, k) for k in ("t", "prim", "u", "v", "normal")})
     print("ready", flush=True)
     for line in sys.stdin:
         t0 = time.perf_counter()
-        calls[line.strip()]()
-        print(time.perf_counter() - t0, flush=True)
+        ran = calls[line.strip()]() is not None
+        print(time.perf_counter() - t0 if ran else "nan", flush=True)
 
 
 def compare(name, folder, base_root, work_root, rounds, size):
