@@ -764,9 +764,10 @@ class Tracer:
         origin, directions = lidar.rays(pose)
         # a little beyond max_range, so that the kernel's float32 t cannot lose a hit
         # just inside it; scan_images cuts at max_range with the final t. Only t and
-        # the triangle are computed: a scan has no normal or barycentric image.
+        # the triangle are computed: a scan has no normal or barycentric image. The
+        # beams are an image (rows beams, columns azimuth steps): traced in blocks.
         hits, _ = self._trace(origin, directions, t_max=lidar.max_range * (1 + 2.0**-16),
-                              outputs=("T", "ID"))
+                              outputs=("T", "ID"), image_w=lidar.shape[1])
         hits = self._double_hits(hits, origin, directions)
         return scan_images(lidar, origin, directions, hits.t, hits.prim, self.tree.objects)
 
