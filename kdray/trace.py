@@ -48,6 +48,7 @@ from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_sizes,
                      device_triangles)
+from .ray_grid import grid_width
 from .render import DEFAULT_AOVS
 from .tree import object_ids
 
@@ -506,7 +507,9 @@ class Tracer:
             origins (or (3,) origins), give Hits of shape (H, W) (normal (H, W, 3)):
             on a CPU they are traced in packets of 4 x 2 or 4 x 4 neighbouring pixels,
             as `render` traces its own, which share more of the tree than a row's,
-            with the same hits bit for bit.
+            with the same hits bit for bit. (N, 3) rays that are an image in
+            row-major order (a camera's rays flattened, as Camera.rays gives them)
+            are found to be one (kdray.ray_grid) and traced in blocks too.
         t_min : >= 0 (default 0: hits behind the origin or at it never count)
         precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
             v in float64 from the tree's float64 triangles (KdTree.triangles64) and
@@ -527,7 +530,14 @@ class Tracer:
         if double:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
         origins, directions, shape = _flat_rays(origins, directions)
-        image_w = shape[-1] if len(shape) >= 2 else 0
+        if len(shape) >= 2:
+            image_w = shape[-1]
+        elif self.packet > 1:
+            # (N, 3) rays that are an image in rows, as cameras give them, are traced
+            # in blocks too; the packets do not change a hit, only the time
+            image_w = grid_width(origins, directions, min_rows=self.packet // 4)
+        else:
+            image_w = 0
         hits, _ = self._trace(origins, directions, t_min, t_max, outputs=kernel,
                               image_w=image_w)
         if double:

@@ -596,7 +596,9 @@ def test_image_shaped_rays(monkeypatch, packet, tracers):
         o = eye + rng.normal(scale=1e-3, size=d.shape)        # an origin a ray
         d64 = d.astype(np.float64)
         for oo, dd in [(o, d), (eye[0], d64), (o.astype(np.float32), d64)]:
-            rows = tr.trace(oo, dd)
+            with monkeypatch.context() as rows_only:     # (N, 3) rays in rows, not a grid
+                rows_only.setattr(kdray.trace, "grid_width", lambda *a, **k: 0)
+                rows = tr.trace(oo, dd)
             shaped = oo if oo.shape == (3,) else oo.reshape(h, w, 3)
             image = tr.trace(shaped, dd.reshape(h, w, 3))
             for field in ("t", "prim", "u", "v", "normal"):
@@ -615,6 +617,46 @@ def test_image_shaped_rays(monkeypatch, packet, tracers):
     # outputs left out stay None; the object lookup keeps the shape
     hits = tr.trace(eye[0], d.reshape(h, w, 3), outputs=())
     assert hits.u is None and hits.normal is None and hits.object.shape == (h, w)
+    tr._poison_outputs = False
+
+
+@pytest.mark.parametrize("packet", [1, *PACKETS])
+def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
+    """(N, 3) rays that are a camera's image in rows are traced as that image (in
+    blocks, with packets) and give the hits of rows bit for bit, every poisoned
+    output written; an image narrower than ray_grid.MIN_WIDTH is found as a grid of
+    a few of its rows; random rays stay rows; with packets of 1 nothing is looked
+    for."""
+    import kdray.trace
+    tree = mesh_tree("spot.obj", "sah")
+    tr = tracers(tree, packet=packet)
+    tr._poison_outputs = True
+    widths = []
+    real_trace = tr._trace
+
+    def spy(*args, image_w=0, **kwargs):
+        widths.append(image_w)
+        return real_trace(*args, image_w=image_w, **kwargs)
+    monkeypatch.setattr(tr, "_trace", spy)
+    hit = total = 0
+    for w, h in [(37, 21), (64, 5), (9, 40)]:
+        eye, d = tr.camera_rays(camera_for(tree, w, h))
+        image = tr.trace(eye, d)
+        with monkeypatch.context() as rows_only:
+            rows_only.setattr(kdray.trace, "grid_width", lambda *a, **k: 0)
+            rows = tr.trace(eye, d)
+        found, rows_w = widths[-2:]
+        assert rows_w == 0
+        # a grid as wide as the image, or (narrower than 16) as a few of its rows
+        assert (found == 0) if packet == 1 else (found >= 16 and found % w == 0), (w, h, found)
+        for field in ("t", "prim", "u", "v", "normal"):
+            assert np.array_equal(getattr(image, field), getattr(rows, field), equal_nan=True)
+        hit += np.count_nonzero(image.hit)
+        total += len(image)
+    assert hit > 0.1 * total
+    o, d = random_rays(tree, 4096, seed=6)
+    tr.trace(o, d)
+    assert widths[-1] == 0
     tr._poison_outputs = False
 
 

@@ -1,0 +1,122 @@
+"""Whether a list of rays is an image in row-major order, and how wide it is.
+
+`Tracer.trace` traces image-shaped rays, (H, W, 3), in packets of blocks of
+neighbouring pixels (4 x 4 with packets of 16), which share more of the tree than a
+row's 16 rays do. A caller who passes a camera's rays flattened, (H*W, 3), as
+`Camera.rays` and most other libraries give them, has the same image in rows.
+`grid_width` finds its width from a sample of the rays, so that such rays are traced
+in blocks too.
+
+Which rays share a packet never changes a hit (the kernels' results do not depend on
+the packets or work sizes; tests/test_runtimes.py), so a wrong answer costs time,
+never correctness: rays that are not an image traced as one take about as long as
+rows (BENCHMARKS.md).
+
+The test, on SAMPLES evenly spaced rays, for each of the rays' directions (as unit
+vectors) and origins (when there is one per ray and they are not all equal):
+- a row step is the distance between rays i and i + 1 (the median over the
+  samples), the spread the median distance between two samples;
+- the rays are rows of an image only if a row step is at most ROW_COHERENCE of the
+  spread: neighbours in the list are neighbours in space (not so for random rays);
+- the width is the smallest divisor w of N (MIN_WIDTH <= w, at least `min_rows` rows)
+  for which rays i and i + w are at most GRID_RATIO row steps apart: the next row's
+  pixel under a pixel is about one step away, a pixel w < W along the row about w
+  steps.
+"""
+import numpy as np
+
+SAMPLES = 64
+"""Rays sampled for each distance (the median of 64 is robust to the few samples
+that straddle the end of a row)."""
+
+MIN_WIDTH = 16
+"""The narrowest width looked for: a candidate w less than the true width lies w row
+steps along the row, which must exceed GRID_RATIO with a margin (a wide lens's row
+steps shrink towards the image's edges)."""
+
+ROW_COHERENCE = 0.25
+"""Rows are coherent when their step is at most this fraction of the rays' spread: a
+W-pixel-wide camera's is about 3 / W (1/300 at 1024, 0.19 at MIN_WIDTH), random
+rays' about 1."""
+
+GRID_RATIO = 3.0
+"""Ray i + w lies at most this many row steps from ray i at the image's width (about
+one for square pixels)."""
+
+MAX_WIDTH = 1 << 16
+"""The widest image looked for."""
+
+
+def grid_width(origins, directions, min_rows=4):
+    """The width of the row-major image that the rays are, or 0.
+
+    origins : (3,) or (N, 3);  directions : (N, 3), float32 or float64 (any length;
+    non-finite or zero directions are left out of the distances);
+    min_rows : the fewest rows an image must have (a band of blocks).
+    Returns an int w, a divisor of N with N // w >= min_rows, or 0 when the rays do
+    not look like an image (or look like one narrower than MIN_WIDTH)."""
+    d = np.asarray(directions)
+    n = len(d)
+    widths = _divisors(n)
+    widths = widths[(widths >= MIN_WIDTH) & (widths <= MAX_WIDTH)
+                    & (widths * max(min_rows, 1) <= n)]
+    if len(widths) == 0:
+        return 0
+    parts = [(d, True)]
+    o = np.asarray(origins)
+    if o.ndim == 2:
+        parts.append((o, False))
+    step_i = np.linspace(0, n - 2, SAMPLES).astype(np.int64)
+    # samples for each candidate width, (C, SAMPLES): rays i and i + w both exist
+    grid_i = (np.linspace(0.0, 1.0, SAMPLES)[None, :] * (n - 1 - widths)[:, None]).astype(np.int64)
+    fits = np.ones(len(widths), dtype=bool)
+    varies = False
+    for x, unit in parts:
+        p = _points(x, step_i, unit)
+        step = _median(_distance(p, _points(x, step_i + 1, unit)))
+        # the median distance between two samples, whatever the order of the list's parts
+        spread = _median(_distance(p[:, None], p[None, :]).ravel())
+        if not spread > 0:          # all alike (or none usable): says nothing
+            continue
+        varies = True
+        if not step <= ROW_COHERENCE * spread:
+            return 0
+        across = _median(_distance(_points(x, grid_i, unit), _points(x, grid_i + widths[:, None], unit)))
+        fits &= across <= GRID_RATIO * step
+    if not varies or not fits.any():
+        return 0
+    return int(widths[np.argmax(fits)])
+
+
+def _divisors(n):
+    """The divisors of n >= 1, increasing, (k,) int64."""
+    k = np.arange(1, int(np.sqrt(n)) + 2, dtype=np.int64)
+    k = k[(k * k <= n) & (n % k == 0)]
+    return np.unique(np.concatenate([k, n // k]))
+
+
+def _points(x, index, unit):
+    """x[index] in float64 (index: an int array; x (N, 3)), as unit vectors when `unit`
+    (NaN for a zero row)."""
+    p = x[index].astype(np.float64)
+    if unit:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            p /= np.sqrt(np.sum(p * p, axis=-1, keepdims=True))
+    return p
+
+
+def _distance(p, q):
+    """|p - q| over the last axis; +inf where not finite."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        dist = np.sqrt(np.sum((p - q) ** 2, axis=-1))
+    dist[~np.isfinite(dist)] = np.inf
+    return dist
+
+
+def _median(dist):
+    """Median over the last axis of the finite values of `dist` (+inf for the others);
+    NaN where none is finite."""
+    dist = np.sort(dist, axis=-1)
+    finite = np.isfinite(dist).sum(axis=-1)
+    middle = np.take_along_axis(dist, np.maximum(finite - 1, 0)[..., None] // 2, axis=-1)[..., 0]
+    return np.where(finite > 0, middle, np.nan)
