@@ -12,7 +12,8 @@ version 1, which both must read); then two worker processes, one per version, lo
 it, make a Tracer and warm up. Each round asks each worker for four timed calls in
 turns, the order of the workers reversed every other round and every call 0.1 s
 after the one before: `render` (depth only), `render` (the default AOVs), `trace`
-(numpy to numpy, the camera's 1024 x 1024 rays in row-major order) and `trace HxW`
+(numpy to numpy, the camera's 1024 x 1024 rays in row-major order, which a kdray
+with kdray.ray_grid traces as an image) and `trace HxW`
 (the same rays shaped (1024, 1024, 3), t and prim only; NaN for a kdray without
 image-shaped rays). Separate
 processes, so each version has its own memory layout and OpenCL context. Prints each

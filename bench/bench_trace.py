@@ -12,7 +12,8 @@ them alike and no call pays for the one before's worker threads):
   kdray render depth      Tracer.render(camera, ["depth"]): rays made on the device
   kdray render default    Tracer.render(camera) with depth, normal, bary, id
   kdray trace             Tracer.trace(origins, directions) from numpy to numpy: t,
-                          prim, u, v and normal
+                          prim, u, v and normal; the (N, 3) rays are found to be an
+                          image in rows (kdray.ray_grid) and traced in its blocks
   kdray trace t,prim      the same with outputs=(): t and prim, as Mitsuba's below
   kdray trace HxW t,prim  the same rays shaped (H, W, 3), as an image's are: traced in
                           packets of 4 x 2 or 4 x 4 pixels (hits (H, W), flattened)

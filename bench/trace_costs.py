@@ -10,7 +10,10 @@ directions, row-major pixels) are traced as:
 
   render depth         Tracer.render(camera, ["depth"]): the same rays, made on the
                        device, in packets of 4 x 2 (AVX2) or 4 x 4 pixels
-  trace rows f64       Tracer.trace(o, d, outputs=()): what bench_trace.py times
+  trace rows f64       Tracer.trace(o, d, outputs=()) with its search for an image
+                       off (kdray.ray_grid): packets of consecutive rays
+  trace image found    the same call as it is: bench_trace.py's; the rays are found
+                       to be an image and traced in render's blocks
   trace blocks f64     the same rays reordered into render's blocks of 4 x 2 or 4 x 4
                        pixels first (the reordering is not timed): the cost of a
                        caller's row order
@@ -19,7 +22,8 @@ directions, row-major pixels) are traced as:
   trace no refine      a Tracer(refine=False): t, u, v not recomputed in double
   render no refine     the same for render
 
-all in one round robin (`timing.round_robin`), medians of --repeat rounds. Every
+all in one round robin (`timing.round_robin`), medians of --repeat rounds. All but
+"trace image found" trace their (N, 3) rays in the order given (`as_rows`). Every
 variant's t equals the plain trace's for the rays it shares bit for bit, except
 those without refinement.
 """
@@ -34,12 +38,26 @@ from meshes import framed  # noqa: E402
 from timing import median_ratio, round_robin  # noqa: E402
 
 import kdray  # noqa: E402
+import kdray.trace  # noqa: E402
 
 
 def block_order(size, w=4, h=2):
     """Indices of a size x size row-major image's pixels in blocks of w x h, the blocks
     row-major (size a multiple of both)."""
     return np.arange(size * size).reshape(size // h, h, size // w, w).transpose(0, 2, 1, 3).reshape(-1)
+
+
+def as_rows(fn):
+    """fn with Tracer.trace's search for an image in its rays off, so that (N, 3) rays
+    are traced in packets of consecutive rays."""
+    def call():
+        found = kdray.trace.grid_width
+        kdray.trace.grid_width = lambda *args, **kwargs: 0
+        try:
+            return fn()
+        finally:
+            kdray.trace.grid_width = found
+    return call
 
 
 def main():
@@ -58,15 +76,17 @@ def main():
         o32, d32 = o.astype(np.float32), d.astype(np.float32)
         plain = kdray.Tracer(tree, device=args.device, refine=False)
         calls = {"render depth": lambda: tracer.render(camera, ["depth"])["depth"].ravel(),
-                 "trace rows f64": lambda: tracer.trace(o, d, outputs=()).t,
-                 "trace blocks f64": lambda: tracer.trace(ob, db, outputs=()).t,
-                 "trace rows f32": lambda: tracer.trace(o32, d32, outputs=()).t,
-                 "trace one origin": lambda: tracer.trace(camera.eye, d, outputs=()).t,
-                 "trace no refine": lambda: plain.trace(o, d, outputs=()).t,
+                 "trace rows f64": as_rows(lambda: tracer.trace(o, d, outputs=()).t),
+                 "trace image found": lambda: tracer.trace(o, d, outputs=()).t,
+                 "trace blocks f64": as_rows(lambda: tracer.trace(ob, db, outputs=()).t),
+                 "trace rows f32": as_rows(lambda: tracer.trace(o32, d32, outputs=()).t),
+                 "trace one origin": as_rows(lambda: tracer.trace(camera.eye, d, outputs=()).t),
+                 "trace no refine": as_rows(lambda: plain.trace(o, d, outputs=()).t),
                  "render no refine": lambda: plain.render(camera, ["depth"])["depth"].ravel()}
         seconds, _, results = round_robin(calls, args.repeat)
         t = results["trace rows f64"]
         same = {"trace blocks f64": np.array_equal(results["trace blocks f64"], t[order]),
+                "trace image found": np.array_equal(results["trace image found"], t),
                 "trace one origin": np.array_equal(results["trace one origin"], t)}
         print(f"## {name}: {len(m.faces):,} triangles, {args.size}x{args.size} rays, "
               f"{tracer.device.name.strip()} ({tracer.device.platform.name.strip()}), "
