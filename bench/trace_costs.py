@@ -23,7 +23,7 @@ directions, row-major pixels) are traced as:
   render no refine     the same for render
 
 all in one round robin (`timing.round_robin`), medians of --repeat rounds. All but
-"trace image found" trace their (N, 3) rays in the order given (`as_rows`). Every
+"trace image found" trace their (N, 3) rays in the order given (`rows`). Every
 variant's t equals the plain trace's for the rays it shares bit for bit, except
 those without refinement.
 """
@@ -38,7 +38,6 @@ from meshes import framed  # noqa: E402
 from timing import median_ratio, round_robin  # noqa: E402
 
 import kdray  # noqa: E402
-import kdray.trace  # noqa: E402
 
 
 def block_order(size, w=4, h=2):
@@ -47,17 +46,10 @@ def block_order(size, w=4, h=2):
     return np.arange(size * size).reshape(size // h, h, size // w, w).transpose(0, 2, 1, 3).reshape(-1)
 
 
-def as_rows(fn):
-    """fn with Tracer.trace's search for an image in its rays off, so that (N, 3) rays
-    are traced in packets of consecutive rays."""
-    def call():
-        found = kdray.trace.grid_width
-        kdray.trace.grid_width = lambda *args, **kwargs: 0
-        try:
-            return fn()
-        finally:
-            kdray.trace.grid_width = found
-    return call
+def rows(tracer, o, d):
+    """t of the rays traced in packets of consecutive rays: Tracer._trace, which
+    `trace` calls after its search for an image in (N, 3) rays (kdray.ray_grid)."""
+    return tracer._trace(o, d, outputs=())[0].t
 
 
 def main():
@@ -76,12 +68,12 @@ def main():
         o32, d32 = o.astype(np.float32), d.astype(np.float32)
         plain = kdray.Tracer(tree, device=args.device, refine=False)
         calls = {"render depth": lambda: tracer.render(camera, ["depth"])["depth"].ravel(),
-                 "trace rows f64": as_rows(lambda: tracer.trace(o, d, outputs=()).t),
+                 "trace rows f64": lambda: rows(tracer, o, d),
                  "trace image found": lambda: tracer.trace(o, d, outputs=()).t,
-                 "trace blocks f64": as_rows(lambda: tracer.trace(ob, db, outputs=()).t),
-                 "trace rows f32": as_rows(lambda: tracer.trace(o32, d32, outputs=()).t),
-                 "trace one origin": as_rows(lambda: tracer.trace(camera.eye, d, outputs=()).t),
-                 "trace no refine": as_rows(lambda: plain.trace(o, d, outputs=()).t),
+                 "trace blocks f64": lambda: rows(tracer, ob, db),
+                 "trace rows f32": lambda: rows(tracer, o32, d32),
+                 "trace one origin": lambda: rows(tracer, camera.eye, d),
+                 "trace no refine": lambda: rows(plain, o, d),
                  "render no refine": lambda: plain.render(camera, ["depth"])["depth"].ravel()}
         seconds, _, results = round_robin(calls, args.repeat)
         t = results["trace rows f64"]

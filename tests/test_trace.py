@@ -596,9 +596,7 @@ def test_image_shaped_rays(monkeypatch, packet, tracers):
         o = eye + rng.normal(scale=1e-3, size=d.shape)        # an origin a ray
         d64 = d.astype(np.float64)
         for oo, dd in [(o, d), (eye[0], d64), (o.astype(np.float32), d64)]:
-            with monkeypatch.context() as rows_only:     # (N, 3) rays in rows, not a grid
-                rows_only.setattr(kdray.trace, "grid_width", lambda *a, **k: 0)
-                rows = tr.trace(oo, dd)
+            rows, _ = tr._trace(oo, dd)        # (N, 3) rays in rows: no search for an image
             shaped = oo if oo.shape == (3,) else oo.reshape(h, w, 3)
             image = tr.trace(shaped, dd.reshape(h, w, 3))
             for field in ("t", "prim", "u", "v", "normal"):
@@ -627,7 +625,6 @@ def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
     output written; an image narrower than ray_grid.MIN_WIDTH is found as a grid of
     a few of its rows; random rays stay rows; with packets of 1 nothing is looked
     for."""
-    import kdray.trace
     tree = mesh_tree("spot.obj", "sah")
     tr = tracers(tree, packet=packet)
     tr._poison_outputs = True
@@ -642,9 +639,7 @@ def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
     for w, h in [(37, 21), (64, 5), (9, 40)]:
         eye, d = tr.camera_rays(camera_for(tree, w, h))
         image = tr.trace(eye, d)
-        with monkeypatch.context() as rows_only:
-            rows_only.setattr(kdray.trace, "grid_width", lambda *a, **k: 0)
-            rows = tr.trace(eye, d)
+        rows, _ = tr._trace(eye, d)            # rows: trace's search for an image skipped
         found, rows_w = widths[-2:]
         assert rows_w == 0
         # a grid as wide as the image, or (narrower than 16) as a few of its rows
