@@ -60,6 +60,8 @@ typedef struct {
     uint ukx, uky, ukz;                  /* ... these */
     floatP o[3], d[3];                   /* origin and direction per axis, for the planes */
     floatP t_min, t_max;                 /* the rays' range: t_min < t < t_max */
+    bool shared_o;                       /* every lane that is on has origin uo (a camera's eye) */
+    float uo[3];
 } KdPacket;
 
 /* A vector and its lanes (OpenCL C allows reading a union member other than the one
@@ -405,6 +407,10 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
     floatP t_min_cur = t_enter;
     floatP t_max_cur = t_exit;
 
+    /* the slack bounds of traverse.cl's tests, kept with the range they widen */
+    floatP t_lo = t_min_cur * (1.0f - KD_T_SLACK);
+    floatP t_hi = t_max_cur * (1.0f + KD_T_SLACK);
+
     for (;;) {
         KdNode n = nodes[node];
         while (!kd_is_leaf(n) && kd_anyP(act)) {
@@ -417,35 +423,47 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
             uint below = node + 1u;
             uint above = kd_above_child(n);
 
-            /* Each lane's own near child and the children it needs (traverse.cl) */
-            intP below_first_l = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
-            floatP t_lo = t_min_cur * (1.0f - KD_T_SLACK);
-            floatP t_hi = t_max_cur * (1.0f + KD_T_SLACK);
+            /* The children each lane needs (traverse.cl) */
             intP near_only = (t_split > t_hi) | (t_split <= 0.0f);
             intP far_only = ~near_only & (t_split < t_lo);
-            intP both = act & ~near_only & ~far_only;
-            /* The packet's order is that of the lanes needing both children; a lane in
-             * the plane (t_split NaN), or needing both in the other order, leaves */
-            intP leave = act & (t_split != t_split);
-            bool below_first = kd_anyP(both & ~leave & below_first_l)
-                               || !kd_anyP(both & ~leave) && kd_anyP(act & ~leave & below_first_l);
-            leave |= both & (below_first ? ~below_first_l : below_first_l);
-            if (kd_anyP(leave)) {
-                *fallback |= leave;
-                live &= ~leave;
-                act &= ~leave;
-                both &= ~leave;
-                if (!kd_anyP(act))
-                    break;
+            bool below_first;
+            intP need_first, need_second;
+            if (r->shared_o && r->uo[axis] != split) {
+                /* One origin off the plane: every lane's near child is the same, and
+                 * t_split is never NaN (split - o is not zero, d finite). The general
+                 * case below then makes exactly these decisions, with no lane leaving. */
+                below_first = r->uo[axis] < split;
+                need_first = act & ~far_only;
+                need_second = act & ~near_only;
+            } else {
+                /* Each lane's own near child */
+                intP below_first_l = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
+                intP both = act & ~near_only & ~far_only;
+                /* The packet's order is that of the lanes needing both children; a lane
+                 * in the plane (t_split NaN), or needing both in the other order, leaves */
+                intP leave = act & (t_split != t_split);
+                below_first = kd_anyP(both & ~leave & below_first_l)
+                              || !kd_anyP(both & ~leave) && kd_anyP(act & ~leave & below_first_l);
+                leave |= both & (below_first ? ~below_first_l : below_first_l);
+                if (kd_anyP(leave)) {
+                    *fallback |= leave;
+                    live &= ~leave;
+                    act &= ~leave;
+                    if (!kd_anyP(act))
+                        break;
+                }
+                /* A lane with the packet's order needs first (its near child) unless
+                 * far_only and second unless near_only; one with the other order needs
+                 * a single child: first if that is its far one */
+                intP same = below_first ? below_first_l : ~below_first_l;
+                need_first = act & kd_selectPi(far_only, ~far_only, same);
+                need_second = act & kd_selectPi(near_only, ~near_only, same);
             }
+            /* the lanes needing both (need_first & need_second: only lanes of the
+             * packet's order can need both) */
+            intP both = need_first & need_second;
             uint first = below_first ? below : above;
             uint second = below_first ? above : below;
-            /* A lane with the packet's order needs first (its near child) unless
-             * far_only and second unless near_only; one with the other order needs a
-             * single child: first if that is its far one */
-            intP same = below_first ? below_first_l : ~below_first_l;
-            intP need_first = act & kd_selectPi(far_only, ~far_only, same);
-            intP need_second = act & kd_selectPi(near_only, ~near_only, same);
             floatP t_mid = kd_clampP(t_split, t_min_cur, t_max_cur);
             if (!kd_anyP(need_second)) {
                 node = first;
@@ -464,6 +482,7 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
                 count++;
                 node = first;
                 t_max_cur = kd_selectP(t_max_cur, t_mid, both);
+                t_hi = t_max_cur * (1.0f + KD_T_SLACK);
                 act = need_first;
             }
             n = nodes[node];
@@ -487,6 +506,8 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
             t_max_cur = stack_t_max[count];
             act = stack_act[count] & live;
         }
+        t_lo = t_min_cur * (1.0f - KD_T_SLACK);
+        t_hi = t_max_cur * (1.0f + KD_T_SLACK);
         if (!kd_anyP(act))
             return;
     }
@@ -581,6 +602,12 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
         first++;
     r.ukx = (uint)kx_l.s[first]; r.uky = (uint)ky_l.s[first]; r.ukz = (uint)kz_l.s[first];
     r.uniform = !kd_anyP(on & ((kx != (int)r.ukx) | (ky != (int)r.uky) | (kz != (int)r.ukz)));
+    /* one origin: that of the first lane that is on, shared by every lane on */
+    KdFP ox_l, oy_l, oz_l;
+    ox_l.v = ox; oy_l.v = oy; oz_l.v = oz;
+    r.uo[0] = ox_l.s[first]; r.uo[1] = oy_l.s[first]; r.uo[2] = oz_l.s[first];
+    r.shared_o = !kd_anyP(on & ((ox != (floatP)(r.uo[0])) | (oy != (floatP)(r.uo[1]))
+                                | (oz != (floatP)(r.uo[2]))));
 
     KdPacketHit h;
     h.t = (floatP)(t_max);
