@@ -24,13 +24,14 @@ from numba import njit
 
 from .clip import clip_split
 from .events import END, START, box_events, key_bits, key_kind, key_uprim, sort_range
+from .jit import BORROW
 
 ON_LEFT = np.int8(1)
 ON_RIGHT = np.int8(2)
 ON_BOTH = np.int8(3)
 
 
-@njit(cache=True)
+@njit(cache=True, **BORROW)
 def classify(buf, start, count, split_bits, planar_left, side, strad):
     """Classify the triangles of one node by its run of events on the split axis.
 
@@ -91,7 +92,7 @@ def _first_from(buf, lo, hi, bits):
     return lo
 
 
-@njit(cache=True)
+@njit(cache=True, **BORROW)
 def clip_straddlers(tri, strad, n, box, axis, pos, poly, left_box, right_box, left_ok, right_ok):
     """Clip each straddler to both children's boxes; *_ok[s] False: nothing left there."""
     for s in range(n):
@@ -99,7 +100,7 @@ def clip_straddlers(tri, strad, n, box, axis, pos, poly, left_box, right_box, le
                                              left_box[s], right_box[s])
 
 
-@njit(cache=True)
+@njit(cache=True, **BORROW)
 def split_merge(src, off, counts, side, new_left, new_left_runs, new_right, new_right_runs,
                 dst, w_right, w_left, right_counts, left_counts):
     """Both children's sorted events in one pass over the node's: the events of
@@ -173,7 +174,7 @@ _NONE = np.uint64(0xFFFFFFFFFFFFFFFF)
 """Above every event key (positions use at most 32 bits, the key's top bits)."""
 
 
-@njit(cache=True)
+@njit(cache=True)                       # not BORROW: sort_range may call ndarray.sort
 def straddler_events(strad, n, boxes, ok, out, runs):
     """Events of the clipped straddlers in one child, each axis's run sorted.
 

@@ -17,6 +17,8 @@ Numba-compiled (`cache=True`; the first call compiles).
 import numpy as np
 from numba import njit
 
+from .jit import BORROW
+
 _REL_TOL = 2.0 ** -40
 _MAX_VERTS = 16          # a triangle clipped by 6 planes has at most 9 vertices
 
@@ -57,7 +59,7 @@ def round_up(x):
     return f
 
 
-@njit(cache=True)
+@njit(cache=True, **BORROW)
 def clip_polygon(tri, t, box, poly):
     """Sutherland-Hodgman of triangle t against the six planes of `box`, each pushed
     out by the triangle's tolerance.
@@ -121,7 +123,7 @@ def clip_polygon(tri, t, box, poly):
     return n, src, tol
 
 
-@njit(cache=True)
+@njit(cache=True, **BORROW)
 def _store(tri, t, lo, hi, box_lo, box_hi, tol, out, k):
     """One axis of a clipped box: widen [lo, hi] by tol, round outward to float32,
     clamp to [box_lo, box_hi] and to the triangle's own extent; False if empty."""
@@ -134,7 +136,7 @@ def _store(tri, t, lo, hi, box_lo, box_hi, tol, out, k):
     return lo32 <= hi32
 
 
-@njit(cache=True)
+@njit(cache=True, **BORROW)
 def clip_split(tri, t, box, axis, pos, poly, out_left, out_right):
     """Boxes of triangle t clipped to the children of `box` split at `pos` on `axis`.
 

@@ -20,6 +20,8 @@ import concurrent.futures
 import numpy as np
 from numba import njit
 
+from .jit import BORROW
+
 END = 0
 PLANAR = 1
 START = 2
@@ -79,7 +81,7 @@ def key_uprim(key):
     return key & _PRIM_MASK
 
 
-@njit(cache=True)
+@njit(cache=True, **BORROW)
 def box_events(lo, hi, prim, out, w):
     """Write the events of one triangle's box [lo, hi] on one axis at out[w:];
     return the new write position."""

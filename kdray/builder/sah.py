@@ -131,7 +131,7 @@ def _sweep_small(buf, start, end, n_tris, k, lo, hi, lo_bits, hi_bits, cap, peri
             s_right[found] + s_planar[found])
 
 
-@njit(cache=True)
+@njit(cache=True)                       # not BORROW (jit.py): carray needs numba's NRT
 def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np.inf):
     """Sweep the node's three sorted event runs.
 
