@@ -89,25 +89,45 @@
 #define KD_NO_EXACT
 #endif
 
-/* Write the outputs of ray k (o + t d, t_min < t < t_max): only those compiled in.
- * With REFINE (and double on the device) t, u and v of a hit are recomputed in
- * double first (kd_refine_hit), from the caller's ray when there is one. */
+/* With REFINE (and double on the device), and an output that holds t, u or v: hits'
+ * t, u, v are recomputed in double (triangle.cl, kd_refine_hit) before they are stored,
+ * from the caller's ray when there is one. */
+#if defined(REFINE) && defined(cl_khr_fp64) && (defined(OUT_T) || defined(OUT_UV))
+#define KD_REFINE_STORED
+#endif
+
+/* Ray k's double ray, relative to the tree's origin in its units, as the hit is
+ * refined from: the caller's (trace_rays with RAYS_WORLD) or else the float ray
+ * traced (o, d). */
+#ifdef KD_REFINE_STORED
 KD_INLINE
-void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
+void kd_refine_ray(uint k, float3 o, float3 d, double3 *od, double3 *dd KD_EXACT_PARAMS)
+{
+    *od = convert_double3(o);
+    *dd = convert_double3(d);
+#if defined(RAYS_WORLD)
+    if (exact_o) {
+        *od = (convert_double3(vload3((size_t)k * exact_o_step, exact_o)) - exact_origin)
+              * KD_SCALE_INV;
+        *dd = convert_double3(vload3(k, exact_d));
+    }
+#endif
+}
+#endif
+
+/* Write the outputs of ray k (o + t d, t_min < t < t_max): only those compiled in.
+ * `refined`: the hit's t, u, v are refined already (KD_REFINE_STORED; a packet's,
+ * kd_refine_packet), else they are refined here. */
+KD_INLINE
+void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max, bool refined,
                __global const float *tris, __global const uint *tri_ids, KD_OUTPUT_ARGS
                KD_EXACT_PARAMS)
 {
     bool found = hit->tri != KD_NO_HIT;
-#if defined(REFINE) && defined(cl_khr_fp64) && (defined(OUT_T) || defined(OUT_UV))
-    if (found) {
-        double3 od = convert_double3(o), dd = convert_double3(d);
-#if defined(RAYS_WORLD)
-        if (exact_o) {
-            od = (convert_double3(vload3((size_t)k * exact_o_step, exact_o)) - exact_origin)
-                 * KD_SCALE_INV;
-            dd = convert_double3(vload3(k, exact_d));
-        }
-#endif
+#ifdef KD_REFINE_STORED
+    if (found && !refined) {
+        double3 od, dd;
+        kd_refine_ray(k, o, d, &od, &dd KD_EXACT_PASS);
         kd_refine_hit(od, dd, kd_vertex(tris, hit->tri, 0), kd_vertex(tris, hit->tri, 1),
                       kd_vertex(tris, hit->tri, 2), t_min, t_max, &hit->t, &hit->u, &hit->v);
     }
@@ -136,6 +156,62 @@ void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
 }
 
 #ifdef PACKET
+#ifdef KD_REFINE_STORED
+typedef union { doubleP v; double s[KD_PACKET]; } KdDP;
+
+/* kd_refine_hit for the hits (tri, t, u, v per lane; KD_NO_HIT: none) of the lanes in
+ * `on`, in vectors: the lanes' float rays, or the caller's double rays (kd_refine_ray,
+ * ray idx[l]), and their triangles' vertices, converted to doubleP; KD_REFINE_PLANE
+ * runs once for all lanes (the scalar's operations: bit for bit its values), and
+ * kd_take_refined keeps each lane's values as the scalar would. Lanes without a hit
+ * compute their ray against triangle 0, never kept. */
+KD_INLINE
+void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP on,
+                      KdUP tri, float t_min, float t_max, __global const float *tris,
+                      const uint *idx, KdFP *t, KdFP *u, KdFP *v KD_EXACT_PARAMS)
+{
+    KdIP found;
+    found.v = on.v & as_intP(tri.v != (uintP)(KD_NO_HIT));
+    if (!kd_anyP(found.v))
+        return;
+    KdFP P[9];
+    for (uint l = 0; l < KD_PACKET; l++) {
+        __global const float *p = tris + 9 * (size_t)(found.s[l] ? tri.s[l] : 0u);
+#pragma unroll
+        for (uint c = 0; c < 9; c++)
+            P[c].s[l] = p[c];
+    }
+    doubleP Ox = convert_doubleP(ox.v), Oy = convert_doubleP(oy.v), Oz = convert_doubleP(oz.v);
+    doubleP Dx = convert_doubleP(dx.v), Dy = convert_doubleP(dy.v), Dz = convert_doubleP(dz.v);
+#if defined(RAYS_WORLD)
+    if (exact_o) {
+        KdDP ex, ey, ez, fx, fy, fz;
+        ex.v = Ox; ey.v = Oy; ez.v = Oz; fx.v = Dx; fy.v = Dy; fz.v = Dz;
+        for (uint l = 0; l < KD_PACKET; l++) {
+            if (!found.s[l])
+                continue;
+            double3 od, dd;
+            kd_refine_ray(idx[l], (float3)(0.0f), (float3)(0.0f), &od, &dd KD_EXACT_PASS);
+            ex.s[l] = od.x; ey.s[l] = od.y; ez.s[l] = od.z;
+            fx.s[l] = dd.x; fy.s[l] = dd.y; fz.s[l] = dd.z;
+        }
+        Ox = ex.v; Oy = ey.v; Oz = ez.v; Dx = fx.v; Dy = fy.v; Dz = fz.v;
+    }
+#endif
+    KD_REFINE_PLANE(doubleP, Ox, Oy, Oz, Dx, Dy, Dz,
+                    convert_doubleP(P[0].v), convert_doubleP(P[1].v), convert_doubleP(P[2].v),
+                    convert_doubleP(P[3].v), convert_doubleP(P[4].v), convert_doubleP(P[5].v),
+                    convert_doubleP(P[6].v), convert_doubleP(P[7].v), convert_doubleP(P[8].v),
+                    tt, uu, vv)
+    KdDP t_d, u_d, v_d;
+    t_d.v = tt; u_d.v = uu; v_d.v = vv;
+    for (uint l = 0; l < KD_PACKET; l++)
+        if (found.s[l])
+            kd_take_refined(t_d.s[l], u_d.s[l], v_d.s[l], t_min, t_max, &t->s[l], &u->s[l],
+                            &v->s[l]);
+}
+#endif
+
 /* Trace the packet of rays (ox, oy, oz) + t (dx, dy, dz) and store the outputs of each
  * lane l in `on` at index idx[l]. */
 KD_INLINE
@@ -154,6 +230,10 @@ void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz
     trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
 #endif
+#ifdef KD_REFINE_STORED
+    kd_refine_packet(ox, oy, oz, dx, dy, dz, on, tri_l, t_min, t_max, tris, idx, &t_l, &u_l, &v_l
+                     KD_EXACT_PASS);
+#endif
     for (uint l = 0; l < KD_PACKET; l++) {
         if (!on.s[l])
             continue;
@@ -166,7 +246,7 @@ void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz
         hit.v = v_l.s[l];
         hit.tri = tri_l.s[l];
         store_hit(idx[l], &hit, (float3)(ox.s[l], oy.s[l], oz.s[l]),
-                  (float3)(dx.s[l], dy.s[l], dz.s[l]), t_min, t_max, tris, tri_ids,
+                  (float3)(dx.s[l], dy.s[l], dz.s[l]), t_min, t_max, true, tris, tri_ids,
                   KD_OUTPUT_PASS KD_EXACT_PASS);
     }
 }
@@ -206,7 +286,7 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
 #else
     trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit);
 #endif
-    store_hit(idx[0], &hit, o[0], d[0], t_min, t_max, tris, tri_ids, KD_OUTPUT_PASS
+    store_hit(idx[0], &hit, o[0], d[0], t_min, t_max, false, tris, tri_ids, KD_OUTPUT_PASS
               KD_EXACT_PASS);
 }
 #define KD_RAYS_PER_ITEM 1

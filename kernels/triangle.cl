@@ -134,9 +134,48 @@ bool kd_t_certified_double(const RayShear *s, float3 o, float3 p0, float3 p1, fl
 #if defined(REFINE) && defined(cl_khr_fp64)
 /* x is neither infinite nor NaN (isfinite(), which PoCL calls out of line: ops.h) */
 KD_INLINE bool kd_finite_d(double x) { return x - x == 0.0; }
-KD_INLINE double kd_dot_d(double ax, double ay, double az, double bx, double by, double bz)
+
+/* (a . b) in kd_refine_hit's order, for any floating type */
+#define KD_DOT(ax, ay, az, bx, by, bz) (((ax) * (bx) + (ay) * (by)) + (az) * (bz))
+
+/* kd_refine_hit's arithmetic, written once for double and a packet's doubleP (the
+ * same operations in the same order: bit for bit the same): declares tt, uu, vv of
+ * type T from the ray (ox .. dz) and the vertices (p0x .. p2z), all of type T and
+ * all converted exactly from float or double. */
+#define KD_REFINE_PLANE(T, ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z,          \
+                        p2x, p2y, p2z, tt, uu, vv)                                       \
+    T tt, uu, vv;                                                                        \
+    {                                                                                    \
+        T ax = (p0x) - (ox), ay = (p0y) - (oy), az = (p0z) - (oz);                       \
+        T e1x = (p1x) - (p0x), e1y = (p1y) - (p0y), e1z = (p1z) - (p0z);                 \
+        T e2x = (p2x) - (p0x), e2y = (p2y) - (p0y), e2z = (p2z) - (p0z);                 \
+        T nx = e1y * e2z - e1z * e2y, ny = e1z * e2x - e1x * e2z;                        \
+        T nz = e1x * e2y - e1y * e2x;                                                    \
+        tt = KD_DOT(nx, ny, nz, ax, ay, az) / KD_DOT(nx, ny, nz, (dx), (dy), (dz));      \
+        /* the hit point relative to p0 */                                               \
+        T hx = tt * (dx) - ax, hy = tt * (dy) - ay, hz = tt * (dz) - az;                 \
+        T nn = KD_DOT(nx, ny, nz, nx, ny, nz);                                           \
+        uu = KD_DOT(hy * e2z - hz * e2y, hz * e2x - hx * e2z, hx * e2y - hy * e2x,       \
+                    nx, ny, nz) / nn;                                                    \
+        vv = KD_DOT(e1y * hz - e1z * hy, e1z * hx - e1x * hz, e1x * hy - e1y * hx,       \
+                    nx, ny, nz) / nn;                                                    \
+    }
+
+/* The refined values tt, uu, vv (double) taken into *t, *u, *v when they are usable:
+ * t inside (t_min, t_max) and u, v finite (see kd_refine_hit). */
+KD_INLINE
+void kd_take_refined(double tt, double uu, double vv, float t_min, float t_max, float *t,
+                     float *u, float *v)
 {
-    return (ax * bx + ay * by) + az * bz;
+    float tf = (float)tt;
+    if (!(tf > t_min && tf < t_max && kd_finite_d(uu) && kd_finite_d(vv)))
+        return;
+    /* within the triangle up to rounding: clamped to its closure */
+    float uf = kd_clamp((float)uu, 0.0f, 1.0f);
+    float vf = kd_clamp((float)vv, 0.0f, 1.0f - uf);
+    *t = tf;
+    *u = uf;
+    *v = vf;
 }
 
 /* The found hit's t, u, v recomputed in double from the ray (o, d: the float ray
@@ -153,30 +192,10 @@ KD_INLINE
 void kd_refine_hit(double3 o, double3 d, float3 p0, float3 p1, float3 p2, float t_min,
                    float t_max, float *t, float *u, float *v)
 {
-    double ox = o.x, oy = o.y, oz = o.z, dx = d.x, dy = d.y, dz = d.z;
-    double ax = (double)p0.x - ox, ay = (double)p0.y - oy, az = (double)p0.z - oz;
-    double e1x = (double)p1.x - (double)p0.x, e1y = (double)p1.y - (double)p0.y;
-    double e1z = (double)p1.z - (double)p0.z;
-    double e2x = (double)p2.x - (double)p0.x, e2y = (double)p2.y - (double)p0.y;
-    double e2z = (double)p2.z - (double)p0.z;
-    double nx = e1y * e2z - e1z * e2y, ny = e1z * e2x - e1x * e2z, nz = e1x * e2y - e1y * e2x;
-    double tt = kd_dot_d(nx, ny, nz, ax, ay, az) / kd_dot_d(nx, ny, nz, dx, dy, dz);
-    /* the hit point relative to p0 */
-    double hx = tt * dx - ax, hy = tt * dy - ay, hz = tt * dz - az;
-    double nn = kd_dot_d(nx, ny, nz, nx, ny, nz);
-    double uu = kd_dot_d(hy * e2z - hz * e2y, hz * e2x - hx * e2z, hx * e2y - hy * e2x,
-                         nx, ny, nz) / nn;
-    double vv = kd_dot_d(e1y * hz - e1z * hy, e1z * hx - e1x * hz, e1x * hy - e1y * hx,
-                         nx, ny, nz) / nn;
-    float tf = (float)tt;
-    if (!(tf > t_min && tf < t_max && kd_finite_d(uu) && kd_finite_d(vv)))
-        return;
-    /* within the triangle up to rounding: clamped to its closure */
-    float uf = kd_clamp((float)uu, 0.0f, 1.0f);
-    float vf = kd_clamp((float)vv, 0.0f, 1.0f - uf);
-    *t = tf;
-    *u = uf;
-    *v = vf;
+    KD_REFINE_PLANE(double, o.x, o.y, o.z, d.x, d.y, d.z,
+                    (double)p0.x, (double)p0.y, (double)p0.z, (double)p1.x, (double)p1.y,
+                    (double)p1.z, (double)p2.x, (double)p2.y, (double)p2.z, tt, uu, vv)
+    kd_take_refined(tt, uu, vv, t_min, t_max, t, u, v);
 }
 #endif
 
