@@ -76,7 +76,8 @@
 #define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
 
 /* The caller's rays in world coordinates, when trace_rays reads them (RAYS_WORLD):
- * what the hits are refined from (store_hit); render_camera passes NULL. */
+ * what the hits are refined from (refine_hit, kd_refine_packet); render_camera passes
+ * NULL. */
 #if defined(RAYS_WORLD) && defined(REFINE) && defined(cl_khr_fp64)
 #define KD_EXACT_PARAMS , __global const ORIGIN_T *exact_o, __global const DIRECTION_T *exact_d, \
     uint exact_o_step, double3 exact_origin
@@ -96,42 +97,43 @@
 #define KD_REFINE_STORED
 #endif
 
-/* Ray k's double ray, relative to the tree's origin in its units, as the hit is
- * refined from: the caller's (trace_rays with RAYS_WORLD) or else the float ray
- * traced (o, d). */
-#ifdef KD_REFINE_STORED
+#if defined(KD_REFINE_STORED) && defined(RAYS_WORLD)
+/* Ray k as the caller gave it (trace_rays with RAYS_WORLD), in double, relative to the
+ * tree's origin in its units: what its hit is refined from. */
 KD_INLINE
-void kd_refine_ray(uint k, float3 o, float3 d, double3 *od, double3 *dd KD_EXACT_PARAMS)
+void kd_exact_ray(uint k, double3 *od, double3 *dd KD_EXACT_PARAMS)
 {
-    *od = convert_double3(o);
-    *dd = convert_double3(d);
-#if defined(RAYS_WORLD)
-    if (exact_o) {
-        *od = (convert_double3(vload3((size_t)k * exact_o_step, exact_o)) - exact_origin)
-              * KD_SCALE_INV;
-        *dd = convert_double3(vload3(k, exact_d));
-    }
-#endif
+    *od = (convert_double3(vload3((size_t)k * exact_o_step, exact_o)) - exact_origin)
+          * KD_SCALE_INV;
+    *dd = convert_double3(vload3(k, exact_d));
 }
 #endif
 
-/* Write the outputs of ray k (o + t d, t_min < t < t_max): only those compiled in.
- * `refined`: the hit's t, u, v are refined already (KD_REFINE_STORED; a packet's,
- * kd_refine_packet), else they are refined here. */
+#ifdef KD_REFINE_STORED
+/* Ray k's hit, if any, refined (kd_refine_hit) from the caller's ray when there is
+ * one, else from the float ray traced (o, d). A packet's hits: kd_refine_packet. */
 KD_INLINE
-void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max, bool refined,
-               __global const float *tris, __global const uint *tri_ids, KD_OUTPUT_ARGS
-               KD_EXACT_PARAMS)
+void refine_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
+                __global const float *tris KD_EXACT_PARAMS)
+{
+    if (hit->tri == KD_NO_HIT)
+        return;
+    double3 od = convert_double3(o), dd = convert_double3(d);
+#if defined(RAYS_WORLD)
+    if (exact_o)
+        kd_exact_ray(k, &od, &dd KD_EXACT_PASS);
+#endif
+    kd_refine_hit(od, dd, kd_vertex(tris, hit->tri, 0), kd_vertex(tris, hit->tri, 1),
+                  kd_vertex(tris, hit->tri, 2), t_min, t_max, &hit->t, &hit->u, &hit->v);
+}
+#endif
+
+/* Write the outputs of ray k: only those compiled in (its hit refined already). */
+KD_INLINE
+void store_hit(uint k, const Hit *hit, __global const float *tris, __global const uint *tri_ids,
+               KD_OUTPUT_ARGS)
 {
     bool found = hit->tri != KD_NO_HIT;
-#ifdef KD_REFINE_STORED
-    if (found && !refined) {
-        double3 od, dd;
-        kd_refine_ray(k, o, d, &od, &dd KD_EXACT_PASS);
-        kd_refine_hit(od, dd, kd_vertex(tris, hit->tri, 0), kd_vertex(tris, hit->tri, 1),
-                      kd_vertex(tris, hit->tri, 2), t_min, t_max, &hit->t, &hit->u, &hit->v);
-    }
-#endif
 #ifdef OUT_T
     out_t[k] = found ? hit->t * KD_T_SCALE : INFINITY;
 #endif
@@ -160,7 +162,7 @@ void store_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max, b
 typedef union { doubleP v; double s[KD_PACKET]; } KdDP;
 
 /* kd_refine_hit for the hits (tri, t, u, v per lane; KD_NO_HIT: none) of the lanes in
- * `on`, in vectors: the lanes' float rays, or the caller's double rays (kd_refine_ray,
+ * `on`, in vectors: the lanes' float rays, or the caller's double rays (kd_exact_ray,
  * ray idx[l]), and their triangles' vertices, converted to doubleP; KD_REFINE_PLANE
  * runs once for all lanes (the scalar's operations: bit for bit its values), and
  * kd_take_refined keeps each lane's values as the scalar would. Lanes without a hit
@@ -191,7 +193,7 @@ void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP
             if (!found.s[l])
                 continue;
             double3 od, dd;
-            kd_refine_ray(idx[l], (float3)(0.0f), (float3)(0.0f), &od, &dd KD_EXACT_PASS);
+            kd_exact_ray(idx[l], &od, &dd KD_EXACT_PASS);
             ex.s[l] = od.x; ey.s[l] = od.y; ez.s[l] = od.z;
             fx.s[l] = dd.x; fy.s[l] = dd.y; fz.s[l] = dd.z;
         }
@@ -245,9 +247,7 @@ void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz
         hit.u = u_l.s[l];
         hit.v = v_l.s[l];
         hit.tri = tri_l.s[l];
-        store_hit(idx[l], &hit, (float3)(ox.s[l], oy.s[l], oz.s[l]),
-                  (float3)(dx.s[l], dy.s[l], dz.s[l]), t_min, t_max, true, tris, tri_ids,
-                  KD_OUTPUT_PASS KD_EXACT_PASS);
+        store_hit(idx[l], &hit, tris, tri_ids, KD_OUTPUT_PASS);
     }
 }
 
@@ -286,8 +286,10 @@ void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
 #else
     trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit);
 #endif
-    store_hit(idx[0], &hit, o[0], d[0], t_min, t_max, false, tris, tri_ids, KD_OUTPUT_PASS
-              KD_EXACT_PASS);
+#ifdef KD_REFINE_STORED
+    refine_hit(idx[0], &hit, o[0], d[0], t_min, t_max, tris KD_EXACT_PASS);
+#endif
+    store_hit(idx[0], &hit, tris, tri_ids, KD_OUTPUT_PASS);
 }
 #define KD_RAYS_PER_ITEM 1
 #endif
