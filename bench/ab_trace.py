@@ -3,7 +3,7 @@ way to measure a change to the kernels or the Tracer on a machine whose speed dr
 (+-10-20 % over minutes here, more than most changes).
 
 usage: python bench/ab_trace.py [--base HEAD] [--work COMMIT] [--meshes bunny,bunny-1.6M]
-                                [--rounds 15] [--size 1024]
+                                [--rounds 15] [--pairs 1] [--size 1024]
 
 The base commit's `kdray/` and `kernels/` are exported (git archive) into a temporary
 folder, and with --work another commit's too (so that a past change can be measured
@@ -17,8 +17,16 @@ with kdray.ray_grid traces as an image) and `trace HxW`
 (the same rays shaped (1024, 1024, 3), t and prim only; NaN for a kdray without
 image-shaped rays). Separate
 processes, so each version has its own memory layout and OpenCL context. Prints each
-version's median times, the median of the rounds' ratios (working tree / base: < 1
+version's median times, wall and CPU (the worker's, all its threads: the hypervisor's
+steal is not in it), the medians of the rounds' ratios (working tree / base: < 1
 means faster) and whether the two gave bit-identical images and hits.
+
+A pair of processes can keep a bias of its own for all its rounds (where the arrays
+and the compiled kernels happen to lie in memory; an A/A comparison of one commit
+against itself gave 0.94-1.11 in one pair). --pairs K starts K pairs one after the
+other, each for --rounds rounds, and prints each pair's median ratio besides the
+median over all rounds: pairs that disagree by more than the change measured mean
+that the change is not shown.
 """
 import argparse
 import os
@@ -63,19 +71,14 @@ def worker(tree_path, size, out_path):
              **{f"trace {k}": getattr(hits, k) for k in ("t", "prim", "u", "v", "normal")})
     print("ready", flush=True)
     for line in sys.stdin:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         ran = calls[line.strip()]() is not None
-        print(time.perf_counter() - t0 if ran else "nan", flush=True)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        print(f"{wall} {cpu}" if ran else "nan nan", flush=True)
 
 
-def compare(name, folder, base_root, work_root, rounds, size):
-    """Both versions on one mesh, in turns; prints the medians and ratios."""
-    import kdray
-    from timing import ROUND_ROBIN_PAUSE
-    from meshes import mesh as bench_mesh
-    m = bench_mesh(name)
-    tree_path = os.path.join(folder, f"{name}.kdtree")
-    kdray.build(m.vertices, m.faces).save(tree_path)
+def start_workers(name, folder, tree_path, base_root, work_root, size):
+    """{"base": (process, outputs npz path), "work": ...}: one ready worker per version."""
     workers = {}
     for who, root in (("base", base_root), ("work", work_root)):
         env = dict(os.environ, PYTHONPATH=root)
@@ -86,9 +89,13 @@ def compare(name, folder, base_root, work_root, rounds, size):
         if p.stdout.readline().strip() != "ready":
             raise SystemExit(f"the {who} worker failed to start")
         workers[who] = (p, out)
-    a, b = (np.load(workers[who][1]) for who in ("base", "work"))
-    same = sorted(a.files) == sorted(b.files) and all(
-        np.array_equal(a[k], b[k], equal_nan=True) for k in a.files)
+    return workers
+
+
+def timed_rounds(workers, rounds):
+    """{(who, call): (rounds, 2) seconds, wall and the worker's CPU time (all its
+    threads)}: every call of both workers, in turns."""
+    from timing import ROUND_ROBIN_PAUSE
     seconds = {(who, c): [] for who in workers for c in CALLS}
     for r in range(rounds):
         for who in (("base", "work") if r % 2 == 0 else ("work", "base")):
@@ -97,14 +104,40 @@ def compare(name, folder, base_root, work_root, rounds, size):
                 time.sleep(ROUND_ROBIN_PAUSE)
                 p.stdin.write(c + "\n")
                 p.stdin.flush()
-                seconds[who, c].append(float(p.stdout.readline()))
+                seconds[who, c].append([float(x) for x in p.stdout.readline().split()])
     for p, _ in workers.values():
         p.stdin.close()
         p.wait()
+    return {k: np.array(v) for k, v in seconds.items()}
+
+
+def compare(name, folder, base_root, work_root, rounds, size, pairs=1):
+    """Both versions on one mesh, in turns, in `pairs` pairs of fresh processes one
+    after the other; prints the medians and ratios."""
+    import kdray
+    from meshes import mesh as bench_mesh
+    m = bench_mesh(name)
+    tree_path = os.path.join(folder, f"{name}.kdtree")
+    kdray.build(m.vertices, m.faces).save(tree_path)
+    same = True
+    runs = []
+    for _ in range(pairs):
+        workers = start_workers(name, folder, tree_path, base_root, work_root, size)
+        a, b = (np.load(workers[who][1]) for who in ("base", "work"))
+        same &= sorted(a.files) == sorted(b.files) and all(
+            np.array_equal(a[k], b[k], equal_nan=True) for k in a.files)
+        runs.append(timed_rounds(workers, rounds))
     for c in CALLS:
-        base, work = np.array(seconds["base", c]), np.array(seconds["work", c])
-        print(f"{name:<12} {c:<15} base {np.median(base):.4f} s, work {np.median(work):.4f} s, "
-              f"work / base {np.median(work / base):.3f} (median of {rounds} rounds)", flush=True)
+        base = np.concatenate([s["base", c] for s in runs])
+        work = np.concatenate([s["work", c] for s in runs])
+        for k, what in enumerate(("wall", "cpu")):
+            each = ""
+            if pairs > 1:
+                each = ", pairs " + " ".join(
+                    f"{np.median(s['work', c][:, k] / s['base', c][:, k]):.3f}" for s in runs)
+            print(f"{name:<12} {c:<15} {what:<4} base {np.median(base[:, k]):.4f} s, work "
+                  f"{np.median(work[:, k]):.4f} s, work / base {np.median(work[:, k] / base[:, k]):.3f} "
+                  f"(median of {len(base)} rounds{each})", flush=True)
     print(f"{name:<12} outputs {'identical' if same else 'DIFFER'}", flush=True)
 
 
@@ -115,7 +148,9 @@ def main():
     ap.add_argument("--base", default="HEAD", help="commit to compare with (default HEAD)")
     ap.add_argument("--work", default=None, help="commit to measure (default: the working tree)")
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")
-    ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--rounds", type=int, default=15, help="rounds a pair of processes")
+    ap.add_argument("--pairs", type=int, default=1,
+                    help="pairs of worker processes, one after the other (default 1)")
     ap.add_argument("--size", type=int, default=1024)
     args = ap.parse_args()
     sys.path.insert(0, ROOT)
@@ -128,7 +163,8 @@ def main():
                 os.mkdir(roots[who])
                 git_export(commit, roots[who], ["kdray", "kernels"])
         for name in args.meshes.split(","):
-            compare(name, tmp, roots["base"], roots["work"], args.rounds, args.size)
+            compare(name, tmp, roots["base"], roots["work"], args.rounds, args.size,
+                    args.pairs)
 
 
 if __name__ == "__main__":
