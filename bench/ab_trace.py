@@ -7,26 +7,26 @@ usage: python bench/ab_trace.py [--base HEAD] [--work COMMIT] [--meshes bunny,bu
 
 The base commit's `kdray/` and `kernels/` are exported (git archive) into a temporary
 folder, and with --work another commit's too (so that a past change can be measured
-against its parent: --base C~1 --work C); without it "work" is the working tree. For each mesh the working tree builds the tree once and saves it (tree file
-version 1, which both must read); then two worker processes, one per version, load
-it, make a Tracer and warm up. Each round asks each worker for four timed calls in
+against its parent: --base C~1 --work C); without it "work" is the working tree.
+For each mesh the working tree builds the tree once and saves it (tree file version
+1, which both must read); then two worker processes, one per version, load it, make
+a Tracer and warm up. Each round asks each worker for four timed calls in
 turns, the order of the workers reversed every other round and every call 0.1 s
 after the one before: `render` (depth only), `render` (the default AOVs), `trace`
 (numpy to numpy, the camera's 1024 x 1024 rays in row-major order, which a kdray
 with kdray.ray_grid traces as an image) and `trace HxW`
 (the same rays shaped (1024, 1024, 3), t and prim only; NaN for a kdray without
-image-shaped rays). Separate
-processes, so each version has its own memory layout and OpenCL context. Prints each
-version's median times, wall and CPU (the worker's, all its threads: the hypervisor's
-steal is not in it), the medians of the rounds' ratios (working tree / base: < 1
-means faster) and whether the two gave bit-identical images and hits.
+image-shaped rays). Separate processes, so each version has its own memory layout
+and OpenCL context. Prints each version's median times, wall and CPU (the worker
+process's, all its threads), the medians of the rounds' ratios (working tree / base:
+< 1 means faster) and whether the two gave bit-identical images and hits.
 
-A pair of processes can keep a bias of its own for all its rounds (where the arrays
-and the compiled kernels happen to lie in memory; an A/A comparison of one commit
-against itself gave 0.94-1.11 in one pair). --pairs K starts K pairs one after the
-other, each for --rounds rounds, and prints each pair's median ratio besides the
-median over all rounds: pairs that disagree by more than the change measured mean
-that the change is not shown.
+A pair of processes can keep a bias of its own for all its rounds (presumably where
+the arrays and the compiled kernels happen to lie in memory; an A/A comparison of
+one commit against itself gave 0.94-1.11 in one pair). --pairs K starts K pairs one
+after the other, each for --rounds rounds, and prints each pair's median ratio
+beside the median over all rounds: pairs that disagree by more than the change
+measured mean that the change is not shown.
 """
 import argparse
 import os
@@ -135,8 +135,9 @@ def compare(name, folder, base_root, work_root, rounds, size, pairs=1):
             if pairs > 1:
                 each = ", pairs " + " ".join(
                     f"{np.median(s['work', c][:, k] / s['base', c][:, k]):.3f}" for s in runs)
+            ratio = np.median(work[:, k] / base[:, k])
             print(f"{name:<12} {c:<15} {what:<4} base {np.median(base[:, k]):.4f} s, work "
-                  f"{np.median(work[:, k]):.4f} s, work / base {np.median(work[:, k] / base[:, k]):.3f} "
+                  f"{np.median(work[:, k]):.4f} s, work / base {ratio:.3f} "
                   f"(median of {len(base)} rounds{each})", flush=True)
     print(f"{name:<12} outputs {'identical' if same else 'DIFFER'}", flush=True)
 
