@@ -113,9 +113,11 @@ def timed_rounds(workers, rounds):
 
 def compare(name, folder, base_root, work_root, rounds, size, pairs=1):
     """Both versions on one mesh, in turns, in `pairs` pairs of fresh processes one
-    after the other; prints the medians and ratios."""
+    after the other; prints the medians and ratios. Every pair's outputs are compared
+    (each process computes its own)."""
     import kdray
     from meshes import mesh as bench_mesh
+    from timing import median_ratio
     m = bench_mesh(name)
     tree_path = os.path.join(folder, f"{name}.kdtree")
     kdray.build(m.vertices, m.faces).save(tree_path)
@@ -134,10 +136,10 @@ def compare(name, folder, base_root, work_root, rounds, size, pairs=1):
             each = ""
             if pairs > 1:
                 each = ", pairs " + " ".join(
-                    f"{np.median(s['work', c][:, k] / s['base', c][:, k]):.3f}" for s in runs)
-            ratio = np.median(work[:, k] / base[:, k])
+                    f"{median_ratio(s['work', c][:, k], s['base', c][:, k]):.3f}" for s in runs)
             print(f"{name:<12} {c:<15} {what:<4} base {np.median(base[:, k]):.4f} s, work "
-                  f"{np.median(work[:, k]):.4f} s, work / base {ratio:.3f} "
+                  f"{np.median(work[:, k]):.4f} s, work / base "
+                  f"{median_ratio(work[:, k], base[:, k]):.3f} "
                   f"(median of {len(base)} rounds{each})", flush=True)
     print(f"{name:<12} outputs {'identical' if same else 'DIFFER'}", flush=True)
 
