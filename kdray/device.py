@@ -12,11 +12,12 @@ pyopencl is imported inside the functions, so the rest of kdray imports without 
 Devices are probed, never trusted: a device can be listed and still be unable to build
 programs (PoCL 3.0 on AMD Zen 5: "unknown target CPU 'generic'"). `probe` builds and
 runs a small kernel that uses what kdray's kernels use and checks its answer. The
-default device is the first that works of: GPUs, then CPU runtimes in CPU_RUNTIME_ORDER,
-then anything else. Simulators (SIMULATORS: Oclgrind reports every device type, so it
-looks like a GPU) are never the default; they can be chosen by name. The probes'
-results are kept for the life of the process in `_PROBES`, keyed by the device's
-identity: the one piece of process-wide state in this module.
+default device is the first that works of: GPUs, then CPU runtimes in the order
+CPU_RUNTIME_ORDER gives for this machine's CPU vendor, then anything else. Simulators
+(SIMULATORS: Oclgrind reports every device type, so it looks like a GPU) are never the
+default; they can be chosen by name. The probes' results are kept for the life of the
+process in `_PROBES`, keyed by the device's identity, and the CPU's vendor once read
+(`cpu_vendor`): the process-wide state of this module.
 
 Runtimes installed with pip (Intel's CPU runtime) are made visible to pyopencl's loader
 by `kdray.runtimes`, before the first listing of platforms.
@@ -36,9 +37,11 @@ build passes `-DKDRAY_KERNELS=<hash of every file in kernels/>`: a cache keyed b
 options can never serve a program built from other kernels.
 """
 import contextlib
+import functools
 import hashlib
 import logging
 import os
+import platform
 import re
 import tempfile
 import time
@@ -59,12 +62,36 @@ SIMULATORS = ("Oclgrind",)
 """Substrings of the names of platforms that simulate a device for debugging: never the
 default device, chosen only by name (`--device oclgrind`)."""
 
-CPU_RUNTIME_ORDER = ("pocl", "intel")
-"""CPU runtimes by preference, as `implementation` names; CPUs of other runtimes come
-after these. The order is the speed of kdray's kernels where both work (renders
-alike, PoCL's trace and program builds faster: BENCHMARKS.md). Where PoCL 3.0 cannot
-start (CPUs newer than its LLVM 14) its probe fails and Intel's runtime is the
-default."""
+CPU_RUNTIME_ORDER = {"GenuineIntel": ("intel", "pocl"), "": ("pocl", "intel")}
+"""CPU runtimes by preference, as `implementation` names, by the vendor of this machine's
+CPU (`cpu_vendor`; "" for any other); CPUs of other runtimes come after these. The
+order is what was measured where both work (BENCHMARKS.md): on Intel's CPUs Intel's
+runtime renders, traces, sets up and compiles programs faster; on AMD's (Zen 4) PoCL
+traced and compiled faster. Where PoCL 3.0 cannot start (CPUs newer than its LLVM 14)
+its probe fails and Intel's runtime is the default whatever the order."""
+
+
+@functools.lru_cache(maxsize=None)
+def cpu_vendor():
+    """This machine's CPU vendor as the CPU names itself ("GenuineIntel", "AuthenticAMD",
+    ...: `vendor_id` of /proc/cpuinfo on Linux, the processor string elsewhere, as on
+    Windows), "" when neither says. Read once per process."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.startswith("vendor_id"):
+                    return line.partition(":")[2].strip()
+        return ""
+    except OSError:
+        words = platform.processor().replace(",", " ").split()
+        return next((w for w in words if w in ("GenuineIntel", "AuthenticAMD")), "")
+
+
+def cpu_runtime_order(vendor=None):
+    """The CPU runtimes' default order (a tuple of `implementation` names) on a CPU of
+    `vendor` (None: this machine's, `cpu_vendor`): CPU_RUNTIME_ORDER's entry."""
+    vendor = cpu_vendor() if vendor is None else vendor
+    return CPU_RUNTIME_ORDER.get(vendor, CPU_RUNTIME_ORDER[""])
 
 REMEDIES = {
     "pocl": "pip install intel-opencl-rt intel-cmplr-lib-rt (Intel's CPU runtime runs on any "
@@ -167,14 +194,14 @@ def remedy(device):
 
 
 def _rank(device):
-    """Sort key of the default order: GPUs, CPU runtimes by CPU_RUNTIME_ORDER, the rest,
+    """Sort key of the default order: GPUs, CPU runtimes by `cpu_runtime_order`, the rest,
     simulators last."""
     kind = device_kind(device)
     if kind == "GPU":
         return (0, 0)
     if kind == "CPU":
         impl = implementation(device)
-        order = CPU_RUNTIME_ORDER + (impl,)
+        order = cpu_runtime_order() + (impl,)
         return (1, order.index(impl))
     return (3, 0) if kind == "simulator" else (2, 0)
 
@@ -383,7 +410,7 @@ def choose_device(spec=None):
         a case-insensitive substring of the name, or for a platform its `implementation`
         name ("0", "0:1", "nvidia", "pocl", "oclgrind", "portable:0").
         None reads the PYOPENCL_CTX environment variable; unset or "" takes the first
-        device that works in the default order (GPUs, CPU runtimes by CPU_RUNTIME_ORDER,
+        device that works in the default order (GPUs, CPU runtimes by cpu_runtime_order,
         the rest; never a simulator), logging at INFO why each one before it was skipped.
         Never prompts.
     Raises DeviceError when no platform or no matching device exists, when the device

@@ -192,21 +192,32 @@ def fake(platform, type_bits, name="dev"):
     return SimpleNamespace(name=name, type=type_bits, platform=SimpleNamespace(name=platform))
 
 
-def test_default_order_gpus_cpus_by_runtime_others_simulators_last(monkeypatch):
+@pytest.mark.parametrize("vendor", ["GenuineIntel", "AuthenticAMD"])
+def test_default_order_gpus_cpus_by_runtime_others_simulators_last(monkeypatch, vendor):
     T = cl.device_type
-    monkeypatch.setattr(kdevice, "CPU_RUNTIME_ORDER", ("intel", "pocl"))
+    monkeypatch.setattr(kdevice, "cpu_vendor", lambda: vendor)
     devices = [fake("Oclgrind", T.ALL), fake("Portable Computing Language", T.CPU),
                fake("Some FPGA", T.ACCELERATOR), fake("Intel(R) OpenCL", T.CPU),
                fake("Clover", T.CPU), fake("NVIDIA CUDA", T.GPU)]
     order = [d.platform.name for _, d in kdevice._ordered(list(enumerate(devices)))]
-    assert order == ["NVIDIA CUDA", "Intel(R) OpenCL", "Portable Computing Language", "Clover",
-                     "Some FPGA", "Oclgrind"]
+    cpus = (["Intel(R) OpenCL", "Portable Computing Language"] if vendor == "GenuineIntel"
+            else ["Portable Computing Language", "Intel(R) OpenCL"])
+    assert order == ["NVIDIA CUDA"] + cpus + ["Clover", "Some FPGA", "Oclgrind"]
     assert [kdevice.implementation(d) for d in devices] == [
         "oclgrind", "pocl", "some fpga", "intel", "clover", "nvidia"]
     assert [kdevice.device_kind(d) for d in devices] == [
         "simulator", "CPU", "accelerator", "CPU", "CPU", "GPU"]
     assert "intel-opencl-rt" in kdevice.remedy(devices[1])
     assert kdevice.remedy(fake("Clover", T.CPU)) == kdevice.OTHER_REMEDY
+
+
+def test_cpu_runtime_order_by_vendor():
+    assert kdevice.cpu_runtime_order("GenuineIntel") == ("intel", "pocl")
+    for vendor in ("AuthenticAMD", "HygonGenuine", ""):
+        assert kdevice.cpu_runtime_order(vendor) == ("pocl", "intel")
+    assert kdevice.cpu_runtime_order() == kdevice.cpu_runtime_order(kdevice.cpu_vendor())
+    if Path("/proc/cpuinfo").is_file() and "vendor_id" in Path("/proc/cpuinfo").read_text():
+        assert kdevice.cpu_vendor() and kdevice.cpu_vendor() in Path("/proc/cpuinfo").read_text()
 
 
 def test_intel_library_paths():
