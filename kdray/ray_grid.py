@@ -73,6 +73,8 @@ def grid_width(origins, directions, min_rows=4):
     varies = False
     for x, unit in parts:
         p = _points(x, step_i, unit)
+        if (p == p[0]).all():
+            continue                # all samples alike (a camera's one origin): spread 0
         step = _median(_distance(p, _points(x, step_i + 1, unit)))
         # the median distance between two samples, whatever the order of the list's parts
         spread = _median(_distance(p[:, None], p[None, :]).ravel())
