@@ -62,6 +62,13 @@ MAX_RAYS_PER_LAUNCH = 1 << 22
 a launch's buffers (at most 92 bytes a ray) near 400 MB. Smaller devices take fewer
 rays a launch (`rays_per_launch`)."""
 
+IMAGE_SEARCH_MIN_RAYS = 1 << 17
+"""`Tracer.trace` looks for an image in (N, 3) rays (`ray_grid.grid_width`) only from
+this many rays on: the search costs about 1 ms whatever N, and tracing in blocks saves
+a few % of the kernel's time, which repays it from about 2^17 rays of a simple mesh
+(BENCHMARKS.md, "Issue 20, ninth session"). Image-shaped rays are traced in blocks at
+any size."""
+
 _CONVERT_CHUNK = 1 << 18
 """Rays per chunk when `trace` converts large ray arrays to float32 on threads."""
 
@@ -509,7 +516,8 @@ class Tracer:
             as `render` traces its own, which share more of the tree than a row's,
             with the same hits bit for bit. (N, 3) rays that are an image in
             row-major order (a camera's rays flattened, as Camera.rays gives them)
-            are found to be one (kdray.ray_grid) and traced in blocks too.
+            are found to be one (kdray.ray_grid) and traced in blocks too, from
+            IMAGE_SEARCH_MIN_RAYS rays on (below, the search costs more than it saves).
         t_min : >= 0 (default 0: hits behind the origin or at it never count)
         precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
             v in float64 from the tree's float64 triangles (KdTree.triangles64) and
@@ -532,7 +540,7 @@ class Tracer:
         origins, directions, shape = _flat_rays(origins, directions)
         if len(shape) >= 2:
             image_w = shape[-1]
-        elif self.packet > 1:
+        elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
             # (N, 3) rays that are an image in rows, as cameras give them, are traced
             # in blocks too; the packets do not change a hit, only the time
             image_w = grid_width(origins, directions, min_rows=self.packet // 4)

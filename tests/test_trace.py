@@ -12,6 +12,7 @@ import trees
 from helpers import (RTOL_T, assert_watertight, camera_for, check_hits, random_rays,
                      real_mesh_arrays, soup, split_plane_rays)
 from kdray import layout
+from kdray import trace as ktrace
 from kdray.errors import KdrayError
 from kdray.reference import brute_force
 from kdray.trace import MISS, PACKETS, Tracer, default_stack_size
@@ -624,9 +625,11 @@ def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
     blocks, with packets) and give the hits of rows bit for bit, every poisoned
     output written; an image narrower than ray_grid.MIN_WIDTH is found as a grid of
     a few of its rows; random rays stay rows; with packets of 1 nothing is looked
-    for."""
+    for. The search starts at IMAGE_SEARCH_MIN_RAYS rays: 0 here, so that small images
+    take it; at the default a small image stays rows."""
     tree = mesh_tree("spot.obj", "sah")
     tr = tracers(tree, packet=packet)
+    monkeypatch.setattr(ktrace, "IMAGE_SEARCH_MIN_RAYS", 0)
     tr._poison_outputs = True
     widths = []
     real_trace = tr._trace
@@ -651,6 +654,13 @@ def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
     assert hit > 0.1 * total
     o, d = random_rays(tree, 4096, seed=6)
     tr.trace(o, d)
+    assert widths[-1] == 0
+    # the default: an image of fewer rays than IMAGE_SEARCH_MIN_RAYS stays rows
+    monkeypatch.undo()
+    monkeypatch.setattr(tr, "_trace", spy)
+    eye, d = tr.camera_rays(camera_for(tree, 37, 21))
+    assert len(d) < ktrace.IMAGE_SEARCH_MIN_RAYS
+    tr.trace(eye, d)
     assert widths[-1] == 0
     tr._poison_outputs = False
 
