@@ -313,7 +313,8 @@ class Tracer:
 
     def program(self, outputs, stats=False, rays_world=None, rays="pinhole"):
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
-        with its kernels: {"program": Program, "trace_rays": Kernel, ...}. rays_world:
+        with its kernels: {"program": Program, "trace_rays": Kernel, ...} (and the
+        argument types `_launch` gave each kernel, under ("arg_types", name)). rays_world:
         None, or trace_rays takes rays in world coordinates, (origin type, direction
         type), each "float" or "double" (render.cl, RAYS_WORLD).
         rays: how render_camera makes its rays: "pinhole", "map" (a camera model's ray
@@ -389,17 +390,24 @@ class Tracer:
         cl = _device._cl()
         if n == 0:
             return
-        kernel = self.program(outputs, stats, rays_world, rays)[kernel_name]
+        entry = self.program(outputs, stats, rays_world, rays)
+        kernel = entry[kernel_name]
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
             device_out[name] = self._output_buffer(host_out[name])
         cl.enqueue_fill_buffer(self.queue, self._counter, np.uint32(0), 0, 4)
         groups = min(self.groups, -(-n // self.batch_size))
-        kernel(self.queue, (groups * self.local_size,), (self.local_size,),
-               self._nodes, self._tris, self._tri_ids, self._bounds,
-               np.uint32(self._n_nodes), *args, self._counter,
-               *(device_out.get(name) for name in _OUTPUTS))
+        call_args = (self._nodes, self._tris, self._tri_ids, self._bounds,
+                     np.uint32(self._n_nodes), *args, self._counter,
+                     *(device_out.get(name) for name in _OUTPUTS))
+        # Told the scalars' types, pyopencl packs them itself: its untyped set_arg
+        # takes about 20 us a scalar, half the time of a launch of a few rays.
+        types = tuple(a.dtype if isinstance(a, np.generic) else None for a in call_args)
+        if entry.get(("arg_types", kernel_name)) != types:
+            kernel.set_arg_types(types)
+            entry[("arg_types", kernel_name)] = types
+        kernel(self.queue, (groups * self.local_size,), (self.local_size,), *call_args)
         for name, buf in device_out.items():
             if self._zero_copy:
                 # the buffer is the host array: a map makes the kernel's writes visible
