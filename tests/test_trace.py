@@ -629,6 +629,7 @@ def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
     take it; at the default a small image stays rows."""
     tree = mesh_tree("spot.obj", "sah")
     tr = tracers(tree, packet=packet)
+    default_min_rays = ktrace.IMAGE_SEARCH_MIN_RAYS
     monkeypatch.setattr(ktrace, "IMAGE_SEARCH_MIN_RAYS", 0)
     tr._poison_outputs = True
     widths = []
@@ -656,10 +657,9 @@ def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
     tr.trace(o, d)
     assert widths[-1] == 0
     # the default: an image of fewer rays than IMAGE_SEARCH_MIN_RAYS stays rows
-    monkeypatch.undo()
-    monkeypatch.setattr(tr, "_trace", spy)
+    monkeypatch.setattr(ktrace, "IMAGE_SEARCH_MIN_RAYS", default_min_rays)
     eye, d = tr.camera_rays(camera_for(tree, 37, 21))
-    assert len(d) < ktrace.IMAGE_SEARCH_MIN_RAYS
+    assert len(d) < default_min_rays
     tr.trace(eye, d)
     assert widths[-1] == 0
     tr._poison_outputs = False
