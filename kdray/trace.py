@@ -184,6 +184,38 @@ def default_work_sizes(device, packet=1):
     return local, 4 * local * packet, 16 * cu
 
 
+POCL_ITEM_BYTES = (48 << 10, 100)
+"""PoCL keeps the private data of each work-item of a group on the stack of the thread
+that runs the group, and a packet kernel's is large (spilled vectors, the packet's
+stack): a group that does not fit crashes the process. A bound on one work-item's
+bytes with packets of P rays and a packet stack of S entries: max(48 KiB, 100 P S),
+above the smallest thread stacks that ran groups of 8 to 256 (BENCHMARKS.md: 24-34 KB
+a work-item with P = 8, 34 and 88 KB with P = 16, at S = 16 and 64; 0.4 KB with no
+packets)."""
+
+
+def thread_stack_bytes():
+    """The stack of a thread started with default attributes, as glibc sizes it: the
+    soft RLIMIT_STACK (8 MiB on most systems), or 2 MiB where that is unlimited."""
+    try:
+        import resource
+        soft = resource.getrlimit(resource.RLIMIT_STACK)[0]
+    except (ImportError, OSError, ValueError):
+        return 2 << 20
+    return 2 << 20 if soft == resource.RLIM_INFINITY or soft <= 0 else int(soft)
+
+
+def max_local_size(device, packet, packet_stack_size):
+    """The largest work-group a Tracer takes on `device`: its max_work_group_size, and
+    on PoCL with packets (packet > 1) no more work-items than a thread's stack holds
+    (POCL_ITEM_BYTES, `thread_stack_bytes`)."""
+    limit = int(device.max_work_group_size)
+    if packet > 1 and _device.implementation(device) == "pocl":
+        item = max(POCL_ITEM_BYTES[0], POCL_ITEM_BYTES[1] * packet * packet_stack_size)
+        limit = min(limit, max(thread_stack_bytes() // item, 1))
+    return limit
+
+
 class Tracer:
     """A KdTree uploaded to one OpenCL device.
 
@@ -229,9 +261,13 @@ class Tracer:
         per_round = self.local_size * self.packet
         self.batch_size = int(batch_size or -(-d_batch // per_round) * per_round)
         self.groups = int(groups or d_groups)
-        if self.local_size < 1 or self.local_size > self.device.max_work_group_size:
-            raise KdrayError(f"local_size {self.local_size} is not in 1..{self.device.max_work_group_size} "
-                             f"on {self.device.name.strip()}")
+        most = max_local_size(self.device, self.packet, self.packet_stack_size)
+        if self.local_size < 1 or self.local_size > most:
+            why = ("" if most == self.device.max_work_group_size else
+                   f" with packets of {self.packet} (PoCL keeps every work-item's private "
+                   f"data on one thread's {thread_stack_bytes() >> 20} MiB stack)")
+            raise KdrayError(f"local_size {self.local_size} is not in 1..{most} on "
+                             f"{self.device.name.strip()}{why}")
         if self.batch_size % per_round or self.groups < 1:
             raise KdrayError(f"batch_size ({self.batch_size}) must be a multiple of local_size "
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")

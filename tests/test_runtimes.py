@@ -16,8 +16,9 @@ import pytest
 
 import trees
 from helpers import SCENES, camera_for, check_hits, random_rays, soup, split_plane_rays
+from kdray.errors import KdrayError
 from kdray.load import load
-from kdray.trace import PACKETS, Tracer
+from kdray.trace import PACKETS, Tracer, max_local_size
 
 # (rays per work-item, local size, batch size, groups): one item at a time, odd sizes,
 # the sizes GPUs use (32: a warp, 64: a wavefront, 128, 256), the same with packets
@@ -87,7 +88,7 @@ def test_work_sizes_do_not_change_results(runtime, scene):
     for packet, local, batch, groups in WORK_SIZES:
         tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=1, batch_size=packet,
                     groups=1)
-        if local > tr.device.max_work_group_size:
+        if local > max_local_size(tr.device, packet, tr.packet_stack_size):
             continue
         if runtime.simulator and local in (16, 128):
             continue        # Oclgrind is slow: 32, 64 and 256 stand for the GPU sizes
@@ -102,6 +103,31 @@ def test_work_sizes_do_not_change_results(runtime, scene):
                 same_hits(tr.trace(*image), base[:m]._reshaped((m // 13, 13)))
             tried += 1
     assert tried >= (len(WORK_SIZES) - 4 if runtime.simulator else 2 * len(WORK_SIZES) - 4)
+
+
+def test_groups_fit_the_runtime(runtime):
+    """A Tracer takes no work-group the runtime cannot run: PoCL keeps every work-item's
+    private data on the stack of the thread that runs the group, and with packets a
+    group of 256 overflowed a thread's 8 MiB stack and crashed the process (PoCL 3.0).
+    Such a group is refused with a message that says why; the largest taken runs."""
+    tree = scene_tree("soup")
+    o, d = rays(runtime, tree, 1001, 101, seed=24)
+    base = Tracer(tree, device=runtime.spec, packet=1).trace(o, d)
+    for packet in (1, *PACKETS):
+        probe = Tracer(tree, device=runtime.spec, packet=packet, local_size=1,
+                       batch_size=packet, groups=1)
+        most = max_local_size(probe.device, packet, probe.packet_stack_size)
+        assert 1 <= most <= probe.device.max_work_group_size
+        if runtime.name == "pocl" and packet > 1:
+            assert most < 256
+            with pytest.raises(KdrayError, match="stack"):
+                Tracer(tree, device=runtime.spec, packet=packet, local_size=most + 1)
+        if runtime.simulator:
+            continue        # Oclgrind: the GPU sizes are tried above
+        local = min(most, 512)
+        tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local,
+                    batch_size=local * packet, groups=2)
+        same_hits(tr.trace(o, d), base)
 
 
 def test_stack_sizes_do_not_change_results(runtime):
