@@ -99,4 +99,31 @@ uint kd_countP(intP m)
     return c.x + c.y;
 }
 
+/* the largest and the smallest lane of x (no NaN): halves compared down to one lane */
+KD_INLINE
+float kd_hmaxP(floatP x)
+{
+#if KD_PACKET == 16
+    float8 e = x.hi > x.lo ? x.hi : x.lo;
+#else
+    float8 e = x;
+#endif
+    float4 a = e.hi > e.lo ? e.hi : e.lo;
+    float2 b = a.hi > a.lo ? a.hi : a.lo;
+    return b.y > b.x ? b.y : b.x;
+}
+
+KD_INLINE
+float kd_hminP(floatP x)
+{
+#if KD_PACKET == 16
+    float8 e = x.hi < x.lo ? x.hi : x.lo;
+#else
+    float8 e = x;
+#endif
+    float4 a = e.hi < e.lo ? e.hi : e.lo;
+    float2 b = a.hi < a.lo ? a.hi : a.lo;
+    return b.y < b.x ? b.y : b.x;
+}
+
 #endif

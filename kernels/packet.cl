@@ -21,6 +21,10 @@
  * child goes along whatever the order), when it lies in a split plane (t_split NaN: the
  * scalar kernel's passes handle it), or when the packet's stack is full.
  *
+ * A packet whose origins lie far apart (kd_alone) is not traversed as a packet at all:
+ * each of its rays is traced alone, as the lanes that leave are. In packet programs
+ * the scalar kernel tests a leaf KD_PACKET triangles at a time (kd_ray_leaf).
+ *
  * The packet's stack is a plain one of PACKET_STACK_SIZE entries (node, ranges, lanes):
  * the Tracer makes it the tree's depth + 1, so it is never full on a valid tree.
  */
@@ -77,12 +81,14 @@ typedef struct {
 } KdPacketHit;
 
 /* Where the KD_PACKET (ray, triangle) pairs of a test come from, for the rare lanes decided
- * again in double: the packet's rays and one triangle (lane < 0: p0, p1, p2), or
- * lane `lane`'s ray and KD_PACKET triangles (q: 9 vectors, v0 x y z, v1 x y z, v2 x y z). */
+ * again in double: the packet's rays r and one triangle (p0, p1, p2), or, where r is 0,
+ * one ray (shear s, origin o) and KD_PACKET triangles (q: 9 vectors, v0 x y z, v1 x y z,
+ * v2 x y z). */
 typedef struct {
     const KdPacket *r;
-    int lane;
     float3 p0, p1, p2;
+    const RayShear *s;
+    float3 o;
     const KdFP *q;
 } KdPairs;
 
@@ -102,22 +108,21 @@ void kd_lane_shear(const KdPacket *r, uint l, RayShear *s, float3 *o)
 
 #ifdef cl_khr_fp64
 /* kd_t_double of lane l's (ray, triangle) pair: the lane's ray against src's one
- * triangle (src->lane < 0), or ray src->lane against the lane's triangle. */
+ * triangle (src->r not 0), or src's one ray against the lane's triangle. */
 KD_INLINE
 double kd_pair_t_double(const KdPairs *src, uint l, double *bound)
 {
-    RayShear s;
-    float3 o;
-    if (src->lane < 0) {
+    if (src->r) {
+        RayShear s;
+        float3 o;
         kd_lane_shear(src->r, l, &s, &o);
         return kd_t_double(&s, o, src->p0, src->p1, src->p2, bound);
     }
-    kd_lane_shear(src->r, (uint)src->lane, &s, &o);
     const KdFP *q = src->q;
     float3 p0 = (float3)(q[0].s[l], q[1].s[l], q[2].s[l]);
     float3 p1 = (float3)(q[3].s[l], q[4].s[l], q[5].s[l]);
     float3 p2 = (float3)(q[6].s[l], q[7].s[l], q[8].s[l]);
-    return kd_t_double(&s, o, p0, p1, p2, bound);
+    return kd_t_double(src->s, src->o, p0, p1, p2, bound);
 }
 #endif
 
@@ -269,7 +274,7 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
         P2x = kd_pickP(p2, r->kx); P2y = kd_pickP(p2, r->ky); P2z = kd_pickP(p2, r->kz);
     }
     KdPairs src;
-    src.r = r; src.lane = -1; src.p0 = p0; src.p1 = p1; src.p2 = p2; src.q = 0;
+    src.r = r; src.p0 = p0; src.p1 = p1; src.p2 = p2;
     uintP triP = (uintP)(tri);
     floatP t, V, W, det;
     intP cand = kd_test_pairs(P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z,
@@ -284,9 +289,66 @@ void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uin
     h->tri = kd_selectPu(h->tri, triP, cand);
 }
 
-/* Lane l's ray against up to KD_PACKET triangles at once, the lanes of q in `valid` (indices
- * triP): the pairs and arithmetic of kd_packet_intersect with rays and triangles
- * swapped. Lane l of h takes the first hit in the order (t, index). */
+/* Triangles first .. first + m - 1 (m <= KD_PACKET; a leaf's run, layout.h) into the
+ * lanes of q: 9 vectors, v0 x y z, v1 x y z, v2 x y z. Lanes from m on hold zeros. */
+KD_INLINE
+void kd_gather_tris(__global const float *tris, uint first, uint m, KdFP *q)
+{
+    for (uint c = 0; c < 9; c++)
+        q[c].v = (floatP)(0.0f);
+    __global const float *p = tris + 9 * (size_t)first;
+    for (uint j = 0; j < m; j++) {
+        /* unrolled, so that LLVM gathers 4 triangles at a time into SSE vectors (a loop
+         * it copies float by float) */
+#pragma unroll
+        for (uint c = 0; c < 9; c++)
+            q[c].s[j] = p[9 * j + c];
+    }
+}
+
+/* One ray (shear s, origin o, range t_min < t < t_max, best hit so far best_t,
+ * best_tri) against up to KD_PACKET triangles at once, the lanes of q in `valid`
+ * (indices triP): the pairs and arithmetic of kd_packet_intersect with rays and
+ * triangles swapped. Returns whether one hits before the best; then the first in the
+ * order (t, index), its t, V, W, det (u = V / det, v = W / det) and index. */
+KD_INLINE
+bool kd_ray_block(const RayShear *s, float3 o, float t_min, float t_max, float best_t,
+                  uint best_tri, const KdFP *q, uintP triP, intP valid,
+                  __global const uint *tri_ids, float *t_out, float *V_out, float *W_out,
+                  float *det_out, uint *tri_out)
+{
+    uint ax = s->kx, ay = s->ky, az = s->kz;
+    KdPairs src;
+    src.r = 0; src.s = s; src.o = o; src.q = q;
+    floatP t, V, W, det;
+    intP cand = kd_test_pairs(q[ax].v, q[ay].v, q[az].v, q[3 + ax].v, q[3 + ay].v, q[3 + az].v,
+                              q[6 + ax].v, q[6 + ay].v, q[6 + az].v,
+                              (floatP)(kd_comp(o, ax)), (floatP)(kd_comp(o, ay)),
+                              (floatP)(kd_comp(o, az)),
+                              (floatP)(s->Sx), (floatP)(s->Sy), (floatP)(s->Sz),
+                              (floatP)(t_min), (floatP)(t_max), (floatP)(best_t),
+                              (uintP)(best_tri), triP, tri_ids, valid, &src, &t, &V, &W, &det);
+    if (!kd_anyP(cand))
+        return false;
+    /* the first candidate in the order (t, index); each one is before the best */
+    KdIP c;
+    KdFP tl, Vl, Wl, dl;
+    KdUP il;
+    c.v = cand; tl.v = t; Vl.v = V; Wl.v = W; dl.v = det; il.v = triP;
+    uint best = KD_PACKET;
+    for (uint j = 0; j < KD_PACKET; j++)
+        if (c.s[j] && (best == KD_PACKET || kd_before(tl.s[j], il.s[j], tl.s[best], il.s[best], tri_ids)))
+            best = j;
+    *t_out = tl.s[best];
+    *V_out = Vl.s[best];
+    *W_out = Wl.s[best];
+    *det_out = dl.s[best];
+    *tri_out = il.s[best];
+    return true;
+}
+
+/* Lane l's ray against up to KD_PACKET triangles at once (kd_ray_block); lane l of h
+ * takes the first hit in the order (t, index). */
 KD_INLINE
 void kd_lane_intersect(const KdPacket *r, uint l, const KdFP *q, uintP triP, intP valid,
                        __global const uint *tri_ids, KdPacketHit *h)
@@ -294,37 +356,48 @@ void kd_lane_intersect(const KdPacket *r, uint l, const KdFP *q, uintP triP, int
     RayShear s;
     float3 o;
     kd_lane_shear(r, l, &s, &o);
-    KdFP t_min, t_max, ht;
+    KdFP t_min, t_max, ht, hV, hW, hd;
     KdUP htri;
     t_min.v = r->t_min; t_max.v = r->t_max;
     ht.v = h->t; htri.v = h->tri;
-    uint ax = s.kx, ay = s.ky, az = s.kz;
-    KdPairs src;
-    src.r = r; src.lane = (int)l; src.q = q;
-    floatP t, V, W, det;
-    intP cand = kd_test_pairs(q[ax].v, q[ay].v, q[az].v, q[3 + ax].v, q[3 + ay].v, q[3 + az].v,
-                              q[6 + ax].v, q[6 + ay].v, q[6 + az].v,
-                              (floatP)(kd_comp(o, ax)), (floatP)(kd_comp(o, ay)),
-                              (floatP)(kd_comp(o, az)),
-                              (floatP)(s.Sx), (floatP)(s.Sy), (floatP)(s.Sz),
-                              (floatP)(t_min.s[l]), (floatP)(t_max.s[l]),
-                              (floatP)(ht.s[l]), (uintP)(htri.s[l]), triP, tri_ids, valid, &src,
-                              &t, &V, &W, &det);
-    if (!kd_anyP(cand))
+    float t, V, W, det;
+    uint tri;
+    if (!kd_ray_block(&s, o, t_min.s[l], t_max.s[l], ht.s[l], htri.s[l], q, triP, valid,
+                      tri_ids, &t, &V, &W, &det, &tri))
         return;
-    /* the first candidate in the order (t, index); each one is before lane l's best */
-    KdIP c;
-    KdFP tl, Vl, Wl, dl, hV, hW, hd;
-    KdUP il;
-    c.v = cand; tl.v = t; Vl.v = V; Wl.v = W; dl.v = det; il.v = triP;
-    uint best = KD_PACKET;
-    for (uint j = 0; j < KD_PACKET; j++)
-        if (c.s[j] && (best == KD_PACKET || kd_before(tl.s[j], il.s[j], tl.s[best], il.s[best], tri_ids)))
-            best = j;
     hV.v = h->V; hW.v = h->W; hd.v = h->det;
-    ht.s[l] = tl.s[best]; hV.s[l] = Vl.s[best]; hW.s[l] = Wl.s[best]; hd.s[l] = dl.s[best];
-    htri.s[l] = il.s[best];
+    ht.s[l] = t; hV.s[l] = V; hW.s[l] = W; hd.s[l] = det; htri.s[l] = tri;
     h->t = ht.v; h->V = hV.v; h->W = hW.v; h->det = hd.v; h->tri = htri.v;
+}
+
+/* A single ray's leaf (traverse.cl's kd_intersect_leaf in packet programs): its
+ * triangles KD_PACKET at a time against the ray (kd_ray_block), each block's first hit
+ * before the best kept, so the hit is kd_intersect_leaf's bit for bit. */
+KD_INLINE
+void kd_ray_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
+                 const RayShear *shear, float3 o, float t_min, float t_max,
+                 Hit *hit KD_STATS_PARAM)
+{
+    uint count = kd_n_prims(leaf);
+    uint first = kd_leaf_offset(leaf);
+    for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
+        uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
+        KdFP q[9];
+        kd_gather_tris(tris, first + i0, m, q);
+#ifdef STATS
+        (*stats).z += m;
+#endif
+        float t, V, W, det;
+        uint tri;
+        if (kd_ray_block(shear, o, t_min, t_max, hit->t, hit->tri, q,
+                         (uintP)(first + i0) + KD_LANE_INDEX_U, KD_LANE_INDEX < (intP)((int)m),
+                         tri_ids, &t, &V, &W, &det, &tri)) {
+            hit->t = t;
+            hit->u = V / det;
+            hit->v = W / det;
+            hit->tri = tri;
+        }
+    }
 }
 
 #ifndef KD_LANE_RATIO
@@ -350,18 +423,9 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
             uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
             /* lanes past the leaf's end hold zeros and stay off */
             KdFP q[9];
-            for (uint c = 0; c < 9; c++)
-                q[c].v = (floatP)(0.0f);
-            /* the leaf's triangles are a run (layout.h): lane j is triangle first + i0 + j */
+            kd_gather_tris(tris, first + i0, m, q);
+            /* lane j is triangle first + i0 + j */
             uintP triP = (uintP)(first + i0) + KD_LANE_INDEX_U;
-            __global const float *p = tris + 9 * (size_t)(first + i0);
-            for (uint j = 0; j < m; j++) {
-                /* unrolled, so that LLVM gathers 4 triangles at a time into SSE vectors
-                 * (a loop it copies float by float) */
-#pragma unroll
-                for (uint c = 0; c < 9; c++)
-                    q[c].s[j] = p[9 * j + c];
-            }
             KdIP valid;
             valid.v = KD_LANE_INDEX < (intP)((int)m);
             for (uint l = 0; l < KD_PACKET; l++) {
@@ -533,6 +597,36 @@ floatP kd_compP(floatP x, floatP y, floatP z, intP k)
     return kd_selectP(kd_selectP(x, y, k == 1), z, k == 2);
 }
 
+/* The share of the scene box's longest side above which a packet's origins are too far
+ * apart for it to be traversed as a packet (kd_alone). */
+#ifndef KD_ALONE_SPREAD
+#define KD_ALONE_SPREAD 0.25f
+#endif
+
+/* Whether the lanes in `on` (origins ox, oy, oz; r: their packet) are better traced
+ * one by one, each ray alone (trace_ray, each leaf KD_PACKET triangles at a time:
+ * kd_ray_leaf): their origins span more than KD_ALONE_SPREAD of the scene box's
+ * longest side on some axis. Rays that far apart share few nodes below the top of the
+ * tree, and the union of their paths, each node a vector step, costs more than their
+ * paths one by one; rays from one point or a small patch (cameras, lidars, a
+ * projector's pixels) share most nodes whichever way they point (BENCHMARKS.md, issue
+ * 20, tenth session). Either way every lane's hit is the same. */
+KD_INLINE
+bool kd_alone(const KdPacket *r, intP on, floatP ox, floatP oy, floatP oz, float3 bmin,
+              float3 bmax)
+{
+    if (r->shared_o)
+        return 0.0f > KD_ALONE_SPREAD;      /* tests set it below 0 to trace all alone */
+    /* lanes that are off take the first lane's origin */
+    floatP x = kd_selectP((floatP)(r->uo[0]), ox, on);
+    floatP y = kd_selectP((floatP)(r->uo[1]), oy, on);
+    floatP z = kd_selectP((floatP)(r->uo[2]), oz, on);
+    float span = kd_max(kd_hmaxP(x) - kd_hminP(x),
+                        kd_max(kd_hmaxP(y) - kd_hminP(y), kd_hmaxP(z) - kd_hminP(z)));
+    float3 side = bmax - bmin;
+    return span > KD_ALONE_SPREAD * kd_max(side.x, kd_max(side.y, side.z));
+}
+
 /* Nearest hits of the rays o + t d (per lane, relative to the tree's origin) with
  * t_min < t < t_max, as trace_ray gives them, for the lanes in `on`; bmin, bmax: the
  * scene box. Writes t (t_max on a miss), u, v (0 on a miss) and tri (KD_NO_HIT on a
@@ -622,6 +716,11 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     ps.x = (uintP)(0u); ps.y = (uintP)(0u); ps.z = (uintP)(0u);
     KdPacketStats *pstats = &ps;
 #endif
+    if (kd_alone(&r, on, ox, oy, oz, bmin, bmax)) {
+        /* traced ray by ray below */
+        fallback.v = on;
+        on = (intP)(0);
+    }
     if (kd_anyP(on))
         kd_packet_traverse(nodes, 2u * n_nodes + 2u, tris, tri_ids, &r, on, t_enter, t_exit,
                            &h, &fallback.v KD_PSTATS_ARG);

@@ -87,6 +87,18 @@ void kd_intersect_leaf(KdNode leaf, __global const float *tris, __global const u
     }
 }
 
+#ifdef PACKET
+/* Packet programs test a single ray's leaf KD_PACKET triangles at a time, in vector
+ * lanes (kd_ray_leaf, packet.cl): the same pairs and arithmetic, and the same hit. */
+KD_INLINE
+void kd_ray_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
+                 const RayShear *shear, float3 o, float t_min, float t_max,
+                 Hit *hit KD_STATS_PARAM);
+#define KD_RAY_LEAF kd_ray_leaf
+#else
+#define KD_RAY_LEAF kd_intersect_leaf
+#endif
+
 /* Rounding slack of a split plane's t: (split - o) / d is two correctly rounded
  * operations from the exact crossing (four ulps at most with the 2.5-ulp division
  * OpenCL allows by default), and so is the t of the plane it is compared with; 2^-20
@@ -201,7 +213,7 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves,
         } else {
             /* Leaf: test its triangles; a hit at or before the leaf's exit is final */
             KD_STAT(y);
-            kd_intersect_leaf(n, tris, tri_ids, shear, o, t_min, t_max, hit KD_STATS_ARG);
+            KD_RAY_LEAF(n, tris, tri_ids, shear, o, t_min, t_max, hit KD_STATS_ARG);
             last_leaf = node;
             if (kd_hit_final(hit->t, t_max_cur))
                 break;
