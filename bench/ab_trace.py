@@ -3,7 +3,7 @@ way to measure a change to the kernels or the Tracer on a machine whose speed dr
 (+-10-20 % over minutes here, more than most changes).
 
 usage: python bench/ab_trace.py [--base HEAD] [--work COMMIT] [--meshes bunny,bunny-1.6M]
-                                [--rounds 15] [--pairs 1] [--size 1024]
+                                [--rounds 15] [--pairs 1] [--size 1024] [--incoherent]
 
 The base commit's `kdray/` and `kernels/` are exported (git archive) into a temporary
 folder, and with --work another commit's too (so that a past change can be measured
@@ -16,7 +16,9 @@ after the one before: `render` (depth only), `render` (the default AOVs), `trace
 (numpy to numpy, the camera's 1024 x 1024 rays in row-major order, which a kdray
 with kdray.ray_grid traces as an image) and `trace HxW`
 (the same rays shaped (1024, 1024, 3), t and prim only; NaN for a kdray without
-image-shaped rays). Separate processes, so each version has its own memory layout
+image-shaped rays). With --incoherent, two more: `trace` of 100,000 rays in random
+directions from the centre of the tree's box and from random points in it
+(bench_incoherent.py's rays). Separate processes, so each version has its own memory layout
 and OpenCL context. Prints each version's median times, wall and CPU (the worker
 process's, all its threads), the medians of the rounds' ratios (working tree / base:
 < 1 means faster) and whether the two gave bit-identical images and hits.
@@ -43,6 +45,7 @@ sys.path.insert(0, HERE)
 from ab_build import git_export  # noqa: E402
 
 CALLS = ("render depth", "render default", "trace", "trace HxW")
+INCOHERENT = ("random centre", "random points")
 
 
 def worker(tree_path, size, out_path):
@@ -55,20 +58,26 @@ def worker(tree_path, size, out_path):
     camera = kdray.Camera.frame(lo, hi, size, size)
     o, d = camera.rays()
     tracer = kdray.Tracer(tree)
+    from bench_incoherent import ray_sets
+    (oc, dc), (op, dp) = ray_sets(tree, 100_000).values()
     shape = (size, size, 3)
     calls = {"render depth": lambda: tracer.render(camera, aovs=("depth",)),
              "render default": lambda: tracer.render(camera),
              "trace": lambda: tracer.trace(o, d),
-             "trace HxW": lambda: tracer.trace(o.reshape(shape), d.reshape(shape), outputs=())}
+             "trace HxW": lambda: tracer.trace(o.reshape(shape), d.reshape(shape), outputs=()),
+             "random centre": lambda: tracer.trace(oc, dc),
+             "random points": lambda: tracer.trace(op, dp)}
     images = calls["render default"]()
     hits = calls["trace"]()
+    incoherent = {k: calls[k]().prim for k in INCOHERENT}
     calls["render depth"]()
     try:
         calls["trace HxW"]()
     except kdray.KdrayError:               # a kdray before image-shaped rays: not timed
         calls["trace HxW"] = lambda: None
     np.savez(out_path, **{f"render {k}": v for k, v in images.items()},
-             **{f"trace {k}": getattr(hits, k) for k in ("t", "prim", "u", "v", "normal")})
+             **{f"trace {k}": getattr(hits, k) for k in ("t", "prim", "u", "v", "normal")},
+             **{f"{k} prim": v for k, v in incoherent.items()})
     print("ready", flush=True)
     for line in sys.stdin:
         t0, c0 = time.perf_counter(), time.process_time()
@@ -83,6 +92,7 @@ def start_workers(name, folder, tree_path, base_root, work_root, size):
     for who, root in (("base", base_root), ("work", work_root)):
         env = dict(os.environ, PYTHONPATH=root)
         out = os.path.join(folder, f"{name}-{who}.npz")
+        env["PYTHONPATH"] += os.pathsep + HERE          # bench_incoherent's rays
         p = subprocess.Popen([sys.executable, __file__, "--worker", tree_path, str(size), out],
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
                              cwd=root)
@@ -92,15 +102,15 @@ def start_workers(name, folder, tree_path, base_root, work_root, size):
     return workers
 
 
-def timed_rounds(workers, rounds):
+def timed_rounds(workers, rounds, calls=CALLS):
     """{(who, call): (rounds, 2) seconds, wall and the worker's CPU time (all its
     threads)}: every call of both workers, in turns."""
     from timing import ROUND_ROBIN_PAUSE
-    seconds = {(who, c): [] for who in workers for c in CALLS}
+    seconds = {(who, c): [] for who in workers for c in calls}
     for r in range(rounds):
         for who in (("base", "work") if r % 2 == 0 else ("work", "base")):
             p = workers[who][0]
-            for c in CALLS:
+            for c in calls:
                 time.sleep(ROUND_ROBIN_PAUSE)
                 p.stdin.write(c + "\n")
                 p.stdin.flush()
@@ -111,7 +121,7 @@ def timed_rounds(workers, rounds):
     return {k: np.array(v) for k, v in seconds.items()}
 
 
-def compare(name, folder, base_root, work_root, rounds, size, pairs=1):
+def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CALLS):
     """Both versions on one mesh, in turns, in `pairs` pairs of fresh processes one
     after the other; prints the medians and ratios. Every pair's outputs are compared
     (each process computes its own)."""
@@ -128,8 +138,8 @@ def compare(name, folder, base_root, work_root, rounds, size, pairs=1):
         a, b = (np.load(workers[who][1]) for who in ("base", "work"))
         same &= sorted(a.files) == sorted(b.files) and all(
             np.array_equal(a[k], b[k], equal_nan=True) for k in a.files)
-        runs.append(timed_rounds(workers, rounds))
-    for c in CALLS:
+        runs.append(timed_rounds(workers, rounds, calls))
+    for c in calls:
         base = np.concatenate([s["base", c] for s in runs])
         work = np.concatenate([s["work", c] for s in runs])
         for k, what in enumerate(("wall", "cpu")):
@@ -155,7 +165,10 @@ def main():
     ap.add_argument("--pairs", type=int, default=1,
                     help="pairs of worker processes, one after the other (default 1)")
     ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--incoherent", action="store_true",
+                    help="also time 100,000 rays in random directions (two sets)")
     args = ap.parse_args()
+    calls = CALLS + INCOHERENT if args.incoherent else CALLS
     sys.path.insert(0, ROOT)
     with tempfile.TemporaryDirectory() as tmp:
         roots = {}
@@ -167,7 +180,7 @@ def main():
                 git_export(commit, roots[who], ["kdray", "kernels"])
         for name in args.meshes.split(","):
             compare(name, tmp, roots["base"], roots["work"], args.rounds, args.size,
-                    args.pairs)
+                    args.pairs, calls)
 
 
 if __name__ == "__main__":
