@@ -261,13 +261,7 @@ class Tracer:
         per_round = self.local_size * self.packet
         self.batch_size = int(batch_size or -(-d_batch // per_round) * per_round)
         self.groups = int(groups or d_groups)
-        most = max_local_size(self.device, self.packet, self.packet_stack_size)
-        if self.local_size < 1 or self.local_size > most:
-            why = ("" if most == self.device.max_work_group_size else
-                   f" with packets of {self.packet} (PoCL keeps every work-item's private "
-                   f"data on one thread's {thread_stack_bytes() >> 20} MiB stack)")
-            raise KdrayError(f"local_size {self.local_size} is not in 1..{most} on "
-                             f"{self.device.name.strip()}{why}")
+        self._check_local_size()
         if self.batch_size % per_round or self.groups < 1:
             raise KdrayError(f"batch_size ({self.batch_size}) must be a multiple of local_size "
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")
@@ -335,6 +329,18 @@ class Tracer:
                               f"tree ({self.device_bytes / 2**20:.0f} MiB) on "
                               f"{self.device.name.strip()}")
         return n
+
+    def _check_local_size(self):
+        """KdrayError unless 1 <= local_size <= `max_local_size` for this Tracer's
+        device, packet and packet stack (the tree's depth sets the last)."""
+        most = max_local_size(self.device, self.packet, self.packet_stack_size)
+        if self.local_size < 1 or self.local_size > most:
+            why = ("" if most == self.device.max_work_group_size else
+                   f" with packets of {self.packet} and a tree {self.tree.depth} deep (PoCL "
+                   f"keeps every work-item's private data on one thread's "
+                   f"{thread_stack_bytes() >> 20} MiB stack)")
+            raise KdrayError(f"local_size {self.local_size} is not in 1..{most} on "
+                             f"{self.device.name.strip()}{why}")
 
     def _upload(self, tree):
         cl = _device._cl()
@@ -801,10 +807,12 @@ class Tracer:
         packet width, work sizes and refinement, sharing its compiled programs (a tree
         of another depth or scale may still need programs of its own): the cost of a
         new scene is its upload, not a context and a compile. Stack sizes are the new
-        tree's defaults."""
+        tree's defaults. KdrayError when the new tree is so deep that the work-group no
+        longer fits (`max_local_size`)."""
         other = copy.copy(self)           # shallow: the program cache is shared
         other.tree = tree
         other.stack_size = other.packet_stack_size = default_stack_size(tree)
+        other._check_local_size()
         other._upload(tree)
         return other
 

@@ -9,6 +9,7 @@ that is right on PoCL (work-items one after another) can be wrong there
 interleaved slots, copied buffers) on small cases and fails a test on any invalid
 access, data race or divergent barrier it sees. Scenes come from scenes/ and from
 random triangles, so these tests need nothing outside the repository."""
+import dataclasses
 import warnings
 
 import numpy as np
@@ -122,6 +123,11 @@ def test_groups_fit_the_runtime(runtime):
             assert most < 256
             with pytest.raises(KdrayError, match="stack"):
                 Tracer(tree, device=runtime.spec, packet=packet, local_size=most + 1)
+            # the same group on a deeper tree (a larger packet stack) does not fit either
+            deep = dataclasses.replace(tree, depth=63)
+            assert max_local_size(probe.device, packet, 64) < most
+            with pytest.raises(KdrayError, match="stack"):
+                Tracer(tree, device=runtime.spec, packet=packet, local_size=most).with_tree(deep)
         if runtime.simulator:
             continue        # Oclgrind: the GPU sizes are tried above
         local = min(most, 512)
