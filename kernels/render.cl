@@ -352,12 +352,14 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
 #endif
 
 #ifdef PACKET
-/* The KD_PACKET rays k0 .. k0 + KD_PACKET - 1 (k0 a multiple of KD_PACKET) as a
- * packet's lanes, each converted as KD_RAY_ORIGIN and kd_ray_direction convert it
- * (the same operations on the same values: bit for bit), but in vectors: the 3 x
- * KD_PACKET numbers of the directions, and of the origins unless all rays share one
- * (o_step 0: o_shared, converted), are 3 vector loads, shifted and rounded as vectors
- * and only then dealt out to the x, y, z lanes. */
+/* A packet's KD_PACKET rays as its lanes, in rows of 4 consecutive rays: lanes 4r ..
+ * 4r + 3 are rays k0 + r row_stride .. + 3 (row_stride 4: KD_PACKET consecutive rays;
+ * the image's width: a block of 4 x KD_PACKET / 4 pixels). Each is converted as
+ * KD_RAY_ORIGIN and kd_ray_direction convert it (the same operations on the same
+ * values: bit for bit), but in vectors: a row's 12 numbers of the directions, and of
+ * the origins unless all rays share one (o_step 0: o_shared, converted), are two
+ * vector loads; the 3 x KD_PACKET numbers are shifted and rounded as vectors and only
+ * then dealt out to the x, y, z lanes. */
 typedef union { floatP v[3]; float s[3 * KD_PACKET]; } KdFP3;
 #ifdef RAYS_WORLD
 /* the tree's origin repeated x, y, z, x, ... over 3 x KD_PACKET lanes */
@@ -370,23 +372,33 @@ typedef union { doubleP v[3]; double s[3 * KD_PACKET]; } KdDP3;
 #endif
 KD_INLINE
 void kd_load_packet(__global const KD_ORIGIN_T *origins,
-                    __global const KD_DIRECTION_T *directions, uint k0, uint o_step,
-                    float3 o_shared, KdFP *ox, KdFP *oy, KdFP *oz, KdFP *dx, KdFP *dy, KdFP *dz
-                    KD_ORIGIN_PATTERN_PARAM)
+                    __global const KD_DIRECTION_T *directions, size_t k0, size_t row_stride,
+                    uint o_step, float3 o_shared, KdFP *ox, KdFP *oy, KdFP *oz, KdFP *dx,
+                    KdFP *dy, KdFP *dz KD_ORIGIN_PATTERN_PARAM)
 {
+    KD_ORIGIN_T o_in[3 * KD_PACKET];          /* as loaded: x, y, z of lane 0, 1, ... */
+    KD_DIRECTION_T d_in[3 * KD_PACKET];
+    for (uint r = 0; r < KD_PACKET / 4u; r++) {
+        size_t at = 3 * (k0 + r * row_stride);
+        if (o_step) {
+            vstore8(vload8(0, origins + at), 0, o_in + 12 * r);
+            vstore4(vload4(0, origins + at + 8), 0, o_in + 12 * r + 8);
+        }
+        vstore8(vload8(0, directions + at), 0, d_in + 12 * r);
+        vstore4(vload4(0, directions + at + 8), 0, d_in + 12 * r + 8);
+    }
     KdFP3 o, d;
-    size_t chunk = 3 * (size_t)(k0 / KD_PACKET);
     for (uint i = 0; i < 3; i++) {
 #ifdef RAYS_WORLD
         /* (float)(((double)o - origin) * (1 / scale)): KD_SCALE_INV is 1.0 at scale 1 */
         if (o_step)
-            o.v[i] = convert_floatP((convert_doubleP(vloadP(chunk + i, origins))
-                                     - origin_pattern->v[i]) * KD_SCALE_INV);
-        d.v[i] = convert_floatP(vloadP(chunk + i, directions));
+            o.v[i] = convert_floatP((convert_doubleP(vloadP(i, o_in)) - origin_pattern->v[i])
+                                    * KD_SCALE_INV);
+        d.v[i] = convert_floatP(vloadP(i, d_in));
 #else
         if (o_step)
-            o.v[i] = vloadP(chunk + i, origins);
-        d.v[i] = vloadP(chunk + i, directions);
+            o.v[i] = vloadP(i, o_in);
+        d.v[i] = vloadP(i, d_in);
 #endif
     }
     if (!o_step) {
@@ -464,8 +476,21 @@ void trace_rays(KD_TREE_ARGS,
                  * the image first */
                 uint q = k0 / KD_PACKET;
                 uint col0 = (q % blocks_x) * 4u, row0 = (q / blocks_x) * (KD_PACKET / 4u);
-                float3 o[KD_PACKET], d[KD_PACKET];
                 uint idx[KD_PACKET];
+                if (col0 + 4u <= image_w && row0 + KD_PACKET / 4u <= n_rows) {
+                    /* a block inside the image: its rows loaded as vectors */
+                    KdFP ox, oy, oz, dx, dy, dz;
+                    KdIP on;
+                    on.v = (uintP)(col0) + (KD_LANE_INDEX_U & 3u) < (uintP)(image_w);
+                    for (uint l = 0; l < KD_PACKET; l++)
+                        idx[l] = (row0 + l / 4u) * image_w + col0 + l % 4u;
+                    kd_load_packet(origins, directions, idx[0], image_w, o_step, o_shared,
+                                   &ox, &oy, &oz, &dx, &dy, &dz KD_ORIGIN_PATTERN_ARG);
+                    trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max,
+                                           KD_TREE_PASS, KD_OUTPUT_PASS, idx KD_TRACE_EXACT);
+                    continue;
+                }
+                float3 o[KD_PACKET], d[KD_PACKET];
                 uint count = 0;
                 for (uint l = 0; l < KD_PACKET; l++) {
                     uint col = col0 + l % 4u, row = row0 + l / 4u;
@@ -493,8 +518,8 @@ void trace_rays(KD_TREE_ARGS,
                 uint idx[KD_PACKET];
                 for (uint l = 0; l < KD_PACKET; l++)
                     idx[l] = k0 + l;
-                kd_load_packet(origins, directions, k0, o_step, o_shared, &ox, &oy, &oz, &dx, &dy, &dz
-                               KD_ORIGIN_PATTERN_ARG);
+                kd_load_packet(origins, directions, k0, 4u, o_step, o_shared, &ox, &oy, &oz, &dx, &dy,
+                               &dz KD_ORIGIN_PATTERN_ARG);
                 trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
                                        KD_OUTPUT_PASS, idx KD_TRACE_EXACT);
                 continue;
