@@ -5,7 +5,10 @@ usage: python bench/bench_trace.py [--meshes bunny,bunny-1.6M] [--size 1024]
                                    [--repeat 5] [--sample 20000] [--device SPEC]
 
 A header names the CPU, kdray's OpenCL device and the peers' versions. For each mesh:
-build time, then for 1024 x 1024 primary rays of a framing camera (warm, median of
+build time (warm builds in turns, as the traces below: kdray.build, and Open3D's and
+Mitsuba's scene set-up with their one-ray first cast, `peers.open3d_scene` and
+`peers.mitsuba_scene`; the median of --repeat rounds, and the median of the rounds'
+ratios kdray / Open3D, which issue 20 wants at most 2), then for 1024 x 1024 primary rays of a framing camera (warm, median of
 --repeat rounds; kdray's, Open3D's and Mitsuba's methods run round-robin, one call
 each per round, each 0.1 s after the one before, so that the machine's drift hits
 them alike and no call pays for the one before's worker threads):
@@ -44,7 +47,6 @@ import importlib.metadata
 import os
 import platform
 import sys
-import time
 
 import numpy as np
 
@@ -163,6 +165,18 @@ def mitsuba_calls(m, o, d, camera):
             "mitsuba depth": lambda: (depth().ravel(), None)}, build
 
 
+def build_seconds(m, versions, repeat):
+    """{"kdray", "open3d", "mitsuba" (those installed): (repeat,) wall seconds} of warm
+    builds of mesh m, in turns (`timing.round_robin`: one untimed build each first)."""
+    calls = {"kdray": lambda: kdray.build(m.vertices, m.faces)}
+    if versions["open3d"]:
+        calls["open3d"] = lambda: open3d_scene(m)
+    if versions["mitsuba"]:
+        calls["mitsuba"] = lambda: mitsuba_scene(m)
+    wall, _, _ = round_robin(calls, repeat)
+    return wall
+
+
 def embreex_runs(m, o, d, repeat):
     build, s, t, prim, _ = embreex_hits(m, o, d, max(1, repeat // 2))
     return [("embreex", build, s, t, prim)]
@@ -194,9 +208,7 @@ def main():
     print(header)
     for name in args.meshes.split(","):
         m = bench_mesh(name)
-        t0 = time.perf_counter()
         tree = kdray.build(m.vertices, m.faces)
-        build_s = time.perf_counter() - t0
         lo, hi = tree.world_box()
         camera = kdray.Camera.frame(lo, hi, args.size, args.size)
         o, d = camera.rays()
@@ -217,11 +229,12 @@ def main():
                  "kdray trace": lambda: trace(TRACE_OUTPUTS),
                  "kdray trace t,prim": lambda: trace(()),
                  "kdray trace HxW t,prim": lambda: trace((), (args.size, args.size))}
-        builds = {"kdray": build_s}
         for peer, peer_calls in (("open3d", open3d_calls), ("mitsuba", mitsuba_calls)):
             if versions[peer]:
-                more, builds[peer] = peer_calls(m, o, d, camera)
+                more, _ = peer_calls(m, o, d, camera)
                 calls.update(more)
+        build_s = build_seconds(m, versions, args.repeat)
+        builds = {peer: float(np.median(s)) for peer, s in build_s.items()}
         seconds, _, results = round_robin(calls, args.repeat)
         runs = [(method, builds[method.split()[0]], float(np.median(seconds[method])),
                  *results[method]) for method in seconds]
@@ -247,6 +260,10 @@ def main():
             if theirs in seconds:
                 print(f"# {name}: {ours} / {theirs} = {median_ratio(seconds[theirs], seconds[ours]):.2f}"
                       f" (median of {len(seconds[ours])} rounds)", flush=True)
+        if "open3d" in build_s:
+            print(f"# {name}: build time kdray / open3d = "
+                  f"{median_ratio(build_s['kdray'], build_s['open3d']):.2f} (median of "
+                  f"{len(build_s['kdray'])} rounds; <= 1 means kdray builds faster)", flush=True)
 
 
 if __name__ == "__main__":
