@@ -99,31 +99,18 @@ uint kd_countP(intP m)
     return c.x + c.y;
 }
 
-/* the largest and the smallest lane of x (no NaN): halves compared down to one lane */
+/* the largest lane of x less the smallest (no NaN): halves compared down to one lane */
 KD_INLINE
-float kd_hmaxP(floatP x)
+float kd_spanP(floatP x)
 {
 #if KD_PACKET == 16
-    float8 e = x.hi > x.lo ? x.hi : x.lo;
+    float8 hi = x.hi > x.lo ? x.hi : x.lo, lo = x.hi < x.lo ? x.hi : x.lo;
 #else
-    float8 e = x;
+    float8 hi = x, lo = x;
 #endif
-    float4 a = e.hi > e.lo ? e.hi : e.lo;
-    float2 b = a.hi > a.lo ? a.hi : a.lo;
-    return b.y > b.x ? b.y : b.x;
-}
-
-KD_INLINE
-float kd_hminP(floatP x)
-{
-#if KD_PACKET == 16
-    float8 e = x.hi < x.lo ? x.hi : x.lo;
-#else
-    float8 e = x;
-#endif
-    float4 a = e.hi < e.lo ? e.hi : e.lo;
-    float2 b = a.hi < a.lo ? a.hi : a.lo;
-    return b.y < b.x ? b.y : b.x;
+    float4 a = hi.hi > hi.lo ? hi.hi : hi.lo, b = lo.hi < lo.lo ? lo.hi : lo.lo;
+    float2 c = a.hi > a.lo ? a.hi : a.lo, e = b.hi < b.lo ? b.hi : b.lo;
+    return (c.y > c.x ? c.y : c.x) - (e.y < e.x ? e.y : e.x);
 }
 
 #endif

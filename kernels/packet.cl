@@ -597,6 +597,40 @@ floatP kd_compP(floatP x, floatP y, floatP z, intP k)
     return kd_selectP(kd_selectP(x, y, k == 1), z, k == 2);
 }
 
+/* The rest of packet r for traversal: ray_shear's axes and constants for every lane,
+ * whether the lanes in `on` share the axes of lane `first` (the first on), and the
+ * rays' origins, directions and range. */
+KD_INLINE
+void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, floatP oz,
+                     floatP dx, floatP dy, floatP dz, float t_min, float t_max)
+{
+    floatP ax = kd_absP(dx), ay = kd_absP(dy), az = kd_absP(dz);
+    intP kz = kd_selectPi(kd_selectPi((intP)(2), (intP)(1), ay >= az),
+                          kd_selectPi((intP)(2), (intP)(0), ax >= az), ax >= ay);
+    intP kx = kd_selectPi(kz + 1, (intP)(0), kz == 2);
+    intP ky = kd_selectPi(kx + 1, (intP)(0), kx == 2);
+    floatP d_kz = kd_compP(dx, dy, dz, kz);
+    intP flip = d_kz < 0.0f;              /* swap kx, ky: keeps the winding */
+    intP k = kx;
+    kx = kd_selectPi(kx, ky, flip);
+    ky = kd_selectPi(ky, k, flip);
+    r->kx = kx; r->ky = ky; r->kz = kz;
+    r->Sx = kd_compP(dx, dy, dz, kx) / d_kz;
+    r->Sy = kd_compP(dx, dy, dz, ky) / d_kz;
+    r->Sz = 1.0f / d_kz;
+    r->okx = kd_compP(ox, oy, oz, kx);
+    r->oky = kd_compP(ox, oy, oz, ky);
+    r->okz = kd_compP(ox, oy, oz, kz);
+    r->o[0] = ox; r->o[1] = oy; r->o[2] = oz;
+    r->d[0] = dx; r->d[1] = dy; r->d[2] = dz;
+    r->t_min = (floatP)(t_min);
+    r->t_max = (floatP)(t_max);
+    KdIP kx_l, ky_l, kz_l;
+    kx_l.v = kx; ky_l.v = ky; kz_l.v = kz;
+    r->ukx = (uint)kx_l.s[first]; r->uky = (uint)ky_l.s[first]; r->ukz = (uint)kz_l.s[first];
+    r->uniform = !kd_anyP(on & ((kx != (int)r->ukx) | (ky != (int)r->uky) | (kz != (int)r->ukz)));
+}
+
 /* The share of the scene box's longest side above which a packet's origins are too far
  * apart for it to be traversed as a packet (kd_alone). */
 #ifndef KD_ALONE_SPREAD
@@ -621,8 +655,7 @@ bool kd_alone(const KdPacket *r, intP on, floatP ox, floatP oy, floatP oz, float
     floatP x = kd_selectP((floatP)(r->uo[0]), ox, on);
     floatP y = kd_selectP((floatP)(r->uo[1]), oy, on);
     floatP z = kd_selectP((floatP)(r->uo[2]), oz, on);
-    float span = kd_max(kd_hmaxP(x) - kd_hminP(x),
-                        kd_max(kd_hmaxP(y) - kd_hminP(y), kd_hmaxP(z) - kd_hminP(z)));
+    float span = kd_max(kd_spanP(x), kd_max(kd_spanP(y), kd_spanP(z)));
     float3 side = bmax - bmin;
     return span > KD_ALONE_SPREAD * kd_max(side.x, kd_max(side.y, side.z));
 }
@@ -665,38 +698,13 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
         return;
     }
 
-    /* ray_shear for every lane */
+    /* the first lane that is on; one origin: its origin, shared by every lane on */
     KdPacket r;
-    floatP ax = kd_absP(dx), ay = kd_absP(dy), az = kd_absP(dz);
-    intP kz = kd_selectPi(kd_selectPi((intP)(2), (intP)(1), ay >= az),
-                          kd_selectPi((intP)(2), (intP)(0), ax >= az), ax >= ay);
-    intP kx = kd_selectPi(kz + 1, (intP)(0), kz == 2);
-    intP ky = kd_selectPi(kx + 1, (intP)(0), kx == 2);
-    floatP d_kz = kd_compP(dx, dy, dz, kz);
-    intP flip = d_kz < 0.0f;              /* swap kx, ky: keeps the winding */
-    intP k = kx;
-    kx = kd_selectPi(kx, ky, flip);
-    ky = kd_selectPi(ky, k, flip);
-    r.kx = kx; r.ky = ky; r.kz = kz;
-    r.Sx = kd_compP(dx, dy, dz, kx) / d_kz;
-    r.Sy = kd_compP(dx, dy, dz, ky) / d_kz;
-    r.Sz = 1.0f / d_kz;
-    r.okx = kd_compP(ox, oy, oz, kx);
-    r.oky = kd_compP(ox, oy, oz, ky);
-    r.okz = kd_compP(ox, oy, oz, kz);
-    r.o[0] = ox; r.o[1] = oy; r.o[2] = oz;
-    r.d[0] = dx; r.d[1] = dy; r.d[2] = dz;
-    r.t_min = (floatP)(t_min);
-    r.t_max = (floatP)(t_max);
-    /* uniform axes: those of the first lane that is on, shared by every lane on */
-    KdIP on_l, kx_l, ky_l, kz_l;
-    on_l.v = on; kx_l.v = kx; ky_l.v = ky; kz_l.v = kz;
+    KdIP on_l;
+    on_l.v = on;
     uint first = 0;
     while (first < KD_PACKET - 1 && !on_l.s[first])
         first++;
-    r.ukx = (uint)kx_l.s[first]; r.uky = (uint)ky_l.s[first]; r.ukz = (uint)kz_l.s[first];
-    r.uniform = !kd_anyP(on & ((kx != (int)r.ukx) | (ky != (int)r.uky) | (kz != (int)r.ukz)));
-    /* one origin: that of the first lane that is on, shared by every lane on */
     KdFP ox_l, oy_l, oz_l;
     ox_l.v = ox; oy_l.v = oy; oz_l.v = oz;
     r.uo[0] = ox_l.s[first]; r.uo[1] = oy_l.s[first]; r.uo[2] = oz_l.s[first];
@@ -717,13 +725,12 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     KdPacketStats *pstats = &ps;
 #endif
     if (kd_alone(&r, on, ox, oy, oz, bmin, bmax)) {
-        /* traced ray by ray below */
-        fallback.v = on;
-        on = (intP)(0);
-    }
-    if (kd_anyP(on))
+        fallback.v = on;                 /* traced ray by ray below: no packet set up */
+    } else {
+        kd_packet_shear(&r, on, first, ox, oy, oz, dx, dy, dz, t_min, t_max);
         kd_packet_traverse(nodes, 2u * n_nodes + 2u, tris, tri_ids, &r, on, t_enter, t_exit,
                            &h, &fallback.v KD_PSTATS_ARG);
+    }
 
     KdFP t_l, u_l, v_l;
     KdUP tri_l;
