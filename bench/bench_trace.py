@@ -8,10 +8,11 @@ A header names the CPU, kdray's OpenCL device and the peers' versions. For each 
 build time (warm builds in turns, as the traces below: kdray.build, and Open3D's and
 Mitsuba's scene set-up with their one-ray first cast, `peers.open3d_scene` and
 `peers.mitsuba_scene`; the median of --repeat rounds, and the median of the rounds'
-ratios kdray / Open3D, which issue 20 wants at most 2), then for 1024 x 1024 primary rays of a framing camera (warm, median of
---repeat rounds; kdray's, Open3D's and Mitsuba's methods run round-robin, one call
-each per round, each 0.1 s after the one before, so that the machine's drift hits
-them alike and no call pays for the one before's worker threads):
+ratios kdray / Open3D, which issue 20 wants at most 2), then for 1024 x 1024 primary
+rays of a framing camera (warm, median of --repeat rounds; kdray's, Open3D's and
+Mitsuba's methods run round-robin, one call each per round, each 0.1 s after the one
+before, so that the machine's drift hits them alike and no call pays for the one
+before's worker threads):
   kdray render depth      Tracer.render(camera, ["depth"]): rays made on the device
   kdray render default    Tracer.render(camera) with depth, normal, bary, id
   kdray trace             Tracer.trace(origins, directions) from numpy to numpy: t,
