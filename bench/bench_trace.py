@@ -115,10 +115,10 @@ def peer_versions():
 
 
 def open3d_calls(m, o, d, camera):
-    """Open3D's methods as zero-argument calls returning (t, prim or None), and its
-    build seconds."""
+    """Open3D's methods as zero-argument calls returning (t, prim or None) (its build is
+    timed by `build_seconds`)."""
     import open3d as o3d
-    scene, build = open3d_scene(m)
+    scene, _ = open3d_scene(m)
     rays = o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32))
     K = o3d.core.Tensor(np.asarray(camera.K, dtype=np.float64))
     w2c = o3d.core.Tensor(np.linalg.inv(np.asarray(camera.cam_to_world, dtype=np.float64)))
@@ -135,16 +135,16 @@ def open3d_calls(m, o, d, camera):
         return scene.cast_rays(r)["t_hit"].numpy().ravel(), None
 
     return {"open3d pinhole depth": pinhole, "open3d cast": cast,
-            "open3d numpy": lambda: open3d_cast(scene, o, d)[:2]}, build
+            "open3d numpy": lambda: open3d_cast(scene, o, d)[:2]}
 
 
 def mitsuba_calls(m, o, d, camera):
-    """Mitsuba 3's methods as zero-argument calls returning (t, prim or None), and its
-    build seconds. Each starts from kdray trace's numpy rays and ends in numpy arrays,
+    """Mitsuba 3's methods as zero-argument calls returning (t, prim or None) (its build
+    is timed by `build_seconds`). Each starts from kdray trace's numpy rays and ends in numpy arrays,
     which waits for Dr.Jit's asynchronous kernels."""
     mi = mitsuba_module()
     import drjit as dr
-    scene, build = mitsuba_scene(m)
+    scene, _ = mitsuba_scene(m)
     shape = (int(camera.height), int(camera.width))
 
     def prelim():
@@ -163,7 +163,7 @@ def mitsuba_calls(m, o, d, camera):
         return pi.t.numpy().reshape(shape)
 
     return {"mitsuba prelim coherent": prelim, "mitsuba intersect": intersect,
-            "mitsuba depth": lambda: (depth().ravel(), None)}, build
+            "mitsuba depth": lambda: (depth().ravel(), None)}
 
 
 def build_seconds(m, versions, repeat):
@@ -232,8 +232,7 @@ def main():
                  "kdray trace HxW t,prim": lambda: trace((), (args.size, args.size))}
         for peer, peer_calls in (("open3d", open3d_calls), ("mitsuba", mitsuba_calls)):
             if versions[peer]:
-                more, _ = peer_calls(m, o, d, camera)
-                calls.update(more)
+                calls.update(peer_calls(m, o, d, camera))
         build_s = build_seconds(m, versions, args.repeat)
         builds = {peer: float(np.median(s)) for peer, s in build_s.items()}
         seconds, _, results = round_robin(calls, args.repeat)

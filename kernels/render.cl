@@ -365,9 +365,11 @@ typedef union { floatP v[3]; float s[3 * KD_PACKET]; } KdFP3;
 /* the tree's origin repeated x, y, z, x, ... over 3 x KD_PACKET lanes */
 typedef union { doubleP v[3]; double s[3 * KD_PACKET]; } KdDP3;
 #define KD_ORIGIN_PATTERN_PARAM , const KdDP3 *origin_pattern
+#define KD_ORIGIN_PATTERN_PASS , origin_pattern
 #define KD_ORIGIN_PATTERN_ARG , &origin_pattern
 #else
 #define KD_ORIGIN_PATTERN_PARAM
+#define KD_ORIGIN_PATTERN_PASS
 #define KD_ORIGIN_PATTERN_ARG
 #endif
 KD_INLINE
@@ -410,6 +412,30 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
         }
         dx->s[l] = d.s[3 * l]; dy->s[l] = d.s[3 * l + 1]; dz->s[l] = d.s[3 * l + 2];
     }
+}
+#endif
+
+#ifdef PACKET
+/* Trace one packet of KD_PACKET rays in rows of 4 (kd_load_packet: lane 4 r + c is
+ * ray k0 + r row_stride + c, every one of them below n_rays) and store their outputs. */
+KD_INLINE
+void trace_rows_and_store(__global const KD_ORIGIN_T *origins,
+                          __global const KD_DIRECTION_T *directions, uint k0, uint row_stride,
+                          uint n_rays, uint o_step, float3 o_shared, float t_min, float t_max,
+                          KD_TREE_PARAMS, KD_OUTPUT_ARGS KD_ORIGIN_PATTERN_PARAM KD_EXACT_PARAMS)
+{
+    KdUP idx;
+    idx.v = (uintP)(k0) + (KD_LANE_INDEX_U >> 2) * row_stride + (KD_LANE_INDEX_U & 3u);
+    /* every lane is on, but computed: with a constant mask Oclgrind 21.10 gets other
+     * hits than PoCL and Intel's runtime (the soup scene of tests/test_runtimes.py), as
+     * with its constant selects (lanes.h) */
+    KdIP on;
+    on.v = idx.v < (uintP)(n_rays);
+    KdFP ox, oy, oz, dx, dy, dz;
+    kd_load_packet(origins, directions, k0, row_stride, o_step, o_shared, &ox, &oy, &oz, &dx,
+                   &dy, &dz KD_ORIGIN_PATTERN_PASS);
+    trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
+                           KD_OUTPUT_PASS, idx.s KD_EXACT_PASS);
 }
 #endif
 
@@ -476,21 +502,15 @@ void trace_rays(KD_TREE_ARGS,
                  * the image first */
                 uint q = k0 / KD_PACKET;
                 uint col0 = (q % blocks_x) * 4u, row0 = (q / blocks_x) * (KD_PACKET / 4u);
-                uint idx[KD_PACKET];
                 if (col0 + 4u <= image_w && row0 + KD_PACKET / 4u <= n_rows) {
                     /* a block inside the image: its rows loaded as vectors */
-                    KdFP ox, oy, oz, dx, dy, dz;
-                    KdIP on;
-                    on.v = (uintP)(col0) + (KD_LANE_INDEX_U & 3u) < (uintP)(image_w);
-                    for (uint l = 0; l < KD_PACKET; l++)
-                        idx[l] = (row0 + l / 4u) * image_w + col0 + l % 4u;
-                    kd_load_packet(origins, directions, idx[0], image_w, o_step, o_shared,
-                                   &ox, &oy, &oz, &dx, &dy, &dz KD_ORIGIN_PATTERN_ARG);
-                    trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max,
-                                           KD_TREE_PASS, KD_OUTPUT_PASS, idx KD_TRACE_EXACT);
+                    trace_rows_and_store(origins, directions, row0 * image_w + col0, image_w,
+                                         n_rays, o_step, o_shared, t_min, t_max, KD_TREE_PASS,
+                                         KD_OUTPUT_PASS KD_ORIGIN_PATTERN_ARG KD_TRACE_EXACT);
                     continue;
                 }
                 float3 o[KD_PACKET], d[KD_PACKET];
+                uint idx[KD_PACKET];
                 uint count = 0;
                 for (uint l = 0; l < KD_PACKET; l++) {
                     uint col = col0 + l % 4u, row = row0 + l / 4u;
@@ -509,19 +529,9 @@ void trace_rays(KD_TREE_ARGS,
             uint count = min((uint)KD_RAYS_PER_ITEM, n_rays - k0);
 #ifdef PACKET
             if (count == KD_PACKET) {
-                KdFP ox, oy, oz, dx, dy, dz;
-                KdIP on;
-                /* every lane is on, but computed: with a constant mask Oclgrind 21.10
-                 * gets other hits than PoCL and Intel's runtime (the soup scene of
-                 * tests/test_runtimes.py), as with its constant selects (lanes.h) */
-                on.v = (uintP)(k0) + KD_LANE_INDEX_U < (uintP)(n_rays);
-                uint idx[KD_PACKET];
-                for (uint l = 0; l < KD_PACKET; l++)
-                    idx[l] = k0 + l;
-                kd_load_packet(origins, directions, k0, 4u, o_step, o_shared, &ox, &oy, &oz, &dx, &dy,
-                               &dz KD_ORIGIN_PATTERN_ARG);
-                trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
-                                       KD_OUTPUT_PASS, idx KD_TRACE_EXACT);
+                trace_rows_and_store(origins, directions, k0, 4u, n_rays, o_step, o_shared,
+                                     t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS
+                                     KD_ORIGIN_PATTERN_ARG KD_TRACE_EXACT);
                 continue;
             }
 #endif
