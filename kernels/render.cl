@@ -251,23 +251,18 @@ void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz
     }
 }
 
-/* Trace rays o[l] + t d[l], l < count <= KD_PACKET, as one packet and store ray l's
- * outputs at index idx[l]. */
+/* The packet of rays o[l] + t d[l], l < count <= KD_PACKET, in lanes: lanes past count
+ * copy ray 0 and are off in `on`. */
 KD_INLINE
-void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
-                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx
-                     KD_EXACT_PARAMS)
+void kd_gather_packet(uint count, const float3 *o, const float3 *d, KdFP *ox, KdFP *oy,
+                      KdFP *oz, KdFP *dx, KdFP *dy, KdFP *dz, KdIP *on)
 {
-    KdFP ox, oy, oz, dx, dy, dz;
-    KdIP on;
     for (uint l = 0; l < KD_PACKET; l++) {
-        uint j = l < count ? l : 0u;     /* lanes past count copy ray 0 and stay off */
-        ox.s[l] = o[j].x; oy.s[l] = o[j].y; oz.s[l] = o[j].z;
-        dx.s[l] = d[j].x; dy.s[l] = d[j].y; dz.s[l] = d[j].z;
-        on.s[l] = l < count ? -1 : 0;
+        uint j = l < count ? l : 0u;
+        ox->s[l] = o[j].x; oy->s[l] = o[j].y; oz->s[l] = o[j].z;
+        dx->s[l] = d[j].x; dy->s[l] = d[j].y; dz->s[l] = d[j].z;
+        on->s[l] = l < count ? -1 : 0;
     }
-    trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
-                           KD_OUTPUT_PASS, idx KD_EXACT_PASS);
 }
 #define KD_RAYS_PER_ITEM KD_PACKET
 #else
@@ -365,11 +360,9 @@ typedef union { floatP v[3]; float s[3 * KD_PACKET]; } KdFP3;
 /* the tree's origin repeated x, y, z, x, ... over 3 x KD_PACKET lanes */
 typedef union { doubleP v[3]; double s[3 * KD_PACKET]; } KdDP3;
 #define KD_ORIGIN_PATTERN_PARAM , const KdDP3 *origin_pattern
-#define KD_ORIGIN_PATTERN_PASS , origin_pattern
 #define KD_ORIGIN_PATTERN_ARG , &origin_pattern
 #else
 #define KD_ORIGIN_PATTERN_PARAM
-#define KD_ORIGIN_PATTERN_PASS
 #define KD_ORIGIN_PATTERN_ARG
 #endif
 KD_INLINE
@@ -412,30 +405,6 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
         }
         dx->s[l] = d.s[3 * l]; dy->s[l] = d.s[3 * l + 1]; dz->s[l] = d.s[3 * l + 2];
     }
-}
-#endif
-
-#ifdef PACKET
-/* Trace one packet of KD_PACKET rays in rows of 4 (kd_load_packet: lane 4 r + c is
- * ray k0 + r row_stride + c, every one of them below n_rays) and store their outputs. */
-KD_INLINE
-void trace_rows_and_store(__global const KD_ORIGIN_T *origins,
-                          __global const KD_DIRECTION_T *directions, uint k0, uint row_stride,
-                          uint n_rays, uint o_step, float3 o_shared, float t_min, float t_max,
-                          KD_TREE_PARAMS, KD_OUTPUT_ARGS KD_ORIGIN_PATTERN_PARAM KD_EXACT_PARAMS)
-{
-    KdUP idx;
-    idx.v = (uintP)(k0) + (KD_LANE_INDEX_U >> 2) * row_stride + (KD_LANE_INDEX_U & 3u);
-    /* every lane is on, but computed: with a constant mask Oclgrind 21.10 gets other
-     * hits than PoCL and Intel's runtime (the soup scene of tests/test_runtimes.py), as
-     * with its constant selects (lanes.h) */
-    KdIP on;
-    on.v = idx.v < (uintP)(n_rays);
-    KdFP ox, oy, oz, dx, dy, dz;
-    kd_load_packet(origins, directions, k0, row_stride, o_step, o_shared, &ox, &oy, &oz, &dx,
-                   &dy, &dz KD_ORIGIN_PATTERN_PASS);
-    trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
-                           KD_OUTPUT_PASS, idx.s KD_EXACT_PASS);
 }
 #endif
 
@@ -497,53 +466,66 @@ void trace_rays(KD_TREE_ARGS,
             if (k0 >= n_slots)
                 break;
 #ifdef PACKET
+            /* A whole packet in rows of 4 rays, row_stride apart, loaded as vectors: a
+             * block inside the image (rows a row of the image apart), or KD_PACKET
+             * consecutive rays (rows 4 apart). Else the rays there are, one by one: of a
+             * block at the image's edge (lane l is ray (col0 + l % 4, row0 + l / 4), the
+             * lanes inside the image first), or the last rays. One call traces either:
+             * PoCL keeps each inlined copy's private data apart, for every work-item of
+             * a group, on one thread's stack (kdray/trace.py, POCL_ITEM_BYTES). */
+            KdFP ox, oy, oz, dx, dy, dz;
+            KdIP on;
+            KdUP idx;
+            uint col0 = 0u, row0 = 0u, row_stride = 0u, first_ray = k0;
             if (image_w) {
-                /* block q: lane l is ray (col0 + l % 4, row0 + l / 4), the lanes inside
-                 * the image first */
                 uint q = k0 / KD_PACKET;
-                uint col0 = (q % blocks_x) * 4u, row0 = (q / blocks_x) * (KD_PACKET / 4u);
+                col0 = (q % blocks_x) * 4u;
+                row0 = (q / blocks_x) * (KD_PACKET / 4u);
                 if (col0 + 4u <= image_w && row0 + KD_PACKET / 4u <= n_rows) {
-                    /* a block inside the image: its rows loaded as vectors */
-                    trace_rows_and_store(origins, directions, row0 * image_w + col0, image_w,
-                                         n_rays, o_step, o_shared, t_min, t_max, KD_TREE_PASS,
-                                         KD_OUTPUT_PASS KD_ORIGIN_PATTERN_ARG KD_TRACE_EXACT);
-                    continue;
+                    first_ray = row0 * image_w + col0;
+                    row_stride = image_w;
                 }
+            } else if (n_rays - k0 >= KD_PACKET) {
+                row_stride = 4u;
+            }
+            if (row_stride) {
+                idx.v = (uintP)(first_ray) + (KD_LANE_INDEX_U >> 2) * row_stride
+                        + (KD_LANE_INDEX_U & 3u);
+                /* every lane is on, but computed: with a constant mask Oclgrind 21.10 gets
+                 * other hits than PoCL and Intel's runtime (the soup scene of
+                 * tests/test_runtimes.py), as with its constant selects (lanes.h) */
+                on.v = idx.v < (uintP)(n_rays);
+                kd_load_packet(origins, directions, first_ray, row_stride, o_step, o_shared,
+                               &ox, &oy, &oz, &dx, &dy, &dz KD_ORIGIN_PATTERN_ARG);
+            } else {
                 float3 o[KD_PACKET], d[KD_PACKET];
-                uint idx[KD_PACKET];
                 uint count = 0;
                 for (uint l = 0; l < KD_PACKET; l++) {
-                    uint col = col0 + l % 4u, row = row0 + l / 4u;
-                    if (col < image_w && row < n_rows) {
-                        uint k = row * image_w + col;
+                    uint k = k0 + l;
+                    bool inside = k < n_rays;
+                    if (image_w) {
+                        uint col = col0 + l % 4u, row = row0 + l / 4u;
+                        k = row * image_w + col;
+                        inside = col < image_w && row < n_rows;
+                    }
+                    if (inside) {
                         o[count] = KD_RAY_ORIGIN(origins, (size_t)k * o_step);
                         d[count] = kd_ray_direction(directions, k);
-                        idx[count++] = k;
+                        idx.s[count++] = k;
                     }
                 }
-                trace_and_store(count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, idx
-                                KD_TRACE_EXACT);
-                continue;
+                for (uint l = count; l < KD_PACKET; l++)
+                    idx.s[l] = idx.s[0];          /* off lanes */
+                kd_gather_packet(count, o, d, &ox, &oy, &oz, &dx, &dy, &dz, &on);
             }
-#endif
-            uint count = min((uint)KD_RAYS_PER_ITEM, n_rays - k0);
-#ifdef PACKET
-            if (count == KD_PACKET) {
-                trace_rows_and_store(origins, directions, k0, 4u, n_rays, o_step, o_shared,
-                                     t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS
-                                     KD_ORIGIN_PATTERN_ARG KD_TRACE_EXACT);
-                continue;
-            }
-#endif
-            float3 o[KD_RAYS_PER_ITEM], d[KD_RAYS_PER_ITEM];
-            uint idx[KD_RAYS_PER_ITEM];
-            for (uint l = 0; l < count; l++) {
-                o[l] = KD_RAY_ORIGIN(origins, (size_t)(k0 + l) * o_step);
-                d[l] = kd_ray_direction(directions, k0 + l);
-                idx[l] = k0 + l;
-            }
-            trace_and_store(count, o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, idx
+            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
+                                   KD_OUTPUT_PASS, idx.s KD_TRACE_EXACT);
+#else
+            float3 o = KD_RAY_ORIGIN(origins, (size_t)k0 * o_step);
+            float3 d = kd_ray_direction(directions, k0);
+            trace_and_store(1, &o, &d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, &k0
                             KD_TRACE_EXACT);
+#endif
         }
     }
 }
