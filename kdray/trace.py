@@ -184,14 +184,19 @@ def default_work_sizes(device, packet=1):
     return local, 4 * local * packet, 16 * cu
 
 
-POCL_ITEM_BYTES = (48 << 10, 100)
+POCL_ITEM_BYTES = (2560, 32)
 """PoCL keeps the private data of each work-item of a group on the stack of the thread
-that runs the group, and a packet kernel's is large (spilled vectors, the packet's
-stack): a group that does not fit crashes the process. A bound on one work-item's
-bytes with packets of P rays and a packet stack of S entries: max(48 KiB, 100 P S),
-above the smallest thread stacks that ran groups of 8 to 256 (BENCHMARKS.md: 24-34 KB
-a work-item with P = 8, 34 and 88 KB with P = 16, at S = 16 and 64; 0.4 KB with no
-packets)."""
+that runs the group, and a packet kernel's is large (the lanes' vectors, the packet's
+stack): a group that does not fit overflows it, and a frame larger than the stack can
+step over the guard page into other memory instead of crashing. A bound on one
+work-item's bytes with packets of P rays and a packet stack of S entries:
+P (2560 + 32 S), about twice the frames of PoCL's compiled kernels (BENCHMARKS.md; 12.7
+and 17.9 KiB a work-item with P = 8, 22.1 and 31.8 KiB with P = 16, at S = 16 and 64;
+tests/test_runtimes.py checks the compiled frames against it)."""
+
+POCL_STACK_RESERVE = 256 << 10
+"""Bytes of a thread's stack not counted for work-items: glibc's static TLS (carved from
+the top of the stack, larger the more libraries a process loads) and PoCL's own frames."""
 
 
 def thread_stack_bytes():
@@ -208,12 +213,17 @@ def thread_stack_bytes():
 def max_local_size(device, packet, packet_stack_size):
     """The largest work-group a Tracer takes on `device`: its max_work_group_size, and
     on PoCL with packets (packet > 1) no more work-items than a thread's stack holds
-    (POCL_ITEM_BYTES, `thread_stack_bytes`)."""
+    (`pocl_item_bytes` each, `thread_stack_bytes` less POCL_STACK_RESERVE)."""
     limit = int(device.max_work_group_size)
     if packet > 1 and _device.implementation(device) == "pocl":
-        item = max(POCL_ITEM_BYTES[0], POCL_ITEM_BYTES[1] * packet * packet_stack_size)
-        limit = min(limit, max(thread_stack_bytes() // item, 1))
+        limit = min(limit, max((thread_stack_bytes() - POCL_STACK_RESERVE)
+                               // pocl_item_bytes(packet, packet_stack_size), 1))
     return limit
+
+
+def pocl_item_bytes(packet, packet_stack_size):
+    """POCL_ITEM_BYTES: the stack bytes a work-item of a packet kernel is allowed on PoCL."""
+    return packet * (POCL_ITEM_BYTES[0] + POCL_ITEM_BYTES[1] * packet_stack_size)
 
 
 class Tracer:
