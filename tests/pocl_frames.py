@@ -29,6 +29,7 @@ def frame_bytes(path):
 def main():
     cache = Path(tempfile.mkdtemp(prefix="kdray-pocl-frames-"))
     os.environ["POCL_CACHE_DIR"] = str(cache)       # before PoCL starts
+    os.environ["POCL_KERNEL_CACHE"] = "1"           # the compiled kernels are read there
     root = Path(__file__).resolve().parent
     sys.path[:0] = [str(root), str(root.parent)]
     import numpy as np
