@@ -11,14 +11,18 @@ top down to the node: everything above it belongs to nodes already built.
 
 Parallel build (`build_nodes`): the root is split first; its children are tasks
 (their sorted events, box, depth, budget) built on threads (`subdivide` releases the
-GIL) down to TASK_DEPTH, where their nodes are handed on as tasks again; each task's
-subtree is spliced into its placeholder (`splice`). A node's subtree depends only on
+GIL) down to TASK_DEPTH, where their nodes are handed on as tasks again, the largest
+pending task first (`LargestFirst`); each task's subtree is spliced into its
+placeholder (`splice`). A node's subtree depends only on
 its events, box, depth and budget, so the tree is the same, byte for byte, for any
 number of threads.
 
 `subdivide` is numba-compiled (`cache=True`; the first call compiles).
 """
 import concurrent.futures
+import heapq
+import itertools
+import threading
 
 import numpy as np
 from numba import njit
@@ -351,7 +355,9 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     In stages (`STAGE_DEPTHS`): the calling thread splits the root; each child is a
     task that builds its subtree down to TASK_DEPTH on a pool thread and there hands
     its own tasks to the pool, so that the second thread starts at depth 1 rather than
-    at TASK_DEPTH (the levels above it are a sizeable part of a build).
+    at TASK_DEPTH (the levels above it are a sizeable part of a build). A thread takes
+    the largest task pending (`LargestFirst`, by events), so that the build does not
+    end with one thread on a large subtree and the other idle.
     Each task's events run in place in its slot of its parent's `tasks` keys; the
     root's two children, when they fit, each in half of the root's two event buffers
     (`subdivide`).
@@ -367,15 +373,14 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
 
     def work(pool, bufs, counts, n, box, depth0, budget, stage):
         """subdivide (bufs: its two event buffers) down to stages[stage]; its tasks
-        submitted to `pool` (the next stage). Returns (nodes, leaf_tris, deepest,
+        submitted to `pool` (a LargestFirst; the next stage). Returns (nodes, leaf_tris, deepest,
         placeholders (k,), futures [k])."""
         task_depth = stages[stage] if stage < len(stages) else -1
         nodes, leaf_tris, deepest, tasks = subdivide(tri, *bufs, counts, n, box, depth0, budget,
                                                      *args, task_depth)
         node, task_keys, key_start, task_counts, task_n, task_box, task_depth_of, task_budget = tasks
         futures = [None] * len(node)
-        # Largest first, so that the last task to finish is a small one.
-        for k in np.argsort(-np.diff(key_start), kind="stable"):
+        for k in range(len(node)):
             slot = task_keys[key_start[k]:key_start[k + 1]]
             if np.may_share_memory(task_keys, bufs[1]):
                 # the root's children, in the halves of its second buffer: the same
@@ -383,8 +388,9 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
                 task_bufs = (slot, bufs[0][key_start[k]:key_start[k + 1]])
             else:
                 task_bufs = split_keys(slot, task_counts[k])
-            futures[k] = pool.submit(work, pool, task_bufs, task_counts[k], task_n[k],
-                                     task_box[k], task_depth_of[k], task_budget[k], stage + 1)
+            futures[k] = pool.submit(key_start[k + 1] - key_start[k], work, pool, task_bufs,
+                                     task_counts[k], task_n[k], task_box[k], task_depth_of[k],
+                                     task_budget[k], stage + 1)
         return nodes, leaf_tris, deepest, node, futures
 
     def assemble(result):
@@ -401,9 +407,45 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     if pool is None:
         with concurrent.futures.ThreadPoolExecutor(threads) as own:
             return build_nodes(tri, keys, counts, bounds, *args, threads, max_refs_per_tri, own)
+    pool = LargestFirst(pool)
     root = work(pool, split_keys(keys, counts), counts, m, bounds, 0, budget, 0)
     del keys
     return assemble(root)
+
+
+class LargestFirst:
+    """Subtree tasks on a concurrent.futures executor, the largest pending one first.
+
+    `submit(size, fn, *args)` queues the task and one executor job; each job, when it
+    starts, runs the largest task pending then (ties: the first submitted), so that
+    the tasks of all the build's nodes are taken in one order of size, whichever node
+    handed them on and when (the executor's own queue is first in, first out), and the
+    last to finish is a small one. Which thread runs a task does not change the tree.
+    """
+
+    def __init__(self, executor):
+        self.executor = executor
+        self._pending = []                  # heap of (-size, order, future, fn, args)
+        self._order = itertools.count()
+        self._lock = threading.Lock()
+
+    def submit(self, size, fn, *args):
+        """A concurrent.futures.Future of fn(*args), run on the executor by size."""
+        future = concurrent.futures.Future()
+        with self._lock:
+            heapq.heappush(self._pending, (-int(size), next(self._order), future, fn, args))
+        self.executor.submit(self._run_largest)
+        return future
+
+    def _run_largest(self):
+        with self._lock:
+            _, _, future, fn, args = heapq.heappop(self._pending)
+        if not future.set_running_or_notify_cancel():
+            return
+        try:
+            future.set_result(fn(*args))
+        except BaseException as e:          # the caller's future.result() raises it
+            future.set_exception(e)
 
 
 @njit(cache=True, nogil=True)
