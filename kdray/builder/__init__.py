@@ -100,6 +100,22 @@ def compile_all():
     build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3))
 
 
+@contextlib.contextmanager
+def _thread_pool(threads):
+    """One executor of `threads` threads for the whole build (starting a pool's threads
+    costs more than a small step), or None for one thread. On the way out it does not
+    wait for its idle threads to end (about 0.17 ms, of a 7 ms build of 10k
+    triangles), and it cancels tasks not started (after an error)."""
+    if threads <= 1:
+        yield None
+        return
+    pool = concurrent.futures.ThreadPoolExecutor(threads)
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
 def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
           empty_bonus=BuildParams.empty_bonus, max_depth=BuildParams.max_depth,
           leaf_size=BuildParams.leaf_size, origin=None, threads=None, scale=None,
@@ -140,8 +156,7 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         small = True
     if small:
         threads = 1                             # one thread, no pool
-    # One pool for the whole build: starting a pool's threads costs more than a small step.
-    with concurrent.futures.ThreadPoolExecutor(threads) if threads > 1 else contextlib.nullcontext() as pool:
+    with _thread_pool(threads) as pool:
         mesh = prepare.prepare(vertices, faces, origin, pool=pool, threads=threads,
                                scale=scale)
         params = params.resolved(len(mesh.triangles))

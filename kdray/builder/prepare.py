@@ -65,15 +65,16 @@ def scale_for(size):
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-def mesh_scale(vertices, faces):
+def mesh_scale(vertices, faces, used_box=None):
     """The builder's default scale (`scale_for`) of the vertices the faces use, left
     out those float32 cannot hold (their triangles are left out as non-finite, as
     `prepare` leaves out any such triangle). MeshError for a scene that float32 depths
     cannot hold.
 
-    vertices : (n, 3) float64;  faces : (m, 3) int, valid indices (check_arrays).
+    vertices : (n, 3) float64;  faces : (m, 3) int, valid indices (check_arrays);
+    used_box : None, or `_used_box(vertices, faces)` when the caller has it.
     """
-    lo, hi, found = _used_box(vertices, faces)
+    lo, hi, found = _used_box(vertices, faces) if used_box is None else used_box
     if not found:
         return 1.0
     size = np.max(hi - lo)
@@ -86,13 +87,14 @@ def mesh_scale(vertices, faces):
     return scale_for(size)
 
 
-def mesh_origin(vertices, faces):
+def mesh_origin(vertices, faces, used_box=None):
     """(3,) float64: the builder's default origin, the centre of the float64 box of the
     finite vertices the faces use; None when there is none.
 
-    vertices : (n, 3) float64;  faces : (m, 3) int, valid indices (check_arrays).
+    vertices : (n, 3) float64;  faces : (m, 3) int, valid indices (check_arrays);
+    used_box : as for `mesh_scale`.
     """
-    lo, hi, found = _used_box(vertices, faces)
+    lo, hi, found = _used_box(vertices, faces) if used_box is None else used_box
     if not found:
         return None
     return 0.5 * (lo + hi)
@@ -194,8 +196,10 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
     if m >= layout.MAX_NODES:
         raise MeshError(f"{m} triangles; a tree holds fewer than {layout.MAX_NODES}")
 
+    # the used vertices' box, found once for both defaults
+    used_box = _used_box(v, f) if origin is None or scale is None else None
     if origin is None:
-        origin = mesh_origin(v, f)
+        origin = mesh_origin(v, f, used_box)
         if origin is None:
             raise MeshError("no triangles left after removing degenerate ones (no finite vertex)")
     else:
@@ -204,7 +208,7 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
             raise MeshError(f"origin must be 3 finite numbers, got {origin!r}")
 
     if scale is None:
-        scale = mesh_scale(v, f)
+        scale = mesh_scale(v, f, used_box)
     elif not layout.is_scale(scale):
         raise MeshError(f"scale must be a power of two from 2^-126 to 2^127, got {scale!r}")
     scale = float(scale)
