@@ -176,10 +176,12 @@ def _triangles(vertices, faces, origin, inv_scale, start, stop, tri, ids):
     return w - start, lo, hi
 
 
-PARALLEL_FACES = 200000
+PARALLEL_FACES = 20000
 """Meshes with at least this many faces make their triangles in two or more pieces
-on the builder's threads: on one thread the pass is bound by the page faults of the
-new (m, 3, 3) array, which threads take in parallel."""
+on the builder's threads: the pass is bound by the first writes to the new (m, 3, 3)
+array, which threads take in parallel, and the pool's threads are started for the
+root's events next anyway (BENCHMARKS.md: from 40k triangles on 2 threads about 2 %
+of a build; at 10k no gain)."""
 
 
 def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
