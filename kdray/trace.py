@@ -190,8 +190,8 @@ that runs the group, and a packet kernel's is large (the lanes' vectors, the pac
 stack): a group that does not fit overflows it, and a frame larger than the stack can
 step over the guard page into other memory instead of crashing. A bound on one
 work-item's bytes with packets of P rays and a packet stack of S entries:
-P (2560 + 32 S), about twice the frames of PoCL's compiled kernels (BENCHMARKS.md; 12.7
-and 17.9 KiB a work-item with P = 8, 22.1 and 31.8 KiB with P = 16, at S = 16 and 64;
+P (2560 + 32 S), about twice the frames of PoCL's compiled kernels (BENCHMARKS.md; 12.9
+and 18.2 KiB a work-item with P = 8, 22.5 and 32.2 KiB with P = 16, at S = 16 and 64;
 tests/test_runtimes.py checks the compiled frames against it)."""
 
 POCL_STACK_RESERVE = 256 << 10
