@@ -334,15 +334,22 @@ def test_parameters_change_the_tree():
     assert len(big_leaves.nodes) < len(base.nodes)
 
 
-@pytest.mark.parametrize("task_depth, stages", [(1, (1,)), (3, (1,)), (6, (1, 2)), (4, ())])
+@pytest.mark.parametrize("task_depth, stages", [(1, (1,)), (3, (1,)), (6, (1, 2)), (4, ()),
+                                               (None, None)])
 def test_threads_give_the_same_tree(monkeypatch, task_depth, stages):
     # Subtrees built as tasks on threads and spliced in == the one-thread build.
+    # (None: the defaults, which for this mesh of 12,946 triangles, under
+    # SMALL_MESH_TRIS, hand tasks on one level higher than TASK_DEPTH.)
     import kdray.builder.subdivide as subdivide
     v, f = load_real("fandisk.obj")
     one = build(v, f, threads=1)
     monkeypatch.setattr(subdivide, "MIN_PARALLEL_TRIS", 0)
-    monkeypatch.setattr(subdivide, "TASK_DEPTH", task_depth)
-    monkeypatch.setattr(subdivide, "STAGE_DEPTHS", stages)
+    if task_depth is not None:
+        monkeypatch.setattr(subdivide, "SMALL_MESH_TRIS", 0)
+        monkeypatch.setattr(subdivide, "TASK_DEPTH", task_depth)
+        monkeypatch.setattr(subdivide, "STAGE_DEPTHS", stages)
+    else:
+        assert len(f) < subdivide.SMALL_MESH_TRIS
     many = build(v, f, threads=3)
     assert many.to_bytes() == one.to_bytes()
     assert many.depth == one.depth

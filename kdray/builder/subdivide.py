@@ -45,6 +45,12 @@ TASK_DEPTH = 4
 a few threads busy when the subtrees differ in size (with 8, an odd one out runs
 alone at the end; a fourth level on one thread costs less than that wait)."""
 
+SMALL_MESH_TRIS = 16000
+"""Meshes with fewer triangles hand nodes on as tasks one level higher, at TASK_DEPTH - 1
+(up to 8 subtrees): there a task's own cost (its `subdivide` call and arrays, the
+hand-over) outweighs the balance that 16 give (measured in turns with depth 3 for
+every mesh: 10k 0.93-0.95 of the time, 20k 1.00, bunny 1.07; BENCHMARKS.md)."""
+
 TASK_ROOM = 3
 """A task's slot of keys holds TASK_ROOM times its events (+ 64): room for its two
 event stacks (`split_keys`), so that its subtree is built in place."""
@@ -353,9 +359,10 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     the same for any `threads`.
 
     In stages (`STAGE_DEPTHS`): the calling thread splits the root; each child is a
-    task that builds its subtree down to TASK_DEPTH on a pool thread and there hands
-    its own tasks to the pool, so that the second thread starts at depth 1 rather than
-    at TASK_DEPTH (the levels above it are a sizeable part of a build). A thread takes
+    task that builds its subtree down to TASK_DEPTH (one level less for meshes under
+    SMALL_MESH_TRIS) on a pool thread and there hands its own tasks to the pool, so
+    that the second thread starts at depth 1 rather than at TASK_DEPTH (the levels
+    above it are a sizeable part of a build). A thread takes
     the largest task pending (`LargestFirst`, by events), so that the build does not
     end with one thread on a large subtree and the other idle.
     Each task's events run in place in its slot of its parent's `tasks` keys; the
@@ -365,11 +372,12 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     m = tri.shape[0]
     args = (K_T, K_I, empty_bonus, max_depth, leaf_size)
     budget = max_refs_per_tri * m
-    if threads <= 1 or m < MIN_PARALLEL_TRIS or max_depth <= TASK_DEPTH:
+    task_depth = max(TASK_DEPTH - 1, 1) if m < SMALL_MESH_TRIS else TASK_DEPTH
+    if threads <= 1 or m < MIN_PARALLEL_TRIS or max_depth <= task_depth:
         nodes, leaf_tris, depth, _ = subdivide(tri, *split_keys(keys, counts), counts, m, bounds,
                                                0, budget, *args, -1)
         return nodes.copy(), leaf_tris.copy(), depth
-    stages = sorted({d for d in STAGE_DEPTHS if d < TASK_DEPTH} | {TASK_DEPTH})
+    stages = sorted({d for d in STAGE_DEPTHS if d < task_depth} | {task_depth})
 
     def work(pool, bufs, counts, n, box, depth0, budget, stage):
         """subdivide (bufs: its two event buffers) down to stages[stage]; its tasks
