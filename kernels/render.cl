@@ -266,25 +266,24 @@ void kd_gather_packet(uint count, const float3 *o, const float3 *d, KdFP *ox, Kd
 }
 #define KD_RAYS_PER_ITEM KD_PACKET
 #else
-/* Trace ray o[0] + t d[0] (count = 1) and store its outputs at index idx[0]. */
+/* Trace ray o + t d and store its outputs at index idx. */
 KD_INLINE
-void trace_and_store(uint count, const float3 *o, const float3 *d, float t_min,
-                     float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS, const uint *idx
-                     KD_EXACT_PARAMS)
+void trace_and_store(float3 o, float3 d, float t_min, float t_max, KD_TREE_PARAMS,
+                     KD_OUTPUT_ARGS, uint idx KD_EXACT_PARAMS)
 {
     Hit hit;
 #ifdef STATS
     uint4 stats = (uint4)(0u);
-    trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit,
+    trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit,
               &stats);
-    vstore4(stats, idx[0], out_stats);
+    vstore4(stats, idx, out_stats);
 #else
-    trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o[0], d[0], t_min, t_max, &hit);
+    trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit);
 #endif
 #ifdef KD_REFINE_STORED
-    refine_hit(idx[0], &hit, o[0], d[0], t_min, t_max, tris KD_EXACT_PASS);
+    refine_hit(idx, &hit, o, d, t_min, t_max, tris KD_EXACT_PASS);
 #endif
-    store_hit(idx[0], &hit, tris, tri_ids, KD_OUTPUT_PASS);
+    store_hit(idx, &hit, tris, tri_ids, KD_OUTPUT_PASS);
 }
 #define KD_RAYS_PER_ITEM 1
 #endif
@@ -523,7 +522,7 @@ void trace_rays(KD_TREE_ARGS,
 #else
             float3 o = KD_RAY_ORIGIN(origins, (size_t)k0 * o_step);
             float3 d = kd_ray_direction(directions, k0);
-            trace_and_store(1, &o, &d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, &k0
+            trace_and_store(o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, k0
                             KD_TRACE_EXACT);
 #endif
         }
@@ -662,7 +661,7 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
                                 m1.x * x + m1.y * y + m1.z,
                                 m2.x * x + m2.y * y + m2.z);
 #endif
-            trace_and_store(1, &o, &d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, &idx
+            trace_and_store(o, d, 0.0f, INFINITY, KD_TREE_PASS, KD_OUTPUT_PASS, idx
                             KD_NO_EXACT);
 #endif
         }

@@ -362,9 +362,9 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     task that builds its subtree down to TASK_DEPTH (one level less for meshes under
     SMALL_MESH_TRIS) on a pool thread and there hands its own tasks to the pool, so
     that the second thread starts at depth 1 rather than at TASK_DEPTH (the levels
-    above it are a sizeable part of a build). A thread takes
-    the largest task pending (`LargestFirst`, by events), so that the build does not
-    end with one thread on a large subtree and the other idle.
+    above it are a sizeable part of a build). A thread takes the largest task pending
+    (`LargestFirst`, by events), so that the build does not end with one thread on a
+    large subtree and the other idle.
     Each task's events run in place in its slot of its parent's `tasks` keys; the
     root's two children, when they fit, each in half of the root's two event buffers
     (`subdivide`).
@@ -381,8 +381,8 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
 
     def work(pool, bufs, counts, n, box, depth0, budget, stage):
         """subdivide (bufs: its two event buffers) down to stages[stage]; its tasks
-        submitted to `pool` (a LargestFirst; the next stage). Returns (nodes, leaf_tris, deepest,
-        placeholders (k,), futures [k])."""
+        submitted to `pool` (a LargestFirst; the next stage). Returns (nodes,
+        leaf_tris, deepest, placeholders (k,), futures [k])."""
         task_depth = stages[stage] if stage < len(stages) else -1
         nodes, leaf_tris, deepest, tasks = subdivide(tri, *bufs, counts, n, box, depth0, budget,
                                                      *args, task_depth)
