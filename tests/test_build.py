@@ -430,6 +430,26 @@ def brute_force_sah(boxes, box, K_T, K_I, lam):
     return best
 
 
+@pytest.mark.parametrize("dtype", [np.uint64, np.uint32, np.int64])
+def test_sorted_copy_equals_numpy(dtype):
+    # Every length around the block size and its merges (1, 2 and 3 merge passes,
+    # uneven last blocks), distinct keys and runs of equal ones, at offsets in both
+    # arrays; nothing outside dst[at:at + n] written.
+    from kdray.builder.events import RANK_SORT_MAX, sorted_copy
+    rng = np.random.default_rng(5)
+    b = RANK_SORT_MAX
+    for n in [0, 1, 2, 3, 7, 31, 32, 33, b - 1, b, b + 1, 2 * b + 5, 4 * b, 5 * b + 3, 9 * b]:
+        for high in (2 ** 30, 4):                  # distinct almost surely; many equal
+            keys = rng.integers(0, high, size=n).astype(dtype)
+            start, at = int(rng.integers(0, 5)), int(rng.integers(0, 5))
+            src = np.concatenate([np.full(start, 9, dtype), keys, np.full(3, 9, dtype)])
+            dst = np.full(at + n + 3, 7, dtype=dtype)
+            sorted_copy(src, start, start + n, dst, at)
+            assert np.array_equal(dst[at:at + n], np.sort(keys, kind="stable")), (n, high)
+            assert (dst[:at] == 7).all() and (dst[at + n:] == 7).all()
+            assert (src[:start] == 9).all() and (src[start + n:] == 9).all()
+
+
 @pytest.mark.parametrize("threads,room", [(1, 0), (1, 100000), (2, 0), (3, 100000)])
 def test_root_events_are_sorted_keys(threads, room):
     # The radix sort on position and type == numpy's sort of the whole keys, whatever
@@ -613,7 +633,8 @@ def test_split_merge_gives_each_child_its_sorted_events(seed):
         new = [np.zeros(6 * n_strad + 1, np.uint64) for _ in range(2)]
         runs = [np.zeros((3, 2), np.int64) for _ in range(2)]
         for c in range(2):
-            straddler_events(strad, n_strad, boxes[c], ok[c], new[c], runs[c])
+            straddler_events(strad, n_strad, boxes[c], ok[c], new[c], runs[c],
+                             np.zeros(2 * n_strad + 1, np.uint64))
         total = int(counts.sum())
         pad = int(rng.integers(0, 3))
         w_right = pad

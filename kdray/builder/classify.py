@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from .clip import clip_split
-from .events import END, START, box_events, key_bits, key_kind, key_uprim, sort_range
+from .events import END, START, box_events, key_bits, key_kind, key_uprim, sorted_copy
 from .jit import BORROW
 
 ON_LEFT = np.int8(1)
@@ -174,22 +174,26 @@ _NONE = np.uint64(0xFFFFFFFFFFFFFFFF)
 """Above every event key (positions use at most 32 bits, the key's top bits)."""
 
 
-@njit(cache=True)                       # not BORROW: sort_range may call ndarray.sort
-def straddler_events(strad, n, boxes, ok, out, runs):
+@njit(cache=True, **BORROW)
+def straddler_events(strad, n, boxes, ok, out, runs, scratch):
     """Events of the clipped straddlers in one child, each axis's run sorted.
 
-    boxes : (>= n, 2, 3) float32;  ok : (>= n,) bool;  runs : (3, 2) int64, written.
+    boxes : (>= n, 2, 3) float32;  ok : (>= n,) bool;  runs : (3, 2) int64, written;
+    scratch : (>= 2 n,) uint64, overwritten (each run is written there in straddler
+    order, then sorted into out: `events.sorted_copy`).
     Returns the number of straddlers kept in this child.
     """
     w = 0
     kept = 0
     for k in range(3):
         runs[k, 0] = w
+        g = 0
         for s in range(n):
             if ok[s]:
-                w = box_events(boxes[s, 0, k], boxes[s, 1, k], strad[s], out, w)
+                g = box_events(boxes[s, 0, k], boxes[s, 1, k], strad[s], scratch, g)
                 if k == 0:
                     kept += 1
-        runs[k, 1] = w - runs[k, 0]
-        sort_range(out, runs[k, 0], w)
+        sorted_copy(scratch, 0, g, out, w)
+        w += g
+        runs[k, 1] = g
     return kept

@@ -213,17 +213,79 @@ def sorted_root_events(tri, room=0, threads=1, pool=None):
     return keys, counts
 
 
-@njit(cache=True)
-def sort_range(a, start, stop):
-    """Sort a[start:stop] in place: insertion sort for short ranges (numba's
-    `ndarray.sort` costs ~0.4 us a call, more than sorting a few keys), else quicksort."""
-    if stop - start > 32:
-        a[start:stop].sort()
-        return
-    for i in range(start + 1, stop):
-        v = a[i]
-        j = i - 1
-        while j >= start and a[j] > v:
-            a[j + 1] = a[j]
-            j -= 1
-        a[j + 1] = v
+RANK_SORT_MAX = 64
+"""Keys sorted at once by rank (`sorted_copy`); longer runs are sorted in blocks of
+this many, then merged."""
+
+
+@njit(cache=True, **BORROW)
+def _rank_scatter(src, start, stop, dst, at):
+    """dst[at:at + n] = src[start:stop] sorted, n = stop - start (equal keys keep their
+    order): each key goes to its rank, the number of keys that come before it. n^2
+    compares, but with no branch on the keys and in vectors (the inner loop indexes
+    with unsigned integers so that LLVM vectorizes it)."""
+    for i in range(np.uint64(start), np.uint64(stop)):
+        key = src[i]
+        r = np.uint64(0)
+        for j in range(np.uint64(start), i):            # equal keys before it too
+            r += np.uint64(src[j] <= key)
+        for j in range(i, np.uint64(stop)):
+            r += np.uint64(src[j] < key)
+        dst[np.uint64(at) + r] = key
+
+
+@njit(cache=True, **BORROW)
+def _merge_runs(src, s0, dst, d0, n, width):
+    """dst[d0:d0 + n] = src[s0:s0 + n] with each pair of neighbouring sorted runs of
+    `width` keys (the last ones may be shorter) merged into one (equal keys: the first
+    run's first)."""
+    for lo in range(0, n, 2 * width):
+        mid = min(lo + width, n)
+        hi = min(lo + 2 * width, n)
+        i = lo
+        j = mid
+        w = d0 + lo
+        while i < mid and j < hi:
+            if src[s0 + j] < src[s0 + i]:
+                dst[w] = src[s0 + j]
+                j += 1
+            else:
+                dst[w] = src[s0 + i]
+                i += 1
+            w += 1
+        while i < mid:
+            dst[w] = src[s0 + i]
+            i += 1
+            w += 1
+        while j < hi:
+            dst[w] = src[s0 + j]
+            j += 1
+            w += 1
+
+
+@njit(cache=True, **BORROW)
+def sorted_copy(src, start, stop, dst, at):
+    """dst[at:at + n] = src[start:stop] sorted (n = stop - start; equal keys keep their
+    order); src[start:stop] is overwritten (the merges' scratch). Any integer dtype.
+
+    Runs of the builder's size (a node's straddlers' events on one axis, a leaf's
+    triangles: most under 32 keys) sort by rank, branch-free and in vectors: about
+    twice as fast as an insertion sort there (BENCHMARKS.md), and with no numba
+    runtime call (numba's ndarray.sort needs one). Longer runs in blocks of
+    RANK_SORT_MAX, merged pairwise, back and forth between dst and src.
+    """
+    n = stop - start
+    for lo in range(0, n, RANK_SORT_MAX):
+        _rank_scatter(src, start + lo, start + min(lo + RANK_SORT_MAX, n), dst, at + lo)
+    width = RANK_SORT_MAX
+    in_dst = True
+    while width < n:
+        if in_dst:
+            _merge_runs(dst, at, src, start, n, width)
+        else:
+            _merge_runs(src, start, dst, at, n, width)
+        in_dst = not in_dst
+        width *= 2
+    if not in_dst:
+        for i in range(n):
+            dst[at + i] = src[start + i]

@@ -29,7 +29,7 @@ from numba import njit
 
 from .classify import classify, clip_straddlers, split_merge, straddler_events
 from .clip import polygon_scratch
-from .events import END, key_kind, key_prim, position_bits, sort_range
+from .events import END, key_kind, key_prim, position_bits, sorted_copy
 from .sah import LEFT, best_split
 
 MAX_REFS_PER_TRI = 32.0
@@ -159,6 +159,8 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
     strad = np.empty(max(m, 1), dtype=np.int64)
     new_left = np.empty(16, dtype=np.uint64)
     new_right = np.empty(16, dtype=np.uint64)
+    new_scratch = np.empty(16, dtype=np.uint64)
+    leaf_scratch = np.empty(max(m, 1), dtype=np.uint32)    # a leaf's triangles, unsorted
     left_box = np.empty((16, 2, 3), dtype=np.float32)
     right_box = np.empty((16, 2, 3), dtype=np.float32)
     left_ok = np.empty(16, dtype=np.bool_)
@@ -245,9 +247,9 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
             c = 0
             for i in range(off, off + node_counts[0]):
                 if key_kind(src[i]) != END:
-                    leaf_tris[n_refs + c] = np.uint32(key_prim(src[i]))
+                    leaf_scratch[c] = np.uint32(key_prim(src[i]))
                     c += 1
-            sort_range(leaf_tris, n_refs, n_refs + c)
+            sorted_copy(leaf_scratch, 0, c, leaf_tris, n_refs)
             nodes[idx, 0] = _LEAF | (np.uint32(c) << _U2)
             nodes[idx, 1] = np.uint32(n_refs)
             n_refs += c
@@ -277,8 +279,11 @@ def subdivide(tri, buf, other, counts, n_tris, bounds, depth0, budget0, K_T, K_I
             size = max(6 * n_strad, 2 * len(new_left))
             new_left = np.empty(size, dtype=np.uint64)
             new_right = np.empty(size, dtype=np.uint64)
-        straddler_events(strad, n_strad, left_box, left_ok, new_left, new_left_runs)
-        straddler_events(strad, n_strad, right_box, right_ok, new_right, new_right_runs)
+        if 2 * n_strad > len(new_scratch):
+            new_scratch = np.empty(max(2 * n_strad, 2 * len(new_scratch)), dtype=np.uint64)
+        straddler_events(strad, n_strad, left_box, left_ok, new_left, new_left_runs, new_scratch)
+        straddler_events(strad, n_strad, right_box, right_ok, new_right, new_right_runs,
+                         new_scratch)
 
         # The children in the other buffer: the right one at its top, the left one
         # after room for every event of the node and the right straddlers' (+1: see
