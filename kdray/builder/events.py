@@ -220,16 +220,16 @@ this many, then merged."""
 
 @njit(cache=True, **BORROW)
 def _rank_scatter(src, start, stop, dst, at):
-    """dst[at:at + n] = src[start:stop] sorted, n = stop - start (equal keys keep their
-    order): each key goes to its rank, the number of keys that come before it. n^2
-    compares, but with no branch on the keys and in vectors (the inner loop indexes
-    with unsigned integers so that LLVM vectorizes it)."""
+    """dst[at:at + n] = src[start:stop] sorted, n = stop - start, keys distinct: each
+    key goes to its rank, the number of keys below it. n^2 compares, but with no
+    branch on the keys and in vectors (the inner loop indexes with unsigned integers
+    so that LLVM vectorizes it). Equal keys would share a rank, leaving a slot of dst
+    unwritten: the builder's runs cannot have them (a key holds its triangle index
+    and event type; a leaf lists a triangle once)."""
     for i in range(np.uint64(start), np.uint64(stop)):
         key = src[i]
         r = np.uint64(0)
-        for j in range(np.uint64(start), i):            # equal keys before it too
-            r += np.uint64(src[j] <= key)
-        for j in range(i, np.uint64(stop)):
+        for j in range(np.uint64(start), np.uint64(stop)):
             r += np.uint64(src[j] < key)
         dst[np.uint64(at) + r] = key
 
@@ -265,12 +265,13 @@ def _merge_runs(src, s0, dst, d0, n, width):
 
 @njit(cache=True, **BORROW)
 def sorted_copy(src, start, stop, dst, at):
-    """dst[at:at + n] = src[start:stop] sorted (n = stop - start; equal keys keep their
-    order); src[start:stop] is overwritten (the merges' scratch). Any integer dtype.
+    """dst[at:at + n] = src[start:stop] sorted (n = stop - start), for distinct keys
+    (`_rank_scatter`); src[start:stop] is overwritten (the merges' scratch). Any
+    integer dtype.
 
     Runs of the builder's size (a node's straddlers' events on one axis, a leaf's
-    triangles: most under 32 keys) sort by rank, branch-free and in vectors: about
-    twice as fast as an insertion sort there (BENCHMARKS.md), and with no numba
+    triangles: most under 32 keys) sort by rank, branch-free and in vectors: 2-4x
+    as fast as an insertion sort there (BENCHMARKS.md), and with no numba
     runtime call (numba's ndarray.sort needs one). Longer runs in blocks of
     RANK_SORT_MAX, merged pairwise, back and forth between dst and src.
     """
