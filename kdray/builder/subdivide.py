@@ -12,10 +12,10 @@ top down to the node: everything above it belongs to nodes already built.
 Parallel build (`build_nodes`): the root is split first; its children are tasks
 (their sorted events, box, depth, budget) built on threads (`subdivide` releases the
 GIL) down to TASK_DEPTH, where their nodes are handed on as tasks again, the largest
-pending task first (`LargestFirst`); each task's subtree is spliced into its
-placeholder (`splice`). A node's subtree depends only on
-its events, box, depth and budget, so the tree is the same, byte for byte, for any
-number of threads.
+pending task first (`LargestFirst`); at the end every task's subtree is written
+once into the whole tree's arrays, in its placeholder's place (`place`). A node's
+subtree depends only on its events, box, depth and budget, so the tree is the same,
+byte for byte, for any number of threads.
 
 `subdivide` is numba-compiled (`cache=True`; the first call compiles).
 """
@@ -406,16 +406,15 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
                                      task_budget[k], stage + 1)
         return nodes, leaf_tris, deepest, node, futures
 
-    def assemble(result):
-        """(nodes, leaf_tris, deepest) of a `work` result with its tasks spliced in."""
+    def gather(result):
+        """A `work` result as (nodes, leaf_tris, placeholders, [gather of each task],
+        total nodes, total leaf references, deepest) once its tasks are done."""
         nodes, leaf_tris, deepest, node, futures = result
-        if not futures:
-            return nodes.copy(), leaf_tris.copy(), deepest
-        subtrees = [assemble(f.result()) for f in futures]
-        deepest = max([deepest] + [d for _, _, d in subtrees])
-        nodes, leaf_tris = splice(nodes, leaf_tris, node, [s[0] for s in subtrees],
-                                  [s[1] for s in subtrees])
-        return nodes, leaf_tris, deepest
+        subs = [gather(f.result()) for f in futures]
+        total = len(nodes) - len(node) + sum(sub[4] for sub in subs)
+        refs = len(leaf_tris) + sum(sub[5] for sub in subs)
+        deepest = max([deepest] + [sub[6] for sub in subs])
+        return nodes, leaf_tris, node, subs, total, refs, deepest
 
     if pool is None:
         with concurrent.futures.ThreadPoolExecutor(threads) as own:
@@ -423,7 +422,11 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     pool = LargestFirst(pool)
     root = work(pool, split_keys(keys, counts), counts, m, bounds, 0, budget, 0)
     del keys
-    return assemble(root)
+    root = gather(root)
+    out_nodes = np.empty((root[4], 2), dtype=np.uint32)
+    out_refs = np.empty(root[5], dtype=np.uint32)
+    place(root, out_nodes, out_refs, 0, 0)
+    return out_nodes, out_refs, root[6]
 
 
 class LargestFirst:
@@ -462,6 +465,73 @@ class LargestFirst:
 
 
 @njit(cache=True, nogil=True)
+def _place_top(nodes, leaf_tris, node, sub_nodes, sub_refs, out, out_refs, base, ref_base,
+               sub_base, sub_ref_base):
+    """Write a subtree whose placeholders stand for subtrees of their own into the
+    whole tree's arrays, its root at out[base] and its first leaf reference at
+    out_refs[ref_base], renumbering children and leaf offsets.
+
+    nodes (n, 2) uint32, leaf_tris (r,) uint32 : the subtree, indices from its root;
+    node (k,) int64 increasing : its placeholders; sub_nodes, sub_refs (k,) int64 : the
+    nodes and leaf references of the subtree each stands for (its own placeholders
+    filled in);  out (N, 2), out_refs (R,) uint32 : the tree's arrays.
+    Writes sub_base, sub_ref_base (k,) int64: where each placeholder's subtree goes.
+    Depth-first layout: a placeholder's subtree takes its place, so every later node
+    moves down by that subtree's nodes less one, and leaves list their references
+    in node order.
+    """
+    n = nodes.shape[0]
+    k = len(node)
+    if k == 0:                  # a task's own subtree: shift every index, copy the references
+        _relocate(nodes, out, base, ref_base)
+        out_refs[ref_base:ref_base + len(leaf_tris)] = leaf_tris
+        return
+    new_index = np.empty(n, dtype=np.int64)
+    j = 0
+    shift = base
+    for i in range(n):
+        new_index[i] = i + shift
+        if j < k and node[j] == i:
+            shift += sub_nodes[j] - 1
+            j += 1
+    j = 0
+    r = ref_base
+    for i in range(n):
+        w = new_index[i]
+        flags = nodes[i, 0]
+        if j < k and node[j] == i:
+            sub_base[j] = w
+            sub_ref_base[j] = r
+            r += sub_refs[j]
+            j += 1
+        elif flags & _LEAF == _LEAF:
+            count = flags >> _U2
+            first = nodes[i, 1]
+            for c in range(count):
+                out_refs[r + c] = leaf_tris[first + c]
+            out[w, 0] = flags
+            out[w, 1] = np.uint32(r)
+            r += count
+        else:
+            out[w, 0] = (flags & _LEAF) | (np.uint32(new_index[flags >> _U2]) << _U2)
+            out[w, 1] = nodes[i, 1]
+
+
+def place(sub, out, out_refs, base, ref_base):
+    """Write a `gather`ed subtree and its tasks' subtrees, recursively, into the whole
+    tree's arrays at out[base], out_refs[ref_base] (each node and reference written
+    once, where the one-thread build puts it)."""
+    nodes, leaf_tris, node, subs, _, _, _ = sub
+    sub_base = np.empty(len(subs), dtype=np.int64)
+    sub_ref_base = np.empty(len(subs), dtype=np.int64)
+    _place_top(nodes, leaf_tris, node, np.array([s[4] for s in subs], dtype=np.int64),
+               np.array([s[5] for s in subs], dtype=np.int64), out, out_refs, base, ref_base,
+               sub_base, sub_ref_base)
+    for s, b, rb in zip(subs, sub_base, sub_ref_base):
+        place(s, out, out_refs, int(b), int(rb))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _relocate(sub, out, base, ref_shift):
     """out[base:base + len(sub)] = sub with above_child + base and leaf_offset + ref_shift.
 
@@ -474,42 +544,3 @@ def _relocate(sub, out, base, ref_shift):
         else:
             out[base + i, 0] = sub[i, 0] + above_shift
             out[base + i, 1] = sub[i, 1]
-
-
-def splice(nodes, leaf_tris, node, sub_nodes, sub_leaf_tris):
-    """Put subtrees in place of placeholder nodes, renumbering nodes and leaf offsets.
-
-    nodes : (n, 2) uint32, leaf_tris (r,) uint32 : the top of the tree;  node : (k,)
-    int64 increasing, the placeholders;  sub_nodes[j] (n_j, 2) uint32, sub_leaf_tris[j]
-    (r_j,) uint32 : the subtree of placeholder node[j], indices from its root.
-    Returns (nodes, leaf_tris) as the depth-first build of the whole tree lays them out.
-    """
-    size = np.array([len(a) for a in sub_nodes], dtype=np.int64)
-    refs = np.array([len(a) for a in sub_leaf_tris], dtype=np.int64)
-    idx = np.arange(len(nodes))
-    before = np.searchsorted(node, idx)                     # placeholders before node i
-    node_shift = np.r_[0, np.cumsum(size - 1)]
-    ref_shift = np.r_[0, np.cumsum(refs)]
-    new_index = idx + node_shift[before]
-    leaf = (nodes[:, 0] & _LEAF) == _LEAF
-    # The top's leaf references before each placeholder (the top's leaves are in node order).
-    top_count = np.where(leaf, nodes[:, 0] >> _U2, 0).astype(np.int64)
-    top_refs_before = np.r_[0, np.cumsum(top_count)][node]
-
-    out = np.empty((len(nodes) + int(size.sum()) - len(node), 2), dtype=np.uint32)
-    top = nodes.copy()
-    interior = ~leaf
-    above = (top[interior, 0] >> _U2).astype(np.int64)
-    top[interior, 0] = (top[interior, 0] & _LEAF) | (new_index[above] << 2).astype(np.uint32)
-    top[leaf, 1] += ref_shift[before[leaf]].astype(np.uint32)
-    keep = np.ones(len(nodes), dtype=bool)
-    keep[node] = False
-    out[new_index[keep]] = top[keep]
-    pieces = []
-    for j, (sub, sub_refs) in enumerate(zip(sub_nodes, sub_leaf_tris)):
-        base = new_index[node[j]]
-        _relocate(sub, out, base, top_refs_before[j] + ref_shift[j])
-        start = top_refs_before[j - 1] if j > 0 else 0
-        pieces += [leaf_tris[start:top_refs_before[j]], sub_refs]
-    pieces.append(leaf_tris[top_refs_before[-1] if len(node) else 0:])
-    return out, np.concatenate(pieces)
