@@ -42,12 +42,13 @@ from .mesh import check_objects
 class BuildParams:
     """The SAH builder's parameters (Wald & Havran 2006; names as in the kernels)."""
 
-    K_T: float = 170.0
-    """Cost of one traversal step, relative to K_I. W&H's Table 1 has 15 (for 20); on
-    kdray's packet kernels a node visit costs more than that, mostly in cache misses,
-    while a triangle test of a packet's 8 or 16 lanes is one vector pass. The value is the one that
-    builds fastest, with the fewest nodes, among those that trace as fast as any
-    (bench/bench_sah.py; the figures are in BENCHMARKS.md)."""
+    K_T: float = 0.0
+    """Cost of one traversal step, relative to K_I; 0 = automatic (`auto_K_T`: 170,
+    and 320 from a million triangles). W&H's Table 1 has 15 (for 20); on kdray's
+    packet kernels a node visit costs more than that, mostly in cache misses, while a
+    triangle test of a packet's 8 or 16 lanes is one vector pass. The values are the
+    ones that build fastest, with the fewest nodes, among those that trace as fast as
+    any (bench/bench_sah.py; the figures are in BENCHMARKS.md)."""
     K_I: float = 20.0
     """Cost of one ray/triangle test (W&H Table 1)."""
     empty_bonus: float = 0.8
@@ -58,11 +59,30 @@ class BuildParams:
     """Nodes with at most this many triangles become leaves without a split search."""
 
     def resolved(self, n_tris):
-        """A copy with `max_depth` resolved for `n_tris` triangles."""
+        """A copy with `K_T` and `max_depth` resolved for `n_tris` triangles."""
         depth = self.max_depth
         if depth <= 0:
             depth = round(8 + 1.3 * math.log2(max(n_tris, 1)))
-        return dataclasses.replace(self, max_depth=int(min(depth, layout.MAX_DEPTH_LIMIT)))
+        return dataclasses.replace(self, K_T=self.K_T if self.K_T > 0 else auto_K_T(n_tris),
+                                   max_depth=int(min(depth, layout.MAX_DEPTH_LIMIT)))
+
+
+K_T_SMALL = 170.0
+K_T_LARGE = 320.0
+AUTO_K_T_TRIS = (2 ** 19, 2 ** 20)
+
+
+def auto_K_T(n_tris):
+    """The automatic K_T for a mesh of n_tris triangles: K_T_SMALL up to
+    AUTO_K_T_TRIS[0] triangles, K_T_LARGE from AUTO_K_T_TRIS[1], linear in log2(n_tris)
+    between. Measured in turns (bench/bench_sah.py, BENCHMARKS.md): up to 278k
+    triangles, K_T above 170 renders 2-17 % slower (larger leaves, more tests a ray);
+    from 1.1M, 320 renders and traces as fast as 170 and builds in 0.82-0.85 of the
+    time, with 12-20 % fewer leaf references (a node visit costs more in a tree that
+    outgrows the caches)."""
+    lo, hi = (math.log2(n) for n in AUTO_K_T_TRIS)
+    x = min(max((math.log2(max(n_tris, 1)) - lo) / (hi - lo), 0.0), 1.0)
+    return K_T_SMALL + x * (K_T_LARGE - K_T_SMALL)
 
 
 @dataclasses.dataclass(eq=False)

@@ -31,4 +31,4 @@ def single_leaf_tree(triangles, origin=(0.0, 0.0, 0.0)):
                   leaf_tris=np.arange(m, dtype=np.uint32), triangles=rel,
                   tri_ids=np.arange(m, dtype=np.uint32), origin=origin,
                   bounds=np.stack([rel.reshape(-1, 3).min(0), rel.reshape(-1, 3).max(0)]),
-                  n_input_tris=m, depth=0, params=BuildParams(max_depth=1))
+                  n_input_tris=m, depth=0, params=BuildParams(max_depth=1).resolved(m))

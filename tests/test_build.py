@@ -332,6 +332,21 @@ def test_parameters_change_the_tree():
     big_leaves = build(v, f, leaf_size=32)
     check_tree(big_leaves, v, f)
     assert len(big_leaves.nodes) < len(base.nodes)
+    assert base.params.K_T == 170.0 and build(v, f, K_T=320).params.K_T == 320.0
+    assert build(v, f, K_T=320) == build(v, f, K_T=320) != base
+
+
+def test_automatic_K_T_follows_the_triangle_count():
+    from kdray.tree import AUTO_K_T_TRIS, K_T_LARGE, K_T_SMALL, BuildParams, auto_K_T
+    lo, hi = AUTO_K_T_TRIS
+    assert auto_K_T(0) == auto_K_T(1) == auto_K_T(lo) == K_T_SMALL
+    assert auto_K_T(hi) == auto_K_T(10 ** 8) == K_T_LARGE
+    middle = auto_K_T(int(np.sqrt(lo * hi)))
+    assert middle == pytest.approx((K_T_SMALL + K_T_LARGE) / 2)
+    steps = [auto_K_T(n) for n in range(lo, hi + 1, 4096)]
+    assert np.all(np.diff(steps) > 0)
+    assert BuildParams().resolved(hi).K_T == K_T_LARGE
+    assert BuildParams(K_T=15.0).resolved(hi).K_T == 15.0          # given: kept
 
 
 @pytest.mark.parametrize("task_depth, stages", [(1, (1,)), (3, (1,)), (6, (1, 2)), (4, ()),
@@ -376,7 +391,7 @@ def test_event_room_does_not_change_the_tree(monkeypatch, room_per_tri, room):
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("kw", [dict(K_T=0), dict(K_I=-1), dict(empty_bonus=0), dict(empty_bonus=1.5),
+@pytest.mark.parametrize("kw", [dict(K_T=-1), dict(K_I=-1), dict(empty_bonus=0), dict(empty_bonus=1.5),
                                 dict(max_depth=-1), dict(leaf_size=-1), dict(K_T=float("nan")),
                                 dict(threads=0)])
 def test_bad_parameters_raise(kw):

@@ -557,7 +557,7 @@ def test_in_plane_ray_sees_both_sides(tracers):
     tree = KdTree(nodes=nodes, leaf_tris=np.array([0, 1, 2, 3], dtype=np.uint32), triangles=tris,
                   tri_ids=np.arange(4, dtype=np.uint32), origin=np.zeros(3),
                   bounds=np.array([[0, -1, -1], [3, 1, 1]], dtype=np.float32), n_input_tris=4,
-                  depth=2, params=BuildParams(max_depth=2))
+                  depth=2, params=BuildParams(max_depth=2).resolved(4))
     tree.validate()
     o = np.array([[0.0, 0.3, 0.0], [3.0, -0.2, 0.0], [0.0, 0.3, 0.0], [3.0, -0.2, 0.0]])
     d = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.0, -0.0], [-1.0, 0.0, -0.0]])

@@ -33,7 +33,7 @@ def _kdtree(nodes, leaf_tris, rel, ids, origin, bounds, n_input, depth):
     return KdTree(nodes=np.asarray(nodes, dtype=np.uint32).reshape(-1, 2),
                   leaf_tris=np.asarray(leaf_tris, dtype=np.uint32), triangles=rel, tri_ids=ids,
                   origin=origin, bounds=bounds.astype(np.float32), n_input_tris=n_input,
-                  depth=depth, params=BuildParams(max_depth=max(1, depth)))
+                  depth=depth, params=BuildParams(max_depth=max(1, depth)).resolved(len(rel)))
 
 
 def leaf_tree(vertices, faces, origin=None, seed=0):
