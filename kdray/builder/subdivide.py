@@ -23,6 +23,7 @@ import concurrent.futures
 import heapq
 import itertools
 import threading
+import typing
 
 import numpy as np
 from numba import njit
@@ -407,14 +408,13 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
         return nodes, leaf_tris, deepest, node, futures
 
     def gather(result):
-        """A `work` result as (nodes, leaf_tris, placeholders, [gather of each task],
-        total nodes, total leaf references, deepest) once its tasks are done."""
+        """A `work` result as a Subtree, once its tasks are done."""
         nodes, leaf_tris, deepest, node, futures = result
         subs = [gather(f.result()) for f in futures]
-        total = len(nodes) - len(node) + sum(sub[4] for sub in subs)
-        refs = len(leaf_tris) + sum(sub[5] for sub in subs)
-        deepest = max([deepest] + [sub[6] for sub in subs])
-        return nodes, leaf_tris, node, subs, total, refs, deepest
+        return Subtree(nodes, leaf_tris, node, subs,
+                       n_nodes=len(nodes) - len(node) + sum(s.n_nodes for s in subs),
+                       n_refs=len(leaf_tris) + sum(s.n_refs for s in subs),
+                       deepest=max([deepest] + [s.deepest for s in subs]))
 
     if pool is None:
         with concurrent.futures.ThreadPoolExecutor(threads) as own:
@@ -423,10 +423,10 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     root = work(pool, split_keys(keys, counts), counts, m, bounds, 0, budget, 0)
     del keys
     root = gather(root)
-    out_nodes = np.empty((root[4], 2), dtype=np.uint32)
-    out_refs = np.empty(root[5], dtype=np.uint32)
+    out_nodes = np.empty((root.n_nodes, 2), dtype=np.uint32)
+    out_refs = np.empty(root.n_refs, dtype=np.uint32)
     place(root, out_nodes, out_refs, 0, 0)
-    return out_nodes, out_refs, root[6]
+    return out_nodes, out_refs, root.deepest
 
 
 class LargestFirst:
@@ -517,17 +517,29 @@ def _place_top(nodes, leaf_tris, node, sub_nodes, sub_refs, out, out_refs, base,
             out[w, 1] = nodes[i, 1]
 
 
+class Subtree(typing.NamedTuple):
+    """A task's result with the subtrees of its own tasks (`build_nodes`)."""
+    nodes: np.ndarray           # (n, 2) uint32, indices from its root, placeholders as leaves
+    leaf_tris: np.ndarray       # (r,) uint32
+    placeholders: np.ndarray    # (k,) int64 increasing: nodes that stand for subs[j]
+    subs: list                  # [k] Subtree
+    n_nodes: int                # nodes of the whole subtree, placeholders filled in
+    n_refs: int                 # leaf references of the whole subtree
+    deepest: int                # depth of its deepest leaf
+
+
 def place(sub, out, out_refs, base, ref_base):
-    """Write a `gather`ed subtree and its tasks' subtrees, recursively, into the whole
-    tree's arrays at out[base], out_refs[ref_base] (each node and reference written
-    once, where the one-thread build puts it)."""
-    nodes, leaf_tris, node, subs, _, _, _ = sub
-    sub_base = np.empty(len(subs), dtype=np.int64)
-    sub_ref_base = np.empty(len(subs), dtype=np.int64)
-    _place_top(nodes, leaf_tris, node, np.array([s[4] for s in subs], dtype=np.int64),
-               np.array([s[5] for s in subs], dtype=np.int64), out, out_refs, base, ref_base,
-               sub_base, sub_ref_base)
-    for s, b, rb in zip(subs, sub_base, sub_ref_base):
+    """Write Subtree `sub` and its tasks' subtrees, recursively, into the whole tree's
+    arrays at out[base], out_refs[ref_base] (each node and reference written once,
+    where the one-thread build puts it)."""
+    k = len(sub.subs)
+    sub_base = np.empty(k, dtype=np.int64)
+    sub_ref_base = np.empty(k, dtype=np.int64)
+    _place_top(sub.nodes, sub.leaf_tris, sub.placeholders,
+               np.array([s.n_nodes for s in sub.subs], dtype=np.int64),
+               np.array([s.n_refs for s in sub.subs], dtype=np.int64),
+               out, out_refs, base, ref_base, sub_base, sub_ref_base)
+    for s, b, rb in zip(sub.subs, sub_base, sub_ref_base):
         place(s, out, out_refs, int(b), int(rb))
 
 
