@@ -735,3 +735,52 @@ def test_clipped_boxes_are_conservative():
             assert np.all(out[0] >= child[0]) and np.all(out[1] <= child[1])
             assert np.all(pts[inside] >= out[0]) and np.all(pts[inside] <= out[1])
     assert seen_empty > 0
+
+
+def test_kept_scratch_never_changes_a_tree(monkeypatch):
+    # The events' array kept between builds (builder.scratch) holds whatever the last
+    # build left: poisoned with every byte set, or left by a larger or smaller mesh, the
+    # trees are those of builds on fresh arrays; two builds on two threads at once
+    # take it one at a time.
+    import concurrent.futures
+    from kdray.builder import scratch
+    rng = np.random.default_rng(31)
+    meshes = [soup(rng, n, 0.05) for n in (300, 6000, 9000)]
+    scratch.release()
+    fresh = []
+    for v, f in meshes:
+        fresh.append(build(v, f))
+        scratch.release()
+    for v, f in meshes[::-1] + meshes:
+        kept = scratch._kept
+        if kept is not None:
+            kept[:] = np.uint64(2 ** 64 - 1)
+        assert build(v, f) == fresh[[m[1] is f for m in meshes].index(True)]
+    assert scratch._kept is not None
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        trees = list(pool.map(lambda vf: build(*vf), meshes * 2))
+    assert trees == fresh * 2
+    monkeypatch.setattr(scratch, "KEEP_BYTES", 0)        # nothing kept: fresh arrays
+    scratch.release()
+    assert build(*meshes[1]) == fresh[1] and scratch._kept is None
+
+
+def test_scratch_keeps_one_array_up_to_its_limit(monkeypatch):
+    from kdray.builder import scratch
+    scratch.release()
+    a = scratch.take(100)
+    assert a.dtype == np.uint64 and a.shape == (100,)
+    scratch.give(a)
+    b = scratch.take(50)                                  # the kept array, a view of it
+    assert np.shares_memory(a, b) and len(b) == 50
+    assert not np.shares_memory(a, scratch.take(10))      # taken: a new one
+    scratch.give(b)                                       # the whole array comes back
+    assert scratch._kept is a
+    assert not np.shares_memory(a, scratch.take(101))     # too short: a new one
+    scratch.give(np.empty(10, np.uint64))                 # shorter than the kept one
+    assert scratch._kept is a
+    monkeypatch.setattr(scratch, "KEEP_BYTES", 1000)
+    scratch.give(np.empty(126, np.uint64))                # 1008 bytes: not kept
+    assert scratch._kept is a
+    scratch.release()
+    assert scratch._kept is None

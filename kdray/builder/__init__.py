@@ -8,10 +8,12 @@ Pipeline (one module each): `prepare` (mesh arrays -> float32 triangles relative
 an origin, degenerate ones left out), `events` (one sort of the root's events),
 `sah` (the sweep that picks a plane), `classify` + `clip` (splitting the sorted
 events between the children, re-clipping straddlers), `subdivide` (the depth-first
-loop with an explicit stack; subtrees below the top levels are built on threads).
+loop with an explicit stack; subtrees below the top levels are built on threads);
+`scratch` keeps the events' array for the next build.
 
-The build is a pure function: no I/O, no globals; the same input gives identical
-arrays, whatever the number of threads. The numba kernels are cached on disk
+The build is a pure function: no I/O, and its one global, the kept array, never
+changes a result; the same input gives identical arrays, whatever the number of
+threads. The numba kernels are cached on disk
 (`__pycache__`); the first call in a fresh checkout compiles them (about 20 s on 2
 cores). numba checks a cached function against its own file only: after editing one of these modules, delete
 `kdray/builder/__pycache__/*.nb[ic]` so that the functions calling it are rebuilt too.
@@ -28,7 +30,7 @@ from ..errors import ParameterError
 from ..tree import BuildParams, KdTree
 # modules, not their functions, under the modules' names: kdray.builder.prepare is
 # the module (a function of the same name would shadow it)
-from . import prepare, subdivide
+from . import prepare, scratch, subdivide
 from .events import sorted_root_events
 from .subdivide import build_nodes
 
@@ -163,12 +165,13 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         params = params.resolved(len(mesh.triangles))
         # The events are the builder's two event stacks, with room to grow (about 1.5
         # times the root's events each; `subdivide.split_keys`).
+        # Their array is kept for the next build when it is small enough (`scratch`).
         nodes, leaf_tris, depth = build_nodes(
             mesh.triangles, *sorted_root_events(mesh.triangles, room=12 * len(mesh.triangles) + 256,
-                                               threads=threads, pool=pool),
+                                               threads=threads, pool=pool, empty=scratch.take),
             mesh.bounds.astype(np.float64),
             params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size,
-            threads=threads, pool=pool)
+            threads=threads, pool=pool, reuse=True)
     log.debug("built %d nodes, %d leaf references over %d triangles (%d input)",
               len(nodes), len(leaf_tris), len(mesh.triangles), mesh.n_input_tris)
     tree = KdTree(nodes=nodes, leaf_tris=leaf_tris, triangles=mesh.triangles,

@@ -171,14 +171,15 @@ def radix_sort_events(keys, start, stop, tmp, tmp_start):
         keys[start:stop] = src[src_start:src_start + n]
 
 
-def sorted_root_events(tri, room=0, threads=1, pool=None):
+def sorted_root_events(tri, room=0, threads=1, pool=None, empty=None):
     """Events of the root node, each axis's run sorted (the build's only full sort).
 
     tri : (m, 3, 3) float32;  room : int, unused keys to leave after the events (the
     builder's event stack grows there: `subdivide.subdivide`);  threads : the three axes are made and
     sorted on up to this many threads (the numba functions release the GIL), or on
     `pool` (a concurrent.futures executor) when one is given (the builder's own:
-    starting threads for each step would cost more than a small step).
+    starting threads for each step would cost more than a small step);  empty : None
+    or a function n -> (n,) uint64 array to hold the keys (the builder's: `scratch.take`).
     Returns (keys (e + room,) uint64, counts (3,) int64): keys[:e] are the x run, then
     y, then z, `counts` long.
 
@@ -196,7 +197,7 @@ def sorted_root_events(tri, room=0, threads=1, pool=None):
 
     counts = event_counts(tri)
     e = int(counts.sum())
-    keys = np.empty(e + room, dtype=np.uint64)
+    keys = np.empty(e + room, dtype=np.uint64) if empty is None else empty(e + room)
     # The sort's scratch: the second half of keys when the events fit in the first
     # (the builder's second event buffer, `subdivide.split_keys`: the pages the sort
     # faults in are the ones the root's children are written to, not new ones), else

@@ -28,6 +28,7 @@ import typing
 import numpy as np
 from numba import njit
 
+from . import scratch
 from .classify import classify, clip_straddlers, split_merge, straddler_events
 from .clip import polygon_scratch
 from .events import END, key_kind, key_prim, position_bits, sorted_copy
@@ -354,13 +355,16 @@ def split_keys(keys, counts):
 
 
 def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, leaf_size,
-                threads=1, max_refs_per_tri=MAX_REFS_PER_TRI, pool=None):
+                threads=1, max_refs_per_tri=MAX_REFS_PER_TRI, pool=None, reuse=False):
     """The tree's nodes from the root's sorted events, on `threads` threads.
 
     tri : (m, 3, 3) float32;  keys, counts : from `events.sorted_root_events` (keys
     are overwritten: pass the only reference to them, so that they are freed early);
     bounds : (2, 3) float64 root box (float32 values);  max_depth : resolved.
-    pool : None or a concurrent.futures executor of `threads` threads to run on.
+    pool : None or a concurrent.futures executor of `threads` threads to run on;
+    reuse : keys (from `scratch.take`) go back to `scratch` for the next build once
+    the build is done with them, when it keeps arrays of their size (else they are
+    freed as early as they can be).
     Returns (nodes (n, 2) uint32, leaf_tris (r,) uint32, depth of the deepest leaf),
     the same for any `threads`.
 
@@ -382,7 +386,10 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     if threads <= 1 or m < MIN_PARALLEL_TRIS or max_depth <= task_depth:
         nodes, leaf_tris, depth, _ = subdivide(tri, *split_keys(keys, counts), counts, m, bounds,
                                                0, budget, *args, -1)
-        return nodes.copy(), leaf_tris.copy(), depth
+        done = nodes.copy(), leaf_tris.copy(), depth
+        if reuse:
+            scratch.give(keys)
+        return done
     stages = sorted({d for d in STAGE_DEPTHS if d < task_depth} | {task_depth})
 
     def work(pool, bufs, counts, n, box, depth0, budget, stage):
@@ -418,14 +425,18 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
 
     if pool is None:
         with concurrent.futures.ThreadPoolExecutor(threads) as own:
-            return build_nodes(tri, keys, counts, bounds, *args, threads, max_refs_per_tri, own)
+            return build_nodes(tri, keys, counts, bounds, *args, threads, max_refs_per_tri, own,
+                               reuse)
     pool = LargestFirst(pool)
     root = work(pool, split_keys(keys, counts), counts, m, bounds, 0, budget, 0)
+    held = keys if reuse and scratch.keeps(keys) else None
     del keys
     root = gather(root)
     out_nodes = np.empty((root.n_nodes, 2), dtype=np.uint32)
     out_refs = np.empty(root.n_refs, dtype=np.uint32)
     place(root, out_nodes, out_refs, 0, 0)
+    if held is not None:
+        scratch.give(held)
     return out_nodes, out_refs, root.deepest
 
 
