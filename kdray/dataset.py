@@ -111,7 +111,7 @@ def read_jobs(path):
     """Jobs from a JSON-lines file: one object a line with the keys of JOB_KEYS, e.g.
 
         {"scene": "bunny.obj", "cameras": "bunny/transforms.json", "output": "out/bunny",
-         "aovs": "depth,normal,id", "preview": true, "build": {"K_T": 220}}
+         "aovs": "depth,normal,id", "preview": true, "build": {"K_T": 170}}
 
     Blank lines are skipped. Relative paths are relative to the file's folder. Raises
     DatasetError (line number and reason) for a line that is not a JSON object, an

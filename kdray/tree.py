@@ -77,9 +77,9 @@ def auto_K_T(n_tris):
     AUTO_K_T_TRIS[0] triangles, K_T_LARGE from AUTO_K_T_TRIS[1], linear in log2(n_tris)
     between. Measured in turns (bench/bench_sah.py, BENCHMARKS.md): up to 278k
     triangles, K_T above 170 renders 2-17 % slower (larger leaves, more tests a ray);
-    from 1.1M, 320 renders and traces as fast as 170 and builds in 0.82-0.85 of the
-    time, with 12-20 % fewer leaf references (a node visit costs more in a tree that
-    outgrows the caches)."""
+    from 1.1M, 320 renders and traces as fast as 170 and builds in 0.80-0.87 of the
+    time, with half the nodes and 12-13 % fewer leaf references (a node visit costs
+    more in a tree that outgrows the caches)."""
     lo, hi = (math.log2(n) for n in AUTO_K_T_TRIS)
     x = min(max((math.log2(max(n_tris, 1)) - lo) / (hi - lo), 0.0), 1.0)
     return K_T_SMALL + x * (K_T_LARGE - K_T_SMALL)
