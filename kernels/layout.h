@@ -31,6 +31,7 @@ typedef struct __attribute__((aligned(8))) {
 
 KD_INLINE uint kd_split_axis(KdNode n) { return n.flags & 3u; }
 KD_INLINE bool kd_is_leaf(KdNode n) { return (n.flags & 3u) == KD_LEAF; }
+KD_INLINE bool kd_is_empty_leaf(KdNode n) { return n.flags == KD_LEAF; }  /* a leaf of no triangles */
 KD_INLINE uint kd_above_child(KdNode n) { return n.flags >> 2; }
 KD_INLINE uint kd_n_prims(KdNode n) { return n.flags >> 2; }
 KD_INLINE float kd_split(KdNode n) { return as_float(n.data); }

@@ -414,6 +414,8 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
                     const KdPacket *r, intP act, KdPacketHit *h KD_PSTATS_PARAM)
 {
     uint count = kd_n_prims(leaf);
+    if (count == 0u)
+        return;
     uint first = kd_leaf_offset(leaf);
     uint a = kd_countP(act);
     if ((float)(a * ((count + KD_PACKET - 1) / KD_PACKET)) < KD_LANE_RATIO * (float)count) {
@@ -481,11 +483,15 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
             KD_PSTAT(x, act);
             uint axis = kd_split_axis(n);
             float split = kd_split(n);
+            uint below = node + 1u;
+            uint above = kd_above_child(n);
+            /* both children, loaded while the division runs: the next step's node is
+             * then at hand, and an empty first child can be passed by (below) */
+            KdNode n_below = nodes[below];
+            KdNode n_above = nodes[above];
             floatP o_k = r->o[axis];
             floatP d_k = r->d[axis];
             floatP t_split = (split - o_k) / d_k;
-            uint below = node + 1u;
-            uint above = kd_above_child(n);
 
             /* The children each lane needs (traverse.cl) */
             intP near_only = (t_split > t_hi) | (t_split <= 0.0f);
@@ -533,6 +539,21 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
                 node = first;
             } else if (!kd_anyP(need_first)) {
                 node = second;
+            } else if (kd_is_empty_leaf(below_first ? n_below : n_above)) {
+                /* The first child is an empty leaf: visiting it would only end the
+                 * lanes whose hit is final before its exit (the leaf step below) and
+                 * pop the second child. Both are done here, with no push. */
+                if (++leaves > max_leaves)
+                    return;
+                KD_PSTAT(y, need_first);
+                floatP t_exit_first = kd_selectP(t_max_cur, t_mid, both);
+                live &= ~(need_first & (h->t < t_exit_first * (1.0f - KD_T_SLACK)));
+                node = second;
+                t_min_cur = kd_selectP(t_min_cur, t_mid, both);
+                t_lo = t_min_cur * (1.0f - KD_T_SLACK);
+                act = need_second & live;
+                if (!kd_anyP(act))
+                    break;
             } else {
                 if (count == PACKET_STACK_SIZE) {
                     /* not on a valid tree (depth < PACKET_STACK_SIZE): the scalar kernel copes */
@@ -549,7 +570,7 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
                 t_hi = t_max_cur * (1.0f + KD_T_SLACK);
                 act = need_first;
             }
-            n = nodes[node];
+            n = node == below ? n_below : n_above;
         }
 
         if (kd_anyP(act)) {
