@@ -163,6 +163,10 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves,
             float t_split = (split - o_k) / d_k;
             uint below = node + 1u;
             uint above = kd_above_child(n);
+            /* both children, loaded while the division runs: the next step's node is
+             * then at hand */
+            KdNode n_below = nodes[below];
+            KdNode n_above = nodes[above];
             bool below_first = o_k < split || (o_k == split && d_k <= 0.0f);
             uint first = below_first ? below : above;
             uint second = below_first ? above : below;
@@ -203,7 +207,7 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves,
                 root_t_min = t_min_cur;
                 root_t_max = t_max_cur;
             }
-            n = nodes[node];
+            n = node == below ? n_below : n_above;
         }
 
         if (++leaves > max_leaves)
