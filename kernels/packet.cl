@@ -347,29 +347,6 @@ bool kd_ray_block(const RayShear *s, float3 o, float t_min, float t_max, float b
     return true;
 }
 
-/* Lane l's ray against up to KD_PACKET triangles at once (kd_ray_block); lane l of h
- * takes the first hit in the order (t, index). */
-KD_INLINE
-void kd_lane_intersect(const KdPacket *r, uint l, const KdFP *q, uintP triP, intP valid,
-                       __global const uint *tri_ids, KdPacketHit *h)
-{
-    RayShear s;
-    float3 o;
-    kd_lane_shear(r, l, &s, &o);
-    KdFP t_min, t_max, ht, hV, hW, hd;
-    KdUP htri;
-    t_min.v = r->t_min; t_max.v = r->t_max;
-    ht.v = h->t; htri.v = h->tri;
-    float t, V, W, det;
-    uint tri;
-    if (!kd_ray_block(&s, o, t_min.s[l], t_max.s[l], ht.s[l], htri.s[l], q, triP, valid,
-                      tri_ids, &t, &V, &W, &det, &tri))
-        return;
-    hV.v = h->V; hW.v = h->W; hd.v = h->det;
-    ht.s[l] = t; hV.s[l] = V; hW.s[l] = W; hd.s[l] = det; htri.s[l] = tri;
-    h->t = ht.v; h->V = hV.v; h->W = hW.v; h->det = hd.v; h->tri = htri.v;
-}
-
 /* A single ray's leaf (traverse.cl's kd_intersect_leaf in packet programs): its
  * triangles KD_PACKET at a time against the ray (kd_ray_block), each block's first hit
  * before the best kept, so the hit is kd_intersect_leaf's bit for bit. */
@@ -419,8 +396,31 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
     uint first = kd_leaf_offset(leaf);
     uint a = kd_countP(act);
     if ((float)(a * ((count + KD_PACKET - 1) / KD_PACKET)) < KD_LANE_RATIO * (float)count) {
+        /* each lane's ray, range and best hit taken out of the vectors once, carried
+         * over the leaf's blocks, and put back once */
         KdIP act_l;
+        KdFP t_min_l, t_max_l, ht, hV, hW, hd;
+        KdUP htri;
         act_l.v = act;
+        t_min_l.v = r->t_min; t_max_l.v = r->t_max;
+        ht.v = h->t; htri.v = h->tri;
+        uint lane[KD_PACKET];
+        RayShear shear[KD_PACKET];
+        float3 o[KD_PACKET];
+        float best_t[KD_PACKET], best_V[KD_PACKET], best_W[KD_PACKET], best_det[KD_PACKET];
+        uint best_tri[KD_PACKET];
+        bool found[KD_PACKET];
+        uint n_on = 0;
+        for (uint l = 0; l < KD_PACKET; l++) {
+            if (!act_l.s[l])
+                continue;
+            lane[n_on] = l;
+            kd_lane_shear(r, l, &shear[n_on], &o[n_on]);
+            best_t[n_on] = ht.s[l];
+            best_tri[n_on] = htri.s[l];
+            found[n_on] = false;
+            n_on++;
+        }
         for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
             uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
             /* lanes past the leaf's end hold zeros and stay off */
@@ -428,20 +428,34 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
             kd_gather_tris(tris, first + i0, m, q);
             /* lane j is triangle first + i0 + j */
             uintP triP = (uintP)(first + i0) + KD_LANE_INDEX_U;
-            KdIP valid;
-            valid.v = KD_LANE_INDEX < (intP)((int)m);
-            for (uint l = 0; l < KD_PACKET; l++) {
-                if (!act_l.s[l])
-                    continue;
+            intP valid = KD_LANE_INDEX < (intP)((int)m);
+            for (uint k = 0; k < n_on; k++) {
 #ifdef STATS
                 KdUP z;
                 z.v = (*pstats).z;
-                z.s[l] += m;
+                z.s[lane[k]] += m;
                 (*pstats).z = z.v;
 #endif
-                kd_lane_intersect(r, l, q, triP, valid.v, tri_ids, h);
+                uint l = lane[k];
+                float t, V, W, det;
+                uint tri;
+                if (kd_ray_block(&shear[k], o[k], t_min_l.s[l], t_max_l.s[l], best_t[k],
+                                 best_tri[k], q, triP, valid, tri_ids, &t, &V, &W, &det, &tri)) {
+                    best_t[k] = t; best_V[k] = V; best_W[k] = W; best_det[k] = det;
+                    best_tri[k] = tri;
+                    found[k] = true;
+                }
             }
         }
+        hV.v = h->V; hW.v = h->W; hd.v = h->det;
+        for (uint k = 0; k < n_on; k++) {
+            if (!found[k])
+                continue;
+            uint l = lane[k];
+            ht.s[l] = best_t[k]; hV.s[l] = best_V[k]; hW.s[l] = best_W[k];
+            hd.s[l] = best_det[k]; htri.s[l] = best_tri[k];
+        }
+        h->t = ht.v; h->V = hV.v; h->W = hW.v; h->det = hd.v; h->tri = htri.v;
         return;
     }
     for (uint i = 0; i < count; i++) {
