@@ -254,20 +254,21 @@ floatP kd_pickP(float3 p, intP k)
     return kd_selectP(kd_selectP((floatP)(p.x), (floatP)(p.y), k == 1), (floatP)(p.z), k == 2);
 }
 
-/* Every lane in `act` against triangle `tri` (p0, p1, p2); lanes where it hits before
- * their best hit take it. */
+/* Every lane in `act` against triangle `tri` (p0, p1, p2; its 9 floats at p); lanes
+ * where it hits before their best hit take it. */
 KD_INLINE
-void kd_packet_intersect(const KdPacket *r, float3 p0, float3 p1, float3 p2, uint tri,
-                         __global const uint *tri_ids, intP act, KdPacketHit *h)
+void kd_packet_intersect(const KdPacket *r, __global const float *p, float3 p0, float3 p1,
+                         float3 p2, uint tri, __global const uint *tri_ids, intP act,
+                         KdPacketHit *h)
 {
     floatP P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
     if (r->uniform) {
-        P0x = (floatP)(kd_comp(p0, r->ukx)); P0y = (floatP)(kd_comp(p0, r->uky));
-        P0z = (floatP)(kd_comp(p0, r->ukz));
-        P1x = (floatP)(kd_comp(p1, r->ukx)); P1y = (floatP)(kd_comp(p1, r->uky));
-        P1z = (floatP)(kd_comp(p1, r->ukz));
-        P2x = (floatP)(kd_comp(p2, r->ukx)); P2y = (floatP)(kd_comp(p2, r->uky));
-        P2z = (floatP)(kd_comp(p2, r->ukz));
+        /* the packet's axes index the vertices' coordinates: loaded, not selected */
+        P0x = (floatP)(p[r->ukx]); P0y = (floatP)(p[r->uky]); P0z = (floatP)(p[r->ukz]);
+        P1x = (floatP)(p[3 + r->ukx]); P1y = (floatP)(p[3 + r->uky]);
+        P1z = (floatP)(p[3 + r->ukz]);
+        P2x = (floatP)(p[6 + r->ukx]); P2y = (floatP)(p[6 + r->uky]);
+        P2z = (floatP)(p[6 + r->ukz]);
     } else {
         P0x = kd_pickP(p0, r->kx); P0y = kd_pickP(p0, r->ky); P0z = kd_pickP(p0, r->kz);
         P1x = kd_pickP(p1, r->kx); P1y = kd_pickP(p1, r->ky); P1z = kd_pickP(p1, r->kz);
@@ -461,8 +462,9 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
     for (uint i = 0; i < count; i++) {
         uint tri = first + i;
         KD_PSTAT(z, act);
-        kd_packet_intersect(r, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
-                            kd_vertex(tris, tri, 2), tri, tri_ids, act, h);
+        kd_packet_intersect(r, tris + 9 * (size_t)tri, kd_vertex(tris, tri, 0),
+                            kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2), tri, tri_ids,
+                            act, h);
     }
 }
 
