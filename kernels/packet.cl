@@ -81,12 +81,12 @@ typedef struct {
 } KdPacketHit;
 
 /* Where the KD_PACKET (ray, triangle) pairs of a test come from, for the rare lanes decided
- * again in double: the packet's rays r and one triangle (p0, p1, p2), or, where r is 0,
+ * again in double: the packet's rays r and one triangle (its 9 floats at p), or, where r is 0,
  * one ray (shear s, origin o) and KD_PACKET triangles (q: 9 vectors, v0 x y z, v1 x y z,
  * v2 x y z). */
 typedef struct {
     const KdPacket *r;
-    float3 p0, p1, p2;
+    __global const float *p;
     const RayShear *s;
     float3 o;
     const KdFP *q;
@@ -116,7 +116,8 @@ double kd_pair_t_double(const KdPairs *src, uint l, double *bound)
         RayShear s;
         float3 o;
         kd_lane_shear(src->r, l, &s, &o);
-        return kd_t_double(&s, o, src->p0, src->p1, src->p2, bound);
+        return kd_t_double(&s, o, kd_load3(src->p, 0), kd_load3(src->p, 1),
+                           kd_load3(src->p, 2), bound);
     }
     const KdFP *q = src->q;
     float3 p0 = (float3)(q[0].s[l], q[1].s[l], q[2].s[l]);
@@ -254,12 +255,11 @@ floatP kd_pickP(float3 p, intP k)
     return kd_selectP(kd_selectP((floatP)(p.x), (floatP)(p.y), k == 1), (floatP)(p.z), k == 2);
 }
 
-/* Every lane in `act` against triangle `tri` (p0, p1, p2; its 9 floats at p); lanes
- * where it hits before their best hit take it. */
+/* Every lane in `act` against triangle `tri` (its 9 floats at p: v0 x y z, v1 x y z,
+ * v2 x y z); lanes where it hits before their best hit take it. */
 KD_INLINE
-void kd_packet_intersect(const KdPacket *r, __global const float *p, float3 p0, float3 p1,
-                         float3 p2, uint tri, __global const uint *tri_ids, intP act,
-                         KdPacketHit *h)
+void kd_packet_intersect(const KdPacket *r, __global const float *p, uint tri,
+                         __global const uint *tri_ids, intP act, KdPacketHit *h)
 {
     floatP P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
     if (r->uniform) {
@@ -270,12 +270,13 @@ void kd_packet_intersect(const KdPacket *r, __global const float *p, float3 p0, 
         P2x = (floatP)(p[6 + r->ukx]); P2y = (floatP)(p[6 + r->uky]);
         P2z = (floatP)(p[6 + r->ukz]);
     } else {
+        float3 p0 = kd_load3(p, 0), p1 = kd_load3(p, 1), p2 = kd_load3(p, 2);
         P0x = kd_pickP(p0, r->kx); P0y = kd_pickP(p0, r->ky); P0z = kd_pickP(p0, r->kz);
         P1x = kd_pickP(p1, r->kx); P1y = kd_pickP(p1, r->ky); P1z = kd_pickP(p1, r->kz);
         P2x = kd_pickP(p2, r->kx); P2y = kd_pickP(p2, r->ky); P2z = kd_pickP(p2, r->kz);
     }
     KdPairs src;
-    src.r = r; src.p0 = p0; src.p1 = p1; src.p2 = p2;
+    src.r = r; src.p = p;
     uintP triP = (uintP)(tri);
     floatP t, V, W, det;
     intP cand = kd_test_pairs(P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z,
@@ -431,13 +432,13 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
             uintP triP = (uintP)(first + i0) + KD_LANE_INDEX_U;
             intP valid = KD_LANE_INDEX < (intP)((int)m);
             for (uint k = 0; k < n_on; k++) {
+                uint l = lane[k];
 #ifdef STATS
                 KdUP z;
                 z.v = (*pstats).z;
-                z.s[lane[k]] += m;
+                z.s[l] += m;
                 (*pstats).z = z.v;
 #endif
-                uint l = lane[k];
                 float t, V, W, det;
                 uint tri;
                 if (kd_ray_block(&shear[k], o[k], t_min_l.s[l], t_max_l.s[l], best_t[k],
@@ -462,9 +463,7 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
     for (uint i = 0; i < count; i++) {
         uint tri = first + i;
         KD_PSTAT(z, act);
-        kd_packet_intersect(r, tris + 9 * (size_t)tri, kd_vertex(tris, tri, 0),
-                            kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2), tri, tri_ids,
-                            act, h);
+        kd_packet_intersect(r, tris + 9 * (size_t)tri, tri, tri_ids, act, h);
     }
 }
 
