@@ -14,6 +14,9 @@ directions, row-major pixels) are traced as:
                        off (kdray.ray_grid): packets of consecutive rays
   trace image found    the same call as it is: bench_trace.py's; the rays are found
                        to be an image and traced in render's blocks
+  trace image given    the same rays shaped (size, size, 3): no search
+  grid_width           the search alone (ray_grid.grid_width, as `trace` calls it):
+                       in a round robin its samples miss the cache, as in a trace
   trace blocks f64     the same rays reordered into render's blocks of 4 x 2 or 4 x 4
                        pixels first (the reordering is not timed): the cost of a
                        caller's row order
@@ -38,6 +41,7 @@ from meshes import framed  # noqa: E402
 from timing import median_ratio, round_robin  # noqa: E402
 
 import kdray  # noqa: E402
+from kdray.ray_grid import grid_width  # noqa: E402
 
 
 def block_order(size, w=4, h=2):
@@ -65,11 +69,15 @@ def main():
         # blocks of 4 x packet / 4 pixels: the packets render_camera makes
         order = block_order(args.size, 4, max(tracer.packet // 4, 1))
         ob, db = np.ascontiguousarray(o[order]), np.ascontiguousarray(d[order])
+        image = (args.size, args.size, 3)
         o32, d32 = o.astype(np.float32), d.astype(np.float32)
         plain = kdray.Tracer(tree, device=args.device, refine=False)
         calls = {"render depth": lambda: tracer.render(camera, ["depth"])["depth"].ravel(),
                  "trace rows f64": lambda: rows(tracer, o, d),
                  "trace image found": lambda: tracer.trace(o, d, outputs=()).t,
+                 "trace image given": lambda: tracer.trace(o.reshape(image), d.reshape(image),
+                                                           outputs=()).t.ravel(),
+                 "grid_width": lambda: grid_width(o, d, min_rows=max(tracer.packet // 4, 1)),
                  "trace blocks f64": lambda: rows(tracer, ob, db),
                  "trace rows f32": lambda: rows(tracer, o32, d32),
                  "trace one origin": lambda: rows(tracer, camera.eye, d),
@@ -79,6 +87,7 @@ def main():
         t = results["trace rows f64"]
         same = {"trace blocks f64": np.array_equal(results["trace blocks f64"], t[order]),
                 "trace image found": np.array_equal(results["trace image found"], t),
+                "trace image given": np.array_equal(results["trace image given"], t),
                 "trace one origin": np.array_equal(results["trace one origin"], t)}
         print(f"## {name}: {len(m.faces):,} triangles, {args.size}x{args.size} rays, "
               f"{tracer.device.name.strip()} ({tracer.device.platform.name.strip()}), "

@@ -23,6 +23,9 @@ vectors) and origins (when there is one per ray and they are not all equal):
   pixel under a pixel is about one step away, a pixel w < W along the row about w
   steps.
 """
+import dataclasses
+import functools
+
 import numpy as np
 
 SAMPLES = 64
@@ -46,6 +49,10 @@ one for square pixels)."""
 MAX_WIDTH = 1 << 16
 """The widest image looked for."""
 
+CANDIDATES_AT_ONCE = 4
+"""Widths tried in one vectorized step (fewer: more steps of Python; more: more
+samples read past the answer)."""
+
 
 def grid_width(origins, directions, min_rows=4):
     """The width of the row-major image that the rays are, or 0.
@@ -56,38 +63,72 @@ def grid_width(origins, directions, min_rows=4):
     Returns an int w, a divisor of N with N // w >= min_rows, or 0 when the rays do
     not look like an image (or look like one narrower than MIN_WIDTH)."""
     d = np.asarray(directions)
-    n = len(d)
-    widths = _divisors(n)
-    widths = widths[(widths >= MIN_WIDTH) & (widths <= MAX_WIDTH)
-                    & (widths * max(min_rows, 1) <= n)]
-    if len(widths) == 0:
+    plan = _plan(len(d), max(min_rows, 1))
+    if plan is None:
         return 0
     parts = [(d, True)]
     o = np.asarray(origins)
     if o.ndim == 2:
         parts.append((o, False))
-    step_i = np.linspace(0, n - 2, SAMPLES).astype(np.int64)
-    # samples for each candidate width, (C, SAMPLES): rays i and i + w both exist
-    grid_i = (np.linspace(0.0, 1.0, SAMPLES)[None, :] * (n - 1 - widths)[:, None]).astype(np.int64)
-    fits = np.ones(len(widths), dtype=bool)
-    varies = False
+    varying = []                     # (x, unit, the samples, the row step) of each part
     for x, unit in parts:
-        p = _points(x, step_i, unit)
+        p, p_next = np.split(_points(x, plan.pairs, unit), 2)
         if (p == p[0]).all():
             continue                # all samples alike (a camera's one origin): spread 0
-        step = _median(_distance(p, _points(x, step_i + 1, unit)))
+        step = _median(_distance(p, p_next))
         # the median distance between two samples, whatever the order of the list's parts
         spread = _median(_distance(p[:, None], p[None, :]).ravel())
         if not spread > 0:          # all alike (or none usable): says nothing
             continue
-        varies = True
         if not step <= ROW_COHERENCE * spread:
             return 0
-        across = _median(_distance(_points(x, grid_i, unit), _points(x, grid_i + widths[:, None], unit)))
-        fits &= across <= GRID_RATIO * step
-    if not varies or not fits.any():
+        varying.append((x, unit, p, step))
+    if not varying:
         return 0
-    return int(widths[np.argmax(fits)])
+    # The smallest width that fits is the answer, so widths are tried from the smallest
+    # up, a chunk at a time: each costs SAMPLES reads of rays far apart in memory,
+    # which miss the cache, and a camera's width is found after a few.
+    for widths, below, outside in plan.chunks:
+        fits = np.ones(len(widths), dtype=bool)
+        for x, unit, p, step in varying:
+            dist = _distance(p, _points(x, below, unit).reshape(len(widths), SAMPLES, 3))
+            dist[outside] = np.inf
+            fits &= _median(dist) <= GRID_RATIO * step
+        if fits.any():
+            return int(widths[np.argmax(fits)])
+    return 0
+
+
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """What grid_width reads of N rays. pairs: (2 * SAMPLES,) int64, SAMPLES evenly
+    spaced indices i below N - 1, then each i + 1; chunks: tuples (widths (C,) int64,
+    increasing, the candidate widths; below (C * SAMPLES,) int64, i + w for each w and
+    sample i, or i where i + w is N or more; outside (C, SAMPLES) bool: those, left
+    out of the medians, at most a quarter of a candidate's samples as w <= N / 4)."""
+    pairs: np.ndarray
+    chunks: tuple
+
+
+@functools.lru_cache(maxsize=16)
+def _plan(n, min_rows):
+    """grid_width's _Plan for n rays and images of min_rows rows or more, or None when
+    no width is possible (cached: a caller traces the same count again and again)."""
+    widths = _divisors(n)
+    widths = widths[(widths >= MIN_WIDTH) & (widths <= MAX_WIDTH) & (widths * min_rows <= n)]
+    if len(widths) == 0:
+        return None
+    i = np.linspace(0, n - 2, SAMPLES).astype(np.int64)
+    chunks = []
+    for first in range(0, len(widths), CANDIDATES_AT_ONCE):
+        w = widths[first:first + CANDIDATES_AT_ONCE]
+        below = i[None, :] + w[:, None]
+        outside = below >= n
+        chunks.append((w, np.where(outside, i[None, :], below).ravel(), outside))
+    plan = _Plan(pairs=np.concatenate([i, i + 1]), chunks=tuple(chunks))
+    for array in (plan.pairs, *(a for chunk in plan.chunks for a in chunk)):
+        array.setflags(write=False)     # shared by every call with this n
+    return plan
 
 
 def _divisors(n):
