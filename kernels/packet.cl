@@ -63,6 +63,8 @@ typedef struct {
     bool uniform;                        /* every lane has the same axes ... */
     uint ukx, uky, ukz;                  /* ... these */
     floatP o[3], d[3];                   /* origin and direction per axis, for the planes */
+    floatP d_inv[3];                     /* 1 / d per axis, when by_inverse */
+    bool by_inverse;                     /* planes' t by multiplying with d_inv (KD_INVERSE_MIN) */
     floatP t_min, t_max;                 /* the rays' range: t_min < t < t_max */
     bool shared_o;                       /* every lane that is on has origin uo (a camera's eye) */
     float uo[3];
@@ -506,7 +508,7 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
             KdNode n_above = nodes[above];
             floatP o_k = r->o[axis];
             floatP d_k = r->d[axis];
-            floatP t_split = (split - o_k) / d_k;
+            floatP t_split = r->by_inverse ? (split - o_k) * r->d_inv[axis] : (split - o_k) / d_k;
 
             /* The children each lane needs (traverse.cl) */
             intP near_only = (t_split > t_hi) | (t_split <= 0.0f);
@@ -633,6 +635,23 @@ floatP kd_compP(floatP x, floatP y, floatP z, intP k)
     return kd_selectP(kd_selectP(x, y, k == 1), z, k == 2);
 }
 
+/* Whether a lane's direction component d keeps its packet from finding planes' t as
+ * (split - o) * (1 / d), a multiplication in the node loop in place of the division,
+ * whose latency the loop waits on. Where every lane's components are 0 or between
+ * KD_INVERSE_MIN and 1 / KD_INVERSE_MIN in magnitude, 1 / d is a normal float, its
+ * extra rounding within KD_T_SLACK (traverse.cl), or +-inf for +-0, where the
+ * division's t is the same +-inf (NaN for 0 / 0 as for 0 * inf). Else the packet
+ * divides: 1 / d overflows to +-inf below 2^-128, where (split - o) / d is finite
+ * and a crossing far along the ray would be lost (tests/test_runtimes.py), and is
+ * subnormal, with fewer bits, above 2^126. */
+#define KD_INVERSE_MIN 2.3509887e-38f         /* 2^-125 */
+KD_INLINE
+intP kd_inverse_far(floatP d)
+{
+    floatP a = kd_absP(d);
+    return (d != 0.0f) & ~((a >= KD_INVERSE_MIN) & (a <= 1.0f / KD_INVERSE_MIN));
+}
+
 /* The rest of packet r for traversal: ray_shear's axes and constants for every lane,
  * whether the lanes in `on` share the axes of lane `first` (the first on), and the
  * rays' origins, directions and range. */
@@ -659,6 +678,8 @@ void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, flo
     r->okz = kd_compP(ox, oy, oz, kz);
     r->o[0] = ox; r->o[1] = oy; r->o[2] = oz;
     r->d[0] = dx; r->d[1] = dy; r->d[2] = dz;
+    r->d_inv[0] = 1.0f / dx; r->d_inv[1] = 1.0f / dy; r->d_inv[2] = 1.0f / dz;
+    r->by_inverse = !kd_anyP(on & (kd_inverse_far(dx) | kd_inverse_far(dy) | kd_inverse_far(dz)));
     r->t_min = (floatP)(t_min);
     r->t_max = (floatP)(t_max);
     KdIP kx_l, ky_l, kz_l;

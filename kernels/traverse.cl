@@ -101,8 +101,9 @@ void kd_ray_leaf(KdNode leaf, __global const float *tris, __global const uint *t
 
 /* Rounding slack of a split plane's t: (split - o) / d is two correctly rounded
  * operations from the exact crossing (four ulps at most with the 2.5-ulp division
- * OpenCL allows by default), and so is the t of the plane it is compared with; 2^-20
- * of t is 16 ulps. A child is skipped only when the ray's range misses it by more
+ * OpenCL allows by default), and so is the t of the plane it is compared with; a
+ * packet's (split - o) * (1 / d) rounds once more, half an ulp, while 1 / d is a
+ * normal float (packet.cl, kd_inverse_far); 2^-20 of t is 16 ulps. A child is skipped only when the ray's range misses it by more
  * than that, so a ray through a vertex where several planes meet visits every leaf
  * around the vertex, whichever way each t rounded. */
 #define KD_T_SLACK 9.5367431640625e-07f

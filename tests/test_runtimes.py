@@ -21,6 +21,7 @@ import pytest
 
 import trees
 from helpers import SCENES, camera_for, check_hits, random_rays, soup, split_plane_rays
+from kdray import layout
 from kdray.errors import KdrayError
 from kdray.load import load
 from kdray.trace import PACKETS, Tracer, max_local_size, pocl_item_bytes
@@ -182,6 +183,65 @@ def test_stack_sizes_do_not_change_results(runtime):
         same_hits(results[size][0], results[32][0])
     for packet in PACKETS:
         same_hits(Tracer(tree, device=runtime.spec, packet=packet).trace(o, d), results[32][0])
+
+
+def test_direction_scales_around_the_packets_inverse(runtime):
+    """A packet finds its split planes' t with 1 / d when every lane's direction
+    components are 0 or between 2^-125 and 2^125 in magnitude, and divides otherwise
+    (packet.cl, kd_inverse_far). Directions scaled by powers of two on both sides of
+    that range, and with a component tiny or subnormal in some lanes, give bit for bit
+    what one ray at a time gives (which always divides); a power-of-two scale well
+    inside the range multiplies t by its inverse exactly and changes no hit."""
+    if runtime.simulator:
+        pytest.skip("Oclgrind runs the GPU path, one ray a work-item: no packets")
+    tree = scene_tree("sphere")
+    o, d = camera_for(tree, 64, 40).rays()
+    tiny = d.copy()
+    rng = np.random.default_rng(26)
+    for value in (1e-40, -1e-40, 2e-38, -7e-39):       # subnormal, below 2^-125
+        tiny[rng.choice(len(d), len(d) // 16, replace=False), rng.integers(3)] = value
+    single = Tracer(tree, device=runtime.spec, packet=1)
+    base = single.trace(o, d)
+    assert base.hit.sum() > len(d) // 4
+    for packet in PACKETS:
+        tr = Tracer(tree, device=runtime.spec, packet=packet)
+        for k in (-100, 100, 126, 127):
+            scaled = d * 2.0 ** k
+            hits = tr.trace(o, scaled)
+            same_hits(hits, single.trace(o, scaled))
+            if abs(k) == 100:
+                assert np.array_equal(hits.prim, base.prim)
+                assert np.array_equal(hits.t, (base.t * 2.0 ** -k).astype(np.float32))
+        same_hits(tr.trace(o, tiny), single.trace(o, tiny))
+
+
+def test_subnormal_direction_crosses_a_split_far_away(runtime):
+    """The case that makes a packet divide (kd_inverse_far): rays along z whose x
+    component is subnormal (-1e-40) start at x = 0, beside the root's split plane at
+    x = -5e-34, and cross it at t = 5e6, before they reach the two strips of
+    triangles at z = 2e7 on either side of it. 1 / d overflows to -inf, and with it
+    the plane's t would be +inf, "never crossed": the rays would miss. They hit the
+    x < 0 strip, one ray at a time and in packets."""
+    if runtime.simulator:
+        pytest.skip("Oclgrind runs the GPU path, one ray a work-item: no packets")
+    from kdray.builder import build
+    e, z = 5e-34, 2e7
+    quads = [[(side * e, y0, z), (side, y0, z), (side, y0 + 0.05, z), (side * e, y0 + 0.05, z)]
+             for side in (1, -1) for y0 in np.arange(40) * 0.05 - 1.0]
+    v = np.array(quads, dtype=np.float64).reshape(-1, 3)
+    f = (np.arange(len(quads))[:, None, None] * 4 + np.array([[0, 1, 2], [0, 2, 3]])).reshape(-1, 3)
+    tree = build(v, f)
+    lo = layout.split(tree.nodes[:1])[0]
+    assert layout.split_axis(tree.nodes[:1])[0] == 0 and -1e-33 < lo < 0   # the plane
+    n = 67
+    o = np.zeros((n, 3))
+    o[:, 1] = np.linspace(-0.53, 0.47, n)
+    d = np.zeros((n, 3))
+    d[:, 0], d[:, 2] = -1e-40, 1.0
+    base = Tracer(tree, device=runtime.spec, packet=1).trace(o, d)
+    assert np.all(base.prim >= len(f) // 2) and np.all(base.t == np.float32(z))
+    for packet in PACKETS:
+        same_hits(Tracer(tree, device=runtime.spec, packet=packet).trace(o, d), base)
 
 
 @pytest.mark.parametrize("scene", ["cornell", "sphere"])
