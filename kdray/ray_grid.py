@@ -70,14 +70,21 @@ def grid_width(origins, directions, min_rows=4):
     o = np.asarray(origins)
     if o.ndim == 2:
         parts.append((o, False))
+    with np.errstate(all="ignore"):     # NaN, inf and huge rays are left out, not errors
+        return _search(plan, parts)
+
+
+def _search(plan, parts):
+    """grid_width's search with its plan, for each (rays (N, 3), unit)."""
     varying = []                     # (x, unit, the samples, the row step) of each part
     for x, unit in parts:
-        p, p_next = np.split(_points(x, plan.pairs, unit), 2)
-        if (p == p[0]).all():
+        pairs = _points(x, plan.pairs, unit)
+        p = pairs[:, :SAMPLES]
+        if (p == p[:, :1]).all():
             continue                # all samples alike (a camera's one origin): spread 0
-        step = _median(_distance(p, p_next))
+        step = _median(_distance(p, pairs[:, SAMPLES:]))[0]
         # the median distance between two samples, whatever the order of the list's parts
-        spread = _median(_distance(p[:, None], p[None, :]).ravel())
+        spread = _median(_distance(p[:, :, None], p[:, None, :]).ravel())[0]
         if not spread > 0:          # all alike (or none usable): says nothing
             continue
         if not step <= ROW_COHERENCE * spread:
@@ -91,8 +98,8 @@ def grid_width(origins, directions, min_rows=4):
     for widths, below, outside in plan.chunks:
         fits = np.ones(len(widths), dtype=bool)
         for x, unit, p, step in varying:
-            dist = _distance(p, _points(x, below, unit).reshape(len(widths), SAMPLES, 3))
-            dist[outside] = np.inf
+            dist = _distance(p[:, None, :], _points(x, below, unit).reshape(3, len(widths), SAMPLES))
+            dist[outside] = np.nan
             fits &= _median(dist) <= GRID_RATIO * step
         if fits.any():
             return int(widths[np.argmax(fits)])
@@ -139,27 +146,27 @@ def _divisors(n):
 
 
 def _points(x, index, unit):
-    """x[index] in float64 (index: an int array; x (N, 3)), as unit vectors when `unit`
-    (NaN for a zero row)."""
-    p = x[index].astype(np.float64)
+    """x[index] in float64 (index: (M,) int; x (N, 3)) by component, (3, M), as unit
+    vectors when `unit` (NaN for a zero row). By component, each a contiguous row:
+    numpy's loops over a last axis of 3 are several times slower."""
+    p = np.ascontiguousarray(x[index].T, dtype=np.float64)
     if unit:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            p /= np.sqrt(np.sum(p * p, axis=-1, keepdims=True))
+        p /= np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
     return p
 
 
 def _distance(p, q):
-    """|p - q| over the last axis; +inf where not finite."""
-    with np.errstate(invalid="ignore", over="ignore"):
-        dist = np.sqrt(np.sum((p - q) ** 2, axis=-1))
-    dist[~np.isfinite(dist)] = np.inf
-    return dist
+    """|p - q| of points by component (3, ...) (broadcast): (...), NaN or inf where p
+    or q is not finite."""
+    r = p - q
+    return np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
 
 
 def _median(dist):
-    """Median over the last axis of the finite values of `dist` (+inf for the others);
-    NaN where none is finite."""
-    dist = np.sort(dist, axis=-1)
-    finite = np.isfinite(dist).sum(axis=-1)
-    middle = np.take_along_axis(dist, np.maximum(finite - 1, 0)[..., None] // 2, axis=-1)[..., 0]
-    return np.where(finite > 0, middle, np.nan)
+    """Medians of the finite values of `dist` (..., S) along its last axis, (M,) for
+    its M rows: NaN for a row with none."""
+    dist = np.sort(dist.reshape(-1, dist.shape[-1]), axis=-1)     # NaN and inf last
+    finite = np.count_nonzero(np.isfinite(dist), axis=-1)
+    middle = dist[np.arange(len(dist)), np.maximum(finite - 1, 0) // 2]
+    middle[finite == 0] = np.nan
+    return middle
