@@ -352,12 +352,15 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
  * KD_RAY_ORIGIN and kd_ray_direction convert it (the same operations on the same
  * values: bit for bit), but in vectors: a row's 12 numbers of the directions, and of
  * the origins unless all rays share one (o_step 0: o_shared, converted), are two
- * vector loads; the 3 x KD_PACKET numbers are shifted and rounded as vectors and only
- * then dealt out to the x, y, z lanes. */
+ * vector loads of 8 and 4, shifted and rounded as loaded (a row starts with an x, so
+ * the tree's origin repeats x, y, z, x, ... in both: KdDP3) and stored as floats, 12
+ * a row; lanes then take their x, y, z from those. Converting each row as loaded,
+ * rather than all rows as three vectors read back from private arrays of doubles,
+ * spares reads that span two stores, which wait for both to reach the cache. */
 typedef union { floatP v[3]; float s[3 * KD_PACKET]; } KdFP3;
 #ifdef RAYS_WORLD
-/* the tree's origin repeated x, y, z, x, ... over 3 x KD_PACKET lanes */
-typedef union { doubleP v[3]; double s[3 * KD_PACKET]; } KdDP3;
+/* the tree's origin repeated x, y, z, x, ... over a row's 12 numbers: 8, then 4 */
+typedef struct { double8 a; double4 b; } KdDP3;
 #define KD_ORIGIN_PATTERN_PARAM , const KdDP3 *origin_pattern
 #define KD_ORIGIN_PATTERN_ARG , &origin_pattern
 #else
@@ -370,29 +373,28 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
                     uint o_step, float3 o_shared, KdFP *ox, KdFP *oy, KdFP *oz, KdFP *dx,
                     KdFP *dy, KdFP *dz KD_ORIGIN_PATTERN_PARAM)
 {
-    KD_ORIGIN_T o_in[3 * KD_PACKET];          /* as loaded: x, y, z of lane 0, 1, ... */
-    KD_DIRECTION_T d_in[3 * KD_PACKET];
+    KdFP3 o, d;                               /* x, y, z of lane 0, 1, ... */
     for (uint r = 0; r < KD_PACKET / 4u; r++) {
         size_t at = 3 * (k0 + r * row_stride);
-        if (o_step) {
-            vstore8(vload8(0, origins + at), 0, o_in + 12 * r);
-            vstore4(vload4(0, origins + at + 8), 0, o_in + 12 * r + 8);
-        }
-        vstore8(vload8(0, directions + at), 0, d_in + 12 * r);
-        vstore4(vload4(0, directions + at + 8), 0, d_in + 12 * r + 8);
-    }
-    KdFP3 o, d;
-    for (uint i = 0; i < 3; i++) {
 #ifdef RAYS_WORLD
-        /* (float)(((double)o - origin) * (1 / scale)): KD_SCALE_INV is 1.0 at scale 1 */
-        if (o_step)
-            o.v[i] = convert_floatP((convert_doubleP(vloadP(i, o_in)) - origin_pattern->v[i])
-                                    * KD_SCALE_INV);
-        d.v[i] = convert_floatP(vloadP(i, d_in));
+        if (o_step) {
+            /* (float)(((double)o - origin) * (1 / scale)): KD_SCALE_INV is 1.0 at scale 1 */
+            double8 a = (convert_double8(vload8(0, origins + at)) - origin_pattern->a)
+                        * KD_SCALE_INV;
+            double4 b = (convert_double4(vload4(0, origins + at + 8)) - origin_pattern->b)
+                        * KD_SCALE_INV;
+            vstore8(convert_float8(a), 0, o.s + 12 * r);
+            vstore4(convert_float4(b), 0, o.s + 12 * r + 8);
+        }
+        vstore8(convert_float8(vload8(0, directions + at)), 0, d.s + 12 * r);
+        vstore4(convert_float4(vload4(0, directions + at + 8)), 0, d.s + 12 * r + 8);
 #else
-        if (o_step)
-            o.v[i] = vloadP(i, o_in);
-        d.v[i] = vloadP(i, d_in);
+        if (o_step) {
+            vstore8(vload8(0, origins + at), 0, o.s + 12 * r);
+            vstore4(vload4(0, origins + at + 8), 0, o.s + 12 * r + 8);
+        }
+        vstore8(vload8(0, directions + at), 0, d.s + 12 * r);
+        vstore4(vload4(0, directions + at + 8), 0, d.s + 12 * r + 8);
 #endif
     }
     if (!o_step) {
@@ -442,8 +444,9 @@ void trace_rays(KD_TREE_ARGS,
     float3 o_shared = o_step ? (float3)(0.0f) : KD_RAY_ORIGIN(origins, 0);
 #ifdef RAYS_WORLD
     KdDP3 origin_pattern;
-    for (uint i = 0; i < 3 * KD_PACKET; i++)
-        origin_pattern.s[i] = i % 3 == 0 ? origin_x : i % 3 == 1 ? origin_y : origin_z;
+    origin_pattern.a = (double8)(origin_x, origin_y, origin_z, origin_x, origin_y, origin_z,
+                                 origin_x, origin_y);
+    origin_pattern.b = (double4)(origin_z, origin_x, origin_y, origin_z);
 #endif
 #endif
     /* the work slots: the rays, or with image blocks KD_PACKET slots a block (those
