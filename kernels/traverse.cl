@@ -103,9 +103,10 @@ void kd_ray_leaf(KdNode leaf, __global const float *tris, __global const uint *t
  * operations from the exact crossing (four ulps at most with the 2.5-ulp division
  * OpenCL allows by default), and so is the t of the plane it is compared with; a
  * packet's (split - o) * (1 / d) rounds once more, half an ulp, while 1 / d is a
- * normal float (packet.cl, kd_inverse_far); 2^-20 of t is 16 ulps. A child is skipped only when the ray's range misses it by more
- * than that, so a ray through a vertex where several planes meet visits every leaf
- * around the vertex, whichever way each t rounded. */
+ * normal float (packet.cl, kd_inverse_far); 2^-20 of t is 16 ulps. A child is
+ * skipped only when the ray's range misses it by more than that, so a ray through a
+ * vertex where several planes meet visits every leaf around the vertex, whichever
+ * way each t rounded. */
 #define KD_T_SLACK 9.5367431640625e-07f
 
 /* A leaf's hit is final when it is before the leaf's exit by more than the slack:
@@ -160,7 +161,9 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves,
             float o_k = kd_comp(o, axis);
             float d_k = kd_comp(d, axis);
             /* A division, not a multiplication by 1/d: planes through one point give
-             * the same t when the coordinates are exact (a vertex on two split planes) */
+             * the same t when the coordinates are exact (a vertex on two split planes).
+             * A packet multiplies (kd_inverse_far): the slack covers both, and every
+             * hit is the same. */
             float t_split = (split - o_k) / d_k;
             uint below = node + 1u;
             uint above = kd_above_child(n);
