@@ -353,11 +353,11 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
  * values: bit for bit), but in vectors: a row's 12 numbers of the directions, and of
  * the origins unless all rays share one (o_step 0: o_shared, converted), are two
  * vector loads of 8 and 4, shifted and rounded as loaded (a row starts with an x, so
- * the tree's origin repeats x, y, z, x, ... in both: KdDP3) and stored as floats, 12
- * a row; lanes then take their x, y, z from those. Converting each row as loaded,
- * rather than all rows as three vectors read back from private arrays of doubles,
- * spares reads that span two stores, which wait for both to reach the cache. */
-typedef union { floatP v[3]; float s[3 * KD_PACKET]; } KdFP3;
+ * the tree's origin repeats x, y, z, x, ... in both: KdDP3), joined in registers and
+ * dealt out to the lanes by permutes (kd_deal). Nothing goes through private memory:
+ * a read of private memory that spans several stores, or a masked read (as LLVM
+ * deals lanes from it), waits until the stores reach the cache, and a trace's
+ * profile had its hottest instruction there. */
 #ifdef RAYS_WORLD
 /* the tree's origin repeated x, y, z, x, ... over a row's 12 numbers: 8, then 4 */
 typedef struct { double8 a; double4 b; } KdDP3;
@@ -367,45 +367,76 @@ typedef struct { double8 a; double4 b; } KdDP3;
 #define KD_ORIGIN_PATTERN_PARAM
 #define KD_ORIGIN_PATTERN_ARG
 #endif
+/* Component c (0: x, 1: y, 2: z) of KD_PACKET rays whose x, y, z follow one another
+ * through v[0], v[1], v[2]: lane l takes number 3 l + c, by two permutes. */
+KD_INLINE
+floatP kd_deal(const floatP *v, uint c)
+{
+    uintP at = 3u * KD_LANE_INDEX_U + c;
+    uintP end = (uintP)(2u * KD_PACKET);
+    uintP first = select((uintP)(0u), at, at < end);          /* from v[0] and v[1] */
+    uintP second = select(KD_LANE_INDEX_U, at - (uintP)(KD_PACKET), at >= end);
+    return shuffle2(shuffle2(v[0], v[1], first), v[2], second);
+}
+
 KD_INLINE
 void kd_load_packet(__global const KD_ORIGIN_T *origins,
                     __global const KD_DIRECTION_T *directions, size_t k0, size_t row_stride,
                     uint o_step, float3 o_shared, KdFP *ox, KdFP *oy, KdFP *oz, KdFP *dx,
                     KdFP *dy, KdFP *dz KD_ORIGIN_PATTERN_PARAM)
 {
-    KdFP3 o, d;                               /* x, y, z of lane 0, 1, ... */
+    float8 oa[KD_PACKET / 4], da[KD_PACKET / 4];     /* a row's first 8 numbers */
+    float4 ob[KD_PACKET / 4], db[KD_PACKET / 4];     /* and its last 4 */
     for (uint r = 0; r < KD_PACKET / 4u; r++) {
         size_t at = 3 * (k0 + r * row_stride);
 #ifdef RAYS_WORLD
         if (o_step) {
             /* (float)(((double)o - origin) * (1 / scale)): KD_SCALE_INV is 1.0 at scale 1 */
-            double8 a = (convert_double8(vload8(0, origins + at)) - origin_pattern->a)
-                        * KD_SCALE_INV;
-            double4 b = (convert_double4(vload4(0, origins + at + 8)) - origin_pattern->b)
-                        * KD_SCALE_INV;
-            vstore8(convert_float8(a), 0, o.s + 12 * r);
-            vstore4(convert_float4(b), 0, o.s + 12 * r + 8);
+            oa[r] = convert_float8((convert_double8(vload8(0, origins + at)) - origin_pattern->a)
+                                   * KD_SCALE_INV);
+            ob[r] = convert_float4((convert_double4(vload4(0, origins + at + 8))
+                                    - origin_pattern->b) * KD_SCALE_INV);
         }
-        vstore8(convert_float8(vload8(0, directions + at)), 0, d.s + 12 * r);
-        vstore4(convert_float4(vload4(0, directions + at + 8)), 0, d.s + 12 * r + 8);
+        da[r] = convert_float8(vload8(0, directions + at));
+        db[r] = convert_float4(vload4(0, directions + at + 8));
 #else
         if (o_step) {
-            vstore8(vload8(0, origins + at), 0, o.s + 12 * r);
-            vstore4(vload4(0, origins + at + 8), 0, o.s + 12 * r + 8);
+            oa[r] = vload8(0, origins + at);
+            ob[r] = vload4(0, origins + at + 8);
         }
-        vstore8(vload8(0, directions + at), 0, d.s + 12 * r);
-        vstore4(vload4(0, directions + at + 8), 0, d.s + 12 * r + 8);
+        da[r] = vload8(0, directions + at);
+        db[r] = vload4(0, directions + at + 8);
 #endif
     }
-    if (!o_step) {
+    /* The rows' numbers joined in registers into three vectors (x, y, z of ray 0,
+     * then of ray 1, ...), dealt out to the lanes by permutes: through private
+     * memory the lanes' reads (masked loads) wait for the stores to reach the cache */
+    floatP o3[3], d3[3];
+#if KD_PACKET == 16
+    if (o_step) {
+        o3[0] = (float16)(oa[0], ob[0], oa[1].s0123);
+        o3[1] = (float16)(oa[1].s4567, ob[1], oa[2]);
+        o3[2] = (float16)(ob[2], oa[3], ob[3]);
+    }
+    d3[0] = (float16)(da[0], db[0], da[1].s0123);
+    d3[1] = (float16)(da[1].s4567, db[1], da[2]);
+    d3[2] = (float16)(db[2], da[3], db[3]);
+#else
+    if (o_step) {
+        o3[0] = oa[0];
+        o3[1] = (float8)(ob[0], oa[1].s0123);
+        o3[2] = (float8)(oa[1].s4567, ob[1]);
+    }
+    d3[0] = da[0];
+    d3[1] = (float8)(db[0], da[1].s0123);
+    d3[2] = (float8)(da[1].s4567, db[1]);
+#endif
+    if (o_step) {
+        ox->v = kd_deal(o3, 0u); oy->v = kd_deal(o3, 1u); oz->v = kd_deal(o3, 2u);
+    } else {
         ox->v = (floatP)(o_shared.x); oy->v = (floatP)(o_shared.y); oz->v = (floatP)(o_shared.z);
     }
-    for (uint l = 0; l < KD_PACKET; l++) {
-        if (o_step) {
-            ox->s[l] = o.s[3 * l]; oy->s[l] = o.s[3 * l + 1]; oz->s[l] = o.s[3 * l + 2];
-        }
-        dx->s[l] = d.s[3 * l]; dy->s[l] = d.s[3 * l + 1]; dz->s[l] = d.s[3 * l + 2];
-    }
+    dx->v = kd_deal(d3, 0u); dy->v = kd_deal(d3, 1u); dz->v = kd_deal(d3, 2u);
 }
 #endif
 
