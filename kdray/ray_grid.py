@@ -49,11 +49,6 @@ one for square pixels)."""
 MAX_WIDTH = 1 << 16
 """The widest image looked for."""
 
-CANDIDATES_AT_ONCE = 4
-"""Widths tried in one vectorized step (fewer: more steps of Python; more: more
-samples read past the answer)."""
-
-
 def grid_width(origins, directions, min_rows=4):
     """The width of the row-major image that the rays are, or 0.
 
@@ -76,45 +71,45 @@ def grid_width(origins, directions, min_rows=4):
 
 def _search(plan, parts):
     """grid_width's search with its plan, for each (rays (N, 3), unit)."""
-    varying = []                     # (x, unit, the samples, the row step) of each part
+    fits = np.ones(len(plan.widths), dtype=bool)
+    varies = False
     for x, unit in parts:
-        pairs = _points(x, plan.pairs, unit)
-        p = pairs[:, :SAMPLES]
+        # every sample the search needs, in one read: the samples, the rays after
+        # them, and the rays a candidate width after them (rays far apart in memory
+        # miss the cache, but cost little beside numpy's calls: fewer calls, less time)
+        points = _points(x, plan.index, unit)
+        p = points[:, :SAMPLES]
         if (p == p[:, :1]).all():
             continue                # all samples alike (a camera's one origin): spread 0
-        step = _median(_distance(p, pairs[:, SAMPLES:]))[0]
+        # row 0: the row step; row 1 + c: the distance a candidate width on
+        dist = _distance(p[:, None, :], points[:, SAMPLES:].reshape(3, -1, SAMPLES))
+        dist[plan.outside] = np.nan
+        medians = _median(dist)
+        step = medians[0]
         # the median distance between two samples, whatever the order of the list's parts
         spread = _median(_distance(p[:, :, None], p[:, None, :]).ravel())[0]
         if not spread > 0:          # all alike (or none usable): says nothing
             continue
+        varies = True
         if not step <= ROW_COHERENCE * spread:
             return 0
-        varying.append((x, unit, p, step))
-    if not varying:
+        fits &= medians[1:] <= GRID_RATIO * step
+    if not varies or not fits.any():
         return 0
-    # The smallest width that fits is the answer, so widths are tried from the smallest
-    # up, a chunk at a time: each costs SAMPLES reads of rays far apart in memory,
-    # which miss the cache, and a camera's width is found after a few.
-    for widths, below, outside in plan.chunks:
-        fits = np.ones(len(widths), dtype=bool)
-        for x, unit, p, step in varying:
-            dist = _distance(p[:, None, :], _points(x, below, unit).reshape(3, len(widths), SAMPLES))
-            dist[outside] = np.nan
-            fits &= _median(dist) <= GRID_RATIO * step
-        if fits.any():
-            return int(widths[np.argmax(fits)])
-    return 0
+    return int(plan.widths[np.argmax(fits)])     # the smallest that fits
 
 
 @dataclasses.dataclass(frozen=True)
 class _Plan:
-    """What grid_width reads of N rays. pairs: (2 * SAMPLES,) int64, SAMPLES evenly
-    spaced indices i below N - 1, then each i + 1; chunks: tuples (widths (C,) int64,
-    increasing, the candidate widths; below (C * SAMPLES,) int64, i + w for each w and
-    sample i, or i where i + w is N or more; outside (C, SAMPLES) bool: those, left
-    out of the medians, at most a quarter of a candidate's samples as w <= N / 4)."""
-    pairs: np.ndarray
-    chunks: tuple
+    """What grid_width reads of N rays, for C candidate widths. widths: (C,) int64,
+    increasing; index: ((C + 2) * SAMPLES,) int64: SAMPLES evenly spaced indices i
+    below N - 1, then each i + 1, then i + w for each width w (i where that is N or
+    more); outside: (C + 1, SAMPLES) bool, where i + w is N or more (row 0, i + 1:
+    none), left out of the medians: at most a quarter of a candidate's samples, as
+    w <= N / 4."""
+    widths: np.ndarray
+    index: np.ndarray
+    outside: np.ndarray
 
 
 @functools.lru_cache(maxsize=16)
@@ -126,14 +121,11 @@ def _plan(n, min_rows):
     if len(widths) == 0:
         return None
     i = np.linspace(0, n - 2, SAMPLES).astype(np.int64)
-    chunks = []
-    for first in range(0, len(widths), CANDIDATES_AT_ONCE):
-        w = widths[first:first + CANDIDATES_AT_ONCE]
-        below = i[None, :] + w[:, None]
-        outside = below >= n
-        chunks.append((w, np.where(outside, i[None, :], below).ravel(), outside))
-    plan = _Plan(pairs=np.concatenate([i, i + 1]), chunks=tuple(chunks))
-    for array in (plan.pairs, *(a for chunk in plan.chunks for a in chunk)):
+    below = i[None, :] + widths[:, None]
+    outside = np.concatenate([np.zeros((1, SAMPLES), dtype=bool), below >= n])
+    index = np.concatenate([i, i + 1, np.where(below < n, below, i[None, :]).ravel()])
+    plan = _Plan(widths=widths, index=index, outside=outside)
+    for array in (plan.widths, plan.index, plan.outside):
         array.setflags(write=False)     # shared by every call with this n
     return plan
 
