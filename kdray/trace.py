@@ -69,6 +69,9 @@ a few % of the kernel's time, which repays it from about 2^17 rays of a simple m
 (BENCHMARKS.md, "Issue 20, ninth session"). Image-shaped rays are traced in blocks at
 any size."""
 
+IMAGE_WIDTHS_KEPT = 8
+"""Ray counts whose image width a Tracer remembers (`Tracer._image_width`)."""
+
 _CONVERT_CHUNK = 1 << 18
 """Rays per chunk when `trace` converts large ray arrays to float32 on threads."""
 
@@ -277,6 +280,7 @@ class Tracer:
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")
         self._programs = {}
         self._maps = {}                       # camera models' ray maps (`_ray_map`)
+        self._widths = {}                     # N -> image width found (`_image_width`)
         self._poison_outputs = False
         # packets: how a leaf is tested (kernels/packet.cl, kd_packet_leaf): None = by
         # the kernel's rule; tests set 0 (triangle by triangle) or inf (ray by ray)
@@ -440,10 +444,12 @@ class Tracer:
     # -- launching ---------------------------------------------------------------------
 
     def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_world=None,
-                rays="pinhole"):
+                rays="pinhole", while_running=None):
         """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
         slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
-        args: the kernel's arguments between the tree and the counter."""
+        args: the kernel's arguments between the tree and the counter; while_running:
+        None or a function to call once the kernel has been submitted, before waiting
+        for it."""
         cl = _device._cl()
         if n == 0:
             return
@@ -465,6 +471,12 @@ class Tracer:
             kernel.set_arg_types(types)
             entry[("arg_types", kernel_name)] = types
         kernel(self.queue, (groups * self.local_size,), (self.local_size,), *call_args)
+        if while_running is not None:
+            self.queue.flush()
+            try:
+                while_running()
+            finally:
+                self.queue.finish()         # the kernel writes host memory: wait for it
         for name, buf in device_out.items():
             if self._zero_copy:
                 # the buffer is the host array: a map makes the kernel's writes visible
@@ -604,20 +616,43 @@ class Tracer:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
         origins, directions, shape = _flat_rays(origins, directions)
         if len(shape) >= 2:
-            image_w = shape[-1]
+            image_w, search = shape[-1], None
         elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
             # (N, 3) rays that are an image in rows, as cameras give them, are traced
             # in blocks too; the packets do not change a hit, only the time
-            image_w = grid_width(origins, directions, min_rows=self.packet // 4)
+            image_w, search = self._image_width(origins, directions)
         else:
-            image_w = 0
+            image_w, search = 0, None
         hits, _ = self._trace(origins, directions, t_min, t_max, outputs=kernel,
-                              image_w=image_w)
+                              image_w=image_w, while_running=search)
         if double:
             hits = self._double_hits(hits, origins, directions)
             if "uv" not in outputs:
                 hits = dataclasses.replace(hits, u=None, v=None)
         return hits if len(shape) == 1 else hits._reshaped(shape)
+
+    def _image_width(self, origins, directions):
+        """(width, search) for (N, 3) rays: the width of the image they are to be traced
+        as (0: rows), and None or the search to run while the kernel traces them.
+
+        The search (ray_grid.grid_width) takes about 0.5 ms after an idle moment, 3-4 %
+        of a 2^20-ray trace of a small mesh. A caller tracing rays of the same count again
+        mostly passes the same camera's: the width found for the last rays of that count
+        is used at once, and the search runs while the kernel works, its answer kept for
+        the next call. A stale width never changes a hit (packets do not: tested), only
+        the time of that call."""
+        n = len(directions)
+
+        def search():
+            self._widths.pop(n, None)
+            self._widths[n] = grid_width(origins, directions, min_rows=self.packet // 4)
+            while len(self._widths) > IMAGE_WIDTHS_KEPT:
+                self._widths.pop(next(iter(self._widths)))     # the oldest count
+
+        if n in self._widths:
+            return self._widths[n], search
+        search()
+        return self._widths[n], None
 
     def _double_hits(self, hits, origins, directions):
         """`hits` with t, u, v (float64) recomputed from the float64 triangles."""
@@ -629,11 +664,12 @@ class Tracer:
                     object_table=hits.object_table)
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False,
-               outputs=KERNEL_OUTPUTS, image_w=0):
+               outputs=KERNEL_OUTPUTS, image_w=0, while_running=None):
         """(Hits, STATS or None) of the rays; outputs: the kernel outputs computed and
         stored (KERNEL_OUTPUTS order; T and ID always), the others None in Hits.
         image_w: 0, or the rays are rows of an image that wide (N a multiple of it),
-        traced in packets of blocks of pixels (render.cl, trace_rays)."""
+        traced in packets of blocks of pixels (render.cl, trace_rays).
+        while_running: None or a function called once while the first launch runs."""
         outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | {"T", "ID"})
         t_min, t_max = float(t_min), float(t_max)
         if not (t_min >= 0.0 and t_max >= t_min):
@@ -670,7 +706,8 @@ class Tracer:
                           np.float32(t_min / self._scale), np.float32(t_max / self._scale),
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
-                         rays_world=rays_world)
+                         rays_world=rays_world, while_running=while_running)
+            while_running = None
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
         uv = out.get("UV")
         hits = Hits(t=out["T"], prim=out["ID"], u=None if uv is None else uv[:, 0],
