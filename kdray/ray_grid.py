@@ -49,6 +49,7 @@ one for square pixels)."""
 MAX_WIDTH = 1 << 16
 """The widest image looked for."""
 
+
 def grid_width(origins, directions, min_rows=4):
     """The width of the row-major image that the rays are, or 0.
 
