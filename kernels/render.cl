@@ -353,11 +353,11 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
  * values: bit for bit), but in vectors: a row's 12 numbers of the directions, and of
  * the origins unless all rays share one (o_step 0: o_shared, converted), are two
  * vector loads of 8 and 4, shifted and rounded as loaded (a row starts with an x, so
- * the tree's origin repeats x, y, z, x, ... in both: KdDP3), joined in registers and
- * dealt out to the lanes by permutes (kd_deal). Nothing goes through private memory:
- * a read of private memory that spans several stores, or a masked read (as LLVM
- * deals lanes from it), waits until the stores reach the cache, and a trace's
- * profile had its hottest instruction there. */
+ * the tree's origin repeats x, y, z, x, ... in both: KdDP3), joined in registers
+ * (kd_join_rows) and dealt out to the lanes by permutes (kd_deal). Nothing goes
+ * through private memory: a read of private memory that spans several stores, or a
+ * masked read (as LLVM deals lanes from it), waits until the stores reach the cache,
+ * and a trace's profile had its hottest instruction there. */
 #ifdef RAYS_WORLD
 /* the tree's origin repeated x, y, z, x, ... over a row's 12 numbers: 8, then 4 */
 typedef struct { double8 a; double4 b; } KdDP3;
@@ -379,6 +379,22 @@ floatP kd_deal(const floatP *v, uint c)
     return shuffle2(shuffle2(v[0], v[1], first), v[2], second);
 }
 
+/* KD_PACKET / 4 rows of 12 numbers (row r's first 8 in a[r], its last 4 in b[r]) as
+ * three vectors holding the numbers in order, joined in registers. */
+KD_INLINE
+void kd_join_rows(const float8 *a, const float4 *b, floatP *v)
+{
+#if KD_PACKET == 16
+    v[0] = (float16)(a[0], b[0], a[1].s0123);
+    v[1] = (float16)(a[1].s4567, b[1], a[2]);
+    v[2] = (float16)(b[2], a[3], b[3]);
+#else
+    v[0] = a[0];
+    v[1] = (float8)(b[0], a[1].s0123);
+    v[2] = (float8)(a[1].s4567, b[1]);
+#endif
+}
+
 KD_INLINE
 void kd_load_packet(__global const KD_ORIGIN_T *origins,
                     __global const KD_DIRECTION_T *directions, size_t k0, size_t row_stride,
@@ -389,53 +405,32 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
     float4 ob[KD_PACKET / 4], db[KD_PACKET / 4];     /* and its last 4 */
     for (uint r = 0; r < KD_PACKET / 4u; r++) {
         size_t at = 3 * (k0 + r * row_stride);
-#ifdef RAYS_WORLD
         if (o_step) {
+#ifdef RAYS_WORLD
             /* (float)(((double)o - origin) * (1 / scale)): KD_SCALE_INV is 1.0 at scale 1 */
             oa[r] = convert_float8((convert_double8(vload8(0, origins + at)) - origin_pattern->a)
                                    * KD_SCALE_INV);
             ob[r] = convert_float4((convert_double4(vload4(0, origins + at + 8))
                                     - origin_pattern->b) * KD_SCALE_INV);
-        }
-        da[r] = convert_float8(vload8(0, directions + at));
-        db[r] = convert_float4(vload4(0, directions + at + 8));
 #else
-        if (o_step) {
             oa[r] = vload8(0, origins + at);
             ob[r] = vload4(0, origins + at + 8);
+#endif
         }
-        da[r] = vload8(0, directions + at);
-        db[r] = vload4(0, directions + at + 8);
-#endif
+        /* (float)d (float directions as they are) */
+        da[r] = convert_float8(vload8(0, directions + at));
+        db[r] = convert_float4(vload4(0, directions + at + 8));
     }
-    /* The rows' numbers joined in registers into three vectors (x, y, z of ray 0,
-     * then of ray 1, ...), dealt out to the lanes by permutes: through private
-     * memory the lanes' reads (masked loads) wait for the stores to reach the cache */
+    /* dealt out to the lanes by permutes: through private memory the lanes' reads
+     * (masked loads) wait for the stores to reach the cache */
     floatP o3[3], d3[3];
-#if KD_PACKET == 16
     if (o_step) {
-        o3[0] = (float16)(oa[0], ob[0], oa[1].s0123);
-        o3[1] = (float16)(oa[1].s4567, ob[1], oa[2]);
-        o3[2] = (float16)(ob[2], oa[3], ob[3]);
-    }
-    d3[0] = (float16)(da[0], db[0], da[1].s0123);
-    d3[1] = (float16)(da[1].s4567, db[1], da[2]);
-    d3[2] = (float16)(db[2], da[3], db[3]);
-#else
-    if (o_step) {
-        o3[0] = oa[0];
-        o3[1] = (float8)(ob[0], oa[1].s0123);
-        o3[2] = (float8)(oa[1].s4567, ob[1]);
-    }
-    d3[0] = da[0];
-    d3[1] = (float8)(db[0], da[1].s0123);
-    d3[2] = (float8)(da[1].s4567, db[1]);
-#endif
-    if (o_step) {
+        kd_join_rows(oa, ob, o3);
         ox->v = kd_deal(o3, 0u); oy->v = kd_deal(o3, 1u); oz->v = kd_deal(o3, 2u);
     } else {
         ox->v = (floatP)(o_shared.x); oy->v = (floatP)(o_shared.y); oz->v = (floatP)(o_shared.z);
     }
+    kd_join_rows(da, db, d3);
     dx->v = kd_deal(d3, 0u); dy->v = kd_deal(d3, 1u); dz->v = kd_deal(d3, 2u);
 }
 #endif
