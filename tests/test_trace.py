@@ -621,6 +621,19 @@ def test_image_shaped_rays(monkeypatch, packet, tracers):
     tr._poison_outputs = False
 
 
+def spy_image_widths(monkeypatch, tr):
+    """(widths, the real _trace): every later Tracer._trace call of `tr` appends the
+    image_w it was given to the list widths."""
+    widths = []
+    real_trace = tr._trace
+
+    def spy(*args, image_w=0, **kwargs):
+        widths.append(image_w)
+        return real_trace(*args, image_w=image_w, **kwargs)
+    monkeypatch.setattr(tr, "_trace", spy)
+    return widths, real_trace
+
+
 @pytest.mark.parametrize("packet", [1, *PACKETS])
 def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
     """(N, 3) rays that are a camera's image in rows are traced as that image (in
@@ -634,13 +647,7 @@ def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
     default_min_rays = ktrace.IMAGE_SEARCH_MIN_RAYS
     monkeypatch.setattr(ktrace, "IMAGE_SEARCH_MIN_RAYS", 0)
     tr._poison_outputs = True
-    widths = []
-    real_trace = tr._trace
-
-    def spy(*args, image_w=0, **kwargs):
-        widths.append(image_w)
-        return real_trace(*args, image_w=image_w, **kwargs)
-    monkeypatch.setattr(tr, "_trace", spy)
+    widths, _ = spy_image_widths(monkeypatch, tr)
     hit = total = 0
     for w, h in [(37, 21), (64, 5), (9, 40)]:
         eye, d = tr.camera_rays(camera_for(tree, w, h))
@@ -677,13 +684,7 @@ def test_a_stale_image_width_changes_no_hit(monkeypatch, packet):
     tr = Tracer(tree, packet=packet)
     monkeypatch.setattr(ktrace, "IMAGE_SEARCH_MIN_RAYS", 0)
     tr._poison_outputs = True
-    widths = []
-    real_trace = tr._trace
-
-    def spy(*args, image_w=0, **kwargs):
-        widths.append(image_w)
-        return real_trace(*args, image_w=image_w, **kwargs)
-    monkeypatch.setattr(tr, "_trace", spy)
+    widths, real_trace = spy_image_widths(monkeypatch, tr)
     wide = tr.camera_rays(camera_for(tree, 64, 30))
     narrow = tr.camera_rays(camera_for(tree, 48, 40))              # 1,920 rays each
     o, d = random_rays(tree, 1920, seed=8)
