@@ -10,11 +10,15 @@ directions, row-major pixels) are traced as:
 
   render depth         Tracer.render(camera, ["depth"]): the same rays, made on the
                        device, in packets of 4 x 2 (AVX2) or 4 x 4 pixels
+  render depth id      the same with the ids, which a trace always stores
   trace rows f64       Tracer.trace(o, d, outputs=()) with its search for an image
                        off (kdray.ray_grid): packets of consecutive rays
   trace image found    the same call as it is: bench_trace.py's; the rays are found
                        to be an image and traced in render's blocks
   trace image given    the same rays shaped (size, size, 3): no search
+  image one origin     the same with the camera's eye (3,) for every ray
+  image one origin f32 ... and float32 directions: the render's rays but for their
+                       reading, conversion and ids
   grid_width           the search alone (ray_grid.grid_width, as `trace` calls it):
                        in a round robin its samples miss the cache, as in a trace
   trace blocks f64     the same rays reordered into render's blocks of 4 x 2 or 4 x 4
@@ -25,10 +29,12 @@ directions, row-major pixels) are traced as:
   trace no refine      a Tracer(refine=False): t, u, v not recomputed in double
   render no refine     the same for render
 
-all in one round robin (`timing.round_robin`), medians of --repeat rounds. All but
-"trace image found" trace their (N, 3) rays in the order given (`rows`). Every
-variant's t equals the plain trace's for the rays it shares bit for bit, except
-those without refinement.
+all in one round robin (`timing.round_robin`), medians of --repeat rounds, each also
+as the median ratio to "trace rows f64" and to "render depth". The "trace ..." rows
+but "trace image found" trace their (N, 3) rays in the order given (`rows`); the
+"image ..." rows in render's blocks. Every variant's t equals the plain trace's for
+the rays it shares bit for bit, except those without refinement and with float32
+directions.
 """
 import argparse
 import os
@@ -72,11 +78,17 @@ def main():
         image = (args.size, args.size, 3)
         o32, d32 = o.astype(np.float32), d.astype(np.float32)
         plain = kdray.Tracer(tree, device=args.device, refine=False)
+        d32_image = d32.reshape(image)
         calls = {"render depth": lambda: tracer.render(camera, ["depth"])["depth"].ravel(),
+                 "render depth id": lambda: tracer.render(camera, ["depth", "id"])["depth"].ravel(),
                  "trace rows f64": lambda: rows(tracer, o, d),
                  "trace image found": lambda: tracer.trace(o, d, outputs=()).t,
                  "trace image given": lambda: tracer.trace(o.reshape(image), d.reshape(image),
                                                            outputs=()).t.ravel(),
+                 "image one origin": lambda: tracer.trace(camera.eye, d.reshape(image),
+                                                          outputs=()).t.ravel(),
+                 "image one origin f32": lambda: tracer.trace(camera.eye, d32_image,
+                                                              outputs=()).t.ravel(),
                  "grid_width": lambda: grid_width(o, d, min_rows=max(tracer.packet // 4, 1)),
                  "trace blocks f64": lambda: rows(tracer, ob, db),
                  "trace rows f32": lambda: rows(tracer, o32, d32),
@@ -88,15 +100,17 @@ def main():
         same = {"trace blocks f64": np.array_equal(results["trace blocks f64"], t[order]),
                 "trace image found": np.array_equal(results["trace image found"], t),
                 "trace image given": np.array_equal(results["trace image given"], t),
+                "image one origin": np.array_equal(results["image one origin"], t),
                 "trace one origin": np.array_equal(results["trace one origin"], t)}
         print(f"## {name}: {len(m.faces):,} triangles, {args.size}x{args.size} rays, "
               f"{tracer.device.name.strip()} ({tracer.device.platform.name.strip()}), "
               f"packets of {tracer.packet}")
-        print(f"{'call':<18} {'ms':>7} {'x trace rows f64':>17}  same t")
+        print(f"{'call':<20} {'ms':>7} {'x trace rows f64':>17} {'x render':>9}  same t")
         for call, s in seconds.items():
             ratio = median_ratio(s, seconds["trace rows f64"])
-            print(f"{call:<18} {np.median(s) * 1e3:>7.1f} {ratio:>17.3f}  {same.get(call, '')}",
-                  flush=True)
+            to_render = median_ratio(s, seconds["render depth"])
+            print(f"{call:<20} {np.median(s) * 1e3:>7.2f} {ratio:>17.3f} {to_render:>9.3f}  "
+                  f"{same.get(call, '')}", flush=True)
 
 
 if __name__ == "__main__":
