@@ -128,6 +128,22 @@ void refine_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
 }
 #endif
 
+#ifdef OUT_NORMAL
+/* Write ray k's normal: triangle tri's unit geometric normal, 0 on a miss (KD_NO_HIT) */
+KD_INLINE
+void store_normal(size_t k, uint tri, __global const float *tris, __global float *out_normal)
+{
+    float3 normal = (float3)(0.0f, 0.0f, 0.0f);
+    if (tri != KD_NO_HIT) {
+        float3 p0 = kd_vertex(tris, tri, 0);
+        normal = kd_normalize(kd_cross(kd_vertex(tris, tri, 1) - p0, kd_vertex(tris, tri, 2) - p0));
+    }
+    out_normal[3 * k] = normal.x;
+    out_normal[3 * k + 1] = normal.y;
+    out_normal[3 * k + 2] = normal.z;
+}
+#endif
+
 /* Write the outputs of ray k: only those compiled in (its hit refined already). */
 KD_INLINE
 void store_hit(uint k, const Hit *hit, __global const float *tris, __global const uint *tri_ids,
@@ -142,15 +158,7 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
     out_uv[2 * (size_t)k + 1] = found ? hit->v : 0.0f;
 #endif
 #ifdef OUT_NORMAL
-    float3 normal = (float3)(0.0f, 0.0f, 0.0f);
-    if (found) {
-        float3 p0 = kd_vertex(tris, hit->tri, 0);
-        normal = kd_normalize(kd_cross(kd_vertex(tris, hit->tri, 1) - p0,
-                                       kd_vertex(tris, hit->tri, 2) - p0));
-    }
-    out_normal[3 * (size_t)k] = normal.x;
-    out_normal[3 * (size_t)k + 1] = normal.y;
-    out_normal[3 * (size_t)k + 2] = normal.z;
+    store_normal(k, hit->tri, tris, out_normal);
 #endif
 #ifdef OUT_ID
     out_id[k] = found ? tri_ids[hit->tri] : KD_NO_HIT;
@@ -158,31 +166,36 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
 }
 
 #ifdef PACKET
-#ifdef KD_REFINE_STORED
-typedef union { doubleP v; double s[KD_PACKET]; } KdDP;
-
-/* kd_refine_hit for the hits (tri, t, u, v per lane; KD_NO_HIT: none) of the lanes in
- * `on`, in vectors: the lanes' float rays, or the caller's double rays (kd_exact_ray,
- * ray idx[l]), and their triangles' vertices, converted to doubleP; KD_REFINE_PLANE
- * runs once for all lanes (the scalar's operations: bit for bit its values), and
- * kd_take_refined keeps each lane's values as the scalar would. Lanes without a hit
- * compute their ray against triangle 0, never kept. */
+#if defined(KD_REFINE_STORED) || defined(OUT_NORMAL)
+/* P[c].s[l]: number c of lane l's triangle (p0's x, y, z, then p1's, p2's): triangle
+ * tri.s[l] where found.s[l], else triangle 0. Only when some lane found a triangle
+ * (there is one then). */
 KD_INLINE
-void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP on,
-                      KdUP tri, float t_min, float t_max, __global const float *tris,
-                      const uint *idx, KdFP *t, KdFP *u, KdFP *v KD_EXACT_PARAMS)
+void kd_gather_triangles(KdIP found, KdUP tri, __global const float *tris, KdFP *P)
 {
-    KdIP found;
-    found.v = on.v & as_intP(tri.v != (uintP)(KD_NO_HIT));
-    if (!kd_anyP(found.v))
-        return;
-    KdFP P[9];
     for (uint l = 0; l < KD_PACKET; l++) {
         __global const float *p = tris + 9 * (size_t)(found.s[l] ? tri.s[l] : 0u);
 #pragma unroll
         for (uint c = 0; c < 9; c++)
             P[c].s[l] = p[c];
     }
+}
+#endif
+
+#ifdef KD_REFINE_STORED
+typedef union { doubleP v; double s[KD_PACKET]; } KdDP;
+
+/* kd_refine_hit for the hits of the lanes in `found` (their t, u, v; P: their
+ * triangles, kd_gather_triangles), in vectors: the lanes' float rays, or the caller's
+ * double rays (kd_exact_ray, ray idx[l]), and their triangles' vertices, converted to
+ * doubleP; KD_REFINE_PLANE runs once for all lanes (the scalar's operations: bit for
+ * bit its values), and kd_take_refined keeps each lane's values as the scalar would.
+ * Lanes without a hit compute their ray against triangle 0, never kept. */
+KD_INLINE
+void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP found,
+                      const KdFP *P, float t_min, float t_max, const uint *idx, KdFP *t,
+                      KdFP *u, KdFP *v KD_EXACT_PARAMS)
+{
     doubleP Ox = convert_doubleP(ox.v), Oy = convert_doubleP(oy.v), Oz = convert_doubleP(oz.v);
     doubleP Dx = convert_doubleP(dx.v), Dy = convert_doubleP(dy.v), Dz = convert_doubleP(dz.v);
 #if defined(RAYS_WORLD)
@@ -214,12 +227,104 @@ void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP
 }
 #endif
 
+/* Lanes 4 r .. 4 r + 3 of x (row r of a block) stored at p + k0 + r stride, for each
+ * row r: x a floatP or a uintP, p a pointer to float or uint */
+#if KD_PACKET == 16
+#define KD_STORE_ROWS(x, p, k0, stride)                                                  \
+    do {                                                                                 \
+        vstore4((x).s0123, 0, (p) + (k0));                                               \
+        vstore4((x).s4567, 0, (p) + (k0) + (stride));                                    \
+        vstore4((x).s89ab, 0, (p) + (k0) + 2 * (stride));                                \
+        vstore4((x).scdef, 0, (p) + (k0) + 3 * (stride));                                \
+    } while (0)
+/* p[i] of each lane's index i, as one vector */
+#define KD_GATHER(p, i)                                                                  \
+    (uint16)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5], \
+             (p)[(i).s6], (p)[(i).s7], (p)[(i).s8], (p)[(i).s9], (p)[(i).sa], (p)[(i).sb], \
+             (p)[(i).sc], (p)[(i).sd], (p)[(i).se], (p)[(i).sf])
+#else
+#define KD_STORE_ROWS(x, p, k0, stride)                                                  \
+    do {                                                                                 \
+        vstore4((x).s0123, 0, (p) + (k0));                                               \
+        vstore4((x).s4567, 0, (p) + (k0) + (stride));                                    \
+    } while (0)
+#define KD_GATHER(p, i)                                                                  \
+    (uint8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5], \
+            (p)[(i).s6], (p)[(i).s7])
+#endif
+
+/* The outputs of a packet whose lanes are a block of rays, every lane on: lane l is
+ * ray k0 + (l / 4) row_stride + l % 4. The values store_hit writes, in vectors, a row
+ * of 4 rays at a time. With OUT_NORMAL, P holds the lanes' triangles when `any` lane
+ * found one (kd_gather_triangles). */
+KD_INLINE
+void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP v,
+                    const KdFP *P, bool any, __global const uint *tri_ids, KD_OUTPUT_ARGS)
+{
+    intP found = tri.v != (uintP)(KD_NO_HIT);
+#ifdef OUT_T
+    floatP t_out = kd_selectP((floatP)(INFINITY), t.v * KD_T_SCALE, found);
+    KD_STORE_ROWS(t_out, out_t, k0, row_stride);
+#endif
+#ifdef OUT_UV
+    floatP u_out = kd_selectP((floatP)(0.0f), u.v, found);
+    floatP v_out = kd_selectP((floatP)(0.0f), v.v, found);
+    /* a row's u, v interleaved: u0 v0 u1 v1 u2 v2 u3 v3 */
+    uint8 pairs = (uint8)(0u, KD_PACKET, 1u, KD_PACKET + 1u, 2u, KD_PACKET + 2u, 3u,
+                          KD_PACKET + 3u);
+#pragma unroll
+    for (uint r = 0; r < KD_PACKET / 4u; r++)
+        vstore8(shuffle2(u_out, v_out, pairs + 4u * r), 0, out_uv + 2 * (k0 + r * row_stride));
+#endif
+#ifdef OUT_ID
+    uintP ids = KD_GATHER(tri_ids, kd_selectPu((uintP)(0u), tri.v, found));
+    ids = kd_selectPu((uintP)(KD_NO_HIT), ids, found);
+    KD_STORE_ROWS(ids, out_id, k0, row_stride);
+#endif
+#ifdef OUT_NORMAL
+    /* kd_normalize(kd_cross(p1 - p0, p2 - p0)) in vectors (its operations in its order) */
+    floatP nx = (floatP)(0.0f), ny = (floatP)(0.0f), nz = (floatP)(0.0f);
+    if (any) {
+        floatP ax = P[3].v - P[0].v, ay = P[4].v - P[1].v, az = P[5].v - P[2].v;
+        floatP bx = P[6].v - P[0].v, by = P[7].v - P[1].v, bz = P[8].v - P[2].v;
+        floatP cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
+        floatP m = kd_maxP(kd_absP(cx), kd_maxP(kd_absP(cy), kd_absP(cz)));
+        cx = cx / m;
+        cy = cy / m;
+        cz = cz / m;
+        floatP len = sqrt(cx * cx + cy * cy + cz * cz);
+        nx = kd_selectP(nx, cx / len, found);
+        ny = kd_selectP(ny, cy / len, found);
+        nz = kd_selectP(nz, cz / len, found);
+    }
+    /* a row's x, y, z interleaved, in the first 12 lanes of two permutes: x and y, then z */
+#if KD_PACKET == 16
+    float16 nz16 = nz;
+#else
+    float16 nz16 = (float16)(nz, nz);
+#endif
+    uint16 xy = (uint16)(0u, KD_PACKET, 0u, 1u, KD_PACKET + 1u, 0u, 2u, KD_PACKET + 2u, 0u, 3u,
+                         KD_PACKET + 3u, 0u, 0u, 0u, 0u, 0u);
+    uint16 xy_row = (uint16)(4u, 4u, 0u, 4u, 4u, 0u, 4u, 4u, 0u, 4u, 4u, 0u, 0u, 0u, 0u, 0u);
+    uint16 z = (uint16)(0u, 1u, 16u, 3u, 4u, 17u, 6u, 7u, 18u, 9u, 10u, 19u, 0u, 0u, 0u, 0u);
+    uint16 z_row = (uint16)(0u, 0u, 4u, 0u, 0u, 4u, 0u, 0u, 4u, 0u, 0u, 4u, 0u, 0u, 0u, 0u);
+#pragma unroll
+    for (uint r = 0; r < KD_PACKET / 4u; r++) {
+        float16 row = shuffle2(shuffle2(nx, ny, xy + r * xy_row), nz16, z + r * z_row);
+        __global float *p = out_normal + 3 * (k0 + r * row_stride);
+        vstore8(row.lo, 0, p);
+        vstore4(row.s89ab, 0, p + 8);
+    }
+#endif
+}
+
 /* Trace the packet of rays (ox, oy, oz) + t (dx, dy, dz) and store the outputs of each
- * lane l in `on` at index idx[l]. */
+ * lane l in `on` at index idx[l]; with row_stride > 0 every lane is on and the lanes
+ * are a block (kd_store_block: idx[l] is idx[0] + (l / 4) row_stride + l % 4). */
 KD_INLINE
 void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP on,
                             float t_min, float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS,
-                            const uint *idx KD_EXACT_PARAMS)
+                            const uint *idx, uint row_stride KD_EXACT_PARAMS)
 {
     KdFP t_l, u_l, v_l;
     KdUP tri_l;
@@ -232,9 +337,29 @@ void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz
     trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
 #endif
+#if defined(KD_REFINE_STORED) || defined(OUT_NORMAL)
+    /* the lanes' triangles, for the refinement and the normals */
+    KdIP found;
+    found.v = on.v & (tri_l.v != (uintP)(KD_NO_HIT));
+    bool any = kd_anyP(found.v);
+    KdFP P[9];
+    if (any)
+        kd_gather_triangles(found, tri_l, tris, P);
+#else
+    const KdFP *P = 0;
+    bool any = false;
+#endif
 #ifdef KD_REFINE_STORED
-    kd_refine_packet(ox, oy, oz, dx, dy, dz, on, tri_l, t_min, t_max, tris, idx, &t_l, &u_l, &v_l
-                     KD_EXACT_PASS);
+    if (any)
+        kd_refine_packet(ox, oy, oz, dx, dy, dz, found, P, t_min, t_max, idx, &t_l, &u_l, &v_l
+                         KD_EXACT_PASS);
+#endif
+#ifndef STATS
+    if (row_stride) {
+        kd_store_block(idx[0], row_stride, tri_l, t_l, u_l, v_l, P, any, tri_ids,
+                       KD_OUTPUT_PASS);
+        return;
+    }
 #endif
     for (uint l = 0; l < KD_PACKET; l++) {
         if (!on.s[l])
@@ -547,7 +672,7 @@ void trace_rays(KD_TREE_ARGS,
                 kd_gather_packet(count, o, d, &ox, &oy, &oz, &dx, &dy, &dz, &on);
             }
             trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
-                                   KD_OUTPUT_PASS, idx.s KD_TRACE_EXACT);
+                                   KD_OUTPUT_PASS, idx.s, row_stride KD_TRACE_EXACT);
 #else
             float3 o = KD_RAY_ORIGIN(origins, (size_t)k0 * o_step);
             float3 d = kd_ray_direction(directions, k0);
@@ -660,8 +785,10 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             dy.v = m1.x * x + m1.y * y + m1.z;
             dz.v = m2.x * x + m2.y * y + m2.z;
 #endif
+            /* a block inside the image: its outputs stored a row at a time */
+            uint row_stride = col0 + 4u <= width && row0_b + KD_PACKET / 4u <= n_rows ? width : 0u;
             trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, 0.0f, INFINITY, KD_TREE_PASS,
-                                   KD_OUTPUT_PASS, idx KD_NO_EXACT);
+                                   KD_OUTPUT_PASS, idx, row_stride KD_NO_EXACT);
 #else
             uint col = tile_col + in_tile % TILE_W;
             uint row = tile_row + in_tile / TILE_W;
