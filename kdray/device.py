@@ -294,7 +294,7 @@ def _run_probe(device, source):
     while group < 8 and group * 2 <= int(device.max_work_group_size):
         group *= 2
     try:
-        context = cl.Context([device])
+        context = new_context(device)
         queue = cl.CommandQueue(context)
     except cl.Error as e:
         return one_line(f"cannot create a context and queue: {e}")
@@ -468,12 +468,35 @@ def working_devices(include_simulators=True):
     return found
 
 
+def new_context(device):
+    """cl.Context([device]), the calling thread's CPU affinity kept: Intel's CPU runtime,
+    which kdray asks to bind its worker threads (runtimes.INTEL_AFFINITY), binds the
+    thread that creates the process's first context to one core too. Raises cl.Error."""
+    cl = _cl()
+    before = _thread_affinity()
+    try:
+        return cl.Context([device])
+    finally:
+        if before is not None and _thread_affinity() != before:
+            os.sched_setaffinity(0, before)
+            log.debug("restored this thread's CPU affinity after creating a context on %s",
+                      device.name.strip())
+
+
+def _thread_affinity():
+    """The calling thread's CPUs (os.sched_getaffinity(0)), or None where unknown."""
+    try:
+        return os.sched_getaffinity(0)
+    except (AttributeError, OSError):
+        return None
+
+
 def create_context(spec=None):
     """(context, device) for `spec` (see `choose_device`)."""
     cl = _cl()
     device = choose_device(spec)
     try:
-        context = cl.Context([device])
+        context = new_context(device)
     except cl.Error as e:
         raise DeviceError(f"cannot create an OpenCL context on {device.name!r}: {e}") from None
     log.info("OpenCL device: %s (%s)", device.name.strip(), device.platform.name.strip())

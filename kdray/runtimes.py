@@ -30,6 +30,22 @@ log = logging.getLogger(__name__)
 INTEL_CPU_PLATFORM = "Intel(R) OpenCL"
 """The platform name of Intel's CPU runtime (its GPU driver's is "Intel(R) OpenCL Graphics")."""
 
+INTEL_AFFINITY = {"DPCPP_CPU_CU_AFFINITY": "close", "DPCPP_CPU_PLACES": "cores"}
+"""Set for Intel's CPU runtime (`intel_affinity`): it binds each of its worker threads
+to a core of its own. Without them, on a 2-core VM, a kernel launched after the process
+had been idle for a moment often ran on one core for its first 4-12 ms: the runtime's
+worker and the thread waiting for the kernel (which the runtime makes work too) took
+turns on one core in 4 ms slices until Linux moved one of them (`perf sched`;
+BENCHMARKS.md, issue 20, sixteenth session). The runtime then binds the thread that
+creates the process's first context as well; kdray undoes that at once
+(`device.new_context`). It binds nothing when the process's CPU affinity is already
+restricted (taskset, a cpuset)."""
+
+INTEL_AFFINITY_NAMES = ("DPCPP_CPU_CU_AFFINITY", "DPCPP_CPU_PLACES", "SYCL_CPU_CU_AFFINITY",
+                        "SYCL_CPU_PLACES")
+"""Intel's runtime's variables for binding threads: if the environment sets any of them,
+or KDRAY_INTEL_AFFINITY=0, kdray sets none (`intel_affinity`)."""
+
 ICD_NAME = "intel-cpu-kdray.icd"
 """kdray's driver file for Intel's CPU runtime in pyopencl/.libs: one line, the library's
 absolute path (libintelocl.so finds its own libraries through its RUNPATH $ORIGIN)."""
@@ -157,6 +173,17 @@ def _preload_tbb(folder):
     log.debug("loaded %s for Intel's CPU runtime, before any other TBB", tbb)
 
 
+def intel_affinity(environ):
+    """The variables kdray adds to `environ` (a mapping like os.environ) for Intel's CPU
+    runtime: INTEL_AFFINITY, or {} when environ sets any of INTEL_AFFINITY_NAMES or
+    KDRAY_INTEL_AFFINITY=0."""
+    if environ.get("KDRAY_INTEL_AFFINITY", "").strip() == "0":
+        return {}
+    if any(name in environ for name in INTEL_AFFINITY_NAMES):
+        return {}
+    return dict(INTEL_AFFINITY)
+
+
 def register_runtimes():
     """Make the OpenCL runtimes installed in this environment visible to pyopencl's loader:
     Intel's CPU runtime (see the module docstring), and on Linux load its TBB first.
@@ -182,6 +209,8 @@ def register_runtimes():
         sync_icd(library, folder)
     if library.is_file() and sys.platform.startswith("linux"):
         _preload_tbb(library.parent)
+        # read when the runtime creates its first context: before is early enough
+        os.environ.update(intel_affinity(os.environ))
 
 
 def _process_start():

@@ -358,3 +358,61 @@ def test_open3d_before_kdray_names_the_tbb_conflict():
     # CPU is named "...Intel(R) Xeon(R)..."); where none other works (PoCL 3.0 on Zen 5), none
     assert (lines[-1].startswith("default: --device ") and "(Intel(R) OpenCL" not in lines[-1]) \
         or lines[-1].startswith("default: none")
+
+
+# ---------------------------------------------------------------- Intel's worker threads
+
+def test_intel_affinity_defaults_give_way_to_the_callers():
+    assert kruntimes.intel_affinity({}) == kruntimes.INTEL_AFFINITY
+    assert kruntimes.intel_affinity({"PATH": "/bin"}) == {"DPCPP_CPU_CU_AFFINITY": "close",
+                                                          "DPCPP_CPU_PLACES": "cores"}
+    for name in kruntimes.INTEL_AFFINITY_NAMES:
+        assert kruntimes.intel_affinity({name: "spread"}) == {}
+    assert kruntimes.intel_affinity({"KDRAY_INTEL_AFFINITY": "0"}) == {}
+    assert kruntimes.intel_affinity({"KDRAY_INTEL_AFFINITY": "1"}) == kruntimes.INTEL_AFFINITY
+
+
+AFFINITY_AFTER_A_TRACER = """
+    import os, threading
+    import kdray
+    mesh = kdray.load("scenes/sphere.obj")
+    tree = kdray.build(mesh.vertices, mesh.faces)
+    before = os.sched_getaffinity(0)
+    tracer = kdray.Tracer(tree, device="intel")
+    camera = kdray.Camera.look_at((0, 0, 3), (0, 0, 0), width=64, height=64)
+    hit = int((tracer.render(camera, aovs=("id",))["id"] != 0xFFFFFFFF).sum())
+    bound = [t for t in os.listdir("/proc/self/task")
+             if len(os.sched_getaffinity(int(t))) == 1]
+    print(os.environ.get("DPCPP_CPU_CU_AFFINITY"), sorted(before) == sorted(os.sched_getaffinity(0)),
+          hit > 0, len(bound) > 0)
+"""
+# (without the variables Intel's runtime 2026.2 binds its worker thread in some processes
+# and not in others, so only their presence is checked then)
+
+needs_intel_on_several_cpus = pytest.mark.skipif(
+    not kruntimes.intel_library().is_file() or not hasattr(os, "sched_getaffinity")
+    or len(os.sched_getaffinity(0)) < 2, reason="needs Intel's CPU runtime and 2 or more CPUs")
+
+
+@needs_intel_on_several_cpus
+def test_a_tracer_on_intel_binds_workers_and_leaves_the_callers_thread_free():
+    # a fresh process: the runtime binds the thread that creates its first context
+    code, out, err = _python_env(AFFINITY_AFTER_A_TRACER)
+    assert code == 0, err
+    assert out.split() == ["close", "True", "True", "True"], out
+
+
+@needs_intel_on_several_cpus
+def test_kdray_intel_affinity_0_sets_no_variable():
+    code, out, err = _python_env(AFFINITY_AFTER_A_TRACER, KDRAY_INTEL_AFFINITY="0")
+    assert code == 0, err
+    assert out.split()[:3] == ["None", "True", "True"], out
+
+
+def _python_env(code, **env):
+    """_python in this environment without Intel's binding variables (this process's
+    kdray set them) and with `env` added."""
+    clean = {k: v for k, v in os.environ.items() if k not in kruntimes.INTEL_AFFINITY_NAMES}
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
+                          text=True, cwd=ROOT, timeout=120, env=dict(clean, **env))
+    return proc.returncode, proc.stdout, proc.stderr

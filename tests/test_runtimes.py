@@ -358,7 +358,7 @@ def test_packet_kernels_say_they_are_vectorized_by_hand(runtime, packet, tmp_pat
     options = _device.build_options(device, {"LOCAL_SIZE": 8, "BATCH_SIZE": 8 * packet,
                                              "PACKET": packet, "OUT_T": None})
     source = (_device.KERNEL_DIR / "render.cl").read_text(encoding="utf-8")
-    context = cl.Context([device])
+    context = _device.new_context(device)
     with warnings.catch_warnings():          # PoCL's and Intel's harmless notes
         warnings.simplefilter("ignore", cl.CompilerWarning)
         program = cl.Program(context, source).build(options, cache_dir=str(tmp_path))
