@@ -44,6 +44,11 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 from ab_build import git_export  # noqa: E402
 
+ENVIRON = dict(os.environ)
+"""The environment as this process started, before it imported kdray (which sets
+variables for Intel's runtime, `kdray.runtimes.intel_affinity`): each worker starts
+from it, so that its own kdray sets what it sets."""
+
 CALLS = ("render depth", "render default", "trace", "trace HxW")
 INCOHERENT = ("random centre", "random points")
 
@@ -90,7 +95,7 @@ def start_workers(name, folder, tree_path, base_root, work_root, size):
     """{"base": (process, outputs npz path), "work": ...}: one ready worker per version."""
     workers = {}
     for who, root in (("base", base_root), ("work", work_root)):
-        env = dict(os.environ, PYTHONPATH=root)
+        env = dict(ENVIRON, PYTHONPATH=root)
         out = os.path.join(folder, f"{name}-{who}.npz")
         env["PYTHONPATH"] += os.pathsep + HERE          # bench_incoherent's rays
         p = subprocess.Popen([sys.executable, __file__, "--worker", tree_path, str(size), out],
