@@ -785,8 +785,9 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             dy.v = m1.x * x + m1.y * y + m1.z;
             dz.v = m2.x * x + m2.y * y + m2.z;
 #endif
-            /* a block inside the image: its outputs stored a row at a time */
-            uint row_stride = col0 + 4u <= width && row0_b + KD_PACKET / 4u <= n_rows ? width : 0u;
+            /* every lane on (a block inside the image, each pixel with a ray): its
+             * outputs stored a row at a time */
+            uint row_stride = kd_countP(on.v) == KD_PACKET ? width : 0u;
             trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, 0.0f, INFINITY, KD_TREE_PASS,
                                    KD_OUTPUT_PASS, idx, row_stride KD_NO_EXACT);
 #else
