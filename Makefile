@@ -76,13 +76,15 @@ bench: bench-deps
 
 # Everything in BENCHMARKS.md: the above, the stiff cases beside Open3D and embreex,
 # build scaling to 6M triangles, what leaving out saves, the cold start, and datasets
-# (views per second beside Open3D, per-scene overhead, Dask workers).
+# (views per second beside Open3D, per-scene overhead, Dask workers), calls after an
+# idle moment.
 bench-all: bench
 	$(BIN)/python bench/bench_stiff.py
 	$(BIN)/python bench/bench_build.py
 	$(BIN)/python bench/bench_leave_out.py
 	$(BIN)/python bench/bench_cold.py
 	$(BIN)/python bench/bench_dataset.py
+	$(BIN)/python bench/bench_idle.py
 
 # Regenerate the golden images on purpose (review the diff before committing).
 golden: $(STAMP)
