@@ -46,7 +46,7 @@ from ab_build import git_export  # noqa: E402
 
 ENVIRON = dict(os.environ)
 """The environment as this process started, before it imported kdray (which sets
-variables for Intel's runtime, `kdray.runtimes.intel_affinity`): each worker starts
+variables for the CPU runtimes, `kdray.runtimes.thread_binding`): each worker starts
 from it, so that its own kdray sets what it sets."""
 
 CALLS = ("render depth", "render default", "trace", "trace HxW")

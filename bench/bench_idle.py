@@ -1,12 +1,14 @@
 """A call after the process has been idle, against back-to-back calls: with kdray
-binding the worker threads of Intel's CPU runtime (its default,
-`kdray.runtimes.INTEL_AFFINITY`) and without (KDRAY_INTEL_AFFINITY=0).
+binding the CPU runtimes' worker threads to cores (its default,
+`kdray.runtimes.thread_binding`) and without (KDRAY_BIND_THREADS=0).
 
 usage: python bench/bench_idle.py [--mesh bunny] [--size 1024] [--calls 20] [--pairs 3]
+                                  [--device intel]
 
 Each setting runs in a fresh process (pairs of them, the order swapped every other
 pair, so that the machine's drift hits both alike), which loads the mesh's tree
-(built once here), makes a Tracer on the default device and warms up. It then times
+(built once here), makes a Tracer on --device (default: the default device) and warms
+up. It then times
 `--calls` calls of each kind, first back to back (pause 0), then each one 0.1 s after
 the one before (pause 0.1, what bench_trace.py's round robin leaves between calls),
 and prints each call's median and 90th percentile over all pairs:
@@ -17,7 +19,8 @@ and prints each call's median and 90th percentile over all pairs:
 On Intel's runtime the thread that waits for a kernel works on it beside the runtime's
 worker threads; unbound, a worker woken after an idle moment can be placed on that
 thread's core and share it until Linux's load balancer moves one (BENCHMARKS.md,
-issue 20, sixteenth session). Other runtimes ignore the setting.
+issue 20, sixteenth session). PoCL's workers alone run its kernels; unbound, its calls
+had a long tail too.
 """
 import argparse
 import os
@@ -36,17 +39,17 @@ ENVIRON = dict(os.environ)
 
 PAUSES = (0.0, 0.1)
 CALLS = ("render depth", "trace t,prim")
-SETTINGS = {"bound (default)": {}, "unbound": {"KDRAY_INTEL_AFFINITY": "0"}}
+SETTINGS = {"bound (default)": {}, "unbound": {"KDRAY_BIND_THREADS": "0"}}
 
 
-def child(tree_path, size, n_calls):
+def child(tree_path, size, n_calls, device):
     """Print one line per (call, pause): 'call|pause|seconds seconds ...'."""
     import kdray
     tree = kdray.KdTree.load(tree_path)
     lo, hi = tree.world_box()
     camera = kdray.Camera.frame(lo, hi, size, size)
     o, d = camera.rays()
-    tracer = kdray.Tracer(tree)
+    tracer = kdray.Tracer(tree, device=device or None)
     calls = {"render depth": lambda: tracer.render(camera, ["depth"]),
              "trace t,prim": lambda: tracer.trace(o, d, outputs=())}
     for fn in calls.values():
@@ -66,12 +69,13 @@ def child(tree_path, size, n_calls):
 
 def main():
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
-        return child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
+        return child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mesh", default="bunny")
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--calls", type=int, default=20, help="timed calls of each kind a process")
     ap.add_argument("--pairs", type=int, default=3)
+    ap.add_argument("--device", default="", help="a --device string (default: the default device)")
     args = ap.parse_args()
     import kdray
     from meshes import mesh as bench_mesh
@@ -86,7 +90,7 @@ def main():
             for setting in order:
                 env = dict(ENVIRON, **SETTINGS[setting])
                 out = subprocess.run([sys.executable, __file__, "--child", tree_path,
-                                      str(args.size), str(args.calls)],
+                                      str(args.size), str(args.calls), args.device],
                                      env=env, capture_output=True, text=True, check=True).stdout
                 for line in out.splitlines():
                     call, _, rest = line.partition("|")

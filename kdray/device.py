@@ -470,7 +470,7 @@ def working_devices(include_simulators=True):
 
 def new_context(device):
     """cl.Context([device]), the calling thread's CPU affinity kept: Intel's CPU runtime,
-    which kdray asks to bind its worker threads (runtimes.INTEL_AFFINITY), binds the
+    which kdray asks to bind its worker threads (runtimes.thread_binding), binds the
     thread that creates the process's first context to one core too. Raises cl.Error."""
     cl = _cl()
     before = _thread_affinity()

@@ -31,7 +31,7 @@ INTEL_CPU_PLATFORM = "Intel(R) OpenCL"
 """The platform name of Intel's CPU runtime (its GPU driver's is "Intel(R) OpenCL Graphics")."""
 
 INTEL_AFFINITY = {"DPCPP_CPU_CU_AFFINITY": "close", "DPCPP_CPU_PLACES": "cores"}
-"""Set for Intel's CPU runtime (`intel_affinity`): it binds each of its worker threads
+"""Set for Intel's CPU runtime (`thread_binding`): it binds each of its worker threads
 to a core of its own. Without them, on a 2-core VM, a kernel launched after the process
 had been idle for a moment often ran on one core for its first 4-12 ms: the runtime's
 worker and the thread waiting for the kernel (which the runtime makes work too) took
@@ -44,7 +44,13 @@ restricted (taskset, a cpuset)."""
 INTEL_AFFINITY_NAMES = ("DPCPP_CPU_CU_AFFINITY", "DPCPP_CPU_PLACES", "SYCL_CPU_CU_AFFINITY",
                         "SYCL_CPU_PLACES")
 """Intel's runtime's variables for binding threads: if the environment sets any of them,
-or KDRAY_INTEL_AFFINITY=0, kdray sets none (`intel_affinity`)."""
+kdray sets none of INTEL_AFFINITY."""
+
+POCL_AFFINITY = {"POCL_AFFINITY": "1"}
+"""Set for PoCL (`thread_binding`, unless the environment sets POCL_AFFINITY): it binds
+its worker threads one to a core (the thread waiting for a kernel only waits). The same
+calls after an idle moment had a long tail unbound (BENCHMARKS.md)."""
+
 
 ICD_NAME = "intel-cpu-kdray.icd"
 """kdray's driver file for Intel's CPU runtime in pyopencl/.libs: one line, the library's
@@ -173,15 +179,19 @@ def _preload_tbb(folder):
     log.debug("loaded %s for Intel's CPU runtime, before any other TBB", tbb)
 
 
-def intel_affinity(environ):
-    """The variables kdray adds to `environ` (a mapping like os.environ) for Intel's CPU
-    runtime: INTEL_AFFINITY, or {} when environ sets any of INTEL_AFFINITY_NAMES or
-    KDRAY_INTEL_AFFINITY=0."""
-    if environ.get("KDRAY_INTEL_AFFINITY", "").strip() == "0":
+def thread_binding(environ):
+    """The variables kdray adds to `environ` (a mapping like os.environ) so that the CPU
+    runtimes bind their worker threads to cores: INTEL_AFFINITY unless environ sets any
+    of INTEL_AFFINITY_NAMES, POCL_AFFINITY unless it sets POCL_AFFINITY; none with
+    KDRAY_BIND_THREADS=0."""
+    if environ.get("KDRAY_BIND_THREADS", "").strip() == "0":
         return {}
-    if any(name in environ for name in INTEL_AFFINITY_NAMES):
-        return {}
-    return dict(INTEL_AFFINITY)
+    add = {}
+    if not any(name in environ for name in INTEL_AFFINITY_NAMES):
+        add.update(INTEL_AFFINITY)
+    if not any(name in environ for name in POCL_AFFINITY):
+        add.update(POCL_AFFINITY)
+    return add
 
 
 def register_runtimes():
@@ -207,10 +217,12 @@ def register_runtimes():
     folder = _icd_folder()
     if folder is not None:
         sync_icd(library, folder)
+    if sys.platform.startswith("linux"):
+        # read by the runtimes when they start (PoCL) or create their first context
+        # (Intel's): before the first listing is early enough
+        os.environ.update(thread_binding(os.environ))
     if library.is_file() and sys.platform.startswith("linux"):
         _preload_tbb(library.parent)
-        # read when the runtime creates its first context: before is early enough
-        os.environ.update(intel_affinity(os.environ))
 
 
 def _process_start():

@@ -360,59 +360,75 @@ def test_open3d_before_kdray_names_the_tbb_conflict():
         or lines[-1].startswith("default: none")
 
 
-# ---------------------------------------------------------------- Intel's worker threads
+# ---------------------------------------------------------------- the runtimes' worker threads
 
-def test_intel_affinity_defaults_give_way_to_the_callers():
-    assert kruntimes.intel_affinity({}) == kruntimes.INTEL_AFFINITY
-    assert kruntimes.intel_affinity({"PATH": "/bin"}) == {"DPCPP_CPU_CU_AFFINITY": "close",
-                                                          "DPCPP_CPU_PLACES": "cores"}
+def test_thread_binding_defaults_give_way_to_the_callers():
+    both = {**kruntimes.INTEL_AFFINITY, **kruntimes.POCL_AFFINITY}
+    assert kruntimes.thread_binding({}) == both
+    assert kruntimes.thread_binding({"PATH": "/bin"}) == {
+        "DPCPP_CPU_CU_AFFINITY": "close", "DPCPP_CPU_PLACES": "cores", "POCL_AFFINITY": "1"}
     for name in kruntimes.INTEL_AFFINITY_NAMES:
-        assert kruntimes.intel_affinity({name: "spread"}) == {}
-    assert kruntimes.intel_affinity({"KDRAY_INTEL_AFFINITY": "0"}) == {}
-    assert kruntimes.intel_affinity({"KDRAY_INTEL_AFFINITY": "1"}) == kruntimes.INTEL_AFFINITY
+        assert kruntimes.thread_binding({name: "spread"}) == kruntimes.POCL_AFFINITY
+    assert kruntimes.thread_binding({"POCL_AFFINITY": "0"}) == kruntimes.INTEL_AFFINITY
+    assert kruntimes.thread_binding({"KDRAY_BIND_THREADS": "0"}) == {}
+    assert kruntimes.thread_binding({"KDRAY_BIND_THREADS": "1"}) == both
 
 
 AFFINITY_AFTER_A_TRACER = """
-    import os, threading
+    import os, sys
     import kdray
     mesh = kdray.load("scenes/sphere.obj")
     tree = kdray.build(mesh.vertices, mesh.faces)
     before = os.sched_getaffinity(0)
-    tracer = kdray.Tracer(tree, device="intel")
+    tracer = kdray.Tracer(tree, device=sys.argv[1])
     camera = kdray.Camera.look_at((0, 0, 3), (0, 0, 0), width=64, height=64)
     hit = int((tracer.render(camera, aovs=("id",))["id"] != 0xFFFFFFFF).sum())
     bound = [t for t in os.listdir("/proc/self/task")
              if len(os.sched_getaffinity(int(t))) == 1]
-    print(os.environ.get("DPCPP_CPU_CU_AFFINITY"), sorted(before) == sorted(os.sched_getaffinity(0)),
-          hit > 0, len(bound) > 0)
+    print(os.environ.get("DPCPP_CPU_CU_AFFINITY"), os.environ.get("POCL_AFFINITY"),
+          sorted(before) == sorted(os.sched_getaffinity(0)), hit > 0, len(bound) > 0)
 """
 # (without the variables Intel's runtime 2026.2 binds its worker thread in some processes
-# and not in others, so only their presence is checked then)
+# and not in others; PoCL binds none)
 
-needs_intel_on_several_cpus = pytest.mark.skipif(
-    not kruntimes.intel_library().is_file() or not hasattr(os, "sched_getaffinity")
-    or len(os.sched_getaffinity(0)) < 2, reason="needs Intel's CPU runtime and 2 or more CPUs")
+several_cpus = hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) >= 2
 
 
-@needs_intel_on_several_cpus
-def test_a_tracer_on_intel_binds_workers_and_leaves_the_callers_thread_free():
-    # a fresh process: the runtime binds the thread that creates its first context
-    code, out, err = _python_env(AFFINITY_AFTER_A_TRACER)
+def _working(impl):
+    """Whether a device of implementation `impl` ("intel", "pocl") works here."""
+    return any(kdevice.implementation(d) == impl and kdevice.probe(d).works
+               for _, d in all_devices())
+
+
+@pytest.mark.parametrize("impl", ["intel", "pocl"])
+def test_a_tracer_binds_the_workers_and_leaves_the_callers_thread_free(impl):
+    if not several_cpus or not _working(impl):
+        pytest.skip(f"needs a working {impl} device and 2 or more CPUs")
+    # a fresh process: Intel's runtime binds the thread that creates its first context
+    code, out, err = _python_env(AFFINITY_AFTER_A_TRACER, impl)
     assert code == 0, err
-    assert out.split() == ["close", "True", "True", "True"], out
+    assert out.split() == ["close", "1", "True", "True", "True"], out
 
 
-@needs_intel_on_several_cpus
-def test_kdray_intel_affinity_0_sets_no_variable():
-    code, out, err = _python_env(AFFINITY_AFTER_A_TRACER, KDRAY_INTEL_AFFINITY="0")
+@pytest.mark.parametrize("impl", ["intel", "pocl"])
+def test_kdray_bind_threads_0_sets_no_variable(impl):
+    if not several_cpus or not _working(impl):
+        pytest.skip(f"needs a working {impl} device and 2 or more CPUs")
+    code, out, err = _python_env(AFFINITY_AFTER_A_TRACER, impl, KDRAY_BIND_THREADS="0")
     assert code == 0, err
-    assert out.split()[:3] == ["None", "True", "True"], out
+    words = out.split()
+    assert words[:4] == ["None", "None", "True", "True"], out
+    if impl == "pocl":
+        assert words[4] == "False", out
 
 
-def _python_env(code, **env):
-    """_python in this environment without Intel's binding variables (this process's
-    kdray set them) and with `env` added."""
-    clean = {k: v for k, v in os.environ.items() if k not in kruntimes.INTEL_AFFINITY_NAMES}
-    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=120, env=dict(clean, **env))
+def _python_env(code, *args, **env):
+    """(exit code, stdout, stderr) of a fresh `python -c code args...` in this
+    environment without the runtimes' binding variables (this process's kdray set them)
+    and with `env` added."""
+    names = set(kruntimes.INTEL_AFFINITY_NAMES) | set(kruntimes.POCL_AFFINITY)
+    clean = {k: v for k, v in os.environ.items() if k not in names}
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code), *args],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120,
+                          env=dict(clean, **env))
     return proc.returncode, proc.stdout, proc.stderr
