@@ -227,36 +227,52 @@ void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP
 }
 #endif
 
-/* Lanes 4 r .. 4 r + 3 of x (row r of a block) stored at p + k0 + r stride, for each
- * row r: x a floatP or a uintP, p a pointer to float or uint */
+/* A block's rows written with plain stores of constant lanes, which LLVM merges into
+ * vector stores: PoCL calls vstore and shuffle2 out of line, with their vectors
+ * passed through memory (ops.h). KD_ROWS(ROW, ...) applies ROW(r, a, b, c, d, ...) to
+ * each row r of the block, a .. d its lanes' components. */
 #if KD_PACKET == 16
-#define KD_STORE_ROWS(x, p, k0, stride)                                                  \
-    do {                                                                                 \
-        vstore4((x).s0123, 0, (p) + (k0));                                               \
-        vstore4((x).s4567, 0, (p) + (k0) + (stride));                                    \
-        vstore4((x).s89ab, 0, (p) + (k0) + 2 * (stride));                                \
-        vstore4((x).scdef, 0, (p) + (k0) + 3 * (stride));                                \
-    } while (0)
+#define KD_ROWS(ROW, ...)                                                                \
+    ROW(0, s0, s1, s2, s3, __VA_ARGS__) ROW(1, s4, s5, s6, s7, __VA_ARGS__)             \
+    ROW(2, s8, s9, sa, sb, __VA_ARGS__) ROW(3, sc, sd, se, sf, __VA_ARGS__)
 /* p[i] of each lane's index i, as one vector */
 #define KD_GATHER(p, i)                                                                  \
     (uint16)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5], \
              (p)[(i).s6], (p)[(i).s7], (p)[(i).s8], (p)[(i).s9], (p)[(i).sa], (p)[(i).sb], \
              (p)[(i).sc], (p)[(i).sd], (p)[(i).se], (p)[(i).sf])
 #else
-#define KD_STORE_ROWS(x, p, k0, stride)                                                  \
-    do {                                                                                 \
-        vstore4((x).s0123, 0, (p) + (k0));                                               \
-        vstore4((x).s4567, 0, (p) + (k0) + (stride));                                    \
-    } while (0)
+#define KD_ROWS(ROW, ...)                                                                \
+    ROW(0, s0, s1, s2, s3, __VA_ARGS__) ROW(1, s4, s5, s6, s7, __VA_ARGS__)
 #define KD_GATHER(p, i)                                                                  \
     (uint8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5], \
             (p)[(i).s6], (p)[(i).s7])
 #endif
+/* row r of x at p + k0 + r stride */
+#define KD_ROW_1(r, a, b, c, d, x, p, k0, stride)                                        \
+    {                                                                                    \
+        size_t at_ = (k0) + (size_t)(r) * (stride);                                      \
+        (p)[at_] = (x).a; (p)[at_ + 1] = (x).b; (p)[at_ + 2] = (x).c; (p)[at_ + 3] = (x).d; \
+    }
+/* row r of u, v interleaved (u0 v0 u1 v1 ...) at p + 2 (k0 + r stride) */
+#define KD_ROW_2(r, a, b, c, d, u, v, p, k0, stride)                                     \
+    {                                                                                    \
+        __global float *q_ = (p) + 2 * ((k0) + (size_t)(r) * (stride));                  \
+        q_[0] = (u).a; q_[1] = (v).a; q_[2] = (u).b; q_[3] = (v).b;                      \
+        q_[4] = (u).c; q_[5] = (v).c; q_[6] = (u).d; q_[7] = (v).d;                      \
+    }
+/* row r of x, y, z interleaved at p + 3 (k0 + r stride) */
+#define KD_ROW_3(r, a, b, c, d, x, y, z, p, k0, stride)                                  \
+    {                                                                                    \
+        __global float *q_ = (p) + 3 * ((k0) + (size_t)(r) * (stride));                  \
+        q_[0] = (x).a; q_[1] = (y).a; q_[2] = (z).a; q_[3] = (x).b;                      \
+        q_[4] = (y).b; q_[5] = (z).b; q_[6] = (x).c; q_[7] = (y).c;                      \
+        q_[8] = (z).c; q_[9] = (x).d; q_[10] = (y).d; q_[11] = (z).d;                    \
+    }
 
 /* The outputs of a packet whose lanes are a block of rays, every lane on: lane l is
- * ray k0 + (l / 4) row_stride + l % 4. The values store_hit writes, in vectors, a row
- * of 4 rays at a time. With OUT_NORMAL, P holds the lanes' triangles when `any` lane
- * found one (kd_gather_triangles). */
+ * ray k0 + (l / 4) row_stride + l % 4. The values store_hit writes, computed in vectors
+ * and written a row of 4 rays at a time (KD_ROWS). With OUT_NORMAL, P holds the lanes'
+ * triangles when `any` lane found one (kd_gather_triangles). */
 KD_INLINE
 void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP v,
                     const KdFP *P, bool any, __global const uint *tri_ids, KD_OUTPUT_ARGS)
@@ -264,22 +280,17 @@ void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP
     intP found = tri.v != (uintP)(KD_NO_HIT);
 #ifdef OUT_T
     floatP t_out = kd_selectP((floatP)(INFINITY), t.v * KD_T_SCALE, found);
-    KD_STORE_ROWS(t_out, out_t, k0, row_stride);
+    KD_ROWS(KD_ROW_1, t_out, out_t, k0, row_stride)
 #endif
 #ifdef OUT_UV
     floatP u_out = kd_selectP((floatP)(0.0f), u.v, found);
     floatP v_out = kd_selectP((floatP)(0.0f), v.v, found);
-    /* a row's u, v interleaved: u0 v0 u1 v1 u2 v2 u3 v3 */
-    uint8 pairs = (uint8)(0u, KD_PACKET, 1u, KD_PACKET + 1u, 2u, KD_PACKET + 2u, 3u,
-                          KD_PACKET + 3u);
-#pragma unroll
-    for (uint r = 0; r < KD_PACKET / 4u; r++)
-        vstore8(shuffle2(u_out, v_out, pairs + 4u * r), 0, out_uv + 2 * (k0 + r * row_stride));
+    KD_ROWS(KD_ROW_2, u_out, v_out, out_uv, k0, row_stride)
 #endif
 #ifdef OUT_ID
     uintP ids = KD_GATHER(tri_ids, kd_selectPu((uintP)(0u), tri.v, found));
     ids = kd_selectPu((uintP)(KD_NO_HIT), ids, found);
-    KD_STORE_ROWS(ids, out_id, k0, row_stride);
+    KD_ROWS(KD_ROW_1, ids, out_id, k0, row_stride)
 #endif
 #ifdef OUT_NORMAL
     /* kd_normalize(kd_cross(p1 - p0, p2 - p0)) in vectors (its operations in its order) */
@@ -297,24 +308,7 @@ void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP
         ny = kd_selectP(ny, cy / len, found);
         nz = kd_selectP(nz, cz / len, found);
     }
-    /* a row's x, y, z interleaved, in the first 12 lanes of two permutes: x and y, then z */
-#if KD_PACKET == 16
-    float16 nz16 = nz;
-#else
-    float16 nz16 = (float16)(nz, nz);
-#endif
-    uint16 xy = (uint16)(0u, KD_PACKET, 0u, 1u, KD_PACKET + 1u, 0u, 2u, KD_PACKET + 2u, 0u, 3u,
-                         KD_PACKET + 3u, 0u, 0u, 0u, 0u, 0u);
-    uint16 xy_row = (uint16)(4u, 4u, 0u, 4u, 4u, 0u, 4u, 4u, 0u, 4u, 4u, 0u, 0u, 0u, 0u, 0u);
-    uint16 z = (uint16)(0u, 1u, 16u, 3u, 4u, 17u, 6u, 7u, 18u, 9u, 10u, 19u, 0u, 0u, 0u, 0u);
-    uint16 z_row = (uint16)(0u, 0u, 4u, 0u, 0u, 4u, 0u, 0u, 4u, 0u, 0u, 4u, 0u, 0u, 0u, 0u);
-#pragma unroll
-    for (uint r = 0; r < KD_PACKET / 4u; r++) {
-        float16 row = shuffle2(shuffle2(nx, ny, xy + r * xy_row), nz16, z + r * z_row);
-        __global float *p = out_normal + 3 * (k0 + r * row_stride);
-        vstore8(row.lo, 0, p);
-        vstore4(row.s89ab, 0, p + 8);
-    }
+    KD_ROWS(KD_ROW_3, nx, ny, nz, out_normal, k0, row_stride)
 #endif
 }
 
