@@ -396,6 +396,9 @@ class Tracer:
             defines["SCALE_INV"] = (1.0 / self._scale).hex()
         if self.packet > 1:
             defines["PACKET"] = self.packet
+            if _device.implementation(self.device) == "pocl":
+                # PoCL calls vload and shuffle2 out of line (render.cl, kd_deal)
+                defines["KD_PLAIN_VECTOR_OPS"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
             if self._lane_ratio is not None:
                 defines["KD_LANE_RATIO"] = f"{min(float(self._lane_ratio), 1e30):.9e}f"

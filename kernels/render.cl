@@ -470,8 +470,8 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
  * the image's width: a block of 4 x KD_PACKET / 4 pixels). Each is converted as
  * KD_RAY_ORIGIN and kd_ray_direction convert it (the same operations on the same
  * values: bit for bit), but in vectors: a row's 12 numbers of the directions, and of
- * the origins unless all rays share one (o_step 0: o_shared, converted), are two
- * vector loads of 8 and 4, shifted and rounded as loaded (a row starts with an x, so
+ * the origins unless all rays share one (o_step 0: o_shared, converted), are loaded as
+ * vectors of 8 and 4 (KD_LOAD8, KD_LOAD4), shifted and rounded as loaded (a row starts with an x, so
  * the tree's origin repeats x, y, z, x, ... in both: KdDP3), joined in registers
  * (kd_join_rows) and dealt out to the lanes by permutes (kd_deal). Nothing goes
  * through private memory: a read of private memory that spans several stores, or a
@@ -486,10 +486,41 @@ typedef struct { double8 a; double4 b; } KdDP3;
 #define KD_ORIGIN_PATTERN_PARAM
 #define KD_ORIGIN_PATTERN_ARG
 #endif
-/* Component c (0: x, 1: y, 2: z) of KD_PACKET rays whose x, y, z follow one another
- * through v[0], v[1], v[2]: lane l takes number 3 l + c, by two permutes. */
+/* The x, y and z of KD_PACKET rays whose numbers follow one another through v[0], v[1],
+ * v[2] (lane l takes number 3 l, 3 l + 1, 3 l + 2), and p[0 .. 7], p[0 .. 3] as vectors
+ * of p's type T (float or double). KD_PLAIN_VECTOR_OPS (the host sets it for PoCL,
+ * which calls vload and shuffle2 out of line, their vectors passed through memory:
+ * ops.h): constant lanes and plain loads, which LLVM turns into permutes and vector
+ * loads; else shuffle2 and vload, which measured faster on Intel's runtime. */
+#define KD_CAT_(a, b) a##b
+#define KD_CAT(a, b) KD_CAT_(a, b)
+#ifdef KD_PLAIN_VECTOR_OPS
+#define KD_LOAD8(T, p)                                                                   \
+    ((KD_CAT(T, 8))((p)[0], (p)[1], (p)[2], (p)[3], (p)[4], (p)[5], (p)[6], (p)[7]))
+#define KD_LOAD4(T, p) ((KD_CAT(T, 4))((p)[0], (p)[1], (p)[2], (p)[3]))
 KD_INLINE
-floatP kd_deal(const floatP *v, uint c)
+void kd_deal(const floatP *v, floatP *x, floatP *y, floatP *z)
+{
+    floatP a = v[0], b = v[1], c = v[2];
+#if KD_PACKET == 16
+    *x = (float16)(a.s0, a.s3, a.s6, a.s9, a.sc, a.sf, b.s2, b.s5, b.s8, b.sb, b.se, c.s1, c.s4,
+                   c.s7, c.sa, c.sd);
+    *y = (float16)(a.s1, a.s4, a.s7, a.sa, a.sd, b.s0, b.s3, b.s6, b.s9, b.sc, b.sf, c.s2, c.s5,
+                   c.s8, c.sb, c.se);
+    *z = (float16)(a.s2, a.s5, a.s8, a.sb, a.se, b.s1, b.s4, b.s7, b.sa, b.sd, c.s0, c.s3, c.s6,
+                   c.s9, c.sc, c.sf);
+#else
+    *x = (float8)(a.s0, a.s3, a.s6, b.s1, b.s4, b.s7, c.s2, c.s5);
+    *y = (float8)(a.s1, a.s4, a.s7, b.s2, b.s5, c.s0, c.s3, c.s6);
+    *z = (float8)(a.s2, a.s5, b.s0, b.s3, b.s6, c.s1, c.s4, c.s7);
+#endif
+}
+#else
+#define KD_LOAD8(T, p) vload8(0, p)
+#define KD_LOAD4(T, p) vload4(0, p)
+/* component c (0: x, 1: y, 2: z), by two permutes */
+KD_INLINE
+floatP kd_deal_c(const floatP *v, uint c)
 {
     uintP at = 3u * KD_LANE_INDEX_U + c;
     uintP end = (uintP)(2u * KD_PACKET);
@@ -497,6 +528,14 @@ floatP kd_deal(const floatP *v, uint c)
     uintP second = select(KD_LANE_INDEX_U, at - (uintP)(KD_PACKET), at >= end);
     return shuffle2(shuffle2(v[0], v[1], first), v[2], second);
 }
+KD_INLINE
+void kd_deal(const floatP *v, floatP *x, floatP *y, floatP *z)
+{
+    *x = kd_deal_c(v, 0u);
+    *y = kd_deal_c(v, 1u);
+    *z = kd_deal_c(v, 2u);
+}
+#endif
 
 /* KD_PACKET / 4 rows of 12 numbers (row r's first 8 in a[r], its last 4 in b[r]) as
  * three vectors holding the numbers in order, joined in registers. */
@@ -527,30 +566,30 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
         if (o_step) {
 #ifdef RAYS_WORLD
             /* (float)(((double)o - origin) * (1 / scale)): KD_SCALE_INV is 1.0 at scale 1 */
-            oa[r] = convert_float8((convert_double8(vload8(0, origins + at)) - origin_pattern->a)
-                                   * KD_SCALE_INV);
-            ob[r] = convert_float4((convert_double4(vload4(0, origins + at + 8))
+            oa[r] = convert_float8((convert_double8(KD_LOAD8(KD_ORIGIN_T, origins + at))
+                                    - origin_pattern->a) * KD_SCALE_INV);
+            ob[r] = convert_float4((convert_double4(KD_LOAD4(KD_ORIGIN_T, origins + at + 8))
                                     - origin_pattern->b) * KD_SCALE_INV);
 #else
-            oa[r] = vload8(0, origins + at);
-            ob[r] = vload4(0, origins + at + 8);
+            oa[r] = KD_LOAD8(float, origins + at);
+            ob[r] = KD_LOAD4(float, origins + at + 8);
 #endif
         }
         /* (float)d (float directions as they are) */
-        da[r] = convert_float8(vload8(0, directions + at));
-        db[r] = convert_float4(vload4(0, directions + at + 8));
+        da[r] = convert_float8(KD_LOAD8(KD_DIRECTION_T, directions + at));
+        db[r] = convert_float4(KD_LOAD4(KD_DIRECTION_T, directions + at + 8));
     }
     /* dealt out to the lanes by permutes: through private memory the lanes' reads
      * (masked loads) wait for the stores to reach the cache */
     floatP o3[3], d3[3];
     if (o_step) {
         kd_join_rows(oa, ob, o3);
-        ox->v = kd_deal(o3, 0u); oy->v = kd_deal(o3, 1u); oz->v = kd_deal(o3, 2u);
+        kd_deal(o3, &ox->v, &oy->v, &oz->v);
     } else {
         ox->v = (floatP)(o_shared.x); oy->v = (floatP)(o_shared.y); oz->v = (floatP)(o_shared.z);
     }
     kd_join_rows(da, db, d3);
-    dx->v = kd_deal(d3, 0u); dy->v = kd_deal(d3, 1u); dz->v = kd_deal(d3, 2u);
+    kd_deal(d3, &dx->v, &dy->v, &dz->v);
 }
 #endif
 
