@@ -221,8 +221,8 @@ def register_runtimes():
         # read by the runtimes when they start (PoCL) or create their first context
         # (Intel's): before the first listing is early enough
         os.environ.update(thread_binding(os.environ))
-    if library.is_file() and sys.platform.startswith("linux"):
-        _preload_tbb(library.parent)
+        if library.is_file():
+            _preload_tbb(library.parent)
 
 
 def _process_start():

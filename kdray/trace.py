@@ -296,6 +296,9 @@ class Tracer:
         self._zero_copy = _device.is_cpu(self.device)
         # ... in place only when the array starts on a page, on Intel's CPU runtime (PAGE)
         self._page_inputs = self._zero_copy and _device.implementation(self.device) == "intel"
+        # PoCL calls vload and shuffle2 out of line: its packets avoid them (render.cl,
+        # kd_deal)
+        self._plain_vector_ops = _device.implementation(self.device) == "pocl"
         self.refine = bool(refine) and _device.has_fp64(self.device)
         # float64 rays shifted and rounded in the kernel (`_rays`): on a CPU device no
         # host pass and no copy; with refine, the hits refined from the rays as given
@@ -396,8 +399,7 @@ class Tracer:
             defines["SCALE_INV"] = (1.0 / self._scale).hex()
         if self.packet > 1:
             defines["PACKET"] = self.packet
-            if _device.implementation(self.device) == "pocl":
-                # PoCL calls vload and shuffle2 out of line (render.cl, kd_deal)
+            if self._plain_vector_ops:
                 defines["KD_PLAIN_VECTOR_OPS"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
             if self._lane_ratio is not None:

@@ -471,10 +471,10 @@ KD_INLINE float3 kd_ray_direction(__global const float *p, size_t i) { return kd
  * KD_RAY_ORIGIN and kd_ray_direction convert it (the same operations on the same
  * values: bit for bit), but in vectors: a row's 12 numbers of the directions, and of
  * the origins unless all rays share one (o_step 0: o_shared, converted), are loaded as
- * vectors of 8 and 4 (KD_LOAD8, KD_LOAD4), shifted and rounded as loaded (a row starts with an x, so
- * the tree's origin repeats x, y, z, x, ... in both: KdDP3), joined in registers
- * (kd_join_rows) and dealt out to the lanes by permutes (kd_deal). Nothing goes
- * through private memory: a read of private memory that spans several stores, or a
+ * vectors of 8 and 4 (KD_LOAD8, KD_LOAD4), shifted and rounded as loaded (a row starts
+ * with an x, so the tree's origin repeats x, y, z, x, ... in both: KdDP3), joined in
+ * registers (kd_join_rows) and dealt out to the lanes by permutes (kd_deal). Nothing
+ * goes through private memory: a read of private memory that spans several stores, or a
  * masked read (as LLVM deals lanes from it), waits until the stores reach the cache,
  * and a trace's profile had its hottest instruction there. */
 #ifdef RAYS_WORLD
@@ -579,8 +579,6 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
         da[r] = convert_float8(KD_LOAD8(KD_DIRECTION_T, directions + at));
         db[r] = convert_float4(KD_LOAD4(KD_DIRECTION_T, directions + at + 8));
     }
-    /* dealt out to the lanes by permutes: through private memory the lanes' reads
-     * (masked loads) wait for the stores to reach the cache */
     floatP o3[3], d3[3];
     if (o_step) {
         kd_join_rows(oa, ob, o3);

@@ -307,10 +307,15 @@ def test_reasons_for_a_missing_intel_platform(tmp_path, monkeypatch):
 
 # ---------------------------------------------------------------- Open3D and Intel's TBB
 
-def _python(code):
-    """(exit code, stdout, stderr) of a fresh `python -c code` in the repository."""
-    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
-                          text=True, cwd=ROOT, timeout=120)
+def _python(code, *args, **env):
+    """(exit code, stdout, stderr) of a fresh `python -c code args...` in the repository,
+    in this environment without the runtimes' thread-binding variables (this process's
+    kdray set them; the child's sets its own) and with `env` added."""
+    names = set(kruntimes.INTEL_AFFINITY_NAMES) | set(kruntimes.POCL_AFFINITY)
+    clean = {k: v for k, v in os.environ.items() if k not in names}
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code), *args],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120,
+                          env=dict(clean, **env))
     return proc.returncode, proc.stdout, proc.stderr
 
 
@@ -405,7 +410,7 @@ def test_a_tracer_binds_the_workers_and_leaves_the_callers_thread_free(impl):
     if not several_cpus or not _working(impl):
         pytest.skip(f"needs a working {impl} device and 2 or more CPUs")
     # a fresh process: Intel's runtime binds the thread that creates its first context
-    code, out, err = _python_env(AFFINITY_AFTER_A_TRACER, impl)
+    code, out, err = _python(AFFINITY_AFTER_A_TRACER, impl)
     assert code == 0, err
     assert out.split() == ["close", "1", "True", "True", "True"], out
 
@@ -414,21 +419,9 @@ def test_a_tracer_binds_the_workers_and_leaves_the_callers_thread_free(impl):
 def test_kdray_bind_threads_0_sets_no_variable(impl):
     if not several_cpus or not _working(impl):
         pytest.skip(f"needs a working {impl} device and 2 or more CPUs")
-    code, out, err = _python_env(AFFINITY_AFTER_A_TRACER, impl, KDRAY_BIND_THREADS="0")
+    code, out, err = _python(AFFINITY_AFTER_A_TRACER, impl, KDRAY_BIND_THREADS="0")
     assert code == 0, err
     words = out.split()
     assert words[:4] == ["None", "None", "True", "True"], out
     if impl == "pocl":
         assert words[4] == "False", out
-
-
-def _python_env(code, *args, **env):
-    """(exit code, stdout, stderr) of a fresh `python -c code args...` in this
-    environment without the runtimes' binding variables (this process's kdray set them)
-    and with `env` added."""
-    names = set(kruntimes.INTEL_AFFINITY_NAMES) | set(kruntimes.POCL_AFFINITY)
-    clean = {k: v for k, v in os.environ.items() if k not in names}
-    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code), *args],
-                          capture_output=True, text=True, cwd=ROOT, timeout=120,
-                          env=dict(clean, **env))
-    return proc.returncode, proc.stdout, proc.stderr
