@@ -107,9 +107,13 @@ def test_debug_shows_the_traceback(capsys, tmp_path):
         main(["--debug", "render", str(tmp_path / "none.obj")])
 
 
-def test_absurd_size_is_refused_before_allocating(capsys, tmp_path):
+def test_absurd_size_is_refused_before_allocating(capsys, tmp_path, monkeypatch):
+    # 4 GiB available, as on a small machine: a machine with 128 GiB would render 60000^2
+    monkeypatch.setattr("kdray.host.available_memory", lambda: 4 * 2**30)
     code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr", "--size", "60000x60000")
-    assert_one_line_error(code, err, "GiB", "available")
+    assert_one_line_error(code, err, "GiB", "4.0 GiB are available")
+    code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr", "--size", "20000x20000")
+    assert_one_line_error(code, err, "GiB", "4.0 GiB are available")
     code, _, err = run(capsys, "render", SCENE, "-o", tmp_path / "o.exr", "--size", "100000x100000")
     assert_one_line_error(code, err, "too many")
     assert not (tmp_path / "o.exr").exists()
