@@ -1,7 +1,9 @@
 """The SAH k-d tree builder: valid trees on many kinds of input (KdTree.validate),
 the same hits as the brute-force oracle, determinism, parameters, and the sweep's
 choice checked against a direct evaluation of every candidate plane."""
-
+import os
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -784,3 +786,78 @@ def test_scratch_keeps_one_array_up_to_its_limit(monkeypatch):
     assert scratch._kept is a
     scratch.release()
     assert scratch._kept is None
+
+
+def test_builds_keep_one_pool_of_bound_threads(monkeypatch):
+    # Builds on threads reuse one executor; its threads are bound one to a CPU in turn
+    # (Linux), or left unbound with KDRAY_BIND_THREADS=0; the trees are the same.
+    from kdray.builder import threads as bthreads
+    monkeypatch.delenv("KDRAY_BIND_THREADS", raising=False)
+    monkeypatch.setattr(bthreads, "_POOLS", {})
+    v, f = soup(np.random.default_rng(41), 6000, 0.05)
+    one = build(v, f, threads=1)
+    assert build(v, f, threads=2) == one
+    pool = bthreads.kept_pool(2)
+    assert bthreads.kept_pool(2) is pool and bthreads.kept_pool(1) is None
+    assert build(v, f, threads=2) == one and bthreads.kept_pool(2) is pool
+    workers = [t for t in threading.enumerate() if t.name.startswith("kdray-build")]
+    assert workers
+    if hasattr(os, "sched_setaffinity"):
+        cpus = sorted(os.sched_getaffinity(0))
+        bound = [os.sched_getaffinity(t.native_id) for t in workers]
+        assert all(len(b) == 1 and b <= set(cpus) for b in bound), bound
+        assert bthreads.bound_cpus({}) == cpus
+    assert bthreads.bound_cpus({"KDRAY_BIND_THREADS": "0"}) is None
+    monkeypatch.setenv("KDRAY_BIND_THREADS", "0")
+    monkeypatch.setattr(bthreads, "_POOLS", {})
+    assert build(v, f, threads=3) == one
+    if hasattr(os, "sched_setaffinity"):
+        unbound = [t for t in threading.enumerate() if t.name.startswith("kdray-build")
+                   and t not in workers]
+        assert unbound and all(os.sched_getaffinity(t.native_id) == os.sched_getaffinity(0)
+                               for t in unbound)
+
+
+def test_a_failed_build_cancels_its_tasks_and_the_pool_lives_on(monkeypatch):
+    # A task that raises fails the build; its pending tasks are cancelled, and so are
+    # the tasks that running ones hand on afterwards; the next build uses the same pool.
+    from kdray.builder import subdivide as bsub
+    from kdray.builder import threads as bthreads
+    v, f = soup(np.random.default_rng(43), 6000, 0.05)
+    good = build(v, f, threads=2)
+    real, calls = bsub.subdivide, []
+
+    def failing(*args):
+        calls.append(args[6])                   # depth0: 0 at the root
+        if len(calls) == 3:
+            raise MemoryError("planted")
+        return real(*args)
+    monkeypatch.setattr(bsub, "subdivide", failing)
+    with pytest.raises(MemoryError, match="planted"):
+        build(v, f, threads=2)
+    monkeypatch.setattr(bsub, "subdivide", real)
+    assert build(v, f, threads=2) == good
+
+    tasks, ran = bthreads.LargestFirst(bthreads.kept_pool(2)), []
+    gate = threading.Event()
+    first = tasks.submit(1, gate.wait)
+    second = tasks.submit(2, gate.wait)            # both threads blocked on the gate
+    while not (first.running() and second.running()):
+        time.sleep(0.001)
+    later = [tasks.submit(n, ran.append, n) for n in (3, 4)]
+    tasks.cancel()
+    gate.set()
+    assert first.result(timeout=10) and second.result(timeout=10)
+    assert all(f.cancelled() for f in later) and ran == []
+    assert tasks.submit(5, ran.append, 5).cancelled() and ran == []
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork")
+def test_a_forked_child_builds_on_threads():
+    # The parent's kept pool has no threads in a forked child: the child makes its own.
+    import multiprocessing
+    v, f = soup(np.random.default_rng(47), 6000, 0.05)
+    want = build(v, f, threads=2)
+    with multiprocessing.get_context("fork").Pool(1) as child:
+        got = child.apply_async(build, (v, f), {"threads": 2}).get(timeout=120)
+    assert got == want

@@ -9,7 +9,7 @@ an origin, degenerate ones left out), `events` (one sort of the root's events),
 `sah` (the sweep that picks a plane), `classify` + `clip` (splitting the sorted
 events between the children, re-clipping straddlers), `subdivide` (the depth-first
 loop with an explicit stack; subtrees below the top levels are built on threads);
-`scratch` keeps the events' array for the next build.
+`scratch` keeps the events' array for the next build, `threads` the threads.
 
 The build is a pure function: no I/O, and its one global, the kept array, never
 changes a result; the same input gives identical arrays, whatever the number of
@@ -18,8 +18,6 @@ threads. The numba kernels are cached on disk
 cores). numba checks a cached function against its own file only: after editing one of these modules, delete
 `kdray/builder/__pycache__/*.nb[ic]` so that the functions calling it are rebuilt too.
 """
-import concurrent.futures
-import contextlib
 import logging
 import math
 import os
@@ -31,6 +29,7 @@ from ..tree import BuildParams, KdTree
 # modules, not their functions, under the modules' names: kdray.builder.prepare is
 # the module (a function of the same name would shadow it)
 from . import prepare, scratch, subdivide
+from .threads import kept_pool
 from .events import sorted_root_events
 from .subdivide import build_nodes
 
@@ -102,22 +101,6 @@ def compile_all():
     build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3))
 
 
-@contextlib.contextmanager
-def _thread_pool(threads):
-    """One executor of `threads` threads for the whole build (starting a pool's threads
-    costs more than a small step), or None for one thread. On the way out it does not
-    wait for its idle threads to end (about 0.17 ms, of a 7 ms build of 10k
-    triangles), and it cancels tasks not started (after an error)."""
-    if threads <= 1:
-        yield None
-        return
-    pool = concurrent.futures.ThreadPoolExecutor(threads)
-    try:
-        yield pool
-    finally:
-        pool.shutdown(wait=False, cancel_futures=True)
-
-
 def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
           empty_bonus=BuildParams.empty_bonus, max_depth=BuildParams.max_depth,
           leaf_size=BuildParams.leaf_size, origin=None, threads=None, scale=None,
@@ -159,19 +142,19 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         small = True
     if small:
         threads = 1                             # one thread, no pool
-    with _thread_pool(threads) as pool:
-        mesh = prepare.prepare(vertices, faces, origin, pool=pool, threads=threads,
-                               scale=scale)
-        params = params.resolved(len(mesh.triangles))
-        # The events are the builder's two event stacks, with room to grow (about 1.5
-        # times the root's events each; `subdivide.split_keys`).
-        # Their array is kept for the next build when it is small enough (`scratch`).
-        nodes, leaf_tris, depth = build_nodes(
-            mesh.triangles, *sorted_root_events(mesh.triangles, room=12 * len(mesh.triangles) + 256,
-                                               threads=threads, pool=pool, empty=scratch.take),
-            mesh.bounds.astype(np.float64),
-            params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size,
-            threads=threads, pool=pool, reuse=True)
+    pool = kept_pool(threads)
+    mesh = prepare.prepare(vertices, faces, origin, pool=pool, threads=threads,
+                           scale=scale)
+    params = params.resolved(len(mesh.triangles))
+    # The events are the builder's two event stacks, with room to grow (about 1.5
+    # times the root's events each; `subdivide.split_keys`).
+    # Their array is kept for the next build when it is small enough (`scratch`).
+    nodes, leaf_tris, depth = build_nodes(
+        mesh.triangles, *sorted_root_events(mesh.triangles, room=12 * len(mesh.triangles) + 256,
+                                           threads=threads, pool=pool, empty=scratch.take),
+        mesh.bounds.astype(np.float64),
+        params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size,
+        threads=threads, pool=pool, reuse=True)
     log.debug("built %d nodes, %d leaf references over %d triangles (%d input)",
               len(nodes), len(leaf_tris), len(mesh.triangles), mesh.n_input_tris)
     tree = KdTree(nodes=nodes, leaf_tris=leaf_tris, triangles=mesh.triangles,

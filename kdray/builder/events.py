@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from .jit import BORROW
+from .threads import run_jobs
 
 END = 0
 PLANAR = 1
@@ -177,8 +178,8 @@ def sorted_root_events(tri, room=0, threads=1, pool=None, empty=None):
     tri : (m, 3, 3) float32;  room : int, unused keys to leave after the events (the
     builder's event stack grows there: `subdivide.subdivide`);  threads : the three axes are made and
     sorted on up to this many threads (the numba functions release the GIL), or on
-    `pool` (a concurrent.futures executor) when one is given (the builder's own:
-    starting threads for each step would cost more than a small step);  empty : None
+    `pool` (a concurrent.futures executor: the builder's kept one, `threads.kept_pool`)
+    when one is given;  empty : None
     or a function n -> (n,) uint64 array to hold the keys (the builder's: `scratch.take`).
     Returns (keys (e + room,) uint64, counts (3,) int64): keys[:e] are the x run, then
     y, then z, `counts` long.
@@ -188,12 +189,10 @@ def sorted_root_events(tri, room=0, threads=1, pool=None, empty=None):
     gives the one sorted order.
     """
     def run(jobs):
-        if pool is not None:
-            return [x.result() for x in [pool.submit(*job) for job in jobs]]
-        if threads <= 1:
-            return [f(*a) for f, *a in jobs]
+        if pool is not None or threads <= 1:
+            return run_jobs(pool, jobs)
         with concurrent.futures.ThreadPoolExecutor(min(threads, 3)) as own:
-            return [x.result() for x in [own.submit(*job) for job in jobs]]
+            return run_jobs(own, jobs)
 
     counts = event_counts(tri)
     e = int(counts.sum())

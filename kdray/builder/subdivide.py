@@ -12,7 +12,7 @@ top down to the node: everything above it belongs to nodes already built.
 Parallel build (`build_nodes`): the root is split first; its children are tasks
 (their sorted events, box, depth, budget) built on threads (`subdivide` releases the
 GIL) down to TASK_DEPTH, where their nodes are handed on as tasks again, the largest
-pending task first (`LargestFirst`); at the end every task's subtree is written
+pending task first (`threads.LargestFirst`); at the end every task's subtree is written
 once into the whole tree's arrays, in its placeholder's place (`place`). A node's
 subtree depends only on its events, box, depth and budget, so the tree is the same,
 byte for byte, for any number of threads.
@@ -20,9 +20,6 @@ byte for byte, for any number of threads.
 `subdivide` is numba-compiled (`cache=True`; the first call compiles).
 """
 import concurrent.futures
-import heapq
-import itertools
-import threading
 import typing
 
 import numpy as np
@@ -33,6 +30,7 @@ from .classify import classify, clip_straddlers, split_merge, straddler_events
 from .clip import polygon_scratch
 from .events import END, key_kind, key_prim, position_bits, sorted_copy
 from .sah import LEFT, best_split
+from .threads import LargestFirst
 
 MAX_REFS_PER_TRI = 32.0
 """Reference budget: a node may hold `budget` leaf references in its subtree (the root
@@ -361,7 +359,8 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     tri : (m, 3, 3) float32;  keys, counts : from `events.sorted_root_events` (keys
     are overwritten: pass the only reference to them, so that they are freed early);
     bounds : (2, 3) float64 root box (float32 values);  max_depth : resolved.
-    pool : None or a concurrent.futures executor of `threads` threads to run on;
+    pool : None or a concurrent.futures executor of `threads` threads to run on (the
+    builder's: `threads.kept_pool`);
     reuse : keys (from `scratch.take`) go back to `scratch` for the next build once
     the build is done with them, when it keeps arrays of their size (else they are
     freed as early as they can be).
@@ -373,8 +372,8 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
     SMALL_MESH_TRIS) on a pool thread and there hands its own tasks to the pool, so
     that the second thread starts at depth 1 rather than at TASK_DEPTH (the levels
     above it are a sizeable part of a build). A thread takes the largest task pending
-    (`LargestFirst`, by events), so that the build does not end with one thread on a
-    large subtree and the other idle.
+    (`threads.LargestFirst`, by events), so that the build does not end with one
+    thread on a large subtree and the other idle.
     Each task's events run in place in its slot of its parent's `tasks` keys; the
     root's two children, when they fit, each in half of the root's two event buffers
     (`subdivide`).
@@ -428,51 +427,20 @@ def build_nodes(tri, keys, counts, bounds, K_T, K_I, empty_bonus, max_depth, lea
             return build_nodes(tri, keys, counts, bounds, *args, threads, max_refs_per_tri, own,
                                reuse)
     pool = LargestFirst(pool)
-    root = work(pool, split_keys(keys, counts), counts, m, bounds, 0, budget, 0)
-    held = keys if reuse and scratch.keeps(keys) else None
-    del keys
-    root = gather(root)
+    try:
+        root = work(pool, split_keys(keys, counts), counts, m, bounds, 0, budget, 0)
+        held = keys if reuse and scratch.keeps(keys) else None
+        del keys
+        root = gather(root)
+    except BaseException:
+        pool.cancel()                       # the executor outlives the build
+        raise
     out_nodes = np.empty((root.n_nodes, 2), dtype=np.uint32)
     out_refs = np.empty(root.n_refs, dtype=np.uint32)
     place(root, out_nodes, out_refs, 0, 0)
     if held is not None:
         scratch.give(held)
     return out_nodes, out_refs, root.deepest
-
-
-class LargestFirst:
-    """Subtree tasks on a concurrent.futures executor, the largest pending one first.
-
-    `submit(size, fn, *args)` queues the task and one executor job; each job, when it
-    starts, runs the largest task pending then (ties: the first submitted), so that
-    the tasks of all the build's nodes are taken in one order of size, whichever node
-    handed them on and when (the executor's own queue is first in, first out), and the
-    last to finish is a small one. Which thread runs a task does not change the tree.
-    """
-
-    def __init__(self, executor):
-        self.executor = executor
-        self._pending = []                  # heap of (-size, order, future, fn, args)
-        self._order = itertools.count()
-        self._lock = threading.Lock()
-
-    def submit(self, size, fn, *args):
-        """A concurrent.futures.Future of fn(*args), run on the executor by size."""
-        future = concurrent.futures.Future()
-        with self._lock:
-            heapq.heappush(self._pending, (-int(size), next(self._order), future, fn, args))
-        self.executor.submit(self._run_largest)
-        return future
-
-    def _run_largest(self):
-        with self._lock:
-            _, _, future, fn, args = heapq.heappop(self._pending)
-        if not future.set_running_or_notify_cancel():
-            return
-        try:
-            future.set_result(fn(*args))
-        except BaseException as e:          # the caller's future.result() raises it
-            future.set_exception(e)
 
 
 @njit(cache=True, nogil=True)
