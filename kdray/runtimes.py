@@ -179,12 +179,19 @@ def _preload_tbb(folder):
     log.debug("loaded %s for Intel's CPU runtime, before any other TBB", tbb)
 
 
+def binds_threads(environ):
+    """False when `environ` (a mapping like os.environ) sets KDRAY_BIND_THREADS=0: kdray
+    then binds no threads, neither the CPU runtimes' (`thread_binding`) nor the
+    builder's (`kdray.builder.threads`)."""
+    return environ.get("KDRAY_BIND_THREADS", "").strip() != "0"
+
+
 def thread_binding(environ):
     """The variables kdray adds to `environ` (a mapping like os.environ) so that the CPU
     runtimes bind their worker threads to cores: INTEL_AFFINITY unless environ sets any
     of INTEL_AFFINITY_NAMES, POCL_AFFINITY unless it sets POCL_AFFINITY; none with
-    KDRAY_BIND_THREADS=0."""
-    if environ.get("KDRAY_BIND_THREADS", "").strip() == "0":
+    KDRAY_BIND_THREADS=0 (`binds_threads`)."""
+    if not binds_threads(environ):
         return {}
     add = {}
     if not any(name in environ for name in INTEL_AFFINITY_NAMES):

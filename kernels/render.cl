@@ -128,22 +128,6 @@ void refine_hit(uint k, Hit *hit, float3 o, float3 d, float t_min, float t_max,
 }
 #endif
 
-#ifdef OUT_NORMAL
-/* Write ray k's normal: triangle tri's unit geometric normal, 0 on a miss (KD_NO_HIT) */
-KD_INLINE
-void store_normal(size_t k, uint tri, __global const float *tris, __global float *out_normal)
-{
-    float3 normal = (float3)(0.0f, 0.0f, 0.0f);
-    if (tri != KD_NO_HIT) {
-        float3 p0 = kd_vertex(tris, tri, 0);
-        normal = kd_normalize(kd_cross(kd_vertex(tris, tri, 1) - p0, kd_vertex(tris, tri, 2) - p0));
-    }
-    out_normal[3 * k] = normal.x;
-    out_normal[3 * k + 1] = normal.y;
-    out_normal[3 * k + 2] = normal.z;
-}
-#endif
-
 /* Write the outputs of ray k: only those compiled in (its hit refined already). */
 KD_INLINE
 void store_hit(uint k, const Hit *hit, __global const float *tris, __global const uint *tri_ids,
@@ -158,7 +142,15 @@ void store_hit(uint k, const Hit *hit, __global const float *tris, __global cons
     out_uv[2 * (size_t)k + 1] = found ? hit->v : 0.0f;
 #endif
 #ifdef OUT_NORMAL
-    store_normal(k, hit->tri, tris, out_normal);
+    float3 normal = (float3)(0.0f, 0.0f, 0.0f);
+    if (found) {
+        float3 p0 = kd_vertex(tris, hit->tri, 0);
+        normal = kd_normalize(kd_cross(kd_vertex(tris, hit->tri, 1) - p0,
+                                       kd_vertex(tris, hit->tri, 2) - p0));
+    }
+    out_normal[3 * (size_t)k] = normal.x;
+    out_normal[3 * (size_t)k + 1] = normal.y;
+    out_normal[3 * (size_t)k + 2] = normal.z;
 #endif
 #ifdef OUT_ID
     out_id[k] = found ? tri_ids[hit->tri] : KD_NO_HIT;

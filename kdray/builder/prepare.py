@@ -222,7 +222,7 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
     cuts = [m * i // pieces for i in range(pieces + 1)]
     jobs = [(_triangles, v, f, origin, 1.0 / scale, a, b, tri, tri_ids)
             for a, b in zip(cuts, cuts[1:])]
-    done = run_jobs(pool if pieces > 1 else None, jobs)
+    done = run_jobs(pool, jobs)
     kept = [k for k, _, _ in done]
     lo = np.min([piece_lo for _, piece_lo, _ in done], axis=0)
     hi = np.max([piece_hi for _, _, piece_hi in done], axis=0)

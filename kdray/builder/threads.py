@@ -22,6 +22,8 @@ import itertools
 import os
 import threading
 
+from ..runtimes import binds_threads
+
 _POOLS = {}
 """threads -> the concurrent.futures executor of that many threads, kept for the
 process's builds (`kept_pool`)."""
@@ -43,7 +45,7 @@ def bound_cpus(environ=os.environ):
     """The CPUs the builder's threads are bound to, one each in turn: the ones this
     process may run on, in order (list of int); None to leave them unbound
     (KDRAY_BIND_THREADS=0, or a system without sched_setaffinity)."""
-    if environ.get("KDRAY_BIND_THREADS", "").strip() == "0" or not hasattr(os, "sched_setaffinity"):
+    if not binds_threads(environ) or not hasattr(os, "sched_setaffinity"):
         return None
     return sorted(os.sched_getaffinity(0))
 
@@ -71,8 +73,9 @@ def kept_pool(threads):
 
 def run_jobs(pool, jobs):
     """[fn(*args) for fn, *args in jobs], on `pool`'s threads (an executor), or on the
-    calling thread when pool is None. The first failed job's exception is raised."""
-    if pool is None:
+    calling thread when pool is None or there is one job (a hand-over would only add
+    its wait). The first failed job's exception is raised."""
+    if pool is None or len(jobs) < 2:
         return [fn(*args) for fn, *args in jobs]
     return [f.result() for f in [pool.submit(*job) for job in jobs]]
 
