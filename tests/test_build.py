@@ -231,6 +231,8 @@ def test_prepare_matches_numpy(seed, threads, monkeypatch):
         return prepare_module.prepare(v, f, origin, pool=pool, threads=threads)
     rng = np.random.default_rng(seed)
     v, f = soup(rng, 3000, 0.02)
+    v[:900, 2] = 0.5                        # triangles flat on z, and on x
+    v[900:1200, 0] = -0.25
     v = np.vstack([v, [[np.nan, 0, 0], [np.inf, 1, 1], [1e39, 0, 0], [1e-30, 0, 0], [0, 1e-30, 0]]])
     n = len(v)
     f = np.vstack([f, rng.integers(0, n, size=(500, 3)), rng.integers(n - 5, n, size=(50, 3)),
@@ -251,6 +253,9 @@ def test_prepare_matches_numpy(seed, threads, monkeypatch):
         assert p.tri_ids.tobytes() == ids.tobytes()
         assert p.bounds.dtype == np.float32 and p.bounds.tobytes() == bounds.tobytes()
         assert p.n_input_tris == len(f)
+        flat = (tri.min(axis=1) == tri.max(axis=1)).sum(axis=0)
+        assert flat.any()
+        np.testing.assert_array_equal(p.flat, flat)
 
 
 @pytest.mark.parametrize("v,f,match", [
@@ -467,11 +472,40 @@ def test_sorted_copy_equals_numpy(dtype):
             assert (src[:start] == 9).all() and (src[start + n:] == 9).all()
 
 
-@pytest.mark.parametrize("threads,room", [(1, 0), (1, 100000), (2, 0), (3, 100000)])
-def test_root_events_are_sorted_keys(threads, room):
+def test_part_axis_events_split_the_run_at_any_pivot():
+    # Below the pivot forward, at or above it backward to the run's end, both in
+    # triangle order: sorted, the two parts are the whole sorted run, whatever the
+    # pivot (an event's position, -0.0 against 0.0 events, beyond every event).
+    from kdray.builder.events import axis_events, part_axis_events, radix_sort_events
+    rng = np.random.default_rng(5)
+    n = 3000
+    tri = (np.round(rng.normal(size=(n, 3, 3)) * 4) / 4).astype(np.float32)
+    tri[:300, :, 2] = np.float32(-0.0)
+    tri[300:600, :, 2] = np.float32(0.0)
+    full = np.empty(2 * n, dtype=np.uint64)
+    e = axis_events(tri, 2, full, 0)
+    tmp = np.empty(2 * n, dtype=np.uint64)
+    radix_sort_events(full, 0, e, tmp, 0)
+    for pivot in (-0.0, 0.0, tri[7, 1, 2], -1e9, 1e9, 0.25):
+        keys = np.full(e + 10, 7, dtype=np.uint64)
+        end = part_axis_events(tri, 2, np.float32(pivot), True, keys, 0)
+        first = part_axis_events(tri, 2, np.float32(pivot), False, keys, e)
+        assert end == first and (keys[e:] == 7).all()
+        radix_sort_events(keys, 0, end, tmp, 0)
+        radix_sort_events(keys, first, e, tmp, 0)
+        assert keys[:e].tobytes() == full[:e].tobytes(), pivot
+
+
+@pytest.mark.parametrize("threads,room,given_flat", [
+    (1, 0, False), (1, 100000, False), (2, 0, False), (3, 100000, False),
+    (2, 100000, True), (1, 0, True)])
+def test_root_events_are_sorted_keys(threads, room, given_flat):
     # The radix sort on position and type == numpy's sort of the whole keys, whatever
     # the threads and scratch: shared positions, planar triangles, +-0, negative values.
-    from kdray.builder.events import END, PLANAR, START
+    # On two threads z is made and sorted in two parts about a pivot (n is above
+    # events.SPLIT_TRIS); given the flat triangles' counts (prepare's), the function
+    # does not count them.
+    from kdray.builder.events import END, PLANAR, SPLIT_TRIS, START
 
     def key(x, kind, t):                     # the key layout of events.py, in numpy
         b = (x + np.float32(0.0)).view(np.uint32).astype(np.uint64)
@@ -479,13 +513,14 @@ def test_root_events_are_sorted_keys(threads, room):
         return (b << np.uint64(32)) | (np.uint64(kind) << np.uint64(30)) | t.astype(np.uint64)
 
     rng = np.random.default_rng(21)
-    n = 20000
+    n = SPLIT_TRIS + 1
     tri = (np.round(rng.normal(size=(n, 3, 3)) * 50) / 8).astype(np.float32)
     tri[: n // 5, :, 1] = np.float32(-0.25)
     tri[n // 5: n // 4, :, 2] = np.float32(-0.0)
     tri[n // 4: n // 3, :, 0] = np.float32(0.0)
     tri[-100:] *= np.float32(1e30)
-    keys, counts = sorted_root_events(tri, room=room, threads=threads)
+    flat = (tri.min(axis=1) == tri.max(axis=1)).sum(axis=0) if given_flat else None
+    keys, counts = sorted_root_events(tri, room=room, threads=threads, flat=flat)
     assert len(keys) == counts.sum() + room
     start = 0
     t = np.arange(n)

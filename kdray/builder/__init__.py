@@ -151,7 +151,8 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
     # Their array is kept for the next build when it is small enough (`scratch`).
     nodes, leaf_tris, depth = build_nodes(
         mesh.triangles, *sorted_root_events(mesh.triangles, room=12 * len(mesh.triangles) + 256,
-                                           threads=threads, pool=pool, empty=scratch.take),
+                                           threads=threads, pool=pool, empty=scratch.take,
+                                           flat=mesh.flat),
         mesh.bounds.astype(np.float64),
         params.K_T, params.K_I, params.empty_bonus, params.max_depth, params.leaf_size,
         threads=threads, pool=pool, reuse=True)

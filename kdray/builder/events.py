@@ -119,6 +119,38 @@ def axis_events(tri, k, keys, start):
     return w
 
 
+@njit(cache=True, nogil=True)
+def part_axis_events(tri, k, pivot, below, keys, at):
+    """Write the root's events on axis k at a position below `pivot` (below True;
+    forward from keys[at]) or at or above it (below False; backward, ending before
+    keys[at]), in triangle order either way; return the other end of the run.
+    tri : (m, 3, 3) float32;  pivot : float32;  keys : uint64. (-0.0 and 0.0 are
+    one position, as in the keys: float comparison treats them so.)"""
+    if below:
+        w = at
+        for t in range(tri.shape[0]):
+            lo = min(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
+            hi = max(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
+            if lo < pivot:
+                keys[w] = make_key(position_bits(lo), PLANAR if lo == hi else START, t)
+                w += 1
+            if hi < pivot and lo != hi:
+                keys[w] = make_key(position_bits(hi), END, t)
+                w += 1
+        return w
+    w = at
+    for t in range(tri.shape[0] - 1, -1, -1):
+        lo = min(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
+        hi = max(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
+        if hi >= pivot and lo != hi:
+            w -= 1
+            keys[w] = make_key(position_bits(hi), END, t)
+        if lo >= pivot:
+            w -= 1
+            keys[w] = make_key(position_bits(lo), PLANAR if lo == hi else START, t)
+    return w
+
+
 _DIGITS = ((30, 11), (41, 11), (52, 12))
 """(shift, bits) of the three radix digits of the key's position and type (bits 30-63)."""
 
@@ -172,7 +204,14 @@ def radix_sort_events(keys, start, stop, tmp, tmp_start):
         keys[start:stop] = src[src_start:src_start + n]
 
 
-def sorted_root_events(tri, room=0, threads=1, pool=None, empty=None):
+SPLIT_TRIS = 30000
+"""On two threads, meshes of at least this many triangles make and sort z's root events
+in two jobs (`sorted_root_events`); in smaller ones the pivot's sample and the fourth
+job's hand-over cost more than the balance saves (10k and 20k triangles 1.03 of the
+time, 40k 0.97, 1.6M 0.92: BENCHMARKS.md)."""
+
+
+def sorted_root_events(tri, room=0, threads=1, pool=None, empty=None, flat=None):
     """Events of the root node, each axis's run sorted (the build's only full sort).
 
     tri : (m, 3, 3) float32;  room : int, unused keys to leave after the events (the
@@ -180,13 +219,22 @@ def sorted_root_events(tri, room=0, threads=1, pool=None, empty=None):
     sorted on up to this many threads (the numba functions release the GIL), or on
     `pool` (a concurrent.futures executor: the builder's kept one, `threads.kept_pool`)
     when one is given;  empty : None
-    or a function n -> (n,) uint64 array to hold the keys (the builder's: `scratch.take`).
+    or a function n -> (n,) uint64 array to hold the keys (the builder's: `scratch.take`);
+    flat : None, or (3,) int64 the triangles flat on each axis (`prepare.Prepared.flat`),
+    which saves counting them here.
     Returns (keys (e + room,) uint64, counts (3,) int64): keys[:e] are the x run, then
     y, then z, `counts` long.
 
     Keys are distinct (they hold the triangle index) and each run is written in
     triangle order, so the radix sort on position and type (`radix_sort_events`)
     gives the one sorted order.
+
+    On two threads, three axes would leave one thread idle for a third of the time:
+    there, from SPLIT_TRIS triangles, z is made and sorted in two jobs, its events
+    below a pivot and those at or above (`part_axis_events`), each sorted where it
+    ends up in the run. The pivot is the median of a sample of the triangles' z
+    extents, so that the two are about even; it only balances the threads: the run
+    is the same for any pivot.
     """
     def run(jobs):
         if pool is not None or threads <= 1:
@@ -194,7 +242,8 @@ def sorted_root_events(tri, room=0, threads=1, pool=None, empty=None):
         with concurrent.futures.ThreadPoolExecutor(min(threads, 3)) as own:
             return run_jobs(own, jobs)
 
-    counts = event_counts(tri)
+    m = tri.shape[0]
+    counts = event_counts(tri) if flat is None else 2 * m - np.asarray(flat, dtype=np.int64)
     e = int(counts.sum())
     keys = np.empty(e + room, dtype=np.uint64) if empty is None else empty(e + room)
     # The sort's scratch: the second half of keys when the events fit in the first
@@ -209,7 +258,22 @@ def sorted_root_events(tri, room=0, threads=1, pool=None, empty=None):
         axis_events(tri, k, keys, start[k])
         radix_sort_events(keys, start[k], start[k + 1], tmp, tmp_start + start[k])
 
-    run([(axis, k) for k in range(3)])
+    if threads != 2 or m < SPLIT_TRIS:
+        run([(axis, k) for k in range(3)])
+        return keys, counts
+
+    sample = tri[::max(1, m // 1024), :, 2]
+    pivot = np.float32(np.median(np.concatenate([sample.min(axis=1), sample.max(axis=1)])))
+
+    def side(below):
+        """z's events below the pivot (from the run's start) or at or above it
+        (ending at the run's end), sorted."""
+        at = start[2] if below else start[3]
+        end = part_axis_events(tri, 2, pivot, below, keys, at)
+        first, stop = (at, end) if below else (end, at)
+        radix_sort_events(keys, first, stop, tmp, tmp_start + first)
+
+    run([(axis, 0), (axis, 1), (side, True), (side, False)])
     return keys, counts
 
 

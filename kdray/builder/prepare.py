@@ -8,6 +8,8 @@
     origin    : (3,) float64        centre of the box of the finite vertices the faces use
     bounds    : (2, 3) float32      box of the kept triangles (min, max), relative
     scale     : float               a power of two (`mesh_scale`): 1 for sizes 2^-40 .. 2^40
+    flat      : (3,) int64          kept triangles flat on each axis (three equal coordinates
+                                    there: one PLANAR event, not START and END; `events`)
 
 A triangle is left out when a coordinate is not finite after the shift to float32, or
 when its float32 cross product is zero: such a triangle can never be hit.
@@ -36,6 +38,7 @@ class Prepared:
     origin: np.ndarray
     bounds: np.ndarray
     n_input_tris: int
+    flat: np.ndarray
     scale: float = 1.0
 
 
@@ -140,15 +143,17 @@ def _triangles(vertices, faces, origin, inv_scale, start, stop, tri, ids):
 
     vertices : (n, 3) float64;  faces : (m, 3) int64, valid indices;  origin : (3,)
     float64;  tri : (m, 3, 3) float32, ids : (m,) uint32.
-    Returns (kept, lo (3,) float32, hi (3,) float32): each coordinate is the float64
-    difference times inv_scale (exact) rounded to float32; a triangle is kept when its nine coordinates are
-    finite and one component of the float32 cross product of its edges
-    (v1 - v0) x (v2 - v0) is not zero (each product and difference rounded to
-    float32, as numpy's `np.cross` does); lo, hi is the box of the kept triangles
-    (inf, -inf when none).
+    Returns (kept, lo (3,) float32, hi (3,) float32, flat (3,) int64): each
+    coordinate is the float64 difference times inv_scale (exact) rounded to float32; a
+    triangle is kept when its nine coordinates are finite and one component of the
+    float32 cross product of its edges (v1 - v0) x (v2 - v0) is not zero (each
+    product and difference rounded to float32, as numpy's `np.cross` does); lo, hi is
+    the box of the kept triangles (inf, -inf when none); flat[k] counts the kept
+    triangles whose three coordinates on axis k are equal.
     """
     lo = np.full(3, np.inf, dtype=np.float32)
     hi = np.full(3, -np.inf, dtype=np.float32)
+    flat = np.zeros(3, dtype=np.int64)
     w = start
     for t in range(start, stop):
         finite = True
@@ -168,13 +173,16 @@ def _triangles(vertices, faces, origin, inv_scale, start, stop, tri, ids):
         b2 = tri[w, 2, 2] - tri[w, 0, 2]
         if a1 * b2 - a2 * b1 == 0 and a2 * b0 - a0 * b2 == 0 and a0 * b1 - a1 * b0 == 0:
             continue
-        for i in range(3):
-            for c in range(3):
-                lo[c] = min(lo[c], tri[w, i, c])
-                hi[c] = max(hi[c], tri[w, i, c])
+        for c in range(3):
+            x0 = tri[w, 0, c]
+            x1 = tri[w, 1, c]
+            x2 = tri[w, 2, c]
+            lo[c] = min(lo[c], x0, x1, x2)
+            hi[c] = max(hi[c], x0, x1, x2)
+            flat[c] += (x0 == x1) & (x1 == x2)
         ids[w] = t
         w += 1
-    return w - start, lo, hi
+    return w - start, lo, hi, flat
 
 
 PARALLEL_FACES = 20000
@@ -223,13 +231,14 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
     jobs = [(_triangles, v, f, origin, 1.0 / scale, a, b, tri, tri_ids)
             for a, b in zip(cuts, cuts[1:])]
     done = run_jobs(pool, jobs)
-    kept = [k for k, _, _ in done]
-    lo = np.min([piece_lo for _, piece_lo, _ in done], axis=0)
-    hi = np.max([piece_hi for _, _, piece_hi in done], axis=0)
+    kept = [piece[0] for piece in done]
+    lo = np.min([piece[1] for piece in done], axis=0)
+    hi = np.max([piece[2] for piece in done], axis=0)
+    flat = np.sum([piece[3] for piece in done], axis=0)
     if sum(kept) < m:                   # degenerate triangles left out: keep the rest only
         tri = np.concatenate([tri[a:a + k] for a, k in zip(cuts, kept)])
         tri_ids = np.concatenate([tri_ids[a:a + k] for a, k in zip(cuts, kept)])
     if len(tri) == 0:
         raise MeshError("no triangles left after removing degenerate ones")
     bounds = np.stack([lo, hi])
-    return Prepared(tri, tri_ids, origin, bounds, m, scale)
+    return Prepared(tri, tri_ids, origin, bounds, m, flat, scale)
