@@ -68,6 +68,7 @@ def _sweep_small(buf, start, end, n_tris, k, lo, hi, lo_bits, hi_bits, cap, peri
     loop has no branch on the events. Pass 2 costs every position (LEFT), a loop
     LLVM vectorizes. Pass 3 keeps the first cheapest, in best_split's order."""
     best_cost = best[0]
+    tie_wins = k < best[1]                          # a tie with a higher axis's plane
     u_last = np.uint64(end - 1)
     g = np.uint64(0)
     n_left = 0
@@ -103,25 +104,28 @@ def _sweep_small(buf, start, end, n_tris, k, lo, hi, lo_bits, hi_bits, cap, peri
     side = LEFT
     if planars == 0:
         for h in range(g):
-            if s_cost[h] < best_cost:
+            if s_cost[h] < best_cost or (tie_wins and s_cost[h] == best_cost):
                 best_cost = s_cost[h]
                 found = h
+                tie_wins = False
     else:
         for h in range(g):
-            if s_cost[h] < best_cost:
+            if s_cost[h] < best_cost or (tie_wins and s_cost[h] == best_cost):
                 best_cost = s_cost[h]
                 found = h
                 side = LEFT
+                tie_wins = False
             bits = s_bits[h]
             if s_planar[h] > 0 and lo_bits < bits and bits < hi_bits:    # planar right
                 x = np.float64(position_value(bits))
                 c = sah_cost(cap + (x - lo) * perim, cap + (hi - x) * perim,
                              s_left[h] - s_planar[h], s_right[h] + s_planar[h],
                              K_T, K_I, empty_bonus)
-                if c < best_cost:
+                if c < best_cost or (tie_wins and c == best_cost):
                     best_cost = c
                     found = h
                     side = RIGHT
+                    tie_wins = False
     if found == g:
         return best
     pos = np.float32(np.float64(position_value(s_bits[found])))
@@ -171,8 +175,19 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np
     s_right = carray(_stack_scratch(np.int64), SMALL_RUN)
     s_planar = carray(_stack_scratch(np.int64), SMALL_RUN)
     s_cost = carray(_stack_scratch(np.float64), SMALL_RUN)
-    start = off
-    for k in range(3):
+    # The longest axis first: its best plane, usually the node's, then bounds the
+    # other two's blocks. Ties still go to the lower axis (tie_wins), so the result
+    # is that of sweeping x, y, z in order.
+    first = 0
+    if ext1 > ext0:
+        first = 1
+    if ext2 > max(ext0, ext1):
+        first = 2
+    for kk in range(3):
+        k = (first + kk) % 3
+        start = off
+        for j in range(k):
+            start += counts[j]
         end = start + counts[k]
         lo = box[0, k]
         hi = box[1, k]
@@ -187,8 +202,8 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np
                 buf, start, end, n_tris, k, lo, hi, lo_bits, hi_bits, cap, perim, K_T, K_I,
                 empty_bonus, (best_cost, best_axis, best_pos, best_side, best_left, best_right),
                 s_bits, s_left, s_right, s_planar, s_cost)
-            start = end
             continue
+        tie_wins = k < best_axis
         n_left = 0
         n_right = n_tris
         i = start
@@ -213,7 +228,7 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np
                 x_last = np.float64(position_value(last_bits))
                 bound = sah_cost(cap + (x_first - lo) * perim, cap + (hi - x_last) * perim,
                                  n_left, n_right_after, K_T, K_I, empty_bonus)
-                if bound >= best_cost:
+                if bound > best_cost or (bound == best_cost and not tie_wins):
                     n_left += b_start + b_planar
                     n_right = n_right_after
                     i = j
@@ -245,17 +260,18 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np
                     # planar triangles on the left
                     n_l = n_left + p_planar
                     c = sah_cost(p_left, p_right, n_l, n_right, K_T, K_I, empty_bonus)
-                    if c < best_cost:
+                    if c < best_cost or (tie_wins and c == best_cost):
                         best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), LEFT
                         best_left, best_right = n_l, n_right
+                        tie_wins = False
                     if p_planar > 0:                    # ... and on the right
                         n_r = n_right + p_planar
                         c = sah_cost(p_left, p_right, n_left, n_r, K_T, K_I, empty_bonus)
-                        if c < best_cost:
+                        if c < best_cost or (tie_wins and c == best_cost):
                             best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), RIGHT
                             best_left, best_right = n_left, n_r
+                            tie_wins = False
                 n_left += p_start + p_planar
-        start = end
     if best_axis < 0:
         best_cost = np.inf
     return best_cost, best_axis, best_pos, best_side, best_left, best_right
