@@ -20,8 +20,10 @@ from numba.extending import intrinsic
 
 from .events import END, PLANAR, START, key_bits, key_kind, position_bits, position_value
 
-SWEEP_BLOCK = 16
-"""Events per block of the sweep's bound test (`best_split`)."""
+SWEEP_BLOCK = 32
+"""Events per block of the sweep's bound test (`best_split`): with the longest axis
+swept first most blocks are skipped, and longer ones skip more per test (16 and 64
+were slower, BENCHMARKS.md)."""
 
 SMALL_RUN = 128
 """Runs of at most this many events (nodes of up to 64 triangles) are swept without
