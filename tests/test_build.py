@@ -14,6 +14,7 @@ from kdray.builder.classify import (ON_BOTH, ON_LEFT, ON_RIGHT, classify, clip_s
                                   split_merge, straddler_events)
 from kdray.builder.clip import clip_split, polygon_scratch
 from kdray.builder.events import position_bits, position_value, sorted_root_events
+from kdray.builder import sah
 from kdray.builder.sah import best_split
 from kdray.builder.subdivide import MAX_REFS_PER_TRI
 from kdray.errors import MeshError
@@ -600,7 +601,7 @@ def test_small_runs_equal_plain_sweep(seed):
     # boxes, at an offset in a buffer with other keys around, and max_cost.
     rng = np.random.default_rng(300 + seed)
     for trial in range(60):
-        n = int(rng.integers(1, 70))
+        n = int(rng.integers(1, sah.SMALL_RUN // 2 + 8))      # runs either side of SMALL_RUN
         tri = rng.random((n, 3, 3))
         tri = (np.round(tri * rng.choice([2, 4, 16, 1024])) / 8).astype(np.float32)
         if trial % 3 == 0:

@@ -25,11 +25,11 @@ SWEEP_BLOCK = 32
 swept first most blocks are skipped, and longer ones skip more per test (16 and 64
 were slower, BENCHMARKS.md)."""
 
-SMALL_RUN = 128
-"""Runs of at most this many events (nodes of up to 64 triangles) are swept without
+SMALL_RUN = 256
+"""Runs of at most this many events (nodes of up to 128 triangles) are swept without
 the block bounds, in passes over scratch arrays on the stack (`_sweep_small`): in a
 small node the group loop's exit, one mispredicted branch per position, costs more
-than the bound test saves."""
+than the bound test saves (128 and 512 were slower, BENCHMARKS.md)."""
 
 LEFT = 0
 """Planar triangles at the chosen plane go to the below (left) child..."""
