@@ -149,7 +149,8 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np
     Returns (cost, axis, position float32, side LEFT/RIGHT for planar triangles,
     n_left, n_right triangles on each side); axis is -1 and cost inf when no plane
     lies strictly inside the box or none costs at most max_cost.
-    Ties keep the first found: lower axis, lower position, planar triangles left.
+    Ties keep the first found: lower axis, lower position, planar triangles left
+    (the axes are swept longest first, and a lower axis's plane wins a tie).
 
     The events go in blocks of about SWEEP_BLOCK (whole positions). Once a cost is
     known, a block is first bounded from below: its first position's P_L, its last
