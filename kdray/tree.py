@@ -44,7 +44,7 @@ class BuildParams:
 
     K_T: float = 0.0
     """Cost of one traversal step, relative to K_I; 0 = automatic (`auto_K_T`: 170,
-    and 320 from a million triangles). W&H's Table 1 has 15 (for 20); on kdray's
+    and 420 from a million triangles). W&H's Table 1 has 15 (for 20); on kdray's
     packet kernels a node visit costs more than that, mostly in cache misses, while a
     triangle test of a packet's 8 or 16 lanes is one vector pass. The values are the
     ones that build fastest, with the fewest nodes, among those that trace as fast as
@@ -68,7 +68,7 @@ class BuildParams:
 
 
 K_T_SMALL = 170.0
-K_T_LARGE = 320.0
+K_T_LARGE = 420.0
 AUTO_K_T_TRIS = (2 ** 19, 2 ** 20)
 
 
@@ -79,7 +79,8 @@ def auto_K_T(n_tris):
     triangles, K_T above 170 renders 2-17 % slower (larger leaves, more tests a ray);
     from 1.1M, 320 renders and traces as fast as 170 and builds in 0.80-0.87 of the
     time, with half the nodes and 12-13 % fewer leaf references (a node visit costs
-    more in a tree that outgrows the caches)."""
+    more in a tree that outgrows the caches), and 420 as fast again in 0.93-0.95 of
+    320's time; 560 rendered 1 % slower."""
     lo, hi = (math.log2(n) for n in AUTO_K_T_TRIS)
     x = min(max((math.log2(max(n_tris, 1)) - lo) / (hi - lo), 0.0), 1.0)
     return K_T_SMALL + x * (K_T_LARGE - K_T_SMALL)
