@@ -108,18 +108,6 @@ def event_counts(tri):
 
 
 @njit(cache=True, nogil=True)
-def axis_events(tri, k, keys, start):
-    """Write the root's events on axis k, in triangle order, at keys[start:]; return
-    the end of the run. tri : (m, 3, 3) float32;  keys : uint64."""
-    w = start
-    for t in range(tri.shape[0]):
-        lo = min(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
-        hi = max(tri[t, 0, k], tri[t, 1, k], tri[t, 2, k])
-        w = box_events(lo, hi, t, keys, w)
-    return w
-
-
-@njit(cache=True, nogil=True)
 def part_axis_events(tri, k, pivot, below, keys, at):
     """Write the root's events on axis k at a position below `pivot` (below True;
     forward from keys[at]) or at or above it (below False; backward, ending before
@@ -149,6 +137,13 @@ def part_axis_events(tri, k, pivot, below, keys, at):
             w -= 1
             keys[w] = make_key(position_bits(lo), PLANAR if lo == hi else START, t)
     return w
+
+
+@njit(cache=True, nogil=True)
+def axis_events(tri, k, keys, start):
+    """Write the root's events on axis k, in triangle order, at keys[start:]; return
+    the end of the run. tri : (m, 3, 3) float32;  keys : uint64."""
+    return part_axis_events(tri, k, np.float32(np.inf), True, keys, start)
 
 
 _DIGITS = ((30, 11), (41, 11), (52, 12))

@@ -47,6 +47,13 @@ def sah_cost(p_left, p_right, n_left, n_right, K_T, K_I, empty_bonus):
     return c
 
 
+@njit(cache=True, inline="always")
+def _wins(c, best_cost, tie_wins):
+    """Whether a plane of cost c replaces the best so far: cheaper, or as cheap while
+    tie_wins (a lower axis's plane against a higher one's swept before it)."""
+    return c < best_cost or (tie_wins and c == best_cost)
+
+
 @intrinsic
 def _stack_scratch(typingctx, dtype):
     """A pointer to SMALL_RUN elements of `dtype` on the calling function's stack (an
@@ -106,13 +113,13 @@ def _sweep_small(buf, start, end, n_tris, k, lo, hi, lo_bits, hi_bits, cap, peri
     side = LEFT
     if planars == 0:
         for h in range(g):
-            if s_cost[h] < best_cost or (tie_wins and s_cost[h] == best_cost):
+            if _wins(s_cost[h], best_cost, tie_wins):
                 best_cost = s_cost[h]
                 found = h
                 tie_wins = False
     else:
         for h in range(g):
-            if s_cost[h] < best_cost or (tie_wins and s_cost[h] == best_cost):
+            if _wins(s_cost[h], best_cost, tie_wins):
                 best_cost = s_cost[h]
                 found = h
                 side = LEFT
@@ -123,7 +130,7 @@ def _sweep_small(buf, start, end, n_tris, k, lo, hi, lo_bits, hi_bits, cap, peri
                 c = sah_cost(cap + (x - lo) * perim, cap + (hi - x) * perim,
                              s_left[h] - s_planar[h], s_right[h] + s_planar[h],
                              K_T, K_I, empty_bonus)
-                if c < best_cost or (tie_wins and c == best_cost):
+                if _wins(c, best_cost, tie_wins):
                     best_cost = c
                     found = h
                     side = RIGHT
@@ -263,14 +270,14 @@ def best_split(buf, off, counts, n_tris, box, K_T, K_I, empty_bonus, max_cost=np
                     # planar triangles on the left
                     n_l = n_left + p_planar
                     c = sah_cost(p_left, p_right, n_l, n_right, K_T, K_I, empty_bonus)
-                    if c < best_cost or (tie_wins and c == best_cost):
+                    if _wins(c, best_cost, tie_wins):
                         best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), LEFT
                         best_left, best_right = n_l, n_right
                         tie_wins = False
                     if p_planar > 0:                    # ... and on the right
                         n_r = n_right + p_planar
                         c = sah_cost(p_left, p_right, n_left, n_r, K_T, K_I, empty_bonus)
-                        if c < best_cost or (tie_wins and c == best_cost):
+                        if _wins(c, best_cost, tie_wins):
                             best_cost, best_axis, best_pos, best_side = c, k, np.float32(x), RIGHT
                             best_left, best_right = n_left, n_r
                             tie_wins = False
