@@ -10,8 +10,9 @@ objects: a `Tracer` owns its context and queue and caches the programs it builds
 pyopencl is imported inside the functions, so the rest of kdray imports without it.
 
 Devices are probed, never trusted: a device can be listed and still be unable to build
-programs (PoCL 3.0 on AMD Zen 5: "unknown target CPU 'generic'"). `probe` builds and
-runs a small kernel that uses what kdray's kernels use and checks its answer. The
+programs (PoCL 3.0 on AMD Zen 5: "unknown target CPU 'generic'"), or crash the process
+on some programs, which no probe can catch (PoCL 3.0 on Zen 4: `compiler_fault`, checked
+first). `probe` builds and runs a small kernel that uses what kdray's kernels use and checks its answer. The
 default device is the first that works of: GPUs, then CPU runtimes in the order
 CPU_RUNTIME_ORDER gives for this machine's CPU vendor, then anything else. Simulators
 (SIMULATORS: Oclgrind reports every device type, so it looks like a GPU) are never the
@@ -68,7 +69,8 @@ CPU (`cpu_vendor`; "" for any other); CPUs of other runtimes come after these. T
 order is what was measured where both work (BENCHMARKS.md): on Intel's CPUs Intel's
 runtime renders, traces, sets up and compiles programs faster; on AMD's (Zen 4) PoCL
 traced and compiled faster. Where PoCL 3.0 cannot start (CPUs newer than its LLVM 14)
-its probe fails and Intel's runtime is the default whatever the order."""
+or would crash (`compiler_fault`: Zen 4 with AVX-512) its probe fails and Intel's runtime
+is the default whatever the order."""
 
 
 @functools.lru_cache(maxsize=None)
@@ -188,6 +190,41 @@ def device_kind(device):
     return "other"
 
 
+AVX512_CPUS = ("knl", "knm", "skylake-avx512", "skx", "cascadelake", "cooperlake", "cannonlake",
+               "icelake-client", "icelake-server", "tigerlake", "rocketlake", "sapphirerapids",
+               "emeraldrapids", "graniterapids", "graniterapids-d", "diamondrapids", "znver4",
+               "znver5", "x86-64-v4")
+"""LLVM's names of the x86 CPUs with AVX-512 (its X86 target), for `compiler_fault`."""
+
+
+def llvm_cpu(device):
+    """The CPU a PoCL device compiles for, as LLVM names it ("znver3", "skylake-avx512"),
+    read from the HSTR of its version string ("... HSTR: pthread-x86_64-unknown-linux-gnu-
+    znver3"); None for other implementations, or when the version does not say."""
+    if implementation(device) != "pocl":
+        return None
+    m = re.search(r"HSTR:\s*\S*?(?:x86_64|i[3-6]86)-[^-\s]+-[^-\s]+-[^-\s]+-(\S+)",
+                  device.version)
+    return m.group(1) if m else None
+
+
+def compiler_fault(device):
+    """Why `device`'s compiler is known to crash on kdray's kernels, one line, or "".
+
+    PoCL whose LLVM compiles for a CPU it does not know to have AVX-512 (`llvm_cpu` not
+    in AVX512_CPUS) on a CPU that has it (native_vector_width_float 16): PoCL 3.0
+    (LLVM 14) names Zen 4 "znver3" and then crashes the process compiling vector code,
+    any float16 and packets of 8 with STATS among it (SIGSEGV, or LLVM's "Cannot
+    select"). A crash cannot be caught, so the probe cannot find this by running code.
+    """
+    cpu = llvm_cpu(device)
+    native = int(getattr(device, "native_vector_width_float", 0) or 0)
+    if cpu is not None and native >= 16 and cpu not in AVX512_CPUS:
+        return (f"its LLVM compiles for {cpu}, a CPU without AVX-512, on this CPU with it, "
+                f"and then crashes on vector code")
+    return ""
+
+
 def remedy(device):
     """What to do when `device` fails its probe: one phrase from REMEDIES."""
     return REMEDIES.get(implementation(device), OTHER_REMEDY)
@@ -288,6 +325,9 @@ def probe(device):
 def _run_probe(device, source):
     """"" when the probe kernel gives the right answer on `device`, else why not (one line)."""
     import numpy as np
+    fault = compiler_fault(device)
+    if fault:
+        return fault
     cl = _cl()
     n = _PROBE_ITEMS
     group = 1

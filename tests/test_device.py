@@ -42,8 +42,10 @@ def test_probe_works_on_every_device():
     for spec, device in all_devices():
         result = kdevice.probe(device)
         assert result.works == (result.reason == "") and (result.works or one_line(result.reason))
-        # PoCL 3.0 cannot build for AMD Zen 5 ("unknown target CPU 'generic'")
-        assert result.works or "unknown target CPU" in result.reason, (spec, result)
+        # PoCL 3.0 cannot build for AMD Zen 5 ("unknown target CPU 'generic'") and
+        # crashes on vector code on Zen 4 (device.compiler_fault)
+        assert result.works or "unknown target CPU" in result.reason or (
+            result.reason == kdevice.compiler_fault(device)), (spec, result)
         assert result.seconds >= 0
         assert kdevice.probe(device) is result                 # cached per process
 
@@ -218,6 +220,37 @@ def test_cpu_runtime_order_by_vendor():
     assert kdevice.cpu_runtime_order() == kdevice.cpu_runtime_order(kdevice.cpu_vendor())
     if Path("/proc/cpuinfo").is_file() and "vendor_id" in Path("/proc/cpuinfo").read_text():
         assert kdevice.cpu_vendor() and kdevice.cpu_vendor() in Path("/proc/cpuinfo").read_text()
+
+
+def test_pocl_compiling_for_a_cpu_without_avx512_on_one_with_it_fails_its_probe():
+    """PoCL's LLVM target CPU is read from its version's HSTR; where it names a CPU
+    without AVX-512 while the device reports 16-lane floats (PoCL 3.0 on Zen 4 says
+    "znver3", and then crashes the process compiling vector code), the probe fails
+    without building anything, so that the default device is another one."""
+    T = cl.device_type
+
+    def pocl(cpu, native):
+        d = fake("Portable Computing Language", T.CPU, name="pthread-AMD EPYC")
+        d.version = f"OpenCL 3.0 PoCL HSTR: pthread-x86_64-unknown-linux-gnu-{cpu}"
+        d.native_vector_width_float = native
+        return d
+
+    assert kdevice.llvm_cpu(pocl("znver3", 16)) == "znver3"
+    assert kdevice.llvm_cpu(pocl("skylake-avx512", 16)) == "skylake-avx512"
+    assert kdevice.llvm_cpu(pocl("x86-64-v4", 16)) == "x86-64-v4"
+    for cpu in ("znver3", "haswell"):
+        fault = kdevice.compiler_fault(pocl(cpu, 16))
+        assert f"compiles for {cpu}, a CPU without AVX-512" in fault
+        assert kdevice._run_probe(pocl(cpu, 16), kdevice.PROBE_SOURCE) == fault
+    for cpu in ("skylake-avx512", "znver4", "sapphirerapids", "x86-64-v4"):
+        assert kdevice.compiler_fault(pocl(cpu, 16)) == "", cpu
+    assert kdevice.compiler_fault(pocl("znver3", 8)) == ""     # an AVX2 CPU
+    intel = fake("Intel(R) OpenCL", T.CPU)
+    intel.version, intel.native_vector_width_float = "OpenCL 3.0 (Build 0)", 16
+    assert kdevice.llvm_cpu(intel) is None and kdevice.compiler_fault(intel) == ""
+    odd = pocl("znver3", 16)
+    odd.version = "OpenCL 3.0 PoCL"
+    assert kdevice.llvm_cpu(odd) is None and kdevice.compiler_fault(odd) == ""
 
 
 def test_intel_library_paths():
