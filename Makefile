@@ -27,9 +27,10 @@ render: $(STAMP)
 	mkdir -p $(OUT)
 	$(BIN)/kdray render $(SCENE) --camera $(CAMERA) -o $(OUT)/cornell.exr --preview $(OUT)/cornell.png
 
-# The test suite (about 4.5 minutes on 2 cores with warm caches; a fresh clone, whose
-# kernels (both packet widths) and numba functions compile first, 19-23: Intel's CPU
-# runtime builds a program in about 5 s, PoCL in under 1): tests/test_runtimes.py on every OpenCL
+# The test suite (4.5-7 minutes on 2 cores with warm caches, by CPU and default runtime:
+# 7 on a Zen 4 where only Intel's CPU runtime works; a fresh clone, whose kernels (both
+# packet widths) and numba functions compile first, up to 19-23: Intel's CPU runtime
+# builds a program in about 5 s, PoCL in under 1): tests/test_runtimes.py on every OpenCL
 # implementation that works here, the rest on the default device; the summary says
 # which were covered. Long checks are `make test-long`.
 test: $(STAMP)

@@ -215,7 +215,8 @@ def compiler_fault(device):
     in AVX512_CPUS) on a CPU that has it (native_vector_width_float 16): PoCL 3.0
     (LLVM 14) names Zen 4 "znver3" and then crashes the process compiling vector code,
     any float16 and packets of 8 with STATS among it (SIGSEGV, or LLVM's "Cannot
-    select"). A crash cannot be caught, so the probe cannot find this by running code.
+    select"; tests/repros/pocl_zen4_float16.py). A crash cannot be caught, so the probe
+    cannot find this by running code.
     """
     cpu = llvm_cpu(device)
     native = int(getattr(device, "native_vector_width_float", 0) or 0)
