@@ -12,13 +12,13 @@ pyopencl is imported inside the functions, so the rest of kdray imports without 
 Devices are probed, never trusted: a device can be listed and still be unable to build
 programs (PoCL 3.0 on AMD Zen 5: "unknown target CPU 'generic'"), or crash the process
 on some programs, which no probe can catch (PoCL 3.0 on Zen 4: `compiler_fault`, checked
-first). `probe` builds and runs a small kernel that uses what kdray's kernels use and checks its answer. The
-default device is the first that works of: GPUs, then CPU runtimes in the order
-CPU_RUNTIME_ORDER gives for this machine's CPU vendor, then anything else. Simulators
-(SIMULATORS: Oclgrind reports every device type, so it looks like a GPU) are never the
-default; they can be chosen by name. The probes' results are kept for the life of the
-process in `_PROBES`, keyed by the device's identity, and the CPU's vendor once read
-(`cpu_vendor`): the process-wide state of this module.
+first). `probe` builds and runs a small kernel that uses what kdray's kernels use and
+checks its answer. The default device is the first that works of: GPUs, then CPU
+runtimes in the order CPU_RUNTIME_ORDER gives for this machine's CPU vendor, then
+anything else. Simulators (SIMULATORS: Oclgrind reports every device type, so it looks
+like a GPU) are never the default; they can be chosen by name. The probes' results are
+kept for the life of the process in `_PROBES`, keyed by the device's identity, and the
+CPU's vendor once read (`cpu_vendor`): the process-wide state of this module.
 
 Runtimes installed with pip (Intel's CPU runtime) are made visible to pyopencl's loader
 by `kdray.runtimes`, before the first listing of platforms.
