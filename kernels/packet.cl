@@ -293,20 +293,22 @@ void kd_packet_intersect(const KdPacket *r, __global const float *p, uint tri,
     h->tri = kd_selectPu(h->tri, triP, cand);
 }
 
-/* Triangles first .. first + m - 1 (m <= KD_PACKET; a leaf's run, layout.h) into the
- * lanes of q: 9 vectors, v0 x y z, v1 x y z, v2 x y z. Lanes from m on hold zeros. */
+/* Triangles first .. first + m - 1 (1 <= m <= KD_PACKET; a leaf's run, layout.h) into
+ * the lanes of q: 9 vectors, v0 x y z, v1 x y z, v2 x y z. Lanes from m on repeat
+ * triangle first + m - 1 (the callers mask them off). */
 KD_INLINE
 void kd_gather_tris(__global const float *tris, uint first, uint m, KdFP *q)
 {
-    for (uint c = 0; c < 9; c++)
-        q[c].v = (floatP)(0.0f);
     __global const float *p = tris + 9 * (size_t)first;
-    for (uint j = 0; j < m; j++) {
-        /* unrolled, so that LLVM gathers 4 triangles at a time into SSE vectors (a loop
-         * it copies float by float) */
+    /* a fixed count of lanes, each a triangle that is there: nothing to clear first,
+     * and Intel's compiler copies the floats one by one, where for a variable count it
+     * gathered them, slowly on AMD's Zen 4 (BENCHMARKS.md, issue 20) */
+#pragma unroll
+    for (uint j = 0; j < KD_PACKET; j++) {
+        uint i = 9u * (j < m ? j : m - 1u);
 #pragma unroll
         for (uint c = 0; c < 9; c++)
-            q[c].s[j] = p[9 * j + c];
+            q[c].s[j] = p[i + c];
     }
 }
 
