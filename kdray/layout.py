@@ -293,11 +293,40 @@ OUTPUT_WIDTH = {"T": (1, np.float32), "UV": (2, np.float32), "NORMAL": (3, np.fl
 """(values per ray, dtype) of each kernel output and of the STATS counters."""
 
 
+TRI_BLOCK = 16
+"""Triangles a block of the device's triangle buffer holds (KD_TRI_BLOCK in
+kernels/layout.h; `triangle_blocks`)."""
+
+
 def device_sizes(tree):
     """Bytes of each of the tree's device buffers: {"nodes", "triangles", "triangle
-    ids": int}, the last two with a copy per leaf reference (`device_triangles`)."""
+    ids": int}, the last two with a copy per leaf reference (`device_triangles`), the
+    triangles in blocks (`triangle_blocks`)."""
     refs = len(tree.leaf_tris)
-    return {"nodes": int(tree.nodes.nbytes), "triangles": 36 * refs, "triangle ids": 4 * refs}
+    return {"nodes": int(tree.nodes.nbytes), "triangles": 36 * TRI_BLOCK * n_triangle_blocks(refs),
+            "triangle ids": 4 * refs}
+
+
+def n_triangle_blocks(n):
+    """Blocks of TRI_BLOCK triangles `triangle_blocks` makes of n triangles: enough for
+    them, and one more, so that TRI_BLOCK triangles from any of them on can be read."""
+    return -(-n // TRI_BLOCK) + 1
+
+
+def triangle_blocks(tris):
+    """The device's triangle buffer: tris (n, 3, 3) float32 in blocks of TRI_BLOCK,
+    each number of its triangles in a row, (n_triangle_blocks(n) * 9 * TRI_BLOCK,)
+    float32. Number c (0..8: v0 x y z, v1 x y z, v2 x y z) of triangle i is at
+    (i // TRI_BLOCK) * 9 * TRI_BLOCK + c * TRI_BLOCK + i % TRI_BLOCK; past the last
+    triangle, zeros.
+
+    Why: a leaf's next TRI_BLOCK triangles are then 9 vector loads, a number of each
+    (two blocks' rows joined where the leaf does not start a block), where 9-float
+    rows took a float at a time (kernels/packet.cl, kd_gather_tris)."""
+    tris = np.asarray(tris, dtype=np.float32).reshape(-1, 9)
+    blocks = np.zeros((n_triangle_blocks(len(tris)) * TRI_BLOCK, 9), dtype=np.float32)
+    blocks[:len(tris)] = tris
+    return np.ascontiguousarray(blocks.reshape(-1, TRI_BLOCK, 9).transpose(0, 2, 1)).reshape(-1)
 
 
 def device_triangles(tree):

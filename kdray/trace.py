@@ -47,7 +47,7 @@ from . import render as _render
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_sizes,
-                     device_triangles)
+                     device_triangles, triangle_blocks)
 from .ray_grid import grid_width
 from .render import DEFAULT_AOVS
 from .tree import object_ids
@@ -366,7 +366,7 @@ class Tracer:
         self._n_nodes = len(tree.nodes)
         self._nodes = self._buffer(np.asarray(tree.nodes, dtype=np.uint32).reshape(-1, 2))
         tris, tri_ids = device_triangles(tree)
-        self._tris = self._buffer(tris.reshape(-1))
+        self._tris = self._buffer(triangle_blocks(tris))
         self._tri_ids = self._buffer(tri_ids)
         self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))
         self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)

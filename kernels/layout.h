@@ -10,17 +10,23 @@
  *                  leaf: leaf_offset, its first triangle on the device
  *
  * Triangles on the device: one copy per leaf reference, in the tree's leaf_tris order,
- * so that a leaf's triangles are tris[leaf_offset .. leaf_offset + n_prims) (9 float32
- * each: v0 xyz, v1 xyz, v2 xyz, relative to the tree's origin), with no index list to
- * read first; tri_ids[i] is copy i's triangle's index in the input (kdray/layout.py,
- * device_triangles). A triangle in several leaves has several copies, alike bit for
- * bit, so a hit does not depend on the copy found.
+ * so that a leaf's triangles are triangles leaf_offset .. leaf_offset + n_prims - 1
+ * (9 float32 each: v0 xyz, v1 xyz, v2 xyz, relative to the tree's origin), with no
+ * index list to read first; tri_ids[i] is copy i's triangle's index in the input
+ * (kdray/layout.py, device_triangles). A triangle in several leaves has several
+ * copies, alike bit for bit, so a hit does not depend on the copy found.
+ *
+ * They lie in blocks of KD_TRI_BLOCK triangles, each of the 9 numbers in a row of the
+ * block (kdray/layout.py, triangle_blocks): number c of triangle i is
+ * tris[(i / KD_TRI_BLOCK) * 9 * KD_TRI_BLOCK + c * KD_TRI_BLOCK + i % KD_TRI_BLOCK]
+ * (kd_tri_base). One block more than the triangles need, of zeros, ends the buffer.
  */
 #ifndef KDRAY_LAYOUT_H
 #define KDRAY_LAYOUT_H
 
 #include "inline.h"
 
+#define KD_TRI_BLOCK 16u                /* triangles a block (kdray/layout.py, TRI_BLOCK) */
 #define KD_LEAF 3u
 #define KD_NO_HIT 0xFFFFFFFFu          /* id written on a miss */
 
@@ -43,5 +49,27 @@ typedef struct {
     float u, v;                          /* weights of v1 and v2 */
     uint tri;                            /* index into the device's triangle copies, or KD_NO_HIT */
 } Hit;
+
+/* Triangle i's first number; number c (0..8) is at [c * KD_TRI_BLOCK]. */
+KD_INLINE
+__global const float *kd_tri_base(__global const float *tris, uint i)
+{
+    return tris + (size_t)(i / KD_TRI_BLOCK) * (9u * KD_TRI_BLOCK) + i % KD_TRI_BLOCK;
+}
+
+/* Vertex k (0, 1, 2) of the triangle whose first number is at p (kd_tri_base) */
+KD_INLINE
+float3 kd_base_vertex(__global const float *p, uint k)
+{
+    p += 3u * KD_TRI_BLOCK * k;
+    return (float3)(p[0], p[KD_TRI_BLOCK], p[2u * KD_TRI_BLOCK]);
+}
+
+/* Vertex k (0, 1, 2) of triangle i */
+KD_INLINE
+float3 kd_vertex(__global const float *tris, uint i, uint k)
+{
+    return kd_base_vertex(kd_tri_base(tris, i), k);
+}
 
 #endif

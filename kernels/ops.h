@@ -47,12 +47,4 @@ float3 kd_load3(__global const float *p, size_t i)
     return (float3)(p[0], p[1], p[2]);
 }
 
-/* Triangle i's vertices from 9 floats each, without vload3 */
-KD_INLINE
-float3 kd_vertex(__global const float *tris, uint i, uint k)
-{
-    __global const float *p = tris + 9 * (size_t)i + 3 * k;
-    return (float3)(p[0], p[1], p[2]);
-}
-
 #endif

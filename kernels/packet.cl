@@ -83,9 +83,9 @@ typedef struct {
 } KdPacketHit;
 
 /* Where the KD_PACKET (ray, triangle) pairs of a test come from, for the rare lanes decided
- * again in double: the packet's rays r and one triangle (its 9 floats at p), or, where r is 0,
- * one ray (shear s, origin o) and KD_PACKET triangles (q: 9 vectors, v0 x y z, v1 x y z,
- * v2 x y z). */
+ * again in double: the packet's rays r and one triangle (its numbers from p, kd_tri_base),
+ * or, where r is 0, one ray (shear s, origin o) and KD_PACKET triangles (q: 9 vectors,
+ * v0 x y z, v1 x y z, v2 x y z). */
 typedef struct {
     const KdPacket *r;
     __global const float *p;
@@ -118,8 +118,8 @@ double kd_pair_t_double(const KdPairs *src, uint l, double *bound)
         RayShear s;
         float3 o;
         kd_lane_shear(src->r, l, &s, &o);
-        return kd_t_double(&s, o, kd_load3(src->p, 0), kd_load3(src->p, 1),
-                           kd_load3(src->p, 2), bound);
+        return kd_t_double(&s, o, kd_base_vertex(src->p, 0), kd_base_vertex(src->p, 1),
+                           kd_base_vertex(src->p, 2), bound);
     }
     const KdFP *q = src->q;
     float3 p0 = (float3)(q[0].s[l], q[1].s[l], q[2].s[l]);
@@ -257,8 +257,9 @@ floatP kd_pickP(float3 p, intP k)
     return kd_selectP(kd_selectP((floatP)(p.x), (floatP)(p.y), k == 1), (floatP)(p.z), k == 2);
 }
 
-/* Every lane in `act` against triangle `tri` (its 9 floats at p: v0 x y z, v1 x y z,
- * v2 x y z); lanes where it hits before their best hit take it. */
+/* Every lane in `act` against triangle `tri` (its numbers from p = kd_tri_base(tris,
+ * tri): v0 x y z, v1 x y z, v2 x y z, KD_TRI_BLOCK apart); lanes where it hits before
+ * their best hit take it. */
 KD_INLINE
 void kd_packet_intersect(const KdPacket *r, __global const float *p, uint tri,
                          __global const uint *tri_ids, intP act, KdPacketHit *h)
@@ -266,13 +267,15 @@ void kd_packet_intersect(const KdPacket *r, __global const float *p, uint tri,
     floatP P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
     if (r->uniform) {
         /* the packet's axes index the vertices' coordinates: loaded, not selected */
-        P0x = (floatP)(p[r->ukx]); P0y = (floatP)(p[r->uky]); P0z = (floatP)(p[r->ukz]);
-        P1x = (floatP)(p[3 + r->ukx]); P1y = (floatP)(p[3 + r->uky]);
-        P1z = (floatP)(p[3 + r->ukz]);
-        P2x = (floatP)(p[6 + r->ukx]); P2y = (floatP)(p[6 + r->uky]);
-        P2z = (floatP)(p[6 + r->ukz]);
+        __global const float *px = p + KD_TRI_BLOCK * r->ukx, *py = p + KD_TRI_BLOCK * r->uky,
+                             *pz = p + KD_TRI_BLOCK * r->ukz;
+        P0x = (floatP)(px[0]); P0y = (floatP)(py[0]); P0z = (floatP)(pz[0]);
+        P1x = (floatP)(px[3u * KD_TRI_BLOCK]); P1y = (floatP)(py[3u * KD_TRI_BLOCK]);
+        P1z = (floatP)(pz[3u * KD_TRI_BLOCK]);
+        P2x = (floatP)(px[6u * KD_TRI_BLOCK]); P2y = (floatP)(py[6u * KD_TRI_BLOCK]);
+        P2z = (floatP)(pz[6u * KD_TRI_BLOCK]);
     } else {
-        float3 p0 = kd_load3(p, 0), p1 = kd_load3(p, 1), p2 = kd_load3(p, 2);
+        float3 p0 = kd_base_vertex(p, 0), p1 = kd_base_vertex(p, 1), p2 = kd_base_vertex(p, 2);
         P0x = kd_pickP(p0, r->kx); P0y = kd_pickP(p0, r->ky); P0z = kd_pickP(p0, r->kz);
         P1x = kd_pickP(p1, r->kx); P1y = kd_pickP(p1, r->ky); P1z = kd_pickP(p1, r->kz);
         P2x = kd_pickP(p2, r->kx); P2y = kd_pickP(p2, r->ky); P2z = kd_pickP(p2, r->kz);
@@ -293,23 +296,31 @@ void kd_packet_intersect(const KdPacket *r, __global const float *p, uint tri,
     h->tri = kd_selectPu(h->tri, triP, cand);
 }
 
-/* Triangles first .. first + m - 1 (1 <= m <= KD_PACKET; a leaf's run, layout.h) into
- * the lanes of q: 9 vectors, v0 x y z, v1 x y z, v2 x y z. Lanes from m on repeat
- * triangle first + m - 1 (the callers mask them off). */
+/* Triangles first .. first + KD_PACKET - 1 (a leaf's run from `first`, layout.h) into
+ * the lanes of q: 9 vectors, v0 x y z, v1 x y z, v2 x y z. Lanes past the leaf's end
+ * hold the triangles after it, or the buffer's closing zeros (the callers mask them
+ * off). A row of each of the two blocks the run lies in, joined (shuffle2); on PoCL,
+ * which calls shuffle2 out of line (ops.h), number by number. */
 KD_INLINE
-void kd_gather_tris(__global const float *tris, uint first, uint m, KdFP *q)
+void kd_gather_tris(__global const float *tris, uint first, KdFP *q)
 {
-    __global const float *p = tris + 9 * (size_t)first;
-    /* a fixed count of lanes, each a triangle that is there: nothing to clear first,
-     * and Intel's compiler copies the floats one by one, where for a variable count it
-     * gathered them, slowly on AMD's Zen 4 (BENCHMARKS.md, issue 20) */
+    __global const float *p = tris + (size_t)(first / KD_TRI_BLOCK) * (9u * KD_TRI_BLOCK);
+    uint o = first % KD_TRI_BLOCK;
+#ifdef KD_PLAIN_VECTOR_OPS
 #pragma unroll
     for (uint j = 0; j < KD_PACKET; j++) {
-        uint i = 9u * (j < m ? j : m - 1u);
+        uint at = o + j < KD_TRI_BLOCK ? o + j : o + j + 8u * KD_TRI_BLOCK;
 #pragma unroll
         for (uint c = 0; c < 9; c++)
-            q[c].s[j] = p[i + c];
+            q[c].s[j] = p[at + c * KD_TRI_BLOCK];
     }
+#else
+    uintP at = (uintP)(o) + KD_LANE_INDEX_U;          /* 0 .. 31 over the two rows */
+#pragma unroll
+    for (uint c = 0; c < 9; c++)
+        q[c].v = shuffle2(vload16(0, p + c * KD_TRI_BLOCK),
+                          vload16(0, p + (9u + c) * KD_TRI_BLOCK), at);
+#endif
 }
 
 /* One ray (shear s, origin o, range t_min < t < t_max, best hit so far best_t,
@@ -366,7 +377,7 @@ void kd_ray_leaf(KdNode leaf, __global const float *tris, __global const uint *t
     for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
         uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
         KdFP q[9];
-        kd_gather_tris(tris, first + i0, m, q);
+        kd_gather_tris(tris, first + i0, q);
 #ifdef STATS
         (*stats).z += m;
 #endif
@@ -429,9 +440,8 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
         }
         for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
             uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
-            /* lanes past the leaf's end hold zeros and stay off */
             KdFP q[9];
-            kd_gather_tris(tris, first + i0, m, q);
+            kd_gather_tris(tris, first + i0, q);
             /* lane j is triangle first + i0 + j */
             uintP triP = (uintP)(first + i0) + KD_LANE_INDEX_U;
             intP valid = KD_LANE_INDEX < (intP)((int)m);
@@ -467,7 +477,7 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
     for (uint i = 0; i < count; i++) {
         uint tri = first + i;
         KD_PSTAT(z, act);
-        kd_packet_intersect(r, tris + 9 * (size_t)tri, tri, tri_ids, act, h);
+        kd_packet_intersect(r, kd_tri_base(tris, tri), tri, tri_ids, act, h);
     }
 }
 

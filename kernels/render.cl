@@ -166,10 +166,10 @@ KD_INLINE
 void kd_gather_triangles(KdIP found, KdUP tri, __global const float *tris, KdFP *P)
 {
     for (uint l = 0; l < KD_PACKET; l++) {
-        __global const float *p = tris + 9 * (size_t)(found.s[l] ? tri.s[l] : 0u);
+        __global const float *p = kd_tri_base(tris, found.s[l] ? tri.s[l] : 0u);
 #pragma unroll
         for (uint c = 0; c < 9; c++)
-            P[c].s[l] = p[c];
+            P[c].s[l] = p[c * KD_TRI_BLOCK];
     }
 }
 #endif

@@ -1,7 +1,8 @@
 """kernels/layout.h against kdray/layout.py, on the device: a tiny kernel decodes a
 nodes buffer with the header's accessors and reports the struct's size and offsets
-(the check pyopencl.tools.match_dtype_to_c_struct makes). Also: choosing devices and
-turning kernel build errors into KernelBuildError."""
+(the check pyopencl.tools.match_dtype_to_c_struct makes), and reads triangles from
+their blocks. Also: choosing devices and turning kernel build errors into
+KernelBuildError."""
 import numpy as np
 import pytest
 
@@ -37,6 +38,18 @@ __kernel void decode(__global const KdNode *nodes, __global uint *axis, __global
     n_prims[i] = kd_n_prims(n);
     split[i] = kd_split(n);
     offset[i] = kd_leaf_offset(n);
+}
+
+__kernel void vertices(__global const float *tris, __global float *out)
+{
+    uint i = get_global_id(0);
+    for (uint k = 0; k < 3u; k++) {
+        float3 p = kd_vertex(tris, i, k);
+        out[9 * i + 3 * k] = p.x;
+        out[9 * i + 3 * k + 1] = p.y;
+        out[9 * i + 3 * k + 2] = p.z;
+    }
+    out[9 * get_global_size(0)] = (float)KD_TRI_BLOCK;
 }
 """
 
@@ -104,6 +117,29 @@ def test_device_decodes_like_layout(ctx):
     # splits bit for bit (signed zeros and subnormals included)
     assert np.array_equal(outs["split"][~leaf].view(np.uint32), layout.split(nodes[~leaf]).view(np.uint32))
     assert set(splits.view(np.uint32)) == set(layout.split(nodes[~leaf]).view(np.uint32))
+
+
+def test_device_reads_triangle_blocks_like_layout(ctx):
+    """kd_vertex finds every triangle's vertices where layout.triangle_blocks puts them,
+    bit for bit, for counts that fill blocks and counts that do not."""
+    context, queue, program = ctx
+    rng = np.random.default_rng(1)
+    mf = cl.mem_flags
+    for n in (1, 15, 16, 17, 50):
+        tris = rng.normal(size=(n, 3, 3)).astype(np.float32)
+        tris[0, 0, 0] = -0.0
+        blocks = layout.triangle_blocks(tris)
+        assert blocks.dtype == np.float32
+        assert len(blocks) == 9 * layout.TRI_BLOCK * layout.n_triangle_blocks(n)
+        assert not blocks[9 * layout.TRI_BLOCK * (-(-n // layout.TRI_BLOCK)):].any()
+        out = np.zeros(9 * n + 1, dtype=np.float32)
+        out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
+        program.vertices(queue, (n,), None,
+                         cl.Buffer(context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=blocks),
+                         out_buf)
+        cl.enqueue_copy(queue, out, out_buf)
+        assert out[-1] == layout.TRI_BLOCK
+        assert np.array_equal(out[:-1].view(np.uint32), tris.reshape(-1).view(np.uint32))
 
 
 def test_build_error_carries_log(ctx):
