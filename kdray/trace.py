@@ -285,6 +285,7 @@ class Tracer:
         # packets: how a leaf is tested (kernels/packet.cl, kd_packet_leaf): None = by
         # the kernel's rule; tests set 0 (triangle by triangle) or inf (ray by ray)
         self._lane_ratio = None
+        self._cull_lane_ratio = None
         # packets whose origins lie far apart are traced ray by ray (packet.cl,
         # kd_alone): None = by the kernel's rule; tests set -1 (always) or inf (never)
         self._alone_spread = None
@@ -404,6 +405,8 @@ class Tracer:
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
             if self._lane_ratio is not None:
                 defines["KD_LANE_RATIO"] = f"{min(float(self._lane_ratio), 1e30):.9e}f"
+            if self._cull_lane_ratio is not None:
+                defines["KD_CULL_LANE_RATIO"] = f"{min(float(self._cull_lane_ratio), 1e30):.9e}f"
             if self._alone_spread is not None:
                 defines["KD_ALONE_SPREAD"] = f"{min(float(self._alone_spread), 1e30):.9e}f"
         for name in outputs:

@@ -99,9 +99,9 @@ uint kd_countP(intP m)
     return c.x + c.y;
 }
 
-/* the largest lane of x less the smallest (no NaN): halves compared down to one lane */
+/* the smallest and largest lane of x (no NaN): halves compared down to one lane */
 KD_INLINE
-float kd_spanP(floatP x)
+void kd_rangeP(floatP x, float *lo_out, float *hi_out)
 {
 #if KD_PACKET == 16
     float8 hi = x.hi > x.lo ? x.hi : x.lo, lo = x.hi < x.lo ? x.hi : x.lo;
@@ -110,7 +110,17 @@ float kd_spanP(floatP x)
 #endif
     float4 a = hi.hi > hi.lo ? hi.hi : hi.lo, b = lo.hi < lo.lo ? lo.hi : lo.lo;
     float2 c = a.hi > a.lo ? a.hi : a.lo, e = b.hi < b.lo ? b.hi : b.lo;
-    return (c.y > c.x ? c.y : c.x) - (e.y < e.x ? e.y : e.x);
+    *hi_out = c.y > c.x ? c.y : c.x;
+    *lo_out = e.y < e.x ? e.y : e.x;
+}
+
+/* the largest lane of x less the smallest (no NaN) */
+KD_INLINE
+float kd_spanP(floatP x)
+{
+    float lo, hi;
+    kd_rangeP(x, &lo, &hi);
+    return hi - lo;
 }
 
 #endif

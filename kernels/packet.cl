@@ -56,6 +56,18 @@ typedef struct { uintP x, y, z; } KdPacketStats;
 #define KD_PSTATS_ARG
 #endif
 
+/* A leaf's triangles culled for a whole packet of one origin before its lanes test
+ * them (kd_block_culls): with double precision, which keeps the edge functions' signs
+ * exact; not on PoCL, where neither its speed nor its frames' size (kdray/trace.py,
+ * POCL_ITEM_BYTES) have been measured with it (PoCL 3.0 does not run on the AVX-512
+ * CPUs it was written on). */
+#if defined(cl_khr_fp64) && !defined(KD_PLAIN_VECTOR_OPS)
+#define KD_CULL
+#define KD_CULLS(r) ((r)->cull)
+#else
+#define KD_CULLS(r) false
+#endif
+
 typedef struct {
     floatP okx, oky, okz;                /* origin components along each lane's kx, ky, kz */
     floatP Sx, Sy, Sz;                   /* shear constants (RayShear) per lane */
@@ -68,6 +80,10 @@ typedef struct {
     floatP t_min, t_max;                 /* the rays' range: t_min < t < t_max */
     bool shared_o;                       /* every lane that is on has origin uo (a camera's eye) */
     float uo[3];
+#ifdef KD_CULL
+    bool cull;                           /* shared_o and uniform: kd_block_culls applies */
+    float Sx_lo, Sx_hi, Sy_lo, Sy_hi;    /* the range of Sx and Sy over the lanes that are on */
+#endif
 } KdPacket;
 
 /* A vector and its lanes (OpenCL C allows reading a union member other than the one
@@ -165,9 +181,9 @@ intP kd_test_pairs(floatP P0x, floatP P0y, floatP P0z, floatP P1x, floatP P1y, f
         u.v = U; v.v = V; w.v = W; z.v = zero;
         for (uint l = 0; l < KD_PACKET; l++) {
             if (z.s[l]) {
-                u.s[l] = (float)((double)cx.s[l] * (double)by.s[l] - (double)cy.s[l] * (double)bx.s[l]);
-                v.s[l] = (float)((double)ax.s[l] * (double)cy.s[l] - (double)ay.s[l] * (double)cx.s[l]);
-                w.s[l] = (float)((double)bx.s[l] * (double)ay.s[l] - (double)by.s[l] * (double)ax.s[l]);
+                u.s[l] = kd_signed_float((double)cx.s[l] * (double)by.s[l] - (double)cy.s[l] * (double)bx.s[l]);
+                v.s[l] = kd_signed_float((double)ax.s[l] * (double)cy.s[l] - (double)ay.s[l] * (double)cx.s[l]);
+                w.s[l] = kd_signed_float((double)bx.s[l] * (double)ay.s[l] - (double)by.s[l] * (double)ax.s[l]);
             }
         }
         U = u.v;
@@ -397,12 +413,98 @@ void kd_ray_leaf(KdNode leaf, __global const float *tris, __global const uint *t
 #ifndef KD_LANE_RATIO
 #define KD_LANE_RATIO 0.5f
 #endif
+/* KD_LANE_RATIO for packets that cull (r->cull): their packet tests cost less */
+#ifndef KD_CULL_LANE_RATIO
+#define KD_CULL_LANE_RATIO 0.25f
+#endif
+
+#ifdef KD_CULL
+/* Which of the KD_PACKET triangles in q (9 vectors, v0 x y z, v1 x y z, v2 x y z; as
+ * kd_gather_tris) no lane of packet r (r->cull: one origin, one set of shear axes)
+ * can hit, decided for all lanes at once by four tests of each triangle's vertices:
+ * whether every lane's sheared x (Ax, Bx, Cx of kd_test_pairs) is > 0, every one < 0,
+ * every sheared y > 0, or every one < 0.
+ *
+ * Why it is exact (a lane's test of a culled triangle finds no candidate):
+ * - A lane's sheared x of a vertex is (P.x - o.x) - S * (P.z - o.z), S its Sx; the
+ *   differences are the same in every lane. Rounding is monotone, so for z > 0 the
+ *   least over the lanes is at the largest S and the greatest at the smallest S (the
+ *   other way round for z < 0; for z = 0 it is the same in all). The test computes
+ *   just those, with the lanes' operations: what holds for them holds for every lane.
+ * - When a lane's three vertices lie strictly on one side of a line through its ray
+ *   (x = 0 or y = 0 in sheared space), their exact edge functions are all 0 (det 0)
+ *   or of both strict signs (they are sines of angle differences that sum to 0). The
+ *   float edge functions have those signs or are 0 (monotone rounding), and 0 is
+ *   recomputed in double with its exact sign kept (kd_signed_float). So the lane's
+ *   signs differ, or det is 0, and the triangle is not a candidate. */
+KD_INLINE
+intP kd_block_culls(const KdPacket *r, const KdFP *q)
+{
+    floatP ox = (floatP)(r->uo[r->ukx]), oy = (floatP)(r->uo[r->uky]), oz = (floatP)(r->uo[r->ukz]);
+    intP x_above = (intP)(-1), x_below = (intP)(-1), y_above = (intP)(-1), y_below = (intP)(-1);
+#pragma unroll
+    for (uint v = 0; v < 3; v++) {
+        floatP ax = q[3 * v + r->ukx].v - ox;
+        floatP ay = q[3 * v + r->uky].v - oy;
+        floatP az = q[3 * v + r->ukz].v - oz;
+        intP pos = az > 0.0f;
+        /* the least x over the lanes: at the largest S where z > 0 */
+        floatP sx_least = kd_selectP((floatP)(r->Sx_lo), (floatP)(r->Sx_hi), pos);
+        floatP sx_most = kd_selectP((floatP)(r->Sx_hi), (floatP)(r->Sx_lo), pos);
+        floatP sy_least = kd_selectP((floatP)(r->Sy_lo), (floatP)(r->Sy_hi), pos);
+        floatP sy_most = kd_selectP((floatP)(r->Sy_hi), (floatP)(r->Sy_lo), pos);
+        x_above &= ax - sx_least * az > 0.0f;
+        x_below &= ax - sx_most * az < 0.0f;
+        y_above &= ay - sy_least * az > 0.0f;
+        y_below &= ay - sy_most * az < 0.0f;
+    }
+    return x_above | x_below | y_above | y_below;
+}
+
+/* kd_block_culls' constants for packet r, whose lanes `on` (first: the first of them)
+ * have origin r->uo and axes r->ukx, r->uky, r->ukz when r->cull. */
+KD_INLINE
+void kd_cull_setup(KdPacket *r, intP on, uint first)
+{
+    r->cull = r->shared_o && r->uniform;
+    if (!r->cull)
+        return;
+    /* the lanes that are off take the first lane's shear */
+    KdFP Sx, Sy;
+    Sx.v = r->Sx;
+    Sy.v = r->Sy;
+    kd_rangeP(kd_selectP((floatP)(Sx.s[first]), r->Sx, on), &r->Sx_lo, &r->Sx_hi);
+    kd_rangeP(kd_selectP((floatP)(Sy.s[first]), r->Sy, on), &r->Sy_lo, &r->Sy_hi);
+}
+
+/* Lane bits of mask m: bit l set where lane l is. */
+KD_INLINE
+uint kd_bitsP(intP m)
+{
+#if KD_PACKET == 16
+    uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u, 4096u,
+                      8192u, 16384u, 32768u);
+    uintP b = as_uintP(m) & w;
+    uint8 e = b.lo | b.hi;
+#else
+    uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u);
+    uint8 e = as_uintP(m) & w;
+#endif
+    uint4 a = e.lo | e.hi;
+    uint2 c = a.lo | a.hi;
+    return c.x | c.y;
+}
+#endif
 
 /* Leaf: every lane in `act` tests the leaf's triangles. Where few lanes reach a leaf
  * (most leaves, once triangles are smaller than a packet's footprint) the leaf is
  * tested ray by ray against P = KD_PACKET triangles at a time: a * ceil(n / P) tests
- * of P lanes instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for gathering the
- * triangles. The pairs and their arithmetic are the same either way. */
+ * of P lanes instead of n, for a lanes and n triangles; KD_LANE_RATIO accounts for
+ * gathering the triangles. Else a packet of one origin and shear (r->cull) takes the
+ * triangles KD_PACKET at a time, leaves out those no lane can hit (kd_block_culls) and
+ * tests the others with all its lanes; its few candidates cost less than the
+ * ray-by-ray tests down to KD_CULL_LANE_RATIO (BENCHMARKS.md, issue 20). The pairs and
+ * their arithmetic are the same every way. */
 KD_INLINE
 void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
                     const KdPacket *r, intP act, KdPacketHit *h KD_PSTATS_PARAM)
@@ -412,7 +514,7 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
         return;
     uint first = kd_leaf_offset(leaf);
     uint a = kd_countP(act);
-    if ((float)(a * ((count + KD_PACKET - 1) / KD_PACKET)) < KD_LANE_RATIO * (float)count) {
+    if ((float)(a * ((count + KD_PACKET - 1) / KD_PACKET)) < (KD_CULLS(r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO) * (float)count) {
         /* each lane's ray, range and best hit taken out of the vectors once, carried
          * over the leaf's blocks, and put back once */
         KdIP act_l;
@@ -474,6 +576,29 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
         h->t = ht.v; h->V = hV.v; h->W = hW.v; h->det = hd.v; h->tri = htri.v;
         return;
     }
+#ifdef KD_CULL
+    if (r->cull) {
+        /* KD_PACKET triangles at a time: those no lane can hit left out at once
+         * (kd_block_culls), the others tested by every lane */
+        for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
+            uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
+            KdFP q[9];
+            kd_gather_tris(tris, first + i0, q);
+#ifdef STATS
+            /* culled or not, as the scalar kernel counts them */
+            (*pstats).z += (as_uintP(act) & (uintP)(1u)) * m;
+#endif
+            uint keep = kd_bitsP((KD_LANE_INDEX < (intP)((int)m)) & ~kd_block_culls(r, q));
+            while (keep != 0u) {
+                uint j = 31u - clz(keep & (0u - keep));
+                keep &= keep - 1u;
+                uint tri = first + i0 + j;
+                kd_packet_intersect(r, kd_tri_base(tris, tri), tri, tri_ids, act, h);
+            }
+        }
+        return;
+    }
+#endif
     for (uint i = 0; i < count; i++) {
         uint tri = first + i;
         KD_PSTAT(z, act);
@@ -698,6 +823,9 @@ void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, flo
     kx_l.v = kx; ky_l.v = ky; kz_l.v = kz;
     r->ukx = (uint)kx_l.s[first]; r->uky = (uint)ky_l.s[first]; r->ukz = (uint)kz_l.s[first];
     r->uniform = !kd_anyP(on & ((kx != (int)r->ukx) | (ky != (int)r->uky) | (kz != (int)r->ukz)));
+#ifdef KD_CULL
+    kd_cull_setup(r, on, first);
+#endif
 }
 
 /* The share of the scene box's longest side above which a packet's origins are too far

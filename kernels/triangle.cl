@@ -90,6 +90,17 @@ RayShear ray_shear(float3 d)
     }
 
 #ifdef cl_khr_fp64
+/* x rounded to float with its sign kept: a nonzero x too small for a float gives
+ * +-FLT_MIN, not 0. An edge function recomputed in double (intersect_triangle) keeps
+ * its exact sign so, and a triangle whose three vertices lie strictly on one side of
+ * a line through the ray is never hit (packet.cl, kd_packet_culls, relies on it). */
+KD_INLINE
+float kd_signed_float(double x)
+{
+    float f = (float)x;
+    return f == 0.0f && x != 0.0 ? (x > 0.0 ? FLT_MIN : -FLT_MIN) : f;
+}
+
 #define KD_GAMMA_D(n) ((double)(n) * 0x1p-53 / (1.0 - (double)(n) * 0x1p-53))
 
 KD_INLINE double kd_comp_d(double3 v, uint k) { return k == 0u ? v.x : (k == 1u ? v.y : v.z); }
@@ -236,11 +247,11 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
 
 #ifdef cl_khr_fp64
     /* On an edge, recompute in double: the products of floats are exact there, so
-     * the sign of each edge function is exact. */
+     * the sign of each edge function is exact (and kept: kd_signed_float). */
     if (U == 0.0f || V == 0.0f || W == 0.0f) {
-        U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
-        V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
-        W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
+        U = kd_signed_float((double)Cx * (double)By - (double)Cy * (double)Bx);
+        V = kd_signed_float((double)Ax * (double)Cy - (double)Ay * (double)Cx);
+        W = kd_signed_float((double)Bx * (double)Ay - (double)By * (double)Ax);
     }
 #endif
 

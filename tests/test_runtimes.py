@@ -244,6 +244,53 @@ def test_subnormal_direction_crosses_a_split_far_away(runtime):
         same_hits(Tracer(tree, device=runtime.spec, packet=packet).trace(o, d), base)
 
 
+def one_origin_rays(tree, seed, n_points, per_point=16):
+    """Rays from one point inside the scene's box: per_point of them, one packet's worth,
+    at each of n_points of the tree's vertices and edge midpoints, the first exactly at
+    it (its float64 direction), the others turned by a few float32 ulps: rays that touch
+    or just miss a triangle's corner or edge, in packets of one origin and one shear."""
+    rng = np.random.default_rng(seed)
+    lo, hi = tree.world_box()
+    o = lo + (0.3 + 0.4 * rng.random(3)) * (hi - lo)
+    tri = (np.asarray(tree.triangles, dtype=np.float64) * tree.scale + tree.origin)
+    pick = tri[rng.integers(0, len(tri), n_points)]
+    at = np.where(rng.random((n_points, 1)) < 0.5, pick[:, 0], 0.5 * (pick[:, 0] + pick[:, 1]))
+    d = np.repeat(at - o, per_point, axis=0)
+    ulp = np.spacing(np.abs(d).astype(np.float32)).astype(np.float64)
+    d[1:] += rng.integers(-3, 4, size=d[1:].shape) * ulp[1:]
+    d[::per_point] = at - o
+    return o, d
+
+
+@pytest.mark.parametrize("scene", ["soup", "sphere"])
+def test_packets_of_one_origin_cull_exactly(runtime, scene):
+    """A packet whose rays share an origin and shear axes leaves out at once the
+    triangles no lane can hit (packet.cl, kd_block_culls, from bounds on the lanes'
+    sheared vertices): bit for bit the answer of one ray at a time, for a camera's
+    image (render and trace) and for rays from one point that touch or just miss
+    corners and edges, where a triangle culled wrongly would be a lost hit."""
+    tree = scene_tree(scene)
+    w, h = runtime.small((67, 41), (19, 9))
+    cam = camera_for(tree, w, h)
+    o, d = one_origin_rays(tree, seed=31, n_points=runtime.small(400, 24))
+    scalar = Tracer(tree, device=runtime.spec, packet=1)
+    base_image = scalar.render(cam, aovs=("depth", "normal", "bary", "id"))
+    base = scalar.trace(o, d)
+    assert base.hit.sum() > len(o) // 2
+    cam_o, cam_d = scalar.camera_rays(cam)
+    base_cam = scalar.trace(cam_o.reshape(h, w, 3), cam_d.reshape(h, w, 3))
+    for packet, cull_ratio in [(p, r) for p in PACKETS for r in (None, 0.0)]:
+        tr = Tracer(tree, device=runtime.spec, packet=packet)
+        tr._cull_lane_ratio = cull_ratio            # 0: every leaf culled, none ray by ray
+        tr._poison_outputs = True
+        same_hits(tr.trace(o, d), base)
+        same_hits(tr.trace(o, d.reshape(-1, 4, 3)), base._reshaped((len(d) // 4, 4)))
+        same_hits(tr.trace(cam_o.reshape(h, w, 3), cam_d.reshape(h, w, 3)), base_cam)
+        images = tr.render(cam, aovs=("depth", "normal", "bary", "id"))
+        for name, image in base_image.items():
+            assert np.array_equal(images[name], image, equal_nan=True), name
+
+
 @pytest.mark.parametrize("scene", ["cornell", "sphere"])
 def test_render_is_trace_of_the_camera_rays(runtime, scene):
     """A render (pixels in tiles; on CPUs packets of 4 x 2 or 4 x 4 pixels) writes every

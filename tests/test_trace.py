@@ -251,14 +251,16 @@ def test_packets_equal_single_rays(packet, kind, leaf, tracers):
     scalar kernel (split planes, diverging origins) and invalid rays; also with t_min
     and t_max, for a camera render, and with a packet count that leaves lanes empty.
     Leaves tested by the kernel's rule, always triangle by triangle (a packet's rays
-    against one triangle) and always ray by ray (one ray against a packet's width of
-    triangles) agree; so do packets whose rays are traced alone (each leaf a packet's
-    width of triangles at a time) by the kernel's rule, never, and always."""
+    against one triangle; a packet of one origin culls first) and always ray by ray
+    (one ray against a packet's width of triangles) agree; so do packets whose rays
+    are traced alone (each leaf a packet's width of triangles at a time) by the
+    kernel's rule, never, and always."""
     tree = deep_tree() if kind == "median" else mesh_tree("teapot.obj", "sah")
     o, d = packet_rays(tree)
     single = tracers(tree, packet=1)
     packed = Tracer(tree, packet=packet)
     packed._lane_ratio = {"by triangle": 0.0, "by ray": np.inf}.get(leaf)
+    packed._cull_lane_ratio = packed._lane_ratio
     packed._alone_spread = {"never alone": np.inf, "all alone": -1.0}.get(leaf)
     for t_min, t_max in [(0.0, np.inf), (surface_t_min(tree), np.inf), (0.3, 2.5)]:
         a = single.trace(o, d, t_min=t_min, t_max=t_max)
