@@ -206,6 +206,8 @@ def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096, tri
         t0, t1 = _slab(np.broadcast_to(bounds[0], (len(r), 3)), np.broadcast_to(bounds[1], (len(r), 3)),
                        o[r], d[r], t_min, t_max)
         live = t0 <= t1
+        if not live.any():
+            continue                    # every ray of the chunk misses the box
         ray, node, lo, hi = r[live], np.zeros(live.sum(), dtype=np.int64), t0[live], t1[live]
         leaf_ray, leaf_node = [], []
         while len(ray):

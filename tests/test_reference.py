@@ -65,3 +65,21 @@ def test_traverse_single_leaf_far_from_origin():
 def test_empty_inputs():
     tri = np.zeros((1, 3, 3))
     assert len(ref.brute_force(tri, np.zeros((0, 3)), np.zeros((0, 3))).t) == 0
+
+
+def test_traverse_rays_that_all_miss_the_box():
+    """A chunk of rays none of which meets the tree's box: all misses, and hits in
+    the next chunk still found."""
+    tree = two_leaf_tree()
+    far = tree.origin + 10.0 * (tree.bounds[1] - tree.bounds[0])
+    o = np.tile(far, (5, 1))
+    d = np.tile(far - tree.origin, (5, 1))                     # pointing away
+    a = ref.traverse(tree, o, d)
+    assert not a.hit.any() and np.all(a.prim == -1) and np.all(np.isinf(a.t))
+    aim = tree.origin + tree.triangles[0].astype(np.float64).mean(axis=0)   # a triangle's centroid
+    o2 = np.concatenate([o, [far]])
+    d2 = np.concatenate([d, [aim - far]])
+    b = ref.traverse(tree, o2, d2, chunk=5)
+    c = ref.brute_force(tree.triangles.astype(np.float64) + tree.origin, o2, d2)
+    assert not b.hit[:5].any() and b.hit[5] and c.hit[5]
+    assert b.prim[5] == tree.tri_ids[c.prim[5]] and b.t[5] == pytest.approx(c.t[5])
