@@ -16,9 +16,11 @@ after the one before: `render` (depth only), `render` (the default AOVs), `trace
 (numpy to numpy, the camera's 1024 x 1024 rays in row-major order, which a kdray
 with kdray.ray_grid traces as an image) and `trace HxW`
 (the same rays shaped (1024, 1024, 3), t and prim only; NaN for a kdray without
-image-shaped rays). With --incoherent, two more: `trace` of 100,000 rays in random
+image-shaped rays). With --incoherent, three more: `trace` of 100,000 rays in random
 directions from the centre of the tree's box and from random points in it
-(bench_incoherent.py's rays). Separate processes, so each version has its own memory layout
+(bench_incoherent.py's rays), and `trace spread`, the camera's rays from origins spread
+over 1e-4 of the box's diagonal (a lens's or a projector's: coherent packets of
+several origins; t and prim). Separate processes, so each version has its own memory layout
 and OpenCL context. Prints each version's median times, wall and CPU (the worker
 process's, all its threads), the medians of the rounds' ratios (working tree / base:
 < 1 means faster) and whether the two gave bit-identical images and hits.
@@ -50,7 +52,7 @@ variables for the CPU runtimes, `kdray.runtimes.thread_binding`): each worker st
 from it, so that its own kdray sets what it sets."""
 
 CALLS = ("render depth", "render default", "trace", "trace HxW")
-INCOHERENT = ("random centre", "random points")
+INCOHERENT = ("random centre", "random points", "trace spread")
 
 
 def worker(tree_path, size, out_path):
@@ -66,12 +68,14 @@ def worker(tree_path, size, out_path):
     from bench_incoherent import ray_sets
     (oc, dc), (op, dp) = ray_sets(tree, 100_000).values()
     shape = (size, size, 3)
+    spread = o + np.random.default_rng(0).normal(size=o.shape) * 1e-4 * np.linalg.norm(hi - lo)
     calls = {"render depth": lambda: tracer.render(camera, aovs=("depth",)),
              "render default": lambda: tracer.render(camera),
              "trace": lambda: tracer.trace(o, d),
              "trace HxW": lambda: tracer.trace(o.reshape(shape), d.reshape(shape), outputs=()),
              "random centre": lambda: tracer.trace(oc, dc),
-             "random points": lambda: tracer.trace(op, dp)}
+             "random points": lambda: tracer.trace(op, dp),
+             "trace spread": lambda: tracer.trace(spread, d, outputs=())}
     images = calls["render default"]()
     hits = calls["trace"]()
     incoherent = {k: calls[k]().prim for k in INCOHERENT}
