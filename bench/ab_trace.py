@@ -65,10 +65,10 @@ def worker(tree_path, size, out_path):
     camera = kdray.Camera.frame(lo, hi, size, size)
     o, d = camera.rays()
     tracer = kdray.Tracer(tree)
-    from bench_incoherent import ray_sets
+    from bench_incoherent import ray_sets, spread_origins
     (oc, dc), (op, dp) = ray_sets(tree, 100_000).values()
     shape = (size, size, 3)
-    spread = o + np.random.default_rng(0).normal(size=o.shape) * 1e-4 * np.linalg.norm(hi - lo)
+    spread = spread_origins(o, lo, hi, 1e-4)
     calls = {"render depth": lambda: tracer.render(camera, aovs=("depth",)),
              "render default": lambda: tracer.render(camera),
              "trace": lambda: tracer.trace(o, d),

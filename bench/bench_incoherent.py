@@ -34,6 +34,12 @@ def ray_sets(tree, n, seed=1):
             "from random points": (lo + (hi - lo) * rng.random((n, 3)), rng.normal(size=(n, 3)))}
 
 
+def spread_origins(o, lo, hi, spread, seed=0):
+    """o (N, 3) moved by normal offsets of spread times the box (lo, hi)'s diagonal: a
+    camera's rays from a patch (a lens's or a projector's), packets of several origins."""
+    return o + np.random.default_rng(seed).normal(size=o.shape) * spread * np.linalg.norm(hi - lo)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")

@@ -28,6 +28,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_incoherent import spread_origins  # noqa: E402
 from meshes import framed  # noqa: E402
 from timing import median_ratio, round_robin  # noqa: E402
 
@@ -69,8 +70,7 @@ def main():
             return {"render": lambda: tracer.render(camera, aovs=("depth",)),
                     "trace": lambda: tracer.trace(o, d, outputs=())}
 
-        lo, hi = tree.world_box()
-        spread = o + np.random.default_rng(0).normal(size=o.shape) * args.spread * np.linalg.norm(hi - lo)
+        spread = spread_origins(o, *tree.world_box(), args.spread)
 
         def origins(ratio):
             tracer = kdray.Tracer(tree)

@@ -325,7 +325,9 @@ void kd_gather_tris(__global const float *tris, uint first, KdFP *q)
 #ifdef KD_PLAIN_VECTOR_OPS
 #pragma unroll
     for (uint j = 0; j < KD_PACKET; j++) {
-        uint at = o + j < KD_TRI_BLOCK ? o + j : o + j + 8u * KD_TRI_BLOCK;
+        /* lane o + j of this block's rows, or lane o + j - 16 of the next block's,
+         * 9 rows (144 floats) on */
+        uint at = o + j < KD_TRI_BLOCK ? o + j : o + j - KD_TRI_BLOCK + 9u * KD_TRI_BLOCK;
 #pragma unroll
         for (uint c = 0; c < 9; c++)
             q[c].s[j] = p[at + c * KD_TRI_BLOCK];
@@ -514,7 +516,8 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
         return;
     uint first = kd_leaf_offset(leaf);
     uint a = kd_countP(act);
-    if ((float)(a * ((count + KD_PACKET - 1) / KD_PACKET)) < (KD_CULLS(r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO) * (float)count) {
+    float ratio = KD_CULLS(r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO;
+    if ((float)(a * ((count + KD_PACKET - 1) / KD_PACKET)) < ratio * (float)count) {
         /* each lane's ray, range and best hit taken out of the vectors once, carried
          * over the leaf's blocks, and put back once */
         KdIP act_l;

@@ -93,7 +93,7 @@ RayShear ray_shear(float3 d)
 /* x rounded to float with its sign kept: a nonzero x too small for a float gives
  * +-FLT_MIN, not 0. An edge function recomputed in double (intersect_triangle) keeps
  * its exact sign so, and a triangle whose three vertices lie strictly on one side of
- * a line through the ray is never hit (packet.cl, kd_packet_culls, relies on it). */
+ * a line through the ray is never hit (packet.cl, kd_block_culls, relies on it). */
 KD_INLINE
 float kd_signed_float(double x)
 {
