@@ -7,8 +7,11 @@ usage (Linux `perf` and binutils' `objdump`):
         [--seconds 8] [--out /tmp/kdray-profile]
 
 The script runs itself under `perf record -F 2000` (--child), warms the Tracer up,
-calls `render` (depth only), `render-default` (the default AOVs) or `trace` (the
-framing camera's (N, 3) float64 rays, t and prim) for --seconds, and copies every
+calls `render` (depth only), `render-default` (the default AOVs), `trace` (the
+framing camera's (N, 3) float64 rays, t and prim) or `trace-miss` (the same rays
+turned to miss the tree's box, from origins five times farther out: what a trace
+pays to read its rays and write its hits, with no traversal) for --seconds, and
+copies every
 executable anonymous mapping of the process (where Intel's runtime puts compiled
 kernels: perf sees them only as "[JIT]" addresses) to --out. It then counts the
 samples that fall in each mapping, disassembles the busiest one (objdump), and
@@ -40,12 +43,19 @@ sys.path.insert(0, HERE)
 def child(args):
     """Run the calls for --seconds, then copy the executable anonymous mappings."""
     from meshes import framed
+    import numpy as np
     import kdray
     _, tree, camera, o, d = framed(args.mesh, args.size)
     tracer = kdray.Tracer(tree)
+    if args.call == "trace-miss":
+        lo, hi = tree.world_box()
+        centre = (lo + hi) / 2
+        o = o + 5 * (o - centre)
+        d = np.ascontiguousarray((o[0] - centre) + (d - d.mean(axis=0)))
     call = {"render": lambda: tracer.render(camera, aovs=("depth",)),
             "render-default": lambda: tracer.render(camera),
-            "trace": lambda: tracer.trace(o, d, outputs=())}[args.call]
+            "trace": lambda: tracer.trace(o, d, outputs=()),
+            "trace-miss": lambda: tracer.trace(o, d, outputs=())}[args.call]
     call()
     call()
     start, calls = time.perf_counter(), 0
@@ -116,7 +126,7 @@ def report(args, perf_data):
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--mesh", default="bunny")
-    p.add_argument("--call", default="render", choices=("render", "render-default", "trace"))
+    p.add_argument("--call", default="render", choices=("render", "render-default", "trace", "trace-miss"))
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--out", default="/tmp/kdray-profile")
