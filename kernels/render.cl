@@ -280,8 +280,12 @@ void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP
     KD_ROWS(KD_ROW_2, u_out, v_out, out_uv, k0, row_stride)
 #endif
 #ifdef OUT_ID
-    uintP ids = KD_GATHER(tri_ids, kd_selectPu((uintP)(0u), tri.v, found));
-    ids = kd_selectPu((uintP)(KD_NO_HIT), ids, found);
+    /* a packet with no hit (the sky around a framed object) skips the gather */
+    uintP ids = (uintP)(KD_NO_HIT);
+    if (kd_anyP(found)) {
+        ids = KD_GATHER(tri_ids, kd_selectPu((uintP)(0u), tri.v, found));
+        ids = kd_selectPu((uintP)(KD_NO_HIT), ids, found);
+    }
     KD_ROWS(KD_ROW_1, ids, out_id, k0, row_stride)
 #endif
 #ifdef OUT_NORMAL
