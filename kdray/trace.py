@@ -170,8 +170,9 @@ def default_work_sizes(device, packet=1):
     CPU (PoCL, Intel's runtime): a work-group runs on one thread, its work-items one
     after another, and a traversal loop does not vectorize across them; small groups
     keep the per-group barrier cheap and many groups (4 per core) balance the load
-    through the counter; a batch is 8 rounds of the group (with packets, 512 rays: one
-    64 x 8 render tile). On PoCL the size makes no difference from 1 to 16 work-items;
+    through the counter; a batch is 16 rounds of the group (with packets of 16, 2048
+    rays: four 64 x 8 render tiles, and for trace a run of 512 image columns, whose
+    rows the rays are read along). On PoCL the size makes no difference from 1 to 16 work-items;
     Intel's runtime vectorizes a group as wide as its vector unit (8 with AVX2, 16 with
     AVX-512) across work-items, which makes single rays in lockstep slower
     (bench/tune_work_sizes.py, BENCHMARKS.md); packet kernels tell it not to
@@ -182,7 +183,7 @@ def default_work_sizes(device, packet=1):
     cu = max(int(device.max_compute_units), 1)
     if _device.is_cpu(device):
         local = 8
-        return local, 8 * local * packet, 4 * cu
+        return local, 16 * local * packet, 4 * cu
     local = min(64, int(device.max_work_group_size))
     return local, 4 * local * packet, 16 * cu
 
