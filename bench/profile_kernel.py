@@ -52,10 +52,10 @@ def child(args):
         centre = (lo + hi) / 2
         o = o + 5 * (o - centre)
         d = np.ascontiguousarray((o[0] - centre) + (d - d.mean(axis=0)))
+    trace = lambda: tracer.trace(o, d, outputs=())  # noqa: E731
     call = {"render": lambda: tracer.render(camera, aovs=("depth",)),
             "render-default": lambda: tracer.render(camera),
-            "trace": lambda: tracer.trace(o, d, outputs=()),
-            "trace-miss": lambda: tracer.trace(o, d, outputs=())}[args.call]
+            "trace": trace, "trace-miss": trace}[args.call]
     call()
     call()
     start, calls = time.perf_counter(), 0

@@ -172,8 +172,8 @@ def default_work_sizes(device, packet=1):
     keep the per-group barrier cheap and many groups (4 per core) balance the load
     through the counter; a batch is 16 rounds of the group (with packets of 16, 2048
     rays: four 64 x 8 render tiles, and for trace a run of 512 image columns, whose
-    rows the rays are read along). On PoCL the size makes no difference from 1 to 16 work-items;
-    Intel's runtime vectorizes a group as wide as its vector unit (8 with AVX2, 16 with
+    rows the rays are read along). On PoCL the size makes no difference from 1 to 16
+    work-items; Intel's runtime vectorizes a group as wide as its vector unit (8 with AVX2, 16 with
     AVX-512) across work-items, which makes single rays in lockstep slower
     (bench/tune_work_sizes.py, BENCHMARKS.md); packet kernels tell it not to
     (render.cl, KD_VEC_HINT).
@@ -404,12 +404,12 @@ class Tracer:
             if self._plain_vector_ops:
                 defines["KD_PLAIN_VECTOR_OPS"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
-            if self._lane_ratio is not None:
-                defines["KD_LANE_RATIO"] = f"{min(float(self._lane_ratio), 1e30):.9e}f"
-            if self._cull_lane_ratio is not None:
-                defines["KD_CULL_LANE_RATIO"] = f"{min(float(self._cull_lane_ratio), 1e30):.9e}f"
-            if self._alone_spread is not None:
-                defines["KD_ALONE_SPREAD"] = f"{min(float(self._alone_spread), 1e30):.9e}f"
+            # the tests' overrides of the packet rules, as float literals
+            for name, value in (("KD_LANE_RATIO", self._lane_ratio),
+                                ("KD_CULL_LANE_RATIO", self._cull_lane_ratio),
+                                ("KD_ALONE_SPREAD", self._alone_spread)):
+                if value is not None:
+                    defines[name] = f"{min(float(value), 1e30):.9e}f"
         for name in outputs:
             defines[f"OUT_{name}"] = None
         if stats:

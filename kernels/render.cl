@@ -263,8 +263,8 @@ void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP
 
 /* The outputs of a packet whose lanes are a block of rays, every lane on: lane l is
  * ray k0 + (l / 4) row_stride + l % 4. The values store_hit writes, computed in vectors
- * and written a row of 4 rays at a time (KD_ROWS). With OUT_NORMAL, P holds the lanes'
- * triangles when `any` lane found one (kd_gather_triangles). */
+ * and written a row of 4 rays at a time (KD_ROWS). `any`: some lane found a triangle;
+ * then, with OUT_NORMAL, P holds the lanes' triangles (kd_gather_triangles). */
 KD_INLINE
 void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP v,
                     const KdFP *P, bool any, __global const uint *tri_ids, KD_OUTPUT_ARGS)
@@ -282,7 +282,7 @@ void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP
 #ifdef OUT_ID
     /* a packet with no hit (the sky around a framed object) skips the gather */
     uintP ids = (uintP)(KD_NO_HIT);
-    if (kd_anyP(found)) {
+    if (any) {
         ids = KD_GATHER(tri_ids, kd_selectPu((uintP)(0u), tri.v, found));
         ids = kd_selectPu((uintP)(KD_NO_HIT), ids, found);
     }
@@ -327,17 +327,16 @@ void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz
     trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
 #endif
-#if defined(KD_REFINE_STORED) || defined(OUT_NORMAL)
-    /* the lanes' triangles, for the refinement and the normals */
     KdIP found;
     found.v = on.v & (tri_l.v != (uintP)(KD_NO_HIT));
     bool any = kd_anyP(found.v);
+#if defined(KD_REFINE_STORED) || defined(OUT_NORMAL)
+    /* the lanes' triangles, for the refinement and the normals */
     KdFP P[9];
     if (any)
         kd_gather_triangles(found, tri_l, tris, P);
 #else
     const KdFP *P = 0;
-    bool any = false;
 #endif
 #ifdef KD_REFINE_STORED
     if (any)
