@@ -298,19 +298,27 @@ TRI_BLOCK = 16
 kernels/layout.h; `triangle_blocks`)."""
 
 
-def device_sizes(tree):
-    """Bytes of each of the tree's device buffers: {"nodes", "triangles", "triangle
-    ids": int}, the last two with a copy per leaf reference (`device_triangles`), the
+def device_sizes(tree, run=1):
+    """Bytes of each of the tree's device buffers for leaves read in runs of `run`
+    triangles: {"nodes", "triangles", "triangle ids": int}, the last two with a copy
+    per leaf reference and each leaf padded to whole runs (`device_triangles`), the
     triangles in blocks (`triangle_blocks`)."""
-    refs = len(tree.leaf_tris)
+    refs = n_device_triangles(tree.nodes, run)
     return {"nodes": int(tree.nodes.nbytes), "triangles": 36 * TRI_BLOCK * n_triangle_blocks(refs),
             "triangle ids": 4 * refs}
 
 
+def n_device_triangles(nodes, run=1):
+    """Triangle copies on the device (`device_triangles`) of a tree with these nodes,
+    each leaf's n_prims rounded up to a multiple of `run`."""
+    nodes = np.asarray(nodes, dtype=np.uint32).reshape(-1, 2)
+    count = n_prims(nodes)[is_leaf(nodes)].astype(np.int64)
+    return int((-(-count // run) * run).sum())
+
+
 def n_triangle_blocks(n):
-    """Blocks of TRI_BLOCK triangles `triangle_blocks` makes of n triangles: enough for
-    them, and one more, so that TRI_BLOCK triangles from any of them on can be read."""
-    return -(-n // TRI_BLOCK) + 1
+    """Blocks of TRI_BLOCK triangles `triangle_blocks` makes of n triangles."""
+    return -(-n // TRI_BLOCK)
 
 
 def triangle_blocks(tris):
@@ -320,24 +328,47 @@ def triangle_blocks(tris):
     (i // TRI_BLOCK) * 9 * TRI_BLOCK + c * TRI_BLOCK + i % TRI_BLOCK; past the last
     triangle, zeros.
 
-    Why: a leaf's next TRI_BLOCK triangles are then 9 vector loads, a number of each
-    (two blocks' rows joined where the leaf does not start a block), where 9-float
-    rows took a float at a time (kernels/packet.cl, kd_gather_tris)."""
+    Why: a leaf's next run of triangles (kernels/packet.cl, kd_gather_tris) is then 9
+    vector loads, a number of each, where 9-float rows took a float at a time."""
     tris = np.asarray(tris, dtype=np.float32).reshape(-1, 9)
     blocks = np.zeros((n_triangle_blocks(len(tris)) * TRI_BLOCK, 9), dtype=np.float32)
     blocks[:len(tris)] = tris
     return np.ascontiguousarray(blocks.reshape(-1, TRI_BLOCK, 9).transpose(0, 2, 1)).reshape(-1)
 
 
-def device_triangles(tree):
-    """The triangles as the kernels read them: (tris (n_refs, 3, 3) float32, tri_ids
-    (n_refs,) uint32), one copy per entry of tree.leaf_tris, in that order, so that a
-    leaf's triangles are tris[leaf_offset : leaf_offset + n_prims] (kernels/layout.h).
+def device_triangles(tree, run=1):
+    """The tree as the kernels read it, its leaves read in runs of `run` triangles (1;
+    with packets, the packet's width, a divisor of TRI_BLOCK): (nodes (n_nodes, 2)
+    uint32, tris (n, 3, 3) float32, tri_ids (n,) uint32), n = n_device_triangles.
 
-    A leaf is read in one run, with no index list to read first, for 40 bytes a
-    reference instead of 4 a reference and 40 a triangle (BENCHMARKS.md measures both).
-    The copies of a triangle are alike and keep its input id, so ties still go to the
-    lowest input id (kd_before) and a hit does not depend on the copy found."""
-    refs = np.asarray(tree.leaf_tris, dtype=np.intp)
-    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[refs]
-    return tris, np.asarray(tree.tri_ids, dtype=np.uint32)[refs]
+    The nodes are tree.nodes with each leaf's leaf_offset its first triangle here
+    (kernels/layout.h): leaf i's triangles are tris[leaf_offset : leaf_offset +
+    n_prims], copies of its entries of tree.leaf_tris in that order, with their input
+    ids. A leaf starts on a multiple of `run` and takes whole runs: the rest of its
+    last run is padding (zero triangles, id MISS), which no kernel tests (lanes past a
+    leaf's end are masked off).
+
+    Why: a leaf is read in runs, with no index list to read first, for 40 bytes a
+    reference instead of 4 a reference and 40 a triangle (BENCHMARKS.md measures
+    both); a run that starts on a multiple of its length lies in one block
+    (`triangle_blocks`), 9 aligned vector loads, where a run across two blocks took
+    their rows joined by shuffles (kernels/packet.cl, kd_gather_tris). The copies of a
+    triangle are alike and keep its input id, so ties still go to the lowest input id
+    (kd_before) and a hit does not depend on the copy found."""
+    if run < 1 or TRI_BLOCK % run:
+        raise ValueError(f"run must divide {TRI_BLOCK}, got {run}")
+    nodes = np.array(tree.nodes, dtype=np.uint32).reshape(-1, 2)
+    leaf = np.flatnonzero(is_leaf(nodes))
+    count = n_prims(nodes)[leaf].astype(np.intp)
+    first = leaf_offset(nodes)[leaf].astype(np.intp)
+    padded = -(-count // run) * run
+    start = np.cumsum(padded) - padded               # each leaf's first copy, in node order
+    nodes[leaf, 1] = start
+    within = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    copy = np.repeat(start, count) + within
+    refs = np.asarray(tree.leaf_tris, dtype=np.intp)[np.repeat(first, count) + within]
+    tris = np.zeros((int(padded.sum()), 3, 3), dtype=np.float32)
+    tris[copy] = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[refs]
+    tri_ids = np.full(len(tris), MISS, dtype=np.uint32)
+    tri_ids[copy] = np.asarray(tree.tri_ids, dtype=np.uint32)[refs]
+    return nodes, tris, tri_ids

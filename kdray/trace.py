@@ -326,7 +326,7 @@ class Tracer:
         (`_launch_size`)."""
         name = self.device.name.strip()
         largest = int(self.device.max_mem_alloc_size)
-        sizes = device_sizes(tree)
+        sizes = device_sizes(tree, self._run)
         for what, nbytes in sizes.items():
             if nbytes > largest:
                 raise DeviceError(f"the tree's {what} ({nbytes / 2**20:.0f} MiB) do not fit in "
@@ -363,11 +363,13 @@ class Tracer:
 
     def _upload(self, tree):
         cl = _device._cl()
+        # packets read a leaf's triangles a packet's width at a time (kd_gather_tris)
+        self._run = self.packet
         self._check_fits(tree)
-        self.device_bytes = sum(device_sizes(tree).values())
+        self.device_bytes = sum(device_sizes(tree, self._run).values())
         self._n_nodes = len(tree.nodes)
-        self._nodes = self._buffer(np.asarray(tree.nodes, dtype=np.uint32).reshape(-1, 2))
-        tris, tri_ids = device_triangles(tree)
+        nodes, tris, tri_ids = device_triangles(tree, self._run)
+        self._nodes = self._buffer(nodes)
         self._tris = self._buffer(triangle_blocks(tris))
         self._tri_ids = self._buffer(tri_ids)
         self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))

@@ -9,17 +9,21 @@
  *   data   uint32  interior: float32 bits of the split position (relative to the origin)
  *                  leaf: leaf_offset, its first triangle on the device
  *
- * Triangles on the device: one copy per leaf reference, in the tree's leaf_tris order,
- * so that a leaf's triangles are triangles leaf_offset .. leaf_offset + n_prims - 1
- * (9 float32 each: v0 xyz, v1 xyz, v2 xyz, relative to the tree's origin), with no
- * index list to read first; tri_ids[i] is copy i's triangle's index in the input
- * (kdray/layout.py, device_triangles). A triangle in several leaves has several
- * copies, alike bit for bit, so a hit does not depend on the copy found.
+ * Triangles on the device: one copy per leaf reference, so that a leaf's triangles
+ * are triangles leaf_offset .. leaf_offset + n_prims - 1 (9 float32 each: v0 xyz, v1
+ * xyz, v2 xyz, relative to the tree's origin), in the order of its entries of the
+ * tree's leaf_tris, with no index list to read first; tri_ids[i] is copy i's
+ * triangle's index in the input (kdray/layout.py, device_triangles). A triangle in
+ * several leaves has several copies, alike bit for bit, so a hit does not depend on
+ * the copy found. With packets a leaf starts on a multiple of PACKET and its last
+ * run of PACKET is padded (zero triangles, id KD_NO_HIT), so the device nodes'
+ * leaf_offset differs from the tree file's.
  *
  * They lie in blocks of KD_TRI_BLOCK triangles, each of the 9 numbers in a row of the
  * block (kdray/layout.py, triangle_blocks): number c of triangle i is
  * tris[(i / KD_TRI_BLOCK) * 9 * KD_TRI_BLOCK + c * KD_TRI_BLOCK + i % KD_TRI_BLOCK]
- * (kd_tri_base). One block more than the triangles need, of zeros, ends the buffer.
+ * (kd_tri_base); a packet's run of a leaf lies in one block (packet.cl,
+ * kd_gather_tris).
  */
 #ifndef KDRAY_LAYOUT_H
 #define KDRAY_LAYOUT_H

@@ -313,32 +313,25 @@ void kd_packet_intersect(const KdPacket *r, __global const float *p, uint tri,
 }
 
 /* Triangles first .. first + KD_PACKET - 1 (a leaf's run from `first`, layout.h) into
- * the lanes of q: 9 vectors, v0 x y z, v1 x y z, v2 x y z. Lanes past the leaf's end
- * hold the triangles after it, or the buffer's closing zeros (the callers mask them
- * off). A row of each of the two blocks the run lies in, joined (shuffle2); on PoCL,
- * which calls shuffle2 out of line (ops.h), number by number. */
+ * the lanes of q: 9 vectors, v0 x y z, v1 x y z, v2 x y z. `first` is a multiple of
+ * KD_PACKET (device_triangles starts leaves there), so the run lies in one block: a
+ * vector load of each of its 9 rows. Lanes past the leaf's end hold its padding
+ * (zero triangles; the callers mask them off). On PoCL, which calls vload out of line
+ * (ops.h), number by number. */
 KD_INLINE
 void kd_gather_tris(__global const float *tris, uint first, KdFP *q)
 {
-    __global const float *p = tris + (size_t)(first / KD_TRI_BLOCK) * (9u * KD_TRI_BLOCK);
-    uint o = first % KD_TRI_BLOCK;
+    __global const float *p = kd_tri_base(tris, first);
+#pragma unroll
+    for (uint c = 0; c < 9; c++) {
 #ifdef KD_PLAIN_VECTOR_OPS
 #pragma unroll
-    for (uint j = 0; j < KD_PACKET; j++) {
-        /* lane o + j of this block's rows, or lane o + j - 16 of the next block's,
-         * 9 rows (144 floats) on */
-        uint at = o + j < KD_TRI_BLOCK ? o + j : o + j - KD_TRI_BLOCK + 9u * KD_TRI_BLOCK;
-#pragma unroll
-        for (uint c = 0; c < 9; c++)
-            q[c].s[j] = p[at + c * KD_TRI_BLOCK];
-    }
+        for (uint j = 0; j < KD_PACKET; j++)
+            q[c].s[j] = p[c * KD_TRI_BLOCK + j];
 #else
-    uintP at = (uintP)(o) + KD_LANE_INDEX_U;          /* 0 .. 31 over the two rows */
-#pragma unroll
-    for (uint c = 0; c < 9; c++)
-        q[c].v = shuffle2(vload16(0, p + c * KD_TRI_BLOCK),
-                          vload16(0, p + (9u + c) * KD_TRI_BLOCK), at);
+        q[c].v = vloadP(0, p + c * KD_TRI_BLOCK);
 #endif
+    }
 }
 
 /* One ray (shear s, origin o, range t_min < t < t_max, best hit so far best_t,

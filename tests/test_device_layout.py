@@ -130,8 +130,12 @@ def test_device_reads_triangle_blocks_like_layout(ctx):
         tris[0, 0, 0] = -0.0
         blocks = layout.triangle_blocks(tris)
         assert blocks.dtype == np.float32
-        assert len(blocks) == 9 * layout.TRI_BLOCK * layout.n_triangle_blocks(n)
-        assert not blocks[9 * layout.TRI_BLOCK * (-(-n // layout.TRI_BLOCK)):].any()
+        n_blocks = layout.n_triangle_blocks(n)
+        assert n_blocks == -(-n // layout.TRI_BLOCK)
+        assert len(blocks) == 9 * layout.TRI_BLOCK * n_blocks
+        # (block, number, lane): the lanes of the last block past the n-th are zeros
+        lanes = blocks.reshape(n_blocks, 9, layout.TRI_BLOCK).transpose(0, 2, 1).reshape(-1, 9)
+        assert not lanes[n:].any()
         out = np.zeros(9 * n + 1, dtype=np.float32)
         out_buf = cl.Buffer(context, mf.WRITE_ONLY, out.nbytes)
         program.vertices(queue, (n,), None,

@@ -291,6 +291,34 @@ def test_packets_of_one_origin_cull_exactly(runtime, scene):
             assert np.array_equal(images[name], image, equal_nan=True), name
 
 
+@pytest.mark.parametrize("scene", ["sphere", "soup"])
+def test_plain_vector_ops_give_the_same_hits(runtime, scene):
+    """The packets' code for PoCL (KD_PLAIN_VECTOR_OPS: no vload or shuffle, which it
+    calls out of line) on every runtime with packets, so that it is checked where PoCL
+    cannot run: bit for bit the answer of one ray at a time, for rays, rays shaped as
+    an image, and a render, in leaves read ray by ray and culled."""
+    tree = scene_tree(scene)
+    if Tracer(tree, device=runtime.spec).packet == 1:
+        pytest.skip("no packets on this runtime")
+    o, d = rays(runtime, tree, 2001, 307, seed=23)
+    w, h = 37, 21
+    cam = camera_for(tree, w, h)
+    scalar = Tracer(tree, device=runtime.spec, packet=1)
+    base, base_image = scalar.trace(o, d), scalar.render(cam, aovs=("depth", "id"))
+    m = len(o) // 12 * 12
+    for packet, cull_ratio in [(p, r) for p in PACKETS for r in (None, 0.0)]:
+        tr = Tracer(tree, device=runtime.spec, packet=packet)
+        tr._plain_vector_ops = True
+        tr._cull_lane_ratio = cull_ratio
+        tr._poison_outputs = True
+        same_hits(tr.trace(o, d), base)
+        same_hits(tr.trace(o[:m].reshape(-1, 12, 3), d[:m].reshape(-1, 12, 3)),
+                  base[:m]._reshaped((m // 12, 12)))
+        images = tr.render(cam, aovs=("depth", "id"))
+        for name, image in base_image.items():
+            assert np.array_equal(images[name], image, equal_nan=True), name
+
+
 @pytest.mark.parametrize("scene", ["cornell", "sphere"])
 def test_render_is_trace_of_the_camera_rays(runtime, scene):
     """A render (pixels in tiles; on CPUs packets of 4 x 2 or 4 x 4 pixels) writes every

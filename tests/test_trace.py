@@ -304,7 +304,7 @@ def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet):
     assert np.all(base.prim[base.hit] < m)
     flipped = reversed_leaves(tree)
     flipped.validate()
-    ids = [layout.device_triangles(t)[1].astype(np.int64) for t in (tree, flipped)]
+    ids = [layout.device_triangles(t)[2].astype(np.int64) for t in (tree, flipped)]
     for a, b in zip(ids, ids[1:]):      # the copy of i + m comes first where i came first
         assert np.any((a[:-1] + m == a[1:]) & (b[:-1] == b[1:] + m))
     reversed_order = Tracer(flipped, packet=packet).trace(o, d)
@@ -312,22 +312,36 @@ def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet):
         assert np.array_equal(getattr(base, field), getattr(reversed_order, field)), field
 
 
-def test_device_triangles_are_each_leafs_run():
-    """device_triangles: leaf i's triangles are copies [leaf_offset, leaf_offset +
-    n_prims) of the tree's, with their input ids."""
+@pytest.mark.parametrize("run", [1, 8, 16])
+def test_device_triangles_are_each_leafs_run(run):
+    """device_triangles: the device nodes are the tree's but for leaf offsets, each a
+    multiple of `run`; leaf i's triangles are copies [leaf_offset, leaf_offset +
+    n_prims) of the tree's, with their input ids; the rest of its last run, and
+    nothing else, is padding (zeros, id MISS); device_sizes counts what it makes."""
     v, f = mesh("teapot.obj")
     tree = sah_tree(v, f)
-    tris, ids = layout.device_triangles(tree)
-    assert tris.dtype == np.float32 and ids.dtype == np.uint32
-    assert len(tris) == len(ids) == len(tree.leaf_tris) > len(tree.triangles)
-    assert layout.device_sizes(tree) == {"nodes": tree.nodes.nbytes,
-                                        "triangles": layout.triangle_blocks(tris).nbytes,
-                                        "triangle ids": ids.nbytes}
+    nodes, tris, ids = layout.device_triangles(tree, run)
+    assert nodes.dtype == np.uint32 and tris.dtype == np.float32 and ids.dtype == np.uint32
+    assert len(tris) == len(ids) == layout.n_device_triangles(tree.nodes, run) >= len(tree.leaf_tris)
+    assert layout.device_sizes(tree, run) == {"nodes": tree.nodes.nbytes,
+                                             "triangles": layout.triangle_blocks(tris).nbytes,
+                                             "triangle ids": ids.nbytes}
     leaf = layout.is_leaf(tree.nodes)
-    for n, off in zip(layout.n_prims(tree.nodes)[leaf], layout.leaf_offset(tree.nodes)[leaf]):
-        listed = tree.leaf_tris[off:off + n]
+    assert np.array_equal(nodes[~leaf], tree.nodes[~leaf])
+    assert np.array_equal(nodes[leaf, 0], tree.nodes[leaf, 0])
+    if run == 1:
+        assert len(tris) == len(tree.leaf_tris)
+    listed_anywhere = np.zeros(len(tris), dtype=bool)
+    for n, off, tree_off in zip(layout.n_prims(nodes)[leaf], layout.leaf_offset(nodes)[leaf],
+                                layout.leaf_offset(tree.nodes)[leaf]):
+        assert off % run == 0
+        listed = tree.leaf_tris[tree_off:tree_off + n]
         assert np.array_equal(tris[off:off + n], tree.triangles[listed])
         assert np.array_equal(ids[off:off + n], tree.tri_ids[listed])
+        listed_anywhere[off:off + n] = True
+    assert not tris[~listed_anywhere].any()
+    assert (ids[~listed_anywhere] == layout.MISS).all()
+    assert (~listed_anywhere).sum() == len(tris) - len(tree.leaf_tris)
 
 
 @pytest.mark.parametrize("packet", [1, *PACKETS])
