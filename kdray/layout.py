@@ -364,11 +364,14 @@ def device_triangles(tree, run=1):
     padded = -(-count // run) * run
     start = np.cumsum(padded) - padded               # each leaf's first copy, in node order
     nodes[leaf, 1] = start
-    within = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    copy = np.repeat(start, count) + within
-    refs = np.asarray(tree.leaf_tris, dtype=np.intp)[np.repeat(first, count) + within]
-    tris = np.zeros((int(padded.sum()), 3, 3), dtype=np.float32)
-    tris[copy] = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[refs]
-    tri_ids = np.full(len(tris), MISS, dtype=np.uint32)
-    tri_ids[copy] = np.asarray(tree.tri_ids, dtype=np.uint32)[refs]
+    # each copy's entry of leaf_tris (padding: whatever entry, then cleared)
+    leaf_tris = np.asarray(tree.leaf_tris, dtype=np.intp)
+    entry = np.arange(int(padded.sum())) + np.repeat(first - start, padded)
+    tri = leaf_tris[np.minimum(entry, len(leaf_tris) - 1)]
+    extra = padded - count
+    pad = np.arange(int(extra.sum())) + np.repeat(start + count - (np.cumsum(extra) - extra), extra)
+    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[tri]
+    tris[pad] = 0.0
+    tri_ids = np.asarray(tree.tri_ids, dtype=np.uint32)[tri]
+    tri_ids[pad] = MISS
     return nodes, tris, tri_ids
