@@ -3,14 +3,16 @@ way to measure a change to the kernels or the Tracer on a machine whose speed dr
 (+-10-20 % over minutes here, more than most changes).
 
 usage: python bench/ab_trace.py [--base HEAD] [--work COMMIT] [--meshes bunny,bunny-1.6M]
-                                [--rounds 15] [--pairs 1] [--size 1024] [--incoherent]
+                                [--rounds 15] [--pairs 1] [--size 1024] [--packet 8]
+                                [--incoherent]
 
 The base commit's `kdray/` and `kernels/` are exported (git archive) into a temporary
 folder, and with --work another commit's too (so that a past change can be measured
 against its parent: --base C~1 --work C); without it "work" is the working tree.
 For each mesh the working tree builds the tree once and saves it (tree file version
 1, which both must read); then two worker processes, one per version, load it, make
-a Tracer and warm up. Each round asks each worker for four timed calls in
+a Tracer (with --packet, of that packet width: 8 stands for an AVX2 CPU's packets on
+one with AVX-512) and warm up. Each round asks each worker for four timed calls in
 turns, the order of the workers reversed every other round and every call 0.1 s
 after the one before: `render` (depth only), `render` (the default AOVs), `trace`
 (numpy to numpy, the camera's 1024 x 1024 rays in row-major order, which a kdray
@@ -55,16 +57,17 @@ CALLS = ("render depth", "render default", "trace", "trace HxW")
 INCOHERENT = ("random centre", "random points", "trace spread")
 
 
-def worker(tree_path, size, out_path):
+def worker(tree_path, size, out_path, packet=0):
     """Serve timed calls on stdin ("render depth", ...): print each one's seconds.
-    Writes the outputs of one call of each to out_path (npz) first."""
+    Writes the outputs of one call of each to out_path (npz) first. packet: the
+    Tracer's packet width, 0 for the device's default."""
     import kdray
     tree = kdray.KdTree.load(tree_path)
     # (a base commit may predate KdTree.world_box; scale-1 trees need no scale)
     lo, hi = tree.origin + tree.bounds.astype(np.float64)
     camera = kdray.Camera.frame(lo, hi, size, size)
     o, d = camera.rays()
-    tracer = kdray.Tracer(tree)
+    tracer = kdray.Tracer(tree, packet=packet or None)
     from bench_incoherent import ray_sets, spread_origins
     (oc, dc), (op, dp) = ray_sets(tree, 100_000).values()
     shape = (size, size, 3)
@@ -95,14 +98,15 @@ def worker(tree_path, size, out_path):
         print(f"{wall} {cpu}" if ran else "nan nan", flush=True)
 
 
-def start_workers(name, folder, tree_path, base_root, work_root, size):
+def start_workers(name, folder, tree_path, base_root, work_root, size, packet=0):
     """{"base": (process, outputs npz path), "work": ...}: one ready worker per version."""
     workers = {}
     for who, root in (("base", base_root), ("work", work_root)):
         env = dict(ENVIRON, PYTHONPATH=root)
         out = os.path.join(folder, f"{name}-{who}.npz")
         env["PYTHONPATH"] += os.pathsep + HERE          # bench_incoherent's rays
-        p = subprocess.Popen([sys.executable, __file__, "--worker", tree_path, str(size), out],
+        p = subprocess.Popen([sys.executable, __file__, "--worker", tree_path, str(size), out,
+                              str(packet)],
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
                              cwd=root)
         if p.stdout.readline().strip() != "ready":
@@ -130,10 +134,10 @@ def timed_rounds(workers, rounds, calls=CALLS):
     return {k: np.array(v) for k, v in seconds.items()}
 
 
-def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CALLS):
+def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CALLS, packet=0):
     """Both versions on one mesh, in turns, in `pairs` pairs of fresh processes one
     after the other; prints the medians and ratios. Every pair's outputs are compared
-    (each process computes its own)."""
+    (each process computes its own). packet: the Tracers' packet width (0: default)."""
     import kdray
     from meshes import mesh as bench_mesh
     from timing import median_ratio
@@ -143,7 +147,7 @@ def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CAL
     same = True
     runs = []
     for _ in range(pairs):
-        workers = start_workers(name, folder, tree_path, base_root, work_root, size)
+        workers = start_workers(name, folder, tree_path, base_root, work_root, size, packet)
         a, b = (np.load(workers[who][1]) for who in ("base", "work"))
         same &= sorted(a.files) == sorted(b.files) and all(
             np.array_equal(a[k], b[k], equal_nan=True) for k in a.files)
@@ -165,7 +169,7 @@ def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CAL
 
 def main():
     if len(sys.argv) > 1 and sys.argv[1] == "--worker":
-        return worker(sys.argv[2], int(sys.argv[3]), sys.argv[4])
+        return worker(sys.argv[2], int(sys.argv[3]), sys.argv[4], int(sys.argv[5]))
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", default="HEAD", help="commit to compare with (default HEAD)")
     ap.add_argument("--work", default=None, help="commit to measure (default: the working tree)")
@@ -174,6 +178,8 @@ def main():
     ap.add_argument("--pairs", type=int, default=1,
                     help="pairs of worker processes, one after the other (default 1)")
     ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--packet", type=int, default=0,
+                    help="the Tracers' packet width: 1, 8 or 16 (default: the device's)")
     ap.add_argument("--incoherent", action="store_true",
                     help="also time 100,000 rays in random directions (two sets)")
     args = ap.parse_args()
@@ -189,7 +195,7 @@ def main():
                 git_export(commit, roots[who], ["kdray", "kernels"])
         for name in args.meshes.split(","):
             compare(name, tmp, roots["base"], roots["work"], args.rounds, args.size,
-                    args.pairs, calls)
+                    args.pairs, calls, args.packet)
 
 
 if __name__ == "__main__":
