@@ -48,7 +48,7 @@ def build_options(f):
     d = BuildParams()
     opts = [
         click.option("--k-t", "K_T", type=float, default=d.K_T, show_default=True,
-                     help="K_T: SAH cost of one traversal step; 0 = 170, or 420 from a "
+                     help="K_T: SAH cost of one traversal step; 0 = 400, or 600 from a "
                           "million triangles (kdray.tree.auto_K_T)."),
         click.option("--k-i", "K_I", type=float, default=d.K_I, show_default=True,
                      help="K_I: SAH cost of one ray/triangle test."),

@@ -43,8 +43,8 @@ class BuildParams:
     """The SAH builder's parameters (Wald & Havran 2006; names as in the kernels)."""
 
     K_T: float = 0.0
-    """Cost of one traversal step, relative to K_I; 0 = automatic (`auto_K_T`: 170,
-    and 420 from a million triangles). W&H's Table 1 has 15 (for 20); on kdray's
+    """Cost of one traversal step, relative to K_I; 0 = automatic (`auto_K_T`: 400,
+    and 600 from a million triangles). W&H's Table 1 has 15 (for 20); on kdray's
     packet kernels a node visit costs more than that, mostly in cache misses, while a
     triangle test of a packet's 8 or 16 lanes is one vector pass. The values are the
     ones that build fastest, with the fewest nodes, among those that trace as fast as
@@ -67,20 +67,22 @@ class BuildParams:
                                    max_depth=int(min(depth, layout.MAX_DEPTH_LIMIT)))
 
 
-K_T_SMALL = 170.0
-K_T_LARGE = 420.0
+K_T_SMALL = 400.0
+K_T_LARGE = 600.0
 AUTO_K_T_TRIS = (2 ** 19, 2 ** 20)
 
 
 def auto_K_T(n_tris):
     """The automatic K_T for a mesh of n_tris triangles: K_T_SMALL up to
     AUTO_K_T_TRIS[0] triangles, K_T_LARGE from AUTO_K_T_TRIS[1], linear in log2(n_tris)
-    between. Measured in turns (bench/bench_sah.py, BENCHMARKS.md): up to 278k
-    triangles, K_T above 170 renders 2-17 % slower (larger leaves, more tests a ray);
-    from 1.1M, 320 renders and traces as fast as 170 and builds in 0.80-0.87 of the
-    time, with half the nodes and 12-13 % fewer leaf references (a node visit costs
-    more in a tree that outgrows the caches), and 420 as fast again in 0.93-0.95 of
-    320's time; 560 rendered 1 % slower."""
+    between. Measured in turns (bench/bench_sah.py --incoherent, BENCHMARKS.md,
+    twenty-third session), against 170 from 10k to 278k triangles: K_T 400 renders and
+    traces camera rays in 0.92-1.02 of the time, rays in random directions in
+    0.92-0.99, and builds in 0.75-0.83 (larger leaves, read a packet's run of
+    triangles at a time, cost less than the nodes they save); 550 lost up to 5 % on
+    incoherent rays. From 1.6M, against 420: 600 renders and traces in 0.95-0.96,
+    incoherent rays 0.98-1.01, builds in 0.91-0.96; 850 and up cost incoherent rays
+    1-9 %."""
     lo, hi = (math.log2(n) for n in AUTO_K_T_TRIS)
     x = min(max((math.log2(max(n_tris, 1)) - lo) / (hi - lo), 0.0), 1.0)
     return K_T_SMALL + x * (K_T_LARGE - K_T_SMALL)

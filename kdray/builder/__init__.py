@@ -109,7 +109,7 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
 
     vertices : (n, 3) float-like (read as float64);  faces : (m, 3) int.
     K_T, K_I : SAH costs of a traversal step and of a triangle test (W&H Table 1);
-        K_T 0 = automatic (`kdray.tree.auto_K_T`: 170, 420 from a million triangles);
+        K_T 0 = automatic (`kdray.tree.auto_K_T`: 400, 600 from a million triangles);
     empty_bonus : lambda in (0, 1], the cost factor of a split with an empty side;
     max_depth : deepest leaf, 0 = round(8 + 1.3 log2 n) capped at 64 (pbrt);
     leaf_size : nodes with at most this many triangles become leaves;
