@@ -16,8 +16,10 @@ or, from Python, any object with a `name` and a `hits(mesh, o, d, repeat)` metho
 returning (build s, trace s, t, prim (-1 on a miss), normal or None): another ray
 caster on the same rays (bench/bench_error.py compares Open3D and embreex this way).
 
-Per (scene, setting): build seconds; trace seconds (median of `repeat` warm runs, numpy
-rays in, numpy hits out, kernels already compiled); Mrays/s; and, on `sample` random
+Per (scene, setting): build seconds (one build, the first with those build
+parameters in the process, timed once; bench/bench_build.py times warm builds in
+turns); trace seconds (median of `repeat` warm runs, numpy rays in, numpy hits out,
+kernels already compiled); Mrays/s; and, on `sample` random
 rays against a float64 reference (`reference.traverse` with the input's float64
 triangles, the tree choosing only candidates): hit/miss disagreements, rays naming
 another triangle, relative depth error (p99, max; rays both hit) and normal angle error
