@@ -311,9 +311,15 @@ def device_sizes(tree, run=1):
 def n_device_triangles(nodes, run=1):
     """Triangle copies on the device (`device_triangles`) of a tree with these nodes,
     each leaf's n_prims rounded up to a multiple of `run`."""
-    nodes = np.asarray(nodes, dtype=np.uint32).reshape(-1, 2)
-    count = n_prims(nodes)[is_leaf(nodes)].astype(np.int64)
-    return int((-(-count // run) * run).sum())
+    return int(_leaf_runs(np.asarray(nodes, dtype=np.uint32).reshape(-1, 2), run)[2].sum())
+
+
+def _leaf_runs(nodes, run):
+    """(leaf (L,) node indices, count (L,) their n_prims, padded (L,) count rounded up
+    to a multiple of run), intp, for nodes (n, 2) uint32."""
+    leaf = np.flatnonzero(is_leaf(nodes))
+    count = n_prims(nodes)[leaf].astype(np.intp)
+    return leaf, count, -(-count // run) * run
 
 
 def n_triangle_blocks(n):
@@ -358,18 +364,17 @@ def device_triangles(tree, run=1):
     if run < 1 or TRI_BLOCK % run:
         raise ValueError(f"run must divide {TRI_BLOCK}, got {run}")
     nodes = np.array(tree.nodes, dtype=np.uint32).reshape(-1, 2)
-    leaf = np.flatnonzero(is_leaf(nodes))
-    count = n_prims(nodes)[leaf].astype(np.intp)
+    leaf, count, padded = _leaf_runs(nodes, run)
     first = leaf_offset(nodes)[leaf].astype(np.intp)
-    padded = -(-count // run) * run
     start = np.cumsum(padded) - padded               # each leaf's first copy, in node order
     nodes[leaf, 1] = start
-    # each copy's entry of leaf_tris (padding: whatever entry, then cleared)
-    leaf_tris = np.asarray(tree.leaf_tris, dtype=np.intp)
-    entry = np.arange(int(padded.sum())) + np.repeat(first - start, padded)
-    tri = leaf_tris[np.minimum(entry, len(leaf_tris) - 1)]
-    extra = padded - count
-    pad = np.arange(int(extra.sum())) + np.repeat(start + count - (np.cumsum(extra) - extra), extra)
+    # each copy's place k in its leaf: entry first + k of leaf_tris, or padding from
+    # k = count on (given entry 0, then cleared)
+    k = np.arange(int(padded.sum())) - np.repeat(start, padded)
+    pad = np.flatnonzero(k >= np.repeat(count, padded))
+    entry = np.repeat(first, padded) + k
+    entry[pad] = 0
+    tri = np.asarray(tree.leaf_tris, dtype=np.intp)[entry]
     tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[tri]
     tris[pad] = 0.0
     tri_ids = np.asarray(tree.tri_ids, dtype=np.uint32)[tri]

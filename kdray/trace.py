@@ -320,13 +320,14 @@ class Tracer:
                          hostbuf=array)
 
     def _check_fits(self, tree):
-        """DeviceError when the tree cannot live on the device: one buffer larger than
-        the device's largest allocation, or all of them with one ray's launch buffers
-        more than its global memory. Launches are sized to what is left
+        """The tree's device buffers' bytes (`device_sizes`, leaves in runs of a
+        packet); DeviceError when the tree cannot live on the device: one buffer larger
+        than the device's largest allocation, or all of them with one ray's launch
+        buffers more than its global memory. Launches are sized to what is left
         (`_launch_size`)."""
         name = self.device.name.strip()
         largest = int(self.device.max_mem_alloc_size)
-        sizes = device_sizes(tree, self._run)
+        sizes = device_sizes(tree, self.packet)
         for what, nbytes in sizes.items():
             if nbytes > largest:
                 raise DeviceError(f"the tree's {what} ({nbytes / 2**20:.0f} MiB) do not fit in "
@@ -336,6 +337,7 @@ class Tracer:
         if need > have:
             raise DeviceError(f"the tree needs {need / 2**20:.0f} MiB on {name}, "
                               f"which has {have / 2**20:.0f} MiB")
+        return sizes
 
     def _launch_size(self, widths, what="ray", cap=None):
         """Rays (or rows of pixels) a launch takes: `rays_per_launch` for this device and
@@ -363,12 +365,10 @@ class Tracer:
 
     def _upload(self, tree):
         cl = _device._cl()
-        # packets read a leaf's triangles a packet's width at a time (kd_gather_tris)
-        self._run = self.packet
-        self._check_fits(tree)
-        self.device_bytes = sum(device_sizes(tree, self._run).values())
+        self.device_bytes = sum(self._check_fits(tree).values())
         self._n_nodes = len(tree.nodes)
-        nodes, tris, tri_ids = device_triangles(tree, self._run)
+        # packets read a leaf's triangles a packet's width at a time (kd_gather_tris)
+        nodes, tris, tri_ids = device_triangles(tree, self.packet)
         self._nodes = self._buffer(nodes)
         self._tris = self._buffer(triangle_blocks(tris))
         self._tri_ids = self._buffer(tri_ids)
