@@ -75,14 +75,11 @@ AUTO_K_T_TRIS = (2 ** 19, 2 ** 20)
 def auto_K_T(n_tris):
     """The automatic K_T for a mesh of n_tris triangles: K_T_SMALL up to
     AUTO_K_T_TRIS[0] triangles, K_T_LARGE from AUTO_K_T_TRIS[1], linear in log2(n_tris)
-    between. Measured in turns (bench/bench_sah.py --incoherent, BENCHMARKS.md,
-    twenty-third session), against 170 from 10k to 278k triangles: K_T 400 renders and
-    traces camera rays in 0.92-1.02 of the time, rays in random directions in
-    0.92-0.99, and builds in 0.75-0.83 (larger leaves, read a packet's run of
-    triangles at a time, cost less than the nodes they save); 550 lost up to 5 % on
-    incoherent rays. From 1.6M, against 420: 600 renders and traces in 0.95-0.96,
-    incoherent rays 0.98-1.01, builds in 0.91-0.96; 850 and up cost incoherent rays
-    1-9 %."""
+    between. Chosen in turns with bench/bench_sah.py --incoherent (figures in
+    BENCHMARKS.md): the largest of the K_T measured that lost nothing, on camera rays
+    or on rays in random directions, against smaller ones. Larger leaves, read a packet's run of
+    triangles at a time, cost less than the nodes they save and build faster; past
+    these values incoherent rays slow down first (more triangle tests a ray)."""
     lo, hi = (math.log2(n) for n in AUTO_K_T_TRIS)
     x = min(max((math.log2(max(n_tris, 1)) - lo) / (hi - lo), 0.0), 1.0)
     return K_T_SMALL + x * (K_T_LARGE - K_T_SMALL)
