@@ -5,6 +5,8 @@
     tree = kdray.build(mesh.vertices, mesh.faces)   # SAH k-d tree (KdTree)
     tracer = kdray.Tracer(tree)                     # owns its OpenCL context
     hits = tracer.trace(origins, directions)        # t, prim, u, v, normal
+    tracer.occluded(origins, directions)            # any hit; also count, contains,
+    tracer.intersections(origins, directions)       # every hit (kdray.rays)
     camera = kdray.Camera.look_at(eye, target)
     images = tracer.render(camera, aovs=("depth", "id"))
     scan = tracer.scan(kdray.Lidar.from_json("lidar.json"), sensor_to_world)  # range image
@@ -27,11 +29,12 @@ from .errors import (CameraError, DeviceError, KdrayError, KernelBuildError, Mes
                      OutputError, ParameterError, TreeError, TreeFileError)
 from .load import load
 from .mesh import Mesh
+from .rays import Intersections
 from .trace import Hits, Tracer
 from .tree import BuildParams, KdTree
 
 __version__ = "0.1.0"
 
-__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Camera", "Lidar",
+__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Intersections", "Camera", "Lidar",
            "KdrayError", "MeshError", "TreeError", "TreeFileError", "DeviceError",
            "KernelBuildError", "CameraError", "OutputError", "ParameterError"]

@@ -12,7 +12,7 @@ import time
 import click
 import numpy as np
 
-from .errors import DeviceError, KdrayError, MeshError, OutputError, TreeError
+from .errors import DeviceError, KdrayError, MeshError, OutputError, TreeError, one_line
 
 log = logging.getLogger("kdray")
 
@@ -461,6 +461,80 @@ def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
     hit = int(np.count_nonzero(images["id"] != 0xFFFFFFFF))
     click.echo(f"wrote {output}" + (f" and {points}" if points else "")
                + f" ({beams} beams x {columns} columns, {hit} of {beams * columns} beams hit)")
+
+
+def _read_points(path):
+    """(N, 3) float64 points of a .npy file or a text file of three numbers a line."""
+    try:
+        if str(path).endswith(".npy"):
+            points = np.load(path, allow_pickle=False)
+        else:
+            points = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except (OSError, ValueError) as e:
+        raise KdrayError(f"{path}: cannot read points ({one_line(e)})") from None
+    if points.dtype.kind not in "fiu" or points.ndim != 2 or points.shape[1] != 3:
+        raise KdrayError(f"{path}: points must be an (N, 3) array of numbers, got "
+                         f"{points.dtype} {points.shape}")
+    return points
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--points", "points_file", required=True, type=click.Path(dir_okay=False),
+              help="The points: an (N, 3) .npy file, or text, X Y Z a line.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The answers to write: an (N,) .npy file, bool (inside) or int32 "
+                   "(--count).")
+@click.option("--count", "direction", callback=_floats(3), default=None,
+              help="Write each point's surface crossings along the direction X,Y,Z "
+                   "instead of inside or not.")
+@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
+              help="Use this dumped tree instead of building one.")
+@click.option("--device", default=None,
+              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+@build_options
+def contains(scene, points_file, output, direction, tree_file, device, **kw):
+    """Which points lie inside SCENE, a closed mesh (the parity of one ray's exact
+    crossing count: docs/conventions.md), or with --count how many times a ray from
+    each point crosses the surface."""
+    from .files import atomic_write
+    from .trace import Tracer
+    from .tree import KdTree
+    params = _build_kwargs(kw)
+    for source in (scene, tree_file, points_file):
+        _check_not_same(source, output)
+    _check_folder(output)
+    points = _read_points(points_file)
+    if direction is not None and not (np.isfinite(direction).all() and np.any(direction)):
+        raise KdrayError(f"--count needs a finite, nonzero direction, got {direction}")
+    step = Steps()
+    if tree_file:
+        with step("loading the tree"):
+            tree = KdTree.load(tree_file)
+    else:
+        from .load import load
+        with step("loading"):
+            mesh = load(scene)
+        with step(f"building the tree of {len(mesh.faces):,} triangles"):
+            tree = _build_mesh(mesh, scene, params)
+    with step("setting up the device"):
+        tracer = Tracer(tree, device=device)
+    if direction is None:
+        with step(f"testing {len(points):,} points"):
+            answers = tracer.contains(points)
+        summary = f"{int(answers.sum())} of {len(points)} points inside"
+    else:
+        with step(f"counting the crossings of {len(points):,} rays"):
+            answers = tracer.count(points, np.broadcast_to(np.asarray(direction), points.shape))
+        summary = f"{int((answers > 0).sum())} of {len(points)} rays cross the surface"
+    def save(tmp):
+        with open(tmp, "wb") as f:
+            np.save(f, answers)
+
+    with step("writing"):
+        atomic_write(output, save)
+    step.log()
+    click.echo(f"wrote {output} ({summary})")
 
 
 @cli.command()

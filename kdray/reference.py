@@ -1,6 +1,8 @@
 """Float64 numpy oracles for every kernel and tree test.
 
 - `brute_force(triangles, origins, directions)`: every ray against every triangle.
+- `all_hits(triangles, origins, directions)`: every hit of every ray, and with
+  crossing=True the count's rule (kdray.rays) for crossing counts.
 - `traverse(tree, origins, directions)`: the same hits found through a KdTree's
   leaves (a breadth-first, closed-interval traversal: every leaf whose closed box the
   ray's segment touches), so a tree that misses a triangle somewhere shows up.
@@ -51,10 +53,19 @@ def _as_rays(origins, directions):
     return o, d
 
 
-def intersect(tri, o, d, t_min, t_max):
+def _tie(e, qy_py, px_qx):
+    """The crossing rule's sign of an edge function e = F(P, Q) (kernels/triangle.cl,
+    kd_tie): e, or where it is 0 its derivative along (1, 0), then along (0, 1)."""
+    return np.where(e != 0, e, np.where(qy_py != 0, qy_py, px_qx))
+
+
+def intersect(tri, o, d, t_min, t_max, crossing=False):
     """Watertight ray/triangle test, pairwise, float64.
 
     tri : (k, 3, 3);  o, d : (k, 3);  t_min, t_max : scalars or (k,).
+    crossing : the count's rule (kdray.rays): an edge function that is exactly 0 takes
+        the sign it has once the ray is moved by an infinitesimal step (_tie), and the
+        moved ray must be strictly inside; else a point on an edge hits.
     Returns (hit (k,) bool, t, u, v (k,) float64).
     """
     k = len(tri)
@@ -83,7 +94,11 @@ def intersect(tri, o, d, t_min, t_max):
         V = ax * cy - ay * cx
         W = bx * ay - by * ax
         det = U + V + W
-        inside = ~(((U < 0) | (V < 0) | (W < 0)) & ((U > 0) | (V > 0) | (W > 0)))
+        if crossing:
+            Us, Vs, Ws = _tie(U, cy - by, bx - cx), _tie(V, ay - cy, cx - ax), _tie(W, by - ay, ax - bx)
+            inside = (((Us > 0) & (Vs > 0) & (Ws > 0)) | ((Us < 0) & (Vs < 0) & (Ws < 0)))
+        else:
+            inside = ~(((U < 0) | (V < 0) | (W < 0)) & ((U > 0) | (V > 0) | (W > 0)))
         zs = sz[:, None] * pz                   # scaled z of the three vertices
         T = U * zs[:, 0] + V * zs[:, 1] + W * zs[:, 2]
         t = T / det
@@ -139,6 +154,37 @@ def _slab(lo, hi, o, d, t_min, t_max):
     t0 = np.maximum(near.max(axis=1), t_min)
     t1 = np.minimum(far.min(axis=1), t_max)
     return t0, t1
+
+
+def all_hits(triangles, origins, directions, t_min=0.0, t_max=np.inf, crossing=False,
+             chunk=1 << 21):
+    """Every hit of every ray against every triangle, float64: (ray, prim, t, u, v),
+    each (H,), sorted by ray, then t, then prim. crossing: the count's rule
+    (`intersect`). t_min, t_max : scalars or (N,)."""
+    tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+    o, d = _as_rays(origins, directions)
+    n, m = len(o), len(tri)
+    lo_t = np.broadcast_to(np.asarray(t_min, dtype=np.float64), (n,))
+    hi_t = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (n,))
+    found = [(np.zeros(0, np.int64),) * 2 + (np.zeros(0),) * 3]
+    if n and m:
+        lo = tri.min(axis=1)
+        hi = tri.max(axis=1)
+        pad = 1e-9 * (np.abs(lo) + np.abs(hi)) + 1e-300
+        lo, hi = lo - pad, hi + pad
+        rays_per = max(1, chunk // m)
+        for start in range(0, n, rays_per):
+            r = np.arange(start, min(n, start + rays_per))
+            rr = np.repeat(r, m)
+            tt = np.tile(np.arange(m), len(r))
+            t0, t1 = _slab(lo[tt], hi[tt], o[rr], d[rr], -np.inf, np.inf)
+            keep = (t0 <= t1) & (t1 >= lo_t[rr])
+            rr, tt = rr[keep], tt[keep]
+            hit, t, u, v = intersect(tri[tt], o[rr], d[rr], lo_t[rr], hi_t[rr], crossing)
+            found.append((rr[hit], tt[hit], t[hit], u[hit], v[hit]))
+    ray, prim, t, u, v = (np.concatenate(x) for x in zip(*found))
+    order = np.lexsort((prim, t, ray))
+    return ray[order], prim[order], t[order], u[order], v[order]
 
 
 def brute_force(triangles, origins, directions, t_min=0.0, t_max=np.inf, chunk=1 << 21):

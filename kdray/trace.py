@@ -43,6 +43,7 @@ import time
 import numpy as np
 
 from . import device as _device
+from . import rays as _rays
 from . import render as _render
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
@@ -488,6 +489,12 @@ class Tracer:
                 while_running()
             finally:
                 self.queue.finish()         # the kernel writes host memory: wait for it
+        self._read_outputs(device_out, host_out)
+
+    def _read_outputs(self, device_out, host_out):
+        """Bring the kernel's outputs (dict name -> buffer from `_output_buffer`) into
+        their host arrays (host_out, by the same names) and wait for it."""
+        cl = _device._cl()
         for name, buf in device_out.items():
             if self._zero_copy:
                 # the buffer is the host array: a map makes the kernel's writes visible
@@ -523,18 +530,21 @@ class Tracer:
         flag = cl.mem_flags.USE_HOST_PTR if self._zero_copy else cl.mem_flags.COPY_HOST_PTR
         return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | flag, hostbuf=array), offset
 
-    def _output_buffer(self, array):
-        """A write-only device buffer for a contiguous host array: on a CPU device the
-        array itself, so nothing is copied back. Poisoned first when asked."""
+    def _output_buffer(self, array, read=False):
+        """A write-only device buffer for a contiguous host array (read: the kernel
+        reads it too): on a CPU device the array itself, so nothing is copied back.
+        Poisoned first when asked."""
         cl = _device._cl()
+        access = cl.mem_flags.READ_WRITE if read else cl.mem_flags.WRITE_ONLY
+        # 4-byte elements get _POISON, bytes (occluded's) 0xAD
+        poison = _POISON if array.itemsize % 4 == 0 else np.uint8(0xAD)
         if self._poison_outputs:
-            array.reshape(-1).view(np.uint32)[:] = _POISON
+            array.reshape(-1).view(poison.dtype)[:] = poison
         if self._zero_copy:
-            return cl.Buffer(self.context, cl.mem_flags.WRITE_ONLY | cl.mem_flags.USE_HOST_PTR,
-                             hostbuf=array)
-        buf = cl.Buffer(self.context, cl.mem_flags.WRITE_ONLY, array.nbytes)
+            return cl.Buffer(self.context, access | cl.mem_flags.USE_HOST_PTR, hostbuf=array)
+        buf = cl.Buffer(self.context, access, array.nbytes)
         if self._poison_outputs:
-            cl.enqueue_fill_buffer(self.queue, buf, _POISON, 0, array.nbytes)
+            cl.enqueue_fill_buffer(self.queue, buf, poison, 0, array.nbytes)
         return buf
 
     # -- rays ----------------------------------------------------------------------------
@@ -563,6 +573,12 @@ class Tracer:
         if self._rays_in_kernel and o.dtype in _C_TYPES and d.dtype in _C_TYPES:
             return (np.ascontiguousarray(o), np.ascontiguousarray(d), o_step,
                     (_C_TYPES[o.dtype], _C_TYPES[d.dtype]))
+        return (*self._rays32(o, d, o_step), None)
+
+    def _rays32(self, o, d, o_step):
+        """(o32 (M, 3), d32 (N, 3)) float32, page-aligned: origins o ((M, 3), M = N, or
+        1 with o_step 0) made relative to the tree's origin in its units in float64 and
+        only then rounded, directions d rounded."""
         o = o.astype(np.float64, copy=False)
         # o - origin in float64, rounded to float32 on the way out (buffered: no
         # float64 temporary of the whole array); large arrays in chunks on threads
@@ -590,7 +606,7 @@ class Tracer:
                 list(pool.map(convert, chunks))
         elif chunks:
             convert(chunks[0])
-        return o32, d32, o_step, None
+        return o32, d32
 
     def trace(self, origins, directions, t_min=0.0, t_max=np.inf, precision="single",
               outputs=TRACE_OUTPUTS):
@@ -641,6 +657,27 @@ class Tracer:
             if "uv" not in outputs:
                 hits = dataclasses.replace(hits, u=None, v=None)
         return hits if len(shape) == 1 else hits._reshaped(shape)
+
+    # -- ray queries beyond the nearest hit (kdray.rays) ---------------------------------
+
+    def occluded(self, origins, directions, t_min=0.0, t_max=np.inf):
+        """(N,) bool: any hit with t_min < t < t_max (kdray.rays.occluded)."""
+        return _rays.occluded(self, origins, directions, t_min, t_max)
+
+    def count(self, origins, directions, t_min=0.0, t_max=np.inf):
+        """(N,) int32: surface crossings with t_min < t < t_max (kdray.rays.count)."""
+        return _rays.count(self, origins, directions, t_min, t_max)
+
+    def contains(self, points):
+        """(N,) bool: points inside a closed mesh (kdray.rays.contains)."""
+        return _rays.contains(self, points)
+
+    def intersections(self, origins, directions, t_min=0.0, t_max=np.inf, max_hits=None,
+                      precision="single"):
+        """Every hit of each ray, sorted by t: kdray.rays.Intersections
+        (kdray.rays.intersections)."""
+        return _rays.intersections(self, origins, directions, t_min, t_max, max_hits,
+                                   precision)
 
     def _image_width(self, origins, directions):
         """(width, search) for (N, 3) rays: the width of the image they are to be traced

@@ -78,7 +78,7 @@ void kd_intersect_leaf(KdNode leaf, __global const float *tris, __global const u
         KD_STAT(z);
         if (intersect_triangle(shear, o, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
                                kd_vertex(tris, tri, 2), tri,
-                               t_min, t_max, hit->t, hit->tri, tri_ids, &t, &u, &v)) {
+                               t_min, t_max, hit->t, hit->tri, tri_ids, false, &t, &u, &v)) {
             hit->t = t;
             hit->u = u;
             hit->v = v;

@@ -218,13 +218,33 @@ bool kd_before(float t, uint tri, float t_best, uint tri_best, __global const ui
     return t < t_best || (t == t_best && tri_ids[tri] < tri_ids[tri_best]);
 }
 
+/* The sign an edge function e = F(P, Q) = Qx Py - Qy Px takes when the ray is moved by
+ * an infinitesimal step delta = (1, 0) and then a smaller one (0, 1) in the sheared
+ * plane (e itself where it is not 0): the derivatives of F along them are Qy - Py and
+ * Px - Qx. Two triangles that share the edge see it reversed, F(Q, P) = -F(P, Q) bit
+ * for bit and so are these, so a ray through the edge enters exactly one of them; at a
+ * vertex the moved ray lies inside exactly one triangle of a fan that covers the
+ * vertex once (the rasterizer's top-left rule, written as a perturbation). Only signs
+ * matter: the values stay the test's. */
+KD_INLINE
+float kd_tie(float e, float qy_py, float px_qx)
+{
+    return e != 0.0f ? e : (qy_py != 0.0f ? qy_py : px_qx);
+}
+
 /* Intersect the ray (o, shear) with triangle `tri` (p0, p1, p2), all relative to the
  * tree's origin. On a hit with t_min < t < t_max that comes before (t_best,
- * tri_best), write t, u, v and return true. */
+ * tri_best), write t, u, v and return true.
+ * crossing: the count's rule (queries.cl): the edge functions' signs are exact (from
+ * double where the device has it) and one that is exactly 0 takes kd_tie's sign, so a
+ * point of an edge or a vertex shared by consistently oriented triangles is hit in
+ * exactly one of them; else a point on an edge is hit in every triangle that has it
+ * (the nearest hit's rule: no ray leaks between triangles). */
 KD_INLINE
 bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2, uint tri,
                         float t_min, float t_max, float t_best, uint tri_best,
-                        __global const uint *tri_ids, float *t_out, float *u_out, float *v_out)
+                        __global const uint *tri_ids, bool crossing, float *t_out,
+                        float *u_out, float *v_out)
 {
     /* Vertices relative to the ray origin */
     float3 A = p0 - o;
@@ -247,17 +267,28 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
 
 #ifdef cl_khr_fp64
     /* On an edge, recompute in double: the products of floats are exact there, so
-     * the sign of each edge function is exact (and kept: kd_signed_float). */
-    if (U == 0.0f || V == 0.0f || W == 0.0f) {
+     * the sign of each edge function is exact (and kept: kd_signed_float). The count's
+     * rule takes every sign exact, so that two triangles never see their shared edge
+     * one in float and one in double. */
+    if (crossing || U == 0.0f || V == 0.0f || W == 0.0f) {
         U = kd_signed_float((double)Cx * (double)By - (double)Cy * (double)Bx);
         V = kd_signed_float((double)Ax * (double)Cy - (double)Ay * (double)Cx);
         W = kd_signed_float((double)Bx * (double)Ay - (double)By * (double)Ax);
     }
 #endif
 
-    /* Miss when the edge functions differ in sign (written so that NaN misses) */
-    if (!((U >= 0.0f && V >= 0.0f && W >= 0.0f) || (U <= 0.0f && V <= 0.0f && W <= 0.0f)))
+    if (crossing) {
+        /* Miss unless the moved ray is strictly inside (kd_tie): U = F(B, C),
+         * V = F(C, A), W = F(A, B) */
+        float Us = kd_tie(U, Cy - By, Bx - Cx);
+        float Vs = kd_tie(V, Ay - Cy, Cx - Ax);
+        float Ws = kd_tie(W, By - Ay, Ax - Bx);
+        if (!((Us > 0.0f && Vs > 0.0f && Ws > 0.0f) || (Us < 0.0f && Vs < 0.0f && Ws < 0.0f)))
+            return false;
+    } else if (!((U >= 0.0f && V >= 0.0f && W >= 0.0f) || (U <= 0.0f && V <= 0.0f && W <= 0.0f))) {
+        /* Miss when the edge functions differ in sign (written so that NaN misses) */
         return false;
+    }
     float det = U + V + W;
     if (det == 0.0f)
         return false;

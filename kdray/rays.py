@@ -1,0 +1,422 @@
+"""Ray queries beyond the nearest hit: any hit, every hit, crossing counts, inside tests.
+
+    tracer.occluded(origins, directions, t_min=0, t_max=inf)    # (N,) bool
+    tracer.count(origins, directions)                           # (N,) int32 crossings
+    tracer.contains(points)                                     # (N,) bool, closed meshes
+    hits = tracer.intersections(origins, directions, max_hits=None)
+    hits.offsets (N + 1,) int64; per hit: hits.ray, .t, .prim, .u, .v, .object
+
+The functions here take a Tracer (kdray.trace) and run kernels/queries.cl on its
+device and tree; `Tracer.occluded` and the others are thin faces over them. Rays are
+given as `Tracer.trace` takes them: origins (N, 3) or (3,) and directions (N, 3) (or
+image-shaped, (..., 3), answered in that shape), world coordinates, float64 or float32;
+t_min, t_max scalars or (N,) arrays (per ray), 0 <= t_min <= t_max, t in units of
+|direction|. A ray with a non-finite component or a zero direction has no hit
+(occluded False, count 0, no intersections), as in `trace`.
+
+Which hits (docs/conventions.md, "Ray queries"):
+- occluded and intersections take the nearest hit's test (kernels/triangle.cl): a ray
+  through an edge or a vertex hits every triangle that has it, so `occluded` is exactly
+  `trace(...).hit` and intersections' first hit is trace's hit (ties by input id).
+- count takes the crossing rule: edge functions with exact signs, an exactly zero one
+  decided as if the ray were moved by a fixed infinitesimal step in its sheared plane,
+  so a ray through an edge or a vertex shared by consistently oriented triangles
+  crosses there once. `count` <= the number of intersections; they differ only where
+  a ray meets an edge or a vertex.
+- A triangle in several leaves of the tree is counted and listed once.
+"""
+import dataclasses
+import functools
+import logging
+import time
+
+import numpy as np
+
+from . import device as _device
+from .errors import DeviceError, KdrayError
+from .host import check_host_memory, page_aligned_empty
+from .layout import MISS
+from .tree import object_ids
+
+log = logging.getLogger(__name__)
+
+CONTAINS_DIRECTION = np.array([0.5377513, 0.6153846, 0.5763888], dtype=np.float32)
+"""The direction `contains` casts every point's ray along: fixed, so that an answer is
+the same every run, and not in any axis plane or along a diagonal, where meshes built
+on grids have their edges (a ray through an edge or vertex is still counted exactly)."""
+
+COUNT_RAW = 0x80000000
+"""count_rays marks a count of every hit found, copies included (kernels/queries.cl)."""
+WALK_FAULT = 0x40000000
+"""The kernels' mark of a walk that met a corrupt tree (never for a valid one)."""
+
+RUN_CPU = 32
+"""Consecutive rays a work-item takes on a CPU device (one per work-item on a GPU)."""
+
+HIT_BYTES = 16
+"""Host bytes of one listed hit: t (4), u and v (8), prim (4); ray and object are
+made on the host when asked (8 bytes each)."""
+
+
+@dataclasses.dataclass(eq=False)
+class Intersections:
+    """Every hit of N rays, in compressed rows: the hits of ray i are
+    offsets[i] .. offsets[i + 1] - 1, sorted by t, ties by input triangle id.
+
+    offsets : (N + 1,) int64
+    t : (H,) float32 (float64 with precision="double"), in units of |direction|
+    prim : (H,) uint32 input triangle id;  u, v : (H,) barycentrics as `Hits` has them
+    object_table : the tree's KdTree.objects, which `object` looks up prim in
+    shape : the rays' shape ((N,), or (H, W) for image-shaped rays: ray i is then the
+        row-major ray i)."""
+
+    offsets: np.ndarray
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    object_table: np.ndarray = dataclasses.field(default=None, repr=False)
+    shape: tuple = None
+
+    def __len__(self):
+        return len(self.offsets) - 1
+
+    @property
+    def counts(self):
+        """(N,) int64: hits of each ray (in the rays' shape)."""
+        counts = np.diff(self.offsets)
+        return counts if self.shape is None else counts.reshape(self.shape)
+
+    @functools.cached_property
+    def ray(self):
+        """(H,) int64: the ray of each hit (its index in the flattened rays)."""
+        return np.repeat(np.arange(len(self), dtype=np.int64), np.diff(self.offsets))
+
+    @functools.cached_property
+    def object(self):
+        """(H,) uint32: each hit triangle's object (kdray.tree.object_ids)."""
+        return object_ids(self.prim, self.object_table)
+
+    def of(self, i):
+        """(t, prim) of ray i's hits (views)."""
+        a, b = self.offsets[i], self.offsets[i + 1]
+        return self.t[a:b], self.prim[a:b]
+
+
+def _ranges(t_min, t_max, n, scale):
+    """(t_mins, t_maxs, t_step) as the kernels take them: float32 arrays in the tree's
+    units, of n elements (t_step 1) or of one (t_step 0). KdrayError for NaN, t_min < 0,
+    t_min > t_max or arrays of another length."""
+    lo = np.asarray(t_min, dtype=np.float64)
+    hi = np.asarray(t_max, dtype=np.float64)
+    for name, a in (("t_min", lo), ("t_max", hi)):
+        if a.ndim > 1 or (a.ndim == 1 and len(a) != n):
+            raise KdrayError(f"{name} must be a number or an array of one value a ray "
+                             f"({n}), got shape {a.shape}")
+    if np.isnan(lo).any() or np.isnan(hi).any():
+        raise KdrayError("t_min and t_max must not be NaN")
+    if not (lo >= 0).all():
+        raise KdrayError("t_min must be >= 0 (hits behind a ray's origin never count)")
+    bad = np.flatnonzero(np.broadcast_to(lo > hi, (n,) if lo.ndim or hi.ndim else ()))
+    if bad.size:
+        i = int(bad[0])
+        a = lo if lo.ndim == 0 else lo[i]
+        b = hi if hi.ndim == 0 else hi[i]
+        raise KdrayError(f"need t_min <= t_max, got t_min={float(a)} > t_max={float(b)} "
+                         f"(ray {i})")
+    step = 1 if lo.ndim or hi.ndim else 0
+    shape = (n,) if step else (1,)
+    with np.errstate(over="ignore"):
+        return (np.ascontiguousarray(np.broadcast_to(lo / scale, shape), dtype=np.float32),
+                np.ascontiguousarray(np.broadcast_to(hi / scale, shape), dtype=np.float32),
+                step)
+
+
+def _flat(origins, directions, what="directions"):
+    """(o (N, 3) or (3,), d (N, 3), shape) as `Tracer.trace` takes rays; KdrayError
+    for other shapes or dtypes that are not numbers."""
+    from .trace import _flat_rays
+    for name, a in (("origins", origins), (what, directions)):
+        kind = np.asarray(a).dtype.kind
+        if kind not in "fiu":
+            raise KdrayError(f"{name} must be an array of numbers, got dtype {np.asarray(a).dtype}")
+    return _flat_rays(origins, directions)
+
+
+class _Rays:
+    """The rays of one query as queries.cl reads them: float32, relative to the tree's
+    origin in its units (Tracer._rays32), with their t ranges (`_ranges`)."""
+
+    def __init__(self, tracer, origins, directions, t_min, t_max):
+        o, d, self.shape = _flat(origins, directions)
+        o = o.reshape(-1, 3)
+        self.n = len(d)
+        if len(o) > 1 and o.strides[0] == 0:
+            o = o[:1]
+        self.o_step = 0 if len(o) == 1 and self.n != 1 else 1
+        self.o, self.d = tracer._rays32(o, d, self.o_step)
+        self._given = (o, d, tracer._origin, tracer._scale)
+        self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
+
+    def exact(self):
+        """(o64 (M, 3), d64 (N, 3)) float64: the rays as given, origins relative to the
+        tree's origin in its units (what list_rays refines hits from with REFINE)."""
+        o, d, origin, scale = self._given
+        return ((np.asarray(o, dtype=np.float64) - origin) / scale,
+                np.ascontiguousarray(d, dtype=np.float64))
+
+    def part(self, start, stop):
+        """(o, d, t_mins, t_maxs) of rays start .. stop - 1."""
+        o = self.o[start:stop] if self.o_step else self.o
+        t = slice(start, stop) if self.t_step else slice(None)
+        return o, self.d[start:stop], self.t_mins[t], self.t_maxs[t]
+
+    def subset(self, index):
+        """A _Rays of the rays `index` ((k,) int array) only."""
+        other = object.__new__(_Rays)
+        other.shape, other.n = (len(index),), len(index)
+        other.o_step, other.t_step = self.o_step, self.t_step
+        other.o = self.o[index] if self.o_step else self.o
+        other.d = self.d[index]
+        other.t_mins = self.t_mins[index] if self.t_step else self.t_mins
+        other.t_maxs = self.t_maxs[index] if self.t_step else self.t_maxs
+        o, d, origin, scale = self._given
+        other._given = (o[index] if self.o_step else o, d[index], origin, scale)
+        return other
+
+
+def _program(tracer):
+    """queries.cl built for the tracer's device and tree (kept with its other programs):
+    {"program": Program, kernel name: Kernel, "run": rays a work-item}."""
+    run = RUN_CPU if _device.is_cpu(tracer.device) else 1
+    local = tracer.local_size if _device.is_cpu(tracer.device) else min(
+        64, int(tracer.device.max_work_group_size))
+    defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local, "RUN": run}
+    if tracer.refine:
+        defines["REFINE"] = None
+    key = ("queries.cl",) + tuple(sorted(defines.items()))
+    entry = tracer._programs.get(key)
+    if entry is None:
+        cl = _device._cl()
+        started = time.perf_counter()
+        program = _device.build_program(tracer.context, "queries.cl", defines)
+        log.debug("built queries.cl with %s in %.2f s", defines, time.perf_counter() - started)
+        entry = {"program": program, "run": run, "local": local}
+        for name in ("occluded_rays", "count_rays", "list_rays"):
+            entry[name] = cl.Kernel(program, name)
+        tracer._programs[key] = entry
+    return entry
+
+
+def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
+    """Run `kernel_name` on rays start .. stop - 1: extra (the kernel's arguments after
+    the rays: numpy scalars, or host arrays it reads) and outputs (dict name -> host
+    array it writes, in argument order)."""
+    cl = _device._cl()
+    n = stop - start
+    if n == 0:
+        return
+    entry = _program(tracer)
+    kernel = entry[kernel_name]
+    o, d, t_mins, t_maxs = rays.part(start, stop)
+    keep = []                                    # the host arrays the buffers use
+
+    def inp(array):
+        if isinstance(array, np.generic):
+            return array
+        buf, offset = tracer._input_buffer(np.ascontiguousarray(array))
+        keep.append(array)
+        if offset:                               # queries.cl takes no offsets: copy
+            buf = tracer._buffer(array)
+        return buf
+
+    # list_rays keeps its slots sorted in place: it reads what it wrote
+    device_out = {name: tracer._output_buffer(a, read=kernel_name == "list_rays")
+                  for name, a in outputs.items()}
+    args = (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
+            np.uint32(tracer._n_nodes), inp(o), inp(d), np.uint32(rays.o_step), inp(t_mins),
+            inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), *map(inp, extra),
+            *device_out.values())
+    types = tuple(a.dtype if isinstance(a, np.generic) else None for a in args)
+    if entry.get(("arg_types", kernel_name)) != types:
+        kernel.set_arg_types(types)
+        entry[("arg_types", kernel_name)] = types
+    items = -(-n // entry["run"])
+    local = entry["local"]
+    kernel(tracer.queue, (-(-items // local) * local,), (local,), *args)
+    tracer._read_outputs(device_out, outputs)
+    del keep
+
+
+def _per_launch(tracer, widths):
+    """Rays a launch of a query takes (Tracer._launch_size)."""
+    return tracer._launch_size(widths)
+
+
+def _check_fault(values, what):
+    if (values == WALK_FAULT).any():
+        raise DeviceError(f"{what}: the walk met a tree deeper than its depth or with more "
+                          f"leaves than nodes; the tree is corrupt (kdray info --check)")
+
+
+def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
+    """(N,) bool (the rays' shape): whether each ray hits anything with t_min < t <
+    t_max. An any-hit walk that stops at the first hit found; the same answers as
+    `trace(...).hit`."""
+    rays = _Rays(tracer, origins, directions, t_min, t_max)
+    out = page_aligned_empty((rays.n,), np.uint8)
+    step = _per_launch(tracer, [12 * rays.o_step, 12, 8 * rays.t_step, 1])
+    for start in range(0, rays.n, step):
+        stop = min(rays.n, start + step)
+        _launch(tracer, "occluded_rays", rays, start, stop, (), {"out": out[start:stop]})
+    _check_fault(out, "occluded")
+    return out.view(bool).reshape(rays.shape)
+
+
+def _counts(tracer, rays, crossing):
+    """(N,) int64 exact counts of distinct triangles hit (crossing: the count's rule)."""
+    out = page_aligned_empty((rays.n,), np.uint32)
+    step = _per_launch(tracer, [12 * rays.o_step, 12, 8 * rays.t_step, 4])
+    for start in range(0, rays.n, step):
+        stop = min(rays.n, start + step)
+        _launch(tracer, "count_rays", rays, start, stop, (np.uint32(crossing),),
+                {"out": out[start:stop]})
+    _check_fault(out, "count")
+    counts = out.astype(np.int64)
+    raw = np.flatnonzero(out & COUNT_RAW)
+    if raw.size:
+        # more distinct hits than the kernel keeps ids of: listed, which deduplicates
+        sub = rays.subset(raw)
+        caps = (out[raw] & ~np.uint32(COUNT_RAW)).astype(np.int64)
+        listed = _list(tracer, sub, caps, crossing)
+        counts[raw] = np.diff(listed.offsets)
+    return counts
+
+
+def count(tracer, origins, directions, t_min=0.0, t_max=np.inf):
+    """(N,) int32 (the rays' shape): how many times each ray crosses the surface with
+    t_min < t < t_max, under the crossing rule (module docstring): a ray through an edge
+    or a vertex shared by consistently oriented triangles crosses there once."""
+    rays = _Rays(tracer, origins, directions, t_min, t_max)
+    return _counts(tracer, rays, True).astype(np.int32).reshape(rays.shape)
+
+
+def contains(tracer, points):
+    """(N,) bool (the points' shape (..., 3) less its last axis): whether each point is
+    inside the mesh, by the parity of `count` along one fixed direction
+    (CONTAINS_DIRECTION) from the point: exact for a closed, consistently oriented mesh,
+    with no jitter, vote or second ray, and the same every run.
+
+    A point on the surface (within the rounding of a hit's t, kernels/triangle.cl) is
+    answered as if moved an infinitesimal step along CONTAINS_DIRECTION: inside where
+    that direction points into the mesh. For a mesh that is not closed, parity has no
+    meaning (a ray may leave through a hole): the answer is that of the one ray.
+    KdrayError for points that are not finite or not (..., 3)."""
+    p = np.asarray(points)
+    if p.dtype.kind not in "fiu":
+        raise KdrayError(f"points must be an array of numbers, got dtype {p.dtype}")
+    if p.ndim < 1 or p.shape[-1] != 3:
+        raise KdrayError(f"points must be an (N, 3) array, got shape {p.shape}")
+    shape = p.shape[:-1]
+    p = p.reshape(-1, 3)
+    if not np.isfinite(p).all():
+        i = int(np.flatnonzero(~np.isfinite(p).all(axis=1))[0])
+        raise KdrayError(f"points must be finite, point {i} is {p[i].tolist()}")
+    if len(p) == 0:
+        return np.zeros(shape, dtype=bool)
+    d = np.broadcast_to(CONTAINS_DIRECTION, p.shape)
+    rays = _Rays(tracer, p, d, 0.0, np.inf)
+    return (_counts(tracer, rays, True) % 2 == 1).reshape(shape)
+
+
+def _list(tracer, rays, caps, crossing=False):
+    """Intersections of `rays` (their float32 t, u, v) with at most caps[i] hits of ray
+    i ((N,) int64, at least its distinct hits for every hit): the kernel fills each
+    ray's slots, then the slots left empty are dropped."""
+    caps = np.asarray(caps, dtype=np.int64)
+    total = int(caps.sum())
+    check_host_memory(total * (HIT_BYTES + 4) + rays.n * 12,
+                      f"the {total} hits of {rays.n} rays")
+    offsets = np.zeros(rays.n + 1, dtype=np.int64)
+    np.cumsum(caps, out=offsets[1:])
+    t = page_aligned_empty((total,), np.float32)
+    uv = page_aligned_empty((total, 2), np.float32)
+    prim = page_aligned_empty((total,), np.uint32)
+    found = page_aligned_empty((rays.n,), np.uint32)
+    # a launch's rays and slots fit the device (a ray's slots counted at their mean)
+    mean = HIT_BYTES * total / max(rays.n, 1)
+    exact = rays.exact() if tracer.refine else None
+    step = _per_launch(tracer, [36 * rays.o_step, 36, 8 * rays.t_step, 16, int(mean) + 1])
+    start = 0
+    while start < rays.n:
+        stop = min(rays.n, start + step)
+        # and no more slots than the device's largest buffer holds
+        limit = int(tracer.device.max_mem_alloc_size) // 8
+        while stop - start > 1 and offsets[stop] - offsets[start] > limit:
+            stop = start + (stop - start) // 2
+        a, b = int(offsets[start]), int(offsets[stop])
+        if b - a > limit:
+            raise DeviceError(f"ray {start}'s {b - a} hits do not fit in one buffer on "
+                              f"{tracer.device.name.strip()}: ask for fewer (max_hits)")
+        local_offsets = offsets[start:stop] - a
+        extra = (np.uint32(crossing), local_offsets.astype(np.uint64),
+                 caps[start:stop].astype(np.uint32))
+        if exact is not None:
+            extra += (exact[0][start:stop] if rays.o_step else exact[0], exact[1][start:stop])
+        _launch(tracer, "list_rays", rays, start, stop, extra,
+                {"t": t[a:b] if b > a else np.empty(1, np.float32),
+                 "uv": uv[a:b] if b > a else np.empty((1, 2), np.float32),
+                 "prim": prim[a:b] if b > a else np.empty(1, np.uint32),
+                 "found": found[start:stop]})
+        start = stop
+    _check_fault(found, "intersections")
+    n_found = found.astype(np.int64)
+    if (n_found == caps).all():
+        return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1],
+                             object_table=tracer.tree.objects)
+    keep = np.arange(total) - np.repeat(offsets[:-1], caps) < np.repeat(n_found, caps)
+    new_offsets = np.zeros(rays.n + 1, dtype=np.int64)
+    np.cumsum(n_found, out=new_offsets[1:])
+    uv = uv[keep]
+    return Intersections(new_offsets, t[keep], prim[keep], uv[:, 0], uv[:, 1],
+                         object_table=tracer.tree.objects)
+
+
+def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits=None,
+                  precision="single"):
+    """Every hit of each ray with t_min < t < t_max, sorted by t (ties by input id),
+    each triangle once: an `Intersections`. max_hits=k keeps each ray's k nearest (the
+    first k of the whole list). A count pass sizes each ray's slots, then a fill pass
+    fills them: no hit is dropped for want of room (KdrayError when they do not fit in
+    memory). precision="double": t, u, v in float64 from the tree's float64 triangles
+    and the rays as given (kdray.double), sorted by that t."""
+    from .trace import _precision
+    double = _precision(precision, tracer.tree)
+    if max_hits is not None:
+        if isinstance(max_hits, bool) or not isinstance(max_hits, (int, np.integer)):
+            raise KdrayError(f"max_hits must be None or an integer >= 1, got {max_hits!r}")
+        if max_hits < 1:
+            raise KdrayError(f"max_hits must be at least 1, got {max_hits}")
+    rays = _Rays(tracer, origins, directions, t_min, t_max)
+    caps = _counts(tracer, rays, False)
+    if max_hits is not None:
+        np.minimum(caps, int(max_hits), out=caps)
+    hits = _list(tracer, rays, caps)
+    hits.t *= np.float32(tracer._scale)      # a power of two: exact
+    if double:
+        hits = _double(tracer, hits, origins, directions)
+    hits.shape = None if len(rays.shape) == 1 else rays.shape
+    return hits
+
+
+def _double(tracer, hits, origins, directions):
+    """hits with t, u, v in float64 (kdray.double.hits_double) and sorted again by (t,
+    input id) within each ray."""
+    from .double import hits_double
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
+    ray = hits.ray
+    t, uv = hits_double(tracer.tree.triangles64, hits.prim, o[ray], d[ray])
+    order = np.lexsort((hits.prim, t, ray))
+    return Intersections(hits.offsets, t[order], hits.prim[order], uv[order, 0],
+                         uv[order, 1], object_table=hits.object_table)

@@ -1,0 +1,335 @@
+/* kernels/queries.cl: ray queries beyond the nearest hit (kdray/rays.py).
+ *
+ *   occluded_rays  is there any hit with t_min < t < t_max (stops at the first)
+ *   count_rays     how many triangles the ray hits: with `crossing`, how many times
+ *                  it crosses the surface (triangle.cl, kd_tie: a shared edge or
+ *                  vertex counts once); else every triangle hit, for list_rays' sizes
+ *   list_rays      every hit, into the ray's own slots, sorted by (t, input id)
+ *
+ * One walk (kd_walk) serves them all: it visits every leaf the ray's range reaches,
+ * near child first, and hands each to kd_query_leaf, which does what the query does
+ * with a hit and says when the walk may stop. Unlike the nearest hit's traversal
+ * (traverse.cl), a walk needs every leaf (bar the any-hit's early stop), so it keeps a
+ * full stack and never restarts, and a ray that lies in a split plane visits both
+ * children over the same range in one walk (order does not matter here).
+ *
+ * A triangle in several leaves has a copy in each (layout.h), and a ray that reaches
+ * two of them finds the same hit twice (the test depends on the ray and the triangle
+ * only): a hit counts once per input id. count_rays keeps the ids it has counted in
+ * KD_SEEN private slots; a ray with more distinct hits counts every hit found, its
+ * count then marked KD_COUNT_RAW (an upper bound, which list_rays, deduplicating in
+ * its own slots, makes exact). The walk's node decisions are traverse.cl's (the same
+ * slack), so it visits every leaf the nearest hit's traversal may.
+ *
+ * Options (-D): STACK_SIZE (at least the tree's depth + 1), LOCAL_SIZE, RUN (rays a
+ * work-item takes, consecutive), REFINE (list_rays' t, u, v recomputed in double,
+ * triangle.cl, kd_refine_hit, from the caller's rays in double). Rays are float32, relative to the tree's origin in its
+ * units; t_min, t_max per ray (t_step 1) or one pair for all (t_step 0), in the same
+ * units. Outputs are in those units too: the host scales t.
+ */
+#pragma OPENCL FP_CONTRACT OFF
+#include "layout.h"
+#include "triangle.cl"
+#include "traverse.cl"
+
+#ifndef LOCAL_SIZE
+#define LOCAL_SIZE 8
+#endif
+#ifndef RUN
+#define RUN 1
+#endif
+
+/* One ray a work-item, its walk a data-dependent loop: vec_type_hint of a vector type
+ * tells Intel's CPU runtime not to run a group's work-items in SIMD lanes, which it
+ * does for groups as wide as its vector unit, about 5 times slower for these kernels
+ * (a float4 hint, as render.cl's floatP hint for packets). Others ignore it. */
+#define KD_NO_LANES __attribute__((vec_type_hint(float4)))
+
+#define KD_SEEN 32u                     /* input ids count_rays keeps, per ray */
+#define KD_COUNT_RAW 0x80000000u         /* count_rays: the count is every hit found */
+#define KD_WALK_FAULT 0x40000000u        /* the walk met a corrupt tree (never otherwise) */
+
+#define KD_ANY 0u
+#define KD_COUNT 1u
+#define KD_LIST 2u
+
+/* What a query keeps of one ray while it walks. */
+typedef struct {
+    bool crossing;                       /* the count's rule (intersect_triangle) */
+    bool fault;                          /* the walk's stack or leaf bound was exceeded */
+    uint n;                              /* distinct hits (any: 1 once hit) */
+    uint raw;                            /* count: hits found, copies included */
+    uint seen[KD_SEEN];                  /* count: the input ids counted */
+    /* list: the ray's slots, cap of them, n used, sorted by (t, input id) */
+    __global float *t;
+    __global float *uv;
+    __global uint *tri;                  /* the device's triangle copy (layout.h) */
+    uint cap;
+} KdQuery;
+
+/* count: one more hit of input id `id`, counted unless counted already. */
+KD_INLINE
+void kd_count_hit(KdQuery *q, uint id)
+{
+    q->raw++;
+    if (q->n > KD_SEEN)                  /* past the slots: every hit counts (raw) */
+        return;
+    for (uint j = 0; j < q->n; j++)
+        if (q->seen[j] == id)
+            return;
+    if (q->n < KD_SEEN)
+        q->seen[q->n] = id;
+    q->n++;                              /* KD_SEEN + 1: overflowed */
+}
+
+/* list: the hit (t, u, v) of copy `tri` into the ray's slots, kept sorted by (t, input
+ * id), unless its triangle is there already; with every slot taken (max_hits) it
+ * replaces the last one if it comes before it. A copy dropped so is never taken
+ * later: the last slot only moves nearer. */
+KD_INLINE
+void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const uint *tri_ids)
+{
+    uint id = tri_ids[tri];
+    for (uint j = 0; j < q->n; j++)
+        if (tri_ids[q->tri[j]] == id)
+            return;
+    uint j = q->n;
+    if (j == q->cap) {
+        if (j == 0u || !kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids))
+            return;
+        j--;
+    } else {
+        q->n++;
+    }
+    for (; j > 0u && kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids); j--) {
+        q->t[j] = q->t[j - 1u];
+        q->uv[2u * j] = q->uv[2u * j - 2u];
+        q->uv[2u * j + 1u] = q->uv[2u * j - 1u];
+        q->tri[j] = q->tri[j - 1u];
+    }
+    q->t[j] = t;
+    q->uv[2u * j] = u;
+    q->uv[2u * j + 1u] = v;
+    q->tri[j] = tri;
+}
+
+/* Test a leaf's triangles for `query`; true when the walk may stop (any: a hit). */
+KD_INLINE
+bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
+                   __global const uint *tri_ids, const RayShear *shear, float3 o, float t_min,
+                   float t_max, KdQuery *q)
+{
+    uint count = kd_n_prims(leaf);
+    uint first = kd_leaf_offset(leaf);
+    for (uint i = 0; i < count; i++) {
+        uint tri = first + i;
+        float t, u, v;
+        if (!intersect_triangle(shear, o, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
+                                kd_vertex(tris, tri, 2), tri, t_min, t_max, t_max, KD_NO_HIT,
+                                tri_ids, query == KD_COUNT && q->crossing, &t, &u, &v))
+            continue;
+        if (query == KD_ANY) {
+            q->n = 1u;
+            return true;
+        }
+        if (query == KD_COUNT)
+            kd_count_hit(q, tri_ids[tri]);
+        else
+            kd_list_hit(q, tri, t, u, v, tri_ids);
+    }
+    return false;
+}
+
+/* Walk every leaf of the ray o + t d's range [t_min, t_max] within the scene box
+ * (bmin, bmax), near child first, each leaf once, handing each to kd_query_leaf. */
+KD_INLINE
+void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global const float *tris,
+             __global const uint *tri_ids, float3 bmin, float3 bmax, float3 o, float3 d,
+             float t_min, float t_max, KdQuery *q)
+{
+    if (!(kd_finite3(o) && kd_finite3(d)) || (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f))
+        return;
+    float t_enter = t_min;
+    float t_exit = t_max;
+    if (!(kd_slab(o.x, d.x, bmin.x, bmax.x, &t_enter, &t_exit)
+          && kd_slab(o.y, d.y, bmin.y, bmax.y, &t_enter, &t_exit)
+          && kd_slab(o.z, d.z, bmin.z, bmax.z, &t_enter, &t_exit)))
+        return;
+    if (!(t_enter <= t_exit))
+        return;
+
+    RayShear shear = ray_shear(d);
+    uint stack_node[STACK_SIZE];
+    float stack_t_min[STACK_SIZE];
+    float stack_t_max[STACK_SIZE];
+    uint count = 0;
+    uint node = 0;
+    float t0 = t_enter;
+    float t1 = t_exit;
+    uint leaves = 0;
+    for (;;) {
+        KdNode n = nodes[node];
+        while (!kd_is_leaf(n)) {
+            uint axis = kd_split_axis(n);
+            float split = kd_split(n);
+            float o_k = kd_comp(o, axis);
+            float d_k = kd_comp(d, axis);
+            float t_split = (split - o_k) / d_k;       /* as traverse.cl divides */
+            uint below = node + 1u;
+            uint above = kd_above_child(n);
+            bool below_first = o_k < split || (o_k == split && d_k <= 0.0f);
+            uint first = below_first ? below : above;
+            uint second = below_first ? above : below;
+            float t_lo = t0 * (1.0f - KD_T_SLACK);
+            float t_hi = t1 * (1.0f + KD_T_SLACK);
+            bool both = false;
+            float t_mid = t1;
+            if (kd_isnan(t_split)) {
+                both = true;                 /* in the plane: both, over the same range */
+            } else if (t_split > t_hi || t_split <= 0.0f) {
+                node = first;
+            } else if (t_split < t_lo) {
+                node = second;
+            } else {
+                both = true;
+                t_mid = kd_clamp(t_split, t0, t1);
+            }
+            if (both) {
+                if (count == STACK_SIZE) {   /* deeper than the tree's depth: corrupt */
+                    q->fault = true;
+                    return;
+                }
+                stack_node[count] = second;
+                stack_t_min[count] = kd_isnan(t_split) ? t0 : t_mid;
+                stack_t_max[count] = t1;
+                count++;
+                node = first;
+                t1 = t_mid;
+            }
+            n = nodes[node];
+        }
+        if (++leaves > n_nodes) {            /* more leaves than nodes: corrupt */
+            q->fault = true;
+            return;
+        }
+        if (kd_query_leaf(query, n, tris, tri_ids, &shear, o, t_min, t_max, q))
+            return;
+        if (count == 0u)
+            return;
+        count--;
+        node = stack_node[count];
+        t0 = stack_t_min[count];
+        t1 = stack_t_max[count];
+    }
+}
+
+/* A work-item's rays: RUN consecutive ones from get_global_id(0) * RUN. */
+#define KD_FOR_ITEM_RAYS(k)                                                                \
+    uint first_ray = (uint)get_global_id(0) * RUN;                                         \
+    uint end_ray = min(first_ray + (uint)RUN, n_rays);                                     \
+    for (uint k = first_ray; k < end_ray; k++)
+
+#define KD_QUERY_ARGS                                                                      \
+    __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
+    __global const float *bounds, uint n_nodes, __global const float *origins,             \
+    __global const float *directions, uint o_step, __global const float *t_mins,          \
+    __global const float *t_maxs, uint t_step, uint n_rays
+
+#define KD_WALK_RAY(query, k, q)                                                           \
+    kd_walk(query, nodes, n_nodes, tris, tri_ids, vload3(0, bounds), vload3(1, bounds),   \
+            kd_load3(origins, (size_t)(k) * o_step), kd_load3(directions, k),             \
+            t_mins[(k) * t_step], t_maxs[(k) * t_step], q)
+
+/* out[k]: 1 when ray k hits anything with t_min < t < t_max, else 0; 2 on a fault. */
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
+void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
+{
+    KD_FOR_ITEM_RAYS(k) {
+        KdQuery q;
+        q.fault = false;
+        q.n = 0u;
+        KD_WALK_RAY(KD_ANY, k, &q);
+        out[k] = q.fault ? (uchar)2 : (uchar)q.n;
+    }
+}
+
+/* out[k]: the number of distinct triangles ray k hits (crossing: under the count's
+ * rule), or every hit found | KD_COUNT_RAW when they were more than KD_SEEN, or
+ * KD_WALK_FAULT. */
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
+void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
+{
+    KD_FOR_ITEM_RAYS(k) {
+        KdQuery q;
+        q.crossing = crossing != 0u;
+        q.fault = false;
+        q.n = 0u;
+        q.raw = 0u;
+        KD_WALK_RAY(KD_COUNT, k, &q);
+        out[k] = q.fault ? KD_WALK_FAULT : (q.n > KD_SEEN ? q.raw | KD_COUNT_RAW : q.n);
+    }
+}
+
+/* Ray k's hits into slots offsets[k] .. offsets[k] + caps[k] - 1 (hit_t, hit_uv two
+ * floats a slot, hit_id the input id), its count into out_n[k] (KD_WALK_FAULT on a
+ * fault): with caps[k] at least its distinct hits, every hit, else the caps[k] first
+ * in (t, input id) order. Sorted by (t, input id), as refined with REFINE. */
+#if defined(REFINE) && defined(cl_khr_fp64)
+/* the caller's rays in double, relative to the tree's origin in its units (origins
+ * o_step apart, as `origins`), which the hits are refined from, as trace_rays refines
+ * its hit from them (render.cl, kd_exact_ray) */
+#define KD_LIST_EXACT_ARGS , __global const double *exact_o, __global const double *exact_d
+#else
+#define KD_LIST_EXACT_ARGS
+#endif
+
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
+void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
+               __global const uint *caps KD_LIST_EXACT_ARGS, __global float *hit_t,
+               __global float *hit_uv, __global uint *hit_id, __global uint *out_n)
+{
+    KD_FOR_ITEM_RAYS(k) {
+        KdQuery q;
+        q.crossing = crossing != 0u;
+        q.fault = false;
+        q.n = 0u;
+        ulong at = offsets[k];
+        q.t = hit_t + at;
+        q.uv = hit_uv + 2u * at;
+        q.tri = hit_id + at;             /* copies while walking, input ids at the end */
+        q.cap = caps[k];
+        KD_WALK_RAY(KD_LIST, k, &q);
+        if (q.fault) {
+            out_n[k] = KD_WALK_FAULT;
+            continue;
+        }
+#if defined(REFINE) && defined(cl_khr_fp64)
+        /* each hit's t, u, v from double (kd_refine_hit), then in order again: the
+         * refined t moves by its float rounding at most, so this is a few swaps */
+        double3 o = vload3((size_t)k * o_step, exact_o);
+        double3 d = vload3(k, exact_d);
+        float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
+        for (uint j = 0; j < q.n; j++) {
+            uint tri = q.tri[j];
+            float t = q.t[j], u = q.uv[2u * j], v = q.uv[2u * j + 1u];
+            kd_refine_hit(o, d, kd_vertex(tris, tri, 0),
+                          kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2), t_min, t_max,
+                          &t, &u, &v);
+            uint i = j;
+            for (; i > 0u && kd_before(t, tri, q.t[i - 1u], q.tri[i - 1u], tri_ids); i--) {
+                q.t[i] = q.t[i - 1u];
+                q.uv[2u * i] = q.uv[2u * i - 2u];
+                q.uv[2u * i + 1u] = q.uv[2u * i - 1u];
+                q.tri[i] = q.tri[i - 1u];
+            }
+            q.t[i] = t;
+            q.uv[2u * i] = u;
+            q.uv[2u * i + 1u] = v;
+            q.tri[i] = tri;
+        }
+#endif
+        for (uint j = 0; j < q.n; j++)
+            q.tri[j] = tri_ids[q.tri[j]];
+        out_n[k] = q.n;
+    }
+}

@@ -1,0 +1,344 @@
+"""Ray queries beyond the nearest hit (kdray.rays, kernels/queries.cl) against
+independent oracles: the float64 brute force (kdray.reference.all_hits), kdray's own
+nearest hit (occluded is trace's hit, ray for ray), and geometry (a ray through a
+convex closed mesh crosses it exactly twice, from inside once, whatever vertex or edge
+it passes through)."""
+import numpy as np
+import pytest
+
+from helpers import RTOL_T, SCENES, edge_distance, graze_tolerance, random_rays, real_mesh_arrays
+from kdray import rays as krays
+from kdray.builder import build
+from kdray.errors import KdrayError
+from kdray.load import load
+from kdray.reference import all_hits
+from kdray.trace import Tracer
+
+
+def icosphere(subdivisions=2):
+    """A closed, consistently oriented sphere of 20 * 4^s triangles (vertices shared)."""
+    t = (1 + 5 ** 0.5) / 2
+    v = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t),
+         (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
+         (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8),
+         (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    v = [np.array(p, float) / np.linalg.norm(p) for p in v]
+    for _ in range(subdivisions):
+        mid, faces = {}, []
+
+        def m(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in mid:
+                p = v[a] + v[b]
+                v.append(p / np.linalg.norm(p))
+                mid[key] = len(v) - 1
+            return mid[key]
+        for a, b, c in f:
+            ab, bc, ca = m(a, b), m(b, c), m(c, a)
+            faces += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        f = faces
+    return np.array(v), np.array(f, dtype=np.int64)
+
+
+def grid_cube(n=3):
+    """The cube [-n, n]^3 made of 2 triangles per unit square, every vertex on the integer
+    grid, outward normals: the k-d tree's planes go through its vertices and edges."""
+    verts, faces, index = [], [], {}
+
+    def vid(p):
+        if p not in index:
+            index[p] = len(verts)
+            verts.append(p)
+        return index[p]
+    for axis in range(3):
+        for side in (-n, n):
+            u, w = (axis + 1) % 3, (axis + 2) % 3
+            for i in range(-n, n):
+                for j in range(-n, n):
+                    q = []
+                    for a, b in ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)):
+                        p = [0, 0, 0]
+                        p[axis], p[u], p[w] = side, a, b
+                        q.append(vid(tuple(p)))
+                    if side < 0:
+                        q = q[::-1]
+                    faces += [(q[0], q[1], q[2]), (q[0], q[2], q[3])]
+    return np.array(verts, float), np.array(faces, dtype=np.int64)
+
+
+def edge_midpoints(v, f):
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    e = np.unique(e, axis=0)
+    return 0.5 * (v[e[:, 0]] + v[e[:, 1]])
+
+
+@pytest.fixture(scope="module")
+def teapot_tree():
+    return build(*real_mesh_arrays("teapot.obj"))
+
+
+def ranges(rng, n, t_hint):
+    """Per-ray t ranges: some (0, inf), some cut around a typical t."""
+    lo = np.where(rng.random(n) < 0.5, 0.0, rng.random(n) * t_hint)
+    hi = np.where(rng.random(n) < 0.3, np.inf, lo + rng.random(n) * 2 * t_hint)
+    return lo, hi
+
+
+def test_occluded_is_traces_hit(runtime, teapot_tree):
+    tree = teapot_tree
+    n = runtime.small(3001, 61)
+    o, d = random_rays(tree, n, seed=3)
+    tracer = Tracer(tree, device=runtime.spec)
+    tracer._poison_outputs = True
+    for t_min, t_max in ((0.0, np.inf), (0.3, 0.9)):
+        assert (tracer.occluded(o, d, t_min, t_max) == tracer.trace(o, d, t_min, t_max).hit).all()
+    # per-ray ranges: any hit of the ray's (listed) hits inside its range
+    lo, hi = ranges(np.random.default_rng(4), n, 0.5)
+    occ = tracer.occluded(o, d, lo, hi)
+    ref_ray, _, ref_t, _, _ = all_hits(tree.world(tree.triangles), o, d, lo, hi)
+    expected = np.zeros(n, bool)
+    expected[ref_ray] = True
+    assert (occ != expected).mean() <= 0.002
+    # image-shaped rays keep their shape
+    assert tracer.occluded(o[:60].reshape(6, 10, 3), d[:60].reshape(6, 10, 3)).shape == (6, 10)
+
+
+def test_intersections_match_brute_force(runtime, teapot_tree):
+    tree = teapot_tree
+    n = runtime.small(2003, 41)
+    o, d = random_rays(tree, n, seed=5)
+    tracer = Tracer(tree, device=runtime.spec)
+    tracer._poison_outputs = True
+    hits = tracer.intersections(o, d)
+    assert hits.offsets[0] == 0 and hits.offsets[-1] == len(hits.t) and len(hits) == n
+    same_ray = hits.ray[1:] == hits.ray[:-1]
+    # sorted by t, ties by input id, each triangle once per ray
+    step = np.diff(hits.t)[same_ray]
+    assert (step >= 0).all()
+    assert (np.diff(hits.prim.astype(np.int64))[same_ray][step == 0] > 0).all()
+    # against every hit in float64, on the input triangles
+    tri = tree.world(tree.triangles)
+    by_id = np.empty_like(tri)
+    by_id[tree.tri_ids] = tri
+    ref_ray, ref_prim, ref_t, _, _ = all_hits(by_id, o, d)
+    mine = set(zip(hits.ray.tolist(), hits.prim.tolist()))
+    ref = set(zip(ref_ray.tolist(), ref_prim.tolist()))
+    differ = np.array(sorted(mine ^ ref), dtype=np.int64).reshape(-1, 2)
+    if len(differ):
+        # only rays that graze an edge of the triangle in question, within rounding
+        r, p = differ[:, 0], differ[:, 1]
+        t_p = np.array([hits.t[(hits.ray == a) & (hits.prim == b)][0] if (a, b) in mine else
+                        ref_t[(ref_ray == a) & (ref_prim == b)][0] for a, b in differ])
+        near = edge_distance(by_id[p], o[r], d[r]) <= graze_tolerance(tree, by_id[p], o[r], d[r], t_p, "world")
+        assert near.all(), differ[~near][:5]
+        assert len(differ) <= max(2, 0.002 * len(ref))
+    both = sorted(mine & ref)
+    a = {k: i for i, k in enumerate(zip(hits.ray.tolist(), hits.prim.tolist()))}
+    b = {k: i for i, k in enumerate(zip(ref_ray.tolist(), ref_prim.tolist()))}
+    t_mine = hits.t[[a[k] for k in both]]
+    t_ref = ref_t[[b[k] for k in both]]
+    assert np.allclose(t_mine, t_ref, rtol=RTOL_T, atol=0)
+
+    # max_hits=k: the first k of the whole list; k = 1 is trace's nearest hit
+    for k in (1, 2):
+        few = tracer.intersections(o, d, max_hits=k)
+        counts = np.minimum(hits.counts, k)
+        assert (few.counts == counts).all()
+        keep = np.arange(len(hits.t)) - np.repeat(hits.offsets[:-1], hits.counts) < np.repeat(counts, hits.counts)
+        assert (few.prim == hits.prim[keep]).all() and (few.t == hits.t[keep]).all()
+    nearest = tracer.trace(o, d)
+    first = tracer.intersections(o, d, max_hits=1)
+    assert (first.counts == nearest.hit).all()
+    assert (first.prim == nearest.prim[nearest.hit]).all()
+    assert (first.t == nearest.t[nearest.hit]).all()
+
+
+def test_counts_are_exact_through_vertices_and_edges(runtime):
+    """A ray into a convex closed mesh through any vertex or edge crosses it exactly
+    twice; from inside, once; a ray grazing it (in a face's plane) an even number."""
+    for v, f in (icosphere(2), grid_cube(2)):
+        tree = build(v, f)
+        tracer = Tracer(tree, device=runtime.spec)
+        targets = np.concatenate([v, edge_midpoints(v, f)])
+        if runtime.simulator:
+            targets = targets[::max(1, len(targets) // 40)]
+        # from outside, radially through the target and on through the centre
+        c = tracer.count(3 * targets, -targets)
+        assert (c == 2).all(), (c != 2).sum()
+        # from the centre out through it
+        assert (tracer.count(np.zeros(3), targets) == 1).all()
+        # from a corner outside, through it (two crossings, or zero grazing)
+        corner = np.array([5.0, 4.0, 3.0])
+        c = tracer.count(corner, targets - corner)
+        assert ((c == 2) | (c == 0)).all()
+        # the count's rule in float64 agrees
+        if not runtime.simulator:
+            ref_ray, *_ = all_hits(v[f], np.broadcast_to(corner, targets.shape), targets - corner,
+                                   crossing=True)
+            assert (np.bincount(ref_ray, minlength=len(targets)) % 2 == c % 2).all()
+    # axis-parallel rays along the grid cube's grid lines: in its faces' planes and
+    # the tree's split planes
+    v, f = grid_cube(2)
+    tracer = Tracer(build(v, f), device=runtime.spec)
+    g = np.arange(-2, 3, dtype=float)
+    y, z = np.meshgrid(g, g, indexing="ij")
+    o = np.stack([np.full(y.size, -5.0), y.ravel(), z.ravel()], axis=1)
+    for axis in range(3):
+        oo = np.roll(o, axis, axis=1)
+        dd = np.roll(np.array([1.0, 0, 0]), axis)
+        c = tracer.count(oo, np.broadcast_to(dd, oo.shape))
+        interior = (np.abs(oo) < 2).sum(axis=1) == 2     # the other two coordinates inside
+        assert (c[interior] == 2).all()
+        assert (c % 2 == 0).all()
+
+
+def test_count_parity_on_fandisk(runtime):
+    v, f = real_mesh_arrays("fandisk.obj")
+    tree = build(v, f)
+    tracer = Tracer(tree, device=runtime.spec)
+    rng = np.random.default_rng(7)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    n = runtime.small(60, 6)
+    origins = lo + rng.random((n, 3)) * (hi - lo)
+    # the reference's inside test: a generic direction, float64
+    generic = rng.normal(size=(n, 3))
+    ref_ray, *_ = all_hits(v[f], origins, generic, crossing=True)
+    inside = np.bincount(ref_ray, minlength=n) % 2 == 1
+    assert (tracer.count(origins, generic) % 2 == inside).all()
+    # rays from each origin through vertices: the same parity
+    targets = v[rng.choice(len(v), runtime.small(50, 5), replace=False)]
+    o = np.repeat(origins, len(targets), axis=0)
+    d = np.tile(targets, (n, 1)) - o
+    c = tracer.count(o, d)
+    assert (c % 2 == np.repeat(inside, len(targets))).all()
+
+
+def test_contains_on_grids_through_vertices(runtime):
+    """Points on a grid through every vertex of the grid cube and of a sphere, against
+    the exact half-space test of a convex mesh; points on the cube's surface answer as
+    if moved along CONTAINS_DIRECTION."""
+    v, f = grid_cube(2)
+    tracer = Tracer(build(v, f), device=runtime.spec)
+    step = 1.0 if runtime.simulator else 0.5
+    g = np.arange(-3, 3 + step, step)
+    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    moved = p + 1e-6 * krays.CONTAINS_DIRECTION
+    assert (tracer.contains(p) == (np.abs(moved) < 2).all(axis=1)).all()
+    # the scene's sphere: convex, so inside = behind every face's plane
+    mesh = load(SCENES / "sphere.obj")
+    tracer = Tracer(build(mesh.vertices, mesh.faces), device=runtime.spec)
+    tri = mesh.vertices[mesh.faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    rng = np.random.default_rng(8)
+    scaled = mesh.vertices[:, None, :] * np.array([0.5, 0.999, 1.001, 2])[None, :, None]
+    q = np.concatenate([lo + rng.random((runtime.small(20000, 200), 3)) * (hi - lo) * 1.2 - 0.1 * (hi - lo),
+                        scaled.reshape(-1, 3)])
+    side = np.einsum("pfk,fk->pf", q[:, None, :] - tri[None, :, 0], normal)
+    clear = (np.abs(side).min(axis=1) > 1e-9) | (side.max(axis=1) < 0)
+    expected = (side < 0).all(axis=1)
+    assert (tracer.contains(q)[clear] == expected[clear]).all()
+    assert tracer.contains(q.reshape(-1, 2, 3)[:3]).shape == (3, 2)
+
+
+def test_queries_do_not_depend_on_work_sizes(runtime, teapot_tree, monkeypatch):
+    tree = teapot_tree
+    o, d = random_rays(tree, runtime.small(777, 33), seed=9)
+    base = Tracer(tree, device=runtime.spec)
+    want = (base.occluded(o, d), base.count(o, d), base.intersections(o, d))
+    monkeypatch.setattr(krays, "RUN_CPU", 3)
+    for local in (1, 4):
+        other = Tracer(tree, device=runtime.spec, local_size=local, batch_size=local * base.packet)
+        got = (other.occluded(o, d), other.count(o, d), other.intersections(o, d))
+        assert (got[0] == want[0]).all() and (got[1] == want[1]).all()
+        assert (got[2].offsets == want[2].offsets).all() and (got[2].prim == want[2].prim).all()
+        assert (got[2].t == want[2].t).all()
+
+
+def test_many_hits_a_ray_are_counted_exactly(tracers):
+    """More distinct hits than the kernel keeps ids of (KD_SEEN): listed to count."""
+    k = 80
+    z = np.arange(k, dtype=float)
+    v = np.concatenate([np.stack([np.full(k, -1.0), np.full(k, -1.0), z], 1),
+                        np.stack([np.full(k, 2.0), np.full(k, -1.0), z], 1),
+                        np.stack([np.full(k, -1.0), np.full(k, 2.0), z], 1)])
+    f = np.stack([np.arange(k), np.arange(k) + k, np.arange(k) + 2 * k], 1)
+    tracer = tracers(build(v, f))
+    o = np.array([[0.1, 0.2, -1.0], [0.1, 0.2, 100.0]])
+    d = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    assert tracer.count(o, d).tolist() == [k, k]
+    assert tracer.count(o, d, 0.0, 40.5).tolist() == [40, 20]       # z < 40.5, z > 59.5
+    hits = tracer.intersections(o, d)
+    assert hits.counts.tolist() == [k, k]
+    assert hits.prim[:k].tolist() == list(range(k))
+
+
+def test_double_precision_and_scale(tracers):
+    """Far from the origin and at tiny scales the queries answer as at home."""
+    v, f = icosphere(1)
+    rng = np.random.default_rng(10)
+    p = rng.uniform(-1.5, 1.5, size=(500, 3))
+    d = rng.normal(size=(500, 3))
+    home = tracers(build(v, f))
+    want = home.contains(p), home.count(p, d)
+    for scale, shift in ((1e-20, 0.0), (1.0, 1e6), (1e20, 3e21)):
+        tracer = tracers(build(v * scale + shift, f, keep_double=True))
+        assert (tracer.contains(p * scale + shift) == want[0]).mean() > 0.99
+        assert (tracer.count(p * scale + shift, d) == want[1]).mean() > 0.99
+        hits = tracer.intersections(p * scale + shift, d, precision="double")
+        assert hits.t.dtype == np.float64
+        assert (hits.counts >= want[1]).all()
+        step = np.diff(hits.t)[hits.ray[1:] == hits.ray[:-1]]
+        assert (step >= 0).all()
+
+
+def test_bad_input_is_refused(tracers, teapot_tree):
+    tracer = tracers(teapot_tree)
+    o, d = np.zeros((4, 3)), np.ones((4, 3))
+    bad = [dict(t_min=-1.0), dict(t_min=2.0, t_max=1.0), dict(t_min=np.nan),
+           dict(t_max=np.ones(3)), dict(t_min=np.array([0, 0, 3.0, 0]), t_max=np.full(4, 2.0))]
+    for kw in bad:
+        for query in (tracer.occluded, tracer.count, tracer.intersections):
+            with pytest.raises(KdrayError):
+                query(o, d, **kw)
+    for m in (0, -1, 1.5, True):
+        with pytest.raises(KdrayError):
+            tracer.intersections(o, d, max_hits=m)
+    for points in (np.array([[0, 0, np.nan]]), np.zeros((3, 2)), np.array([["a", "b", "c"]]),
+                   np.array([[np.inf, 0, 0]])):
+        with pytest.raises(KdrayError):
+            tracer.contains(points)
+    with pytest.raises(KdrayError):
+        tracer.count(np.zeros((3, 3)), np.ones((4, 3)))
+    # rays that cannot be traced have no hit, as in trace
+    odd = np.array([[0, 0, 0], [np.nan, 0, 0], [0, 0, np.inf]], float)
+    dd = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 0]], float)
+    assert not tracer.occluded(odd, dd).any()
+    assert (tracer.count(odd, dd) == 0).all()
+    assert (tracer.intersections(odd, dd).counts == 0).all()
+    assert tracer.contains(np.zeros((0, 3))).shape == (0,)
+
+
+def test_contains_command(tmp_path, capsys):
+    from helpers import run
+    points = np.array([[0.0, 0.0, 0.0], [5.0, 5.0, 5.0], [0.5, 0.2, 0.1]])
+    np.save(tmp_path / "p.npy", points)
+    np.savetxt(tmp_path / "p.txt", points)
+    for source in ("p.npy", "p.txt"):
+        code, out, _ = run(capsys, "contains", SCENES / "sphere.obj", "--points", tmp_path / source,
+                           "-o", tmp_path / "in.npy")
+        assert code == 0 and "2 of 3 points inside" in out
+        assert np.load(tmp_path / "in.npy").tolist() == [True, False, True]
+    code, _, _ = run(capsys, "contains", SCENES / "sphere.obj", "--points", tmp_path / "p.npy",
+                     "-o", tmp_path / "c.npy", "--count", "1,0,0")
+    assert code == 0 and np.load(tmp_path / "c.npy").tolist() == [1, 0, 1]
+    np.save(tmp_path / "bad.npy", np.zeros((3, 2)))
+    for argv in (("--points", tmp_path / "bad.npy", "-o", tmp_path / "x.npy"),
+                 ("--points", tmp_path / "none.npy", "-o", tmp_path / "x.npy"),
+                 ("--points", tmp_path / "p.npy", "-o", tmp_path / "p.npy"),
+                 ("--points", tmp_path / "p.npy", "-o", tmp_path / "x.npy", "--count", "0,0,0")):
+        code, _, err = run(capsys, "contains", SCENES / "sphere.obj", *argv)
+        assert code == 1 and err.count("\n") == 1 and err.startswith("kdray: error:")
+    assert np.load(tmp_path / "p.npy").shape == (3, 3)          # the input is kept
