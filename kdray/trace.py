@@ -573,7 +573,7 @@ class Tracer:
         if self._rays_in_kernel and o.dtype in _C_TYPES and d.dtype in _C_TYPES:
             return (np.ascontiguousarray(o), np.ascontiguousarray(d), o_step,
                     (_C_TYPES[o.dtype], _C_TYPES[d.dtype]))
-        return (*self._rays32(o, d, o_step), None)
+        return (*self._rays32(o, d, o_step), o_step, None)
 
     def _rays32(self, o, d, o_step):
         """(o32 (M, 3), d32 (N, 3)) float32, page-aligned: origins o ((M, 3), M = N, or
