@@ -32,7 +32,8 @@ def main():
     ap.add_argument("--device", default=None)
     args = ap.parse_args()
     for name in args.meshes.split(","):
-        vertices, faces = bench_mesh(name)
+        m = bench_mesh(name)
+        vertices, faces = m.vertices, m.faces
         tree = kdray.build(vertices, faces)
         tracer = kdray.Tracer(tree, device=args.device)
         lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
