@@ -13,6 +13,8 @@ divided by the cosine of the angle of incidence).
 """
 import numpy as np
 
+from .errors import KdrayError
+
 
 def _dot(a, b):
     """Row-wise dot products of (k, 3) arrays, as (a0 b0 + a1 b1) + a2 b2."""
@@ -71,3 +73,14 @@ def need_double(tree):
                 "kdray.build(..., keep_double=True) or attach them with "
                 "tree.with_double(vertices, faces)")
     return None
+
+
+def wants_double(precision, tree):
+    """True for precision "double" (KdrayError when `tree` has no float64 triangles),
+    False for "single"; KdrayError for anything else."""
+    if precision not in ("single", "double"):
+        raise KdrayError(f"precision must be 'single' or 'double', got {precision!r}")
+    missing = need_double(tree) if precision == "double" else None
+    if missing:
+        raise KdrayError(missing)
+    return precision == "double"

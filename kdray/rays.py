@@ -33,8 +33,10 @@ import time
 import numpy as np
 
 from . import device as _device
+from . import ray_input
+from .double import wants_double
 from .errors import DeviceError, KdrayError
-from .host import check_host_memory, page_aligned_empty
+from .host import PAGE, check_host_memory, page_aligned_empty
 from .layout import MISS
 from .tree import object_ids
 
@@ -132,29 +134,19 @@ def _ranges(t_min, t_max, n, scale):
                 step)
 
 
-def _flat(origins, directions, what="directions"):
-    """(o (N, 3) or (3,), d (N, 3), shape) as `Tracer.trace` takes rays; KdrayError
-    for other shapes or dtypes that are not numbers."""
-    from .trace import _flat_rays
-    for name, a in (("origins", origins), (what, directions)):
-        kind = np.asarray(a).dtype.kind
-        if kind not in "fiu":
-            raise KdrayError(f"{name} must be an array of numbers, got dtype {np.asarray(a).dtype}")
-    return _flat_rays(origins, directions)
-
-
 class _Rays:
     """The rays of one query as queries.cl reads them: float32, relative to the tree's
-    origin in its units (Tracer._rays32), with their t ranges (`_ranges`)."""
+    origin in its units (kdray.ray_input.rays32), with their t ranges (`_ranges`)."""
 
     def __init__(self, tracer, origins, directions, t_min, t_max):
-        o, d, self.shape = _flat(origins, directions)
-        o = o.reshape(-1, 3)
+        for name, a in (("origins", origins), ("directions", directions)):
+            if np.asarray(a).dtype.kind not in "fiu":
+                raise KdrayError(f"{name} must be an array of numbers, got dtype "
+                                 f"{np.asarray(a).dtype}")
+        o, d, self.shape = ray_input.flat_rays(origins, directions)
+        o, d, self.o_step = ray_input.origin_rows(o, d)
         self.n = len(d)
-        if len(o) > 1 and o.strides[0] == 0:
-            o = o[:1]
-        self.o_step = 0 if len(o) == 1 and self.n != 1 else 1
-        self.o, self.d = tracer._rays32(o, d, self.o_step)
+        self.o, self.d = ray_input.rays32(o, d, self.o_step, tracer._origin, tracer._scale)
         self._given = (o, d, tracer._origin, tracer._scale)
         self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
 
@@ -224,11 +216,11 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
     def inp(array):
         if isinstance(array, np.generic):
             return array
-        buf, offset = tracer._input_buffer(np.ascontiguousarray(array))
+        array = np.ascontiguousarray(array)
         keep.append(array)
-        if offset:                               # queries.cl takes no offsets: copy
-            buf = tracer._buffer(array)
-        return buf
+        if tracer._page_inputs and array.ctypes.data % PAGE:
+            return tracer._buffer(array)         # queries.cl takes no offsets: a copy
+        return tracer._input_buffer(array)[0]
 
     # list_rays keeps its slots sorted in place: it reads what it wrote
     device_out = {name: tracer._output_buffer(a, read=kernel_name == "list_rays")
@@ -245,12 +237,13 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
     local = entry["local"]
     kernel(tracer.queue, (-(-items // local) * local,), (local,), *args)
     tracer._read_outputs(device_out, outputs)
-    del keep
 
 
-def _per_launch(tracer, widths):
-    """Rays a launch of a query takes (Tracer._launch_size)."""
-    return tracer._launch_size(widths)
+def _launches(tracer, rays, widths):
+    """(start, stop) of each launch over `rays`, as many rays a launch as fit beside the
+    tree (Tracer._launch_size); widths: the launch's bytes a ray besides the rays'."""
+    step = tracer._launch_size([12 * rays.o_step, 12, 8 * rays.t_step] + widths)
+    return [(start, min(rays.n, start + step)) for start in range(0, rays.n, step)]
 
 
 def _check_fault(values, what):
@@ -265,9 +258,7 @@ def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     `trace(...).hit`."""
     rays = _Rays(tracer, origins, directions, t_min, t_max)
     out = page_aligned_empty((rays.n,), np.uint8)
-    step = _per_launch(tracer, [12 * rays.o_step, 12, 8 * rays.t_step, 1])
-    for start in range(0, rays.n, step):
-        stop = min(rays.n, start + step)
+    for start, stop in _launches(tracer, rays, [1]):
         _launch(tracer, "occluded_rays", rays, start, stop, (), {"out": out[start:stop]})
     _check_fault(out, "occluded")
     return out.view(bool).reshape(rays.shape)
@@ -276,9 +267,7 @@ def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
 def _counts(tracer, rays, crossing):
     """(N,) int64 exact counts of distinct triangles hit (crossing: the count's rule)."""
     out = page_aligned_empty((rays.n,), np.uint32)
-    step = _per_launch(tracer, [12 * rays.o_step, 12, 8 * rays.t_step, 4])
-    for start in range(0, rays.n, step):
-        stop = min(rays.n, start + step)
+    for start, stop in _launches(tracer, rays, [4]):
         _launch(tracer, "count_rays", rays, start, stop, (np.uint32(crossing),),
                 {"out": out[start:stop]})
     _check_fault(out, "count")
@@ -346,7 +335,8 @@ def _list(tracer, rays, caps, crossing=False):
     # a launch's rays and slots fit the device (a ray's slots counted at their mean)
     mean = HIT_BYTES * total / max(rays.n, 1)
     exact = rays.exact() if tracer.refine else None
-    step = _per_launch(tracer, [36 * rays.o_step, 36, 8 * rays.t_step, 16, int(mean) + 1])
+    # (the float32 rays, their float64 copies, t ranges, offsets, caps, count, slots)
+    step = tracer._launch_size([36 * rays.o_step, 36, 8 * rays.t_step, 16, int(mean) + 1])
     start = 0
     while start < rays.n:
         stop = min(rays.n, start + step)
@@ -390,8 +380,7 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
     fills them: no hit is dropped for want of room (KdrayError when they do not fit in
     memory). precision="double": t, u, v in float64 from the tree's float64 triangles
     and the rays as given (kdray.double), sorted by that t."""
-    from .trace import _precision
-    double = _precision(precision, tracer.tree)
+    double = wants_double(precision, tracer.tree)
     if max_hits is not None:
         if isinstance(max_hits, bool) or not isinstance(max_hits, (int, np.integer)):
             raise KdrayError(f"max_hits must be None or an integer >= 1, got {max_hits!r}")

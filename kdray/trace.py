@@ -31,20 +31,20 @@ whatever the triangle's size against t (docs/conventions.md).
 The kernels are compiled once per option set (outputs, stack size, work sizes) and
 kept on the Tracer; the kernels compute and store only the outputs asked for.
 """
-import concurrent.futures
 import ctypes
 import copy
 import dataclasses
 import functools
 import logging
-import os
 import time
 
 import numpy as np
 
 from . import device as _device
+from . import ray_input
 from . import rays as _rays
 from . import render as _render
+from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_sizes,
@@ -72,9 +72,6 @@ any size."""
 
 IMAGE_WIDTHS_KEPT = 8
 """Ray counts whose image width a Tracer remembers (`Tracer._image_width`)."""
-
-_CONVERT_CHUNK = 1 << 18
-"""Rays per chunk when `trace` converts large ray arrays to float32 on threads."""
 
 _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
@@ -333,7 +330,7 @@ class Tracer:
             if nbytes > largest:
                 raise DeviceError(f"the tree's {what} ({nbytes / 2**20:.0f} MiB) do not fit in "
                                   f"one buffer on {name} (at most {largest / 2**20:.0f} MiB)")
-        need = sum(sizes.values()) + max(_RAY_BYTES.values())
+        need = sum(sizes.values()) + max(ray_input.RAY_BYTES.values())
         have = int(self.device.global_mem_size)
         if need > have:
             raise DeviceError(f"the tree needs {need / 2**20:.0f} MiB on {name}, "
@@ -550,63 +547,10 @@ class Tracer:
     # -- rays ----------------------------------------------------------------------------
 
     def _rays(self, origins, directions):
-        """The rays as trace_rays takes them: (o, d, o_step, rays_world).
-
-        On a device with double precision, when it is a CPU or refines its hits
-        (`_rays_in_kernel`), float64 and float32 rays go to the kernel as they are (on
-        a CPU no copy when C-contiguous), which shifts and rounds them itself;
-        rays_world is then their (origin, direction) C types ("double" or "float").
-        Else o (M, 3) float32 relative to the tree's origin and d (N, 3) float32, and
-        rays_world None. M is N, or 1 with o_step 0 when all rays share one (3,)
-        origin."""
-        d = np.asarray(directions)
-        if d.ndim != 2 or d.shape[1] != 3:
-            raise KdrayError(f"directions must be an (N, 3) array, got shape {d.shape}")
-        o = np.asarray(origins)
-        if o.shape == (3,):
-            o = o.reshape(1, 3)
-        elif o.shape != d.shape:
-            raise KdrayError(f"origins {o.shape} and directions {d.shape} must both be (N, 3)")
-        if len(o) > 1 and o.strides[0] == 0:
-            o = o[:1]                # one origin broadcast to every ray: read it once
-        o_step = 0 if len(o) == 1 and len(d) != 1 else 1
-        if self._rays_in_kernel and o.dtype in _C_TYPES and d.dtype in _C_TYPES:
-            return (np.ascontiguousarray(o), np.ascontiguousarray(d), o_step,
-                    (_C_TYPES[o.dtype], _C_TYPES[d.dtype]))
-        return (*self._rays32(o, d, o_step), o_step, None)
-
-    def _rays32(self, o, d, o_step):
-        """(o32 (M, 3), d32 (N, 3)) float32, page-aligned: origins o ((M, 3), M = N, or
-        1 with o_step 0) made relative to the tree's origin in its units in float64 and
-        only then rounded, directions d rounded."""
-        o = o.astype(np.float64, copy=False)
-        # o - origin in float64, rounded to float32 on the way out (buffered: no
-        # float64 temporary of the whole array); large arrays in chunks on threads
-        # (numpy releases the GIL), the same arithmetic element by element
-        o32 = page_aligned_empty(o.shape, np.float32)
-        d32 = page_aligned_empty(d.shape, np.float32)
-
-        def convert(rows):
-            with np.errstate(over="ignore", invalid="ignore"):
-                if o_step:
-                    shifted = np.empty((len(o32[rows]), 3))
-                    for k in range(3):   # by column: numpy's loops over rows of 3 are slow
-                        np.subtract(o[rows, k], self._origin[k], out=shifted[:, k])
-                    if self._scale != 1.0:
-                        shifted /= self._scale
-                    np.copyto(o32[rows], shifted, casting="unsafe")
-                np.copyto(d32[rows], d[rows], casting="unsafe")
-
-        if not o_step:
-            with np.errstate(over="ignore", invalid="ignore"):
-                np.copyto(o32, (o - self._origin) / self._scale, casting="unsafe")
-        chunks = [slice(i, i + _CONVERT_CHUNK) for i in range(0, len(d), _CONVERT_CHUNK)]
-        if len(chunks) > 1:
-            with concurrent.futures.ThreadPoolExecutor(min(len(chunks), os.cpu_count() or 1)) as pool:
-                list(pool.map(convert, chunks))
-        elif chunks:
-            convert(chunks[0])
-        return o32, d32
+        """The rays as trace_rays takes them: (o, d, o_step, rays_world)
+        (kdray.ray_input.kernel_rays, in the kernel where `_rays_in_kernel`)."""
+        return ray_input.kernel_rays(origins, directions, self._origin, self._scale,
+                                     self._rays_in_kernel)
 
     def trace(self, origins, directions, t_min=0.0, t_max=np.inf, precision="single",
               outputs=TRACE_OUTPUTS):
@@ -631,7 +575,7 @@ class Tracer:
             computes nor stores them.
         Returns Hits. Rays with non-finite components or a zero direction miss.
         """
-        double = _precision(precision, self.tree)
+        double = wants_double(precision, self.tree)
         if isinstance(outputs, str):
             outputs = (outputs,)
         unknown = sorted(set(outputs) - set(TRACE_OUTPUTS))
@@ -641,7 +585,7 @@ class Tracer:
         kernel = tuple(name.upper() for name in outputs)
         if double:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
-        origins, directions, shape = _flat_rays(origins, directions)
+        origins, directions, shape = ray_input.flat_rays(origins, directions)
         if len(shape) >= 2:
             image_w, search = shape[-1], None
         elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
@@ -727,7 +671,7 @@ class Tracer:
         out = {name: page_aligned_empty((n, width) if width > 1 else (n,), dtype)
                for name, (width, dtype) in OUTPUT_WIDTH.items()
                if name in outputs or (stats and name == "STATS")}
-        o_bytes, d_bytes = (_RAY_BYTES[t] for t in rays_world or ("float", "float"))
+        o_bytes, d_bytes = (ray_input.RAY_BYTES[t] for t in rays_world or ("float", "float"))
         widths = [o_bytes] * o_step + [d_bytes] + [OUTPUT_WIDTH[k][0] * 4 for k in out]
         per_launch = self._launch_size(widths)
         # with image blocks a launch takes whole rows of blocks (4 rows with packets
@@ -795,7 +739,7 @@ class Tracer:
         with precision="double" every model but the pinhole is traced from its float64
         rays (Camera.rays).
         """
-        double = _precision(precision, self.tree)
+        double = wants_double(precision, self.tree)
         aovs = _render.parse_aovs(aovs)
         if camera.model != "pinhole" and double:
             return self._render_model(camera, aovs, precision)
@@ -928,7 +872,7 @@ class Tracer:
         precision="double" the float64 rays (Lidar.rays) are traced from the host.
         """
         from .lidar import check_pose, scan_images
-        double = _precision(precision, self.tree)
+        double = wants_double(precision, self.tree)
         if not double:
             return self._scan_on_device(lidar, check_pose(pose))
         origin, directions = lidar.rays(pose)
@@ -964,40 +908,6 @@ class Tracer:
             d[:, r] = component
         origin = self._origin + self._scale * eye.astype(np.float64)
         return scan_images(lidar, origin, d, out["T"], out["ID"], self.tree.objects)
-
-
-def _precision(precision, tree):
-    """True for "double" (KdrayError when the tree has no float64 triangles), False for
-    "single"."""
-    from .double import need_double
-    if precision not in ("single", "double"):
-        raise KdrayError(f"precision must be 'single' or 'double', got {precision!r}")
-    missing = need_double(tree) if precision == "double" else None
-    if missing:
-        raise KdrayError(missing)
-    return precision == "double"
-
-
-def _flat_rays(origins, directions):
-    """(origins, directions, shape) for `Tracer.trace`: directions (..., 3) as (N, 3)
-    and origins, (3,) or of the directions' shape, as (N, 3) or (3,) (views where numpy
-    can make them); shape: the rays' shape, directions.shape[:-1]. KdrayError for
-    other shapes."""
-    d = np.asarray(directions)
-    if d.ndim < 2 or d.shape[-1] != 3:
-        raise KdrayError(f"directions must be an (N, 3) or (H, W, 3) array, got shape {d.shape}")
-    o = np.asarray(origins)
-    if o.shape != (3,) and o.shape != d.shape:
-        raise KdrayError(f"origins {o.shape} must be (3,) or the directions' shape {d.shape}")
-    if d.ndim == 2:
-        return o, d, d.shape[:1]
-    return (o if o.shape == (3,) else o.reshape(-1, 3)), d.reshape(-1, 3), d.shape[:-1]
-
-
-_RAY_BYTES = {"float": 12, "double": 24}
-"""Bytes of a ray's origin or direction as trace_rays reads it."""
-_C_TYPES = {np.dtype(np.float32): "float", np.dtype(np.float64): "double"}
-"""The ray arrays trace_rays reads as they are (RAYS_WORLD): numpy dtype -> C type."""
 
 
 def rays_per_launch(global_mem, max_alloc, tree_bytes, widths, cap=None):
