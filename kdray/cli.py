@@ -139,6 +139,20 @@ def _build_mesh(mesh, path, params, builder=None, *args):
         raise MeshError(f"{path}: {e}") from None
 
 
+def _scene_tree(step, scene, tree_file, params):
+    """The tree of a command's SCENE, each part timed by `step` (Steps): loaded from
+    tree_file when given, else built from the mesh with params, with its objects."""
+    from .tree import KdTree
+    if tree_file:
+        with step("loading the tree"):
+            return KdTree.load(tree_file)
+    from .load import load
+    with step("loading"):
+        mesh = load(scene)
+    with step(f"building the tree of {len(mesh.faces):,} triangles"):
+        return _build_mesh(mesh, scene, params).with_objects(mesh.objects, mesh.object_names)
+
+
 def _say_if_builder_compiles():
     """A warning on stderr when the builder's compiled code is not on disk yet: the first
     build of an install compiles it (numba), about half a minute that would otherwise
@@ -423,7 +437,6 @@ def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
     from .images import write_exr
     from .lidar import Lidar, write_points_ply
     from .trace import Tracer
-    from .tree import KdTree
     params = _build_kwargs(kw)
     if output is None:
         output = os.path.splitext(os.path.basename(scene))[0] + ".exr"
@@ -438,15 +451,7 @@ def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
     lidar = Lidar.from_json(lidar_file)          # a bad spec or pose: one line, nothing read
     sensor_to_world = pose_from_file(pose)
     step = Steps()
-    if tree_file:
-        with step("loading the tree"):
-            tree = KdTree.load(tree_file)
-    else:
-        from .load import load
-        with step("loading"):
-            mesh = load(scene)
-        with step(f"building the tree of {len(mesh.faces):,} triangles"):
-            tree = _build_mesh(mesh, scene, params).with_objects(mesh.objects, mesh.object_names)
+    tree = _scene_tree(step, scene, tree_file, params)
     with step("setting up the device"):
         tracer = Tracer(tree, device=device)
     beams, columns = lidar.shape
@@ -499,7 +504,6 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
     each point crosses the surface."""
     from .files import atomic_write
     from .trace import Tracer
-    from .tree import KdTree
     params = _build_kwargs(kw)
     for source in (scene, tree_file, points_file):
         _check_not_same(source, output)
@@ -508,15 +512,7 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
     if direction is not None and not (np.isfinite(direction).all() and np.any(direction)):
         raise KdrayError(f"--count needs a finite, nonzero direction, got {direction}")
     step = Steps()
-    if tree_file:
-        with step("loading the tree"):
-            tree = KdTree.load(tree_file)
-    else:
-        from .load import load
-        with step("loading"):
-            mesh = load(scene)
-        with step(f"building the tree of {len(mesh.faces):,} triangles"):
-            tree = _build_mesh(mesh, scene, params)
+    tree = _scene_tree(step, scene, tree_file, params)
     with step("setting up the device"):
         tracer = Tracer(tree, device=device)
     if direction is None:

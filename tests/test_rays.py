@@ -85,18 +85,25 @@ def ranges(rng, n, t_hint):
     return lo, hi
 
 
+def poisoned_case(runtime, tree, n, seed):
+    """(o, d, tracer): n seeded random rays (`random_rays`) and a Tracer on the
+    runtime whose output buffers are poisoned before each launch."""
+    o, d = random_rays(tree, n, seed=seed)
+    tracer = Tracer(tree, device=runtime.spec)
+    tracer._poison_outputs = True
+    return o, d, tracer
+
+
 def test_occluded_is_traces_hit(runtime, teapot_tree):
     tree = teapot_tree
     n = runtime.small(3001, 61)
-    o, d = random_rays(tree, n, seed=3)
-    tracer = Tracer(tree, device=runtime.spec)
-    tracer._poison_outputs = True
+    o, d, tracer = poisoned_case(runtime, tree, n, seed=3)
     for t_min, t_max in ((0.0, np.inf), (0.3, 0.9)):
         assert (tracer.occluded(o, d, t_min, t_max) == tracer.trace(o, d, t_min, t_max).hit).all()
     # per-ray ranges: any hit of the ray's (listed) hits inside its range
     lo, hi = ranges(np.random.default_rng(4), n, 0.5)
     occ = tracer.occluded(o, d, lo, hi)
-    ref_ray, _, ref_t, _, _ = all_hits(tree.world(tree.triangles), o, d, lo, hi)
+    ref_ray, *_ = all_hits(tree.world(tree.triangles), o, d, lo, hi)
     expected = np.zeros(n, bool)
     expected[ref_ray] = True
     assert (occ != expected).mean() <= 0.002
@@ -107,9 +114,7 @@ def test_occluded_is_traces_hit(runtime, teapot_tree):
 def test_intersections_match_brute_force(runtime, teapot_tree):
     tree = teapot_tree
     n = runtime.small(2003, 41)
-    o, d = random_rays(tree, n, seed=5)
-    tracer = Tracer(tree, device=runtime.spec)
-    tracer._poison_outputs = True
+    o, d, tracer = poisoned_case(runtime, tree, n, seed=5)
     hits = tracer.intersections(o, d)
     assert hits.offsets[0] == 0 and hits.offsets[-1] == len(hits.t) and len(hits) == n
     same_ray = hits.ray[1:] == hits.ray[:-1]
