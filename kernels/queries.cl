@@ -170,37 +170,24 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
     for (;;) {
         KdNode n = nodes[node];
         while (!kd_is_leaf(n)) {
-            uint axis = kd_split_axis(n);
-            float split = kd_split(n);
-            float o_k = kd_comp(o, axis);
-            float d_k = kd_comp(d, axis);
-            float t_split = (split - o_k) / d_k;       /* as traverse.cl divides */
-            uint below = node + 1u;
-            uint above = kd_above_child(n);
-            bool below_first = o_k < split || (o_k == split && d_k <= 0.0f);
-            uint first = below_first ? below : above;
-            uint second = below_first ? above : below;
-            float t_lo = t0 * (1.0f - KD_T_SLACK);
-            float t_hi = t1 * (1.0f + KD_T_SLACK);
-            bool both = false;
-            float t_mid = t1;
-            if (kd_isnan(t_split)) {
-                both = true;                 /* in the plane: both, over the same range */
-            } else if (t_split > t_hi || t_split <= 0.0f) {
-                node = first;
-            } else if (t_split < t_lo) {
-                node = second;
+            uint first, second;
+            bool below_first;
+            float t_mid;
+            uint step = kd_node_step(n, node, o, d, t0, t1, &first, &second, &below_first,
+                                     &t_mid);
+            if (step == KD_STEP_FIRST || step == KD_STEP_SECOND) {
+                node = step == KD_STEP_FIRST ? first : second;
             } else {
-                both = true;
-                t_mid = kd_clamp(t_split, t0, t1);
-            }
-            if (both) {
+                /* both children: the second later, over [t_mid, t1] or, in the plane,
+                 * over the same range */
                 if (count == STACK_SIZE) {   /* deeper than the tree's depth: corrupt */
                     q->fault = true;
                     return;
                 }
+                if (step == KD_STEP_IN_PLANE)
+                    t_mid = t1;
                 stack_node[count] = second;
-                stack_t_min[count] = kd_isnan(t_split) ? t0 : t_mid;
+                stack_t_min[count] = step == KD_STEP_IN_PLANE ? t0 : t_mid;
                 stack_t_max[count] = t1;
                 count++;
                 node = first;

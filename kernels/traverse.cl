@@ -109,6 +109,48 @@ void kd_ray_leaf(KdNode leaf, __global const float *tris, __global const uint *t
  * way each t rounded. */
 #define KD_T_SLACK 9.5367431640625e-07f
 
+/* How a ray's range [t0, t1] meets interior node n (index `node`): the one step of
+ * every walk of the tree (the nearest hit's here, the queries' in queries.cl).
+ * *first is the child on the origin's side (below when the origin is in the plane
+ * and d[axis] <= 0), *second the other; *below_first says which is which. Returns
+ * KD_STEP_FIRST or KD_STEP_SECOND (the range reaches that child only, by more than
+ * the slack), KD_STEP_BOTH (first over [t0, *t_mid], then second over [*t_mid, t1])
+ * or KD_STEP_IN_PLANE (the ray lies in the split plane: both, over the same range).
+ * A division, not a multiplication by 1/d: planes through one point give the same t
+ * when the coordinates are exact (a vertex on two split planes). A packet multiplies
+ * (kd_inverse_far): the slack covers both, and every hit is the same. */
+#define KD_STEP_FIRST 0u
+#define KD_STEP_SECOND 1u
+#define KD_STEP_BOTH 2u
+#define KD_STEP_IN_PLANE 3u
+
+KD_INLINE
+uint kd_node_step(KdNode n, uint node, float3 o, float3 d, float t0, float t1, uint *first,
+                  uint *second, bool *below_first, float *t_mid)
+{
+    uint axis = kd_split_axis(n);
+    float split = kd_split(n);
+    float o_k = kd_comp(o, axis);
+    float d_k = kd_comp(d, axis);
+    float t_split = (split - o_k) / d_k;
+    uint below = node + 1u;
+    uint above = kd_above_child(n);
+    *below_first = o_k < split || (o_k == split && d_k <= 0.0f);
+    *first = *below_first ? below : above;
+    *second = *below_first ? above : below;
+    /* the range widened by the slack (computed beside the division) */
+    float t_lo = t0 * (1.0f - KD_T_SLACK);
+    float t_hi = t1 * (1.0f + KD_T_SLACK);
+    *t_mid = kd_clamp(t_split, t0, t1);
+    if (kd_isnan(t_split))
+        return KD_STEP_IN_PLANE;
+    if (t_split > t_hi || t_split <= 0.0f)
+        return KD_STEP_FIRST;            /* (the sign of t_split is exact) */
+    if (t_split < t_lo)
+        return KD_STEP_SECOND;
+    return KD_STEP_BOTH;
+}
+
 /* A leaf's hit is final when it is before the leaf's exit by more than the slack:
  * every leaf after it in the order starts at a plane crossed at t_exit or later (as
  * rounded, within the slack), so it cannot hold a nearer hit, nor one as near with a
@@ -156,38 +198,28 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves,
         KdNode n = nodes[node];
         while (!kd_is_leaf(n)) {
             KD_STAT(x);
-            uint axis = kd_split_axis(n);
-            float split = kd_split(n);
-            float o_k = kd_comp(o, axis);
-            float d_k = kd_comp(d, axis);
-            /* A division, not a multiplication by 1/d: planes through one point give
-             * the same t when the coordinates are exact (a vertex on two split planes).
-             * A packet multiplies (kd_inverse_far): the slack covers both, and every
-             * hit is the same. */
-            float t_split = (split - o_k) / d_k;
             uint below = node + 1u;
             uint above = kd_above_child(n);
             /* both children, loaded while the division runs: the next step's node is
              * then at hand */
             KdNode n_below = nodes[below];
             KdNode n_above = nodes[above];
-            bool below_first = o_k < split || (o_k == split && d_k <= 0.0f);
-            uint first = below_first ? below : above;
-            uint second = below_first ? above : below;
-            /* the range widened by the slack (computed beside the division) */
-            float t_lo = t_min_cur * (1.0f - KD_T_SLACK);
-            float t_hi = t_max_cur * (1.0f + KD_T_SLACK);
+            uint first, second;
+            bool below_first;
+            float t_mid;
+            uint step = kd_node_step(n, node, o, d, t_min_cur, t_max_cur, &first, &second,
+                                     &below_first, &t_mid);
 
-            if (kd_isnan(t_split)) {
+            if (step == KD_STEP_IN_PLANE) {
                 /* The ray lies in the split plane: this pass's side */
+                uint axis = kd_split_axis(n);
                 *in_plane |= 1u << axis;
                 node = ((side >> axis) & 1u) ? above : below;
-            } else if (t_split > t_hi || t_split <= 0.0f) {
-                node = first;            /* (the sign of t_split is exact) */
-            } else if (t_split < t_lo) {
+            } else if (step == KD_STEP_FIRST) {
+                node = first;
+            } else if (step == KD_STEP_SECOND) {
                 node = second;
             } else {
-                float t_mid = kd_clamp(t_split, t_min_cur, t_max_cur);
                 bool last_in_below = last_leaf < above;
                 if (resuming && last_in_below != below_first) {
                     /* last_leaf is in the second child: the first one is done */
