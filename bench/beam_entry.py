@@ -17,7 +17,7 @@ node in float64 (a group whose rays all miss the box is counted apart) and print
 mean depth against the interior steps of the packet kernel (STATS: the most any lane of
 the group took, a lower bound of the packet's steps). Their ratio bounds the share of
 descent steps a beam would save; the descent is about half of a render's time
-(BENCHMARKS.md, issue 20).
+(BENCHMARKS.md, "Where the time goes").
 """
 import argparse
 import os

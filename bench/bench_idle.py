@@ -19,7 +19,7 @@ and prints each call's median and 90th percentile over all pairs:
 On Intel's runtime the thread that waits for a kernel works on it beside the runtime's
 worker threads; unbound, a worker woken after an idle moment can be placed on that
 thread's core and share it until Linux's load balancer moves one (BENCHMARKS.md,
-issue 20, sixteenth session). PoCL's workers alone run its kernels; unbound, its calls
+"Calls after an idle moment"). PoCL's workers alone run its kernels; unbound, its calls
 had a long tail too.
 """
 import argparse

@@ -25,7 +25,7 @@ instruction after the one that stalled (skid), so read the counts in context; ma
 code to source by its landmarks (the node step's `vdivps`, the triangle test's three
 `vcmpeqps` against zero, `vgatherdps` for a leaf's triangles gathered ray by ray).
 PoCL's kernels are shared objects instead, which `perf report` names itself
-(BENCHMARKS.md, issue 16).
+(BENCHMARKS.md, "Timing in turns").
 """
 import argparse
 import collections

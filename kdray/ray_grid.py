@@ -10,7 +10,7 @@ in blocks too.
 Which rays share a packet never changes a hit (the kernels' results do not depend on
 the packets or work sizes; tests/test_runtimes.py), so a wrong answer costs time,
 never correctness: 1M random rays traced as a 1024-wide image took as long as rows
-(BENCHMARKS.md, "Issue 20, fifth session").
+(BENCHMARKS.md, "(N, 3) rays traced as the image they are").
 
 The test, on SAMPLES evenly spaced rays, for each of the rays' directions (as unit
 vectors) and origins (when there is one per ray and they are not all equal):

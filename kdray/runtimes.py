@@ -36,7 +36,7 @@ to a core of its own. Without them, on a 2-core VM, a kernel launched after the 
 had been idle for a moment often ran on one core for its first 4-12 ms: the runtime's
 worker and the thread waiting for the kernel (which the runtime makes work too) took
 turns on one core in 4 ms slices until Linux moved one of them (`perf sched`;
-BENCHMARKS.md, issue 20, sixteenth session). The runtime then binds the thread that
+BENCHMARKS.md, "Calls after an idle moment"). The runtime then binds the thread that
 creates the process's first context as well; kdray undoes that at once
 (`device.new_context`). It binds nothing when the process's CPU affinity is already
 restricted (taskset, a cpuset)."""

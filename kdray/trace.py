@@ -67,7 +67,7 @@ IMAGE_SEARCH_MIN_RAYS = 1 << 17
 """`Tracer.trace` looks for an image in (N, 3) rays (`ray_grid.grid_width`) only from
 this many rays on: the search costs about 1 ms whatever N, and tracing in blocks saves
 a few % of the kernel's time, which repays it from about 2^17 rays of a simple mesh
-(BENCHMARKS.md, "Issue 20, ninth session"). Image-shaped rays are traced in blocks at
+(BENCHMARKS.md, "(N, 3) rays traced as the image they are"). Image-shaped rays are traced in blocks at
 any size."""
 
 IMAGE_WIDTHS_KEPT = 8

@@ -498,7 +498,7 @@ uint kd_bitsP(intP m)
  * gathering the triangles. Else a packet of one origin and shear (r->cull) takes the
  * triangles KD_PACKET at a time, leaves out those no lane can hit (kd_block_culls) and
  * tests the others with all its lanes; its few candidates cost less than the
- * ray-by-ray tests down to KD_CULL_LANE_RATIO (BENCHMARKS.md, issue 20). The pairs and
+ * ray-by-ray tests down to KD_CULL_LANE_RATIO (BENCHMARKS.md, "Kernel parameters"). The pairs and
  * their arithmetic are the same every way. */
 KD_INLINE
 void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint *tri_ids,
@@ -836,8 +836,8 @@ void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, flo
  * longest side on some axis. Rays that far apart share few nodes below the top of the
  * tree, and the union of their paths, each node a vector step, costs more than their
  * paths one by one; rays from one point or a small patch (cameras, lidars, a
- * projector's pixels) share most nodes whichever way they point (BENCHMARKS.md, issue
- * 20, tenth session). Either way every lane's hit is the same. */
+ * projector's pixels) share most nodes whichever way they point (BENCHMARKS.md,
+ * "Incoherent rays"). Either way every lane's hit is the same. */
 KD_INLINE
 bool kd_alone(const KdPacket *r, intP on, floatP ox, floatP oy, floatP oz, float3 bmin,
               float3 bmax)

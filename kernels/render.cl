@@ -47,7 +47,8 @@
 /* A packet kernel is vectorized by hand (floatP): vec_type_hint says so. Without it
  * Intel's CPU runtime vectorizes a work-group across its work-items as soon as the
  * group is as wide as its vector unit (8 work-items with AVX2), and a packet kernel
- * so transposed runs about 30 times slower (BENCHMARKS.md, issue 20). PoCL and
+ * so transposed runs 23-32 times slower (BENCHMARKS.md, "CPU runtimes and packet
+ * widths"). PoCL and
  * Oclgrind ignore the hint. */
 #ifdef PACKET
 #define KD_VEC_HINT __attribute__((vec_type_hint(floatP)))

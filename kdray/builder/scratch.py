@@ -5,7 +5,7 @@ The root's sorted events and the builder's two event stacks share one uint64 arr
 of whose pages a build writes. A new array's pages come fresh from the kernel (page
 faults, zeroing), and builds of 10k-40k triangles took 0.95-0.96 of the time when the
 last build's array was used again (in turns; the bunny's 0.99, none at 278k:
-BENCHMARKS.md, issue 20, thirteenth session). So one such array, of at most
+BENCHMARKS.md, "The builder's threads and parameters"). So one such array, of at most
 KEEP_BYTES, is kept after a build for the next one: meshes built one after another (a
 dataset's scenes, repeated builds) reuse it. Larger arrays are never kept (holding one
 to the end of a build would raise its peak memory); `release` frees the kept one.
