@@ -1,0 +1,405 @@
+"""kdray behind trimesh's ray queries: a drop-in for trimesh's RayMeshIntersector.
+
+    import trimesh
+    from kdray.integrations.trimesh import RayMeshIntersector
+    mesh = trimesh.load("part.stl")
+    mesh.ray = RayMeshIntersector(mesh)          # device=None: kdray's default device
+    index_tri, index_ray = mesh.ray.intersects_id(origins, directions)
+    locations, index_ray, index_tri = mesh.ray.intersects_location(origins, directions)
+    mesh.ray.intersects_first(origins, directions)   # (n,) int64, -1 on a miss
+    mesh.ray.intersects_any(origins, directions)     # (n,) bool
+    mesh.contains(points)                            # (n,) bool: contains_points
+    trimesh.proximity.signed_distance(mesh, points)  # its ray-decided signs: ours
+
+The methods take the arguments of trimesh's embree intersector
+(trimesh.ray.ray_pyembree.RayMeshIntersector), with its names and defaults, and
+return what trimesh's intersectors return, for n rays (origins and directions
+(n, 3), any float-like dtype; directions of any length, a zero or non-finite one a
+miss) and h hits:
+
+    intersects_id(o, d, multiple_hits=True, max_hits=100, return_locations=False)
+        -> index_tri (h,) int64, index_ray (h,) int64[, locations (h, 3) float64]
+    intersects_location(o, d, multiple_hits=True, max_hits=100)
+        -> locations (h, 3) float64, index_ray (h,) int64, index_tri (h,) int64
+    intersects_first(o, d) -> (n,) int64 triangle index, -1 on a miss
+    intersects_any(o, d)   -> (n,) bool
+    contains_points(points (n, 3)) -> (n,) bool
+
+An empty result is (0,) int64 and (0, 3) float64 locations (as embree's; trimesh's
+ray_triangle gives (0,) locations there).
+
+Which hits, and the differences from embree's intersector on purpose:
+
+- Every hit of a ray comes from one walk of kdray's tree (Tracer.intersections):
+  embree's intersector casts again from each hit moved on by an offset, which loses
+  hits closer together than the offset and repeats a hit it gets stuck on at small or
+  large scales; kdray lists each triangle once per ray at any scale. `max_hits` keeps
+  a ray's nearest hits, as embree's does: its nearest triangles without locations,
+  its nearest points with them (None: all; 0: none, as embree's loop of 0 casts).
+- kdray's hit test is watertight (docs/conventions.md, "Ray queries"): a ray through
+  an edge or a vertex hits every triangle that has it. `intersects_id` without
+  locations lists them all: both triangles at a shared edge, the whole fan at a
+  vertex. With locations (`intersects_location`, `intersects_id(...,
+  return_locations=True)`) a ray's hits at one point are one hit, as trimesh's
+  ray_triangle intersector documents ("unique cartesian locations", so that the hits
+  can be counted): the hit of the lowest triangle index among them (the triangle
+  `intersects_first` gives there). Two hits of a ray are one point when their
+  distances along it differ by at most SAME_POINT_RTOL times the scene's size, or,
+  for triangles that share a vertex (the ray through an edge or a vertex, as kdray's
+  float32 test decides it), SAME_TRIANGLE_RTOL times that size.
+- A hit counts from t > 0 on (above the rounding of t): a ray that starts on the
+  surface does not hit the triangle it starts on (embree's may, at t = 0).
+- Locations are o + t d in float64 (d the unit direction), t where the ray meets the
+  hit triangle's plane, computed in float64 from the triangle's vertices
+  (kdray.double.plane_hits: the plane through its first vertex, normal to its edges'
+  cross product); where that t is not finite (a ray in the plane to float64
+  precision, which the float32 test hit), the float32 test's t. Embree's intersector
+  intersects the plane through the first vertex too (trimesh.intersections.
+  planes_lines), with `mesh.face_normals` as its normal, which for an STL file can be
+  the file's own rounded normals: its points then lie off the triangle by that
+  rounding, ours on it to float64 rounding. It also drops a hit whose ray meets the
+  plane at less than 1e-5 of a right angle (planes_lines' `valid`); kdray keeps every
+  hit its test finds.
+- `contains_points` is Tracer.contains: the parity of one ray's exact crossing count
+  along a fixed direction (kdray.rays.CONTAINS_DIRECTION), exact at edges and
+  vertices on a closed, consistently oriented mesh, the same every run. trimesh's
+  casts two rays a point and, where they disagree, again in a random direction. A
+  point on the surface answers as if moved an infinitesimal step along that
+  direction (trimesh: undefined); a non-finite point is outside. On a mesh that is not
+  closed the answer is that one ray's parity.
+- Order: trimesh documents none for several hits (embree's comes from its re-casting:
+  all rays' first hits, then their second hits, ...; ray_triangle's from its r-tree).
+  Hits here are sorted by ray, then by distance along the ray, ties by triangle index;
+  first hits by ray.
+- `scale_to_box` is accepted for embree's signature and does nothing: kdray's tree
+  stores the triangles relative to their centre, in a power-of-two unit, so its
+  accuracy does not depend on where or how large the mesh is.
+
+The tree is built on first use and cached on the mesh's hash (trimesh's Cache with
+`mesh.__hash__`, as embree's intersector caches its scene): a mesh that is edited or
+transformed is built again on its next query, on the same OpenCL context
+(Tracer.with_tree). The intersector pickles and copies without its OpenCL objects,
+which it makes again when next used; `copy.deepcopy` copies the mesh too, `copy.copy`
+shares it. trimesh's `mesh.copy()` and `copy.deepcopy(mesh)` give a mesh with
+trimesh's default intersector: assign this one again.
+
+This is the only kdray module besides kdray.load that imports trimesh.
+"""
+import copy
+
+import numpy as np
+from trimesh import caching
+
+from ..builder import build
+from ..double import plane_hits
+from ..errors import KdrayError, MeshError, ParameterError
+from ..layout import MISS
+from ..trace import Tracer
+
+__all__ = ["RayMeshIntersector"]
+
+SAME_POINT_RTOL = 2.0 ** -40
+"""Two hits of one ray are one point (with locations) when their distances along the
+ray differ by at most this times the scene's size (the largest coordinate of the ray's
+origin and of the mesh's box, from the box's centre): 4096 float64 roundings, the
+error of t computed from two planes through the same point."""
+
+SAME_TRIANGLE_RTOL = 2.0 ** -20
+"""... and for two triangles that share a vertex, at most this times that size: 16
+float32 roundings. kdray decides a hit in float32, so a ray it finds through an edge
+or a vertex may pass that far from it in float64, where the two triangles' planes
+meet the ray that far apart."""
+
+
+class RayMeshIntersector:
+    """Ray queries on a trimesh.Trimesh through a kdray tree; assign it to `mesh.ray`.
+
+    geometry : trimesh.Trimesh (kept as `self.mesh`; read at each query).
+    scale_to_box : accepted for embree's signature; does nothing (module docstring).
+    device : None (kdray's default device) or a device string as kdray.Tracer takes it
+        ("pocl", "intel", "0:1").
+    """
+
+    def __init__(self, geometry, scale_to_box=True, device=None):
+        self.mesh = geometry
+        self._scale_to_box = bool(scale_to_box)
+        self.device = device
+        self._kept = None   # the last Tracer: its context and programs serve the next tree
+        self._cache = caching.Cache(id_function=self.mesh.__hash__)
+
+    # -- the tree and its Tracer ---------------------------------------------------------
+
+    @property
+    def tracer(self):
+        """kdray.Tracer of the mesh as it is now (built on first use, and again after the
+        mesh changed), or None for a mesh with no triangle a ray can hit. Its richer
+        queries (Tracer.count, intersections with t ranges, trace's barycentrics) take
+        the mesh's face indices as triangle ids."""
+        return self._tracer
+
+    @caching.cache_decorator
+    def _tracer(self):
+        vertices = np.asarray(self.mesh.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(self.mesh.faces, dtype=np.int64).reshape(-1, 3)
+        if len(faces) == 0:
+            return None
+        try:
+            tree = build(vertices, faces)
+        except MeshError:
+            # only a mesh none of whose triangles kdray keeps is one a ray misses
+            if _usable(vertices, faces).any():
+                raise
+            return None
+        tracer = None
+        if self._kept is not None:
+            try:
+                tracer = self._kept.with_tree(tree)
+            except KdrayError:          # a tree too deep for the kept work sizes
+                tracer = None
+        if tracer is None:
+            tracer = Tracer(tree, device=self.device)
+        self._kept = tracer
+        return tracer
+
+    # -- queries -------------------------------------------------------------------------
+
+    def intersects_id(self, ray_origins, ray_directions, multiple_hits=True, max_hits=100,
+                      return_locations=False):
+        """The triangles the rays hit.
+
+        ray_origins, ray_directions : (n, 3) float-like, the same shape.
+        multiple_hits : every hit of each ray (sorted by distance), else the first.
+        max_hits : the most hits a ray keeps, its nearest (an int >= 0, or None: all).
+        return_locations : also the hit points; a ray's hits at one point are then one.
+        Returns index_tri (h,) int64 (rows of mesh.faces), index_ray (h,) int64, and
+        with return_locations locations (h, 3) float64; sorted by ray, then distance.
+        ParameterError (a ValueError) for arrays of other shapes or a bad max_hits."""
+        o, d = _rays(ray_origins, ray_directions)
+        limit = _max_hits(max_hits)
+        tracer = self._tracer
+        if tracer is None or len(o) == 0 or limit == 0:
+            return _empty(return_locations)
+        if not multiple_hits:
+            ray, tri, t32 = _first(tracer, o, d)
+            if not return_locations:
+                return tri, ray
+            t = self._t64(o, d, ray, tri, t32)
+        elif not return_locations:
+            hits = tracer.intersections(o, d, max_hits=limit)
+            return hits.prim.astype(np.int64), hits.ray
+        else:
+            ray, tri, t = self._points(tracer, o, d, limit)
+        return tri, ray, o[ray] + t[:, None] * d[ray]
+
+    def intersects_location(self, ray_origins, ray_directions, multiple_hits=True,
+                            max_hits=100):
+        """The points where the rays hit, each once per ray.
+
+        Returns locations (h, 3) float64, index_ray (h,) int64, index_tri (h,) int64:
+        intersects_id(..., return_locations=True) in trimesh's order of the three."""
+        index_tri, index_ray, locations = self.intersects_id(
+            ray_origins, ray_directions, multiple_hits=multiple_hits, max_hits=max_hits,
+            return_locations=True)
+        return locations, index_ray, index_tri
+
+    def intersects_first(self, ray_origins, ray_directions):
+        """(n,) int64: the index of the triangle each ray hits first, -1 on a miss (ties
+        at an edge or a vertex: the lowest index)."""
+        o, d = _rays(ray_origins, ray_directions)
+        first = np.full(len(o), -1, dtype=np.int64)
+        tracer = self._tracer
+        if tracer is None or len(o) == 0:
+            return first
+        prim = tracer.trace(o, d, outputs=()).prim
+        hit = prim != MISS
+        first[hit] = prim[hit]
+        return first
+
+    def intersects_any(self, ray_origins, ray_directions):
+        """(n,) bool: whether each ray hits the mesh (Tracer.occluded: an any-hit walk,
+        the same answers as intersects_first != -1)."""
+        o, d = _rays(ray_origins, ray_directions)
+        tracer = self._tracer
+        if tracer is None or len(o) == 0:
+            return np.zeros(len(o), dtype=bool)
+        return np.asarray(tracer.occluded(o, d), dtype=bool)
+
+    def contains_points(self, points):
+        """(n,) bool: whether each point is inside the mesh (Tracer.contains: one ray's
+        exact crossing parity; module docstring). points : (n, 3) float-like; a
+        non-finite point is outside. ParameterError (a ValueError) for other shapes."""
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ParameterError(f"points must be an (n, 3) array, got shape {p.shape}")
+        inside = np.zeros(len(p), dtype=bool)
+        finite = np.isfinite(p).all(axis=1)
+        tracer = self._tracer
+        if tracer is not None and finite.any():
+            inside[finite] = tracer.contains(p[finite])
+        return inside
+
+    # -- hit points ----------------------------------------------------------------------
+
+    def _t64(self, o, d, ray, tri, t32):
+        """(h,) float64 distance along each hit's unit ray to its triangle's plane, in
+        float64 from the mesh's vertices; the float32 test's t where that is not finite
+        (a ray in the plane to float64 precision that float32 found a hit for)."""
+        vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
+        faces = np.asarray(self.mesh.faces)
+        t = plane_hits(vertices[faces[tri]], o[ray], d[ray])[0]
+        bad = ~np.isfinite(t)
+        t[bad] = t32[bad]
+        return t
+
+    def _points(self, tracer, o, d, limit):
+        """(ray, tri, t) of every distinct hit point of each ray, at most `limit` (None:
+        all) a ray, sorted by ray then t: (h,) int64, int64, float64."""
+        hits = tracer.intersections(o, d, max_hits=limit)
+        ray, tri, t = self._distinct(o, d, hits.ray, hits.prim.astype(np.int64), hits.t)
+        if limit is None:
+            return ray, tri, t
+        # a ray cut at `limit` triangles that shared points has fewer than `limit` points:
+        # list its every hit again and keep its first `limit` points
+        redo = np.flatnonzero((hits.counts == limit) &
+                              (np.bincount(ray, minlength=len(o)) < limit))
+        if redo.size == 0:
+            return ray, tri, t
+        again = tracer.intersections(o[redo], d[redo])
+        ray2, tri2, t2 = self._distinct(o, d, redo[again.ray], again.prim.astype(np.int64),
+                                        again.t)
+        starts = np.searchsorted(ray2, ray2, side="left")
+        keep = np.arange(len(ray2)) - starts < limit
+        old = ~np.isin(ray, redo)
+        ray = np.concatenate([ray[old], ray2[keep]])
+        tri = np.concatenate([tri[old], tri2[keep]])
+        t = np.concatenate([t[old], t2[keep]])
+        order = np.lexsort((t, ray))
+        return ray[order], tri[order], t[order]
+
+    def _distinct(self, o, d, ray, tri, t32):
+        """The hits (ray, tri, t32: (h,) each, ray sorted) merged to one a point: sorted
+        by (ray, float64 t, tri), a hit is the previous one's point when their t differ
+        by at most SAME_POINT_RTOL * size, or SAME_TRIANGLE_RTOL * size for triangles
+        sharing a vertex; a point keeps its lowest triangle index. Returns (ray, tri, t)
+        sorted by ray then t."""
+        t = self._t64(o, d, ray, tri, t32)
+        order = np.lexsort((tri, t, ray))
+        ray, tri, t = ray[order], tri[order], t[order]
+        if len(ray) < 2:
+            return ray, tri, t
+        size = self._sizes(o)[ray[1:]]
+        step = np.diff(t)
+        same_ray = ray[1:] == ray[:-1]
+        same = same_ray & (step <= SAME_POINT_RTOL * size)
+        near = np.flatnonzero(same_ray & ~same & (step <= SAME_TRIANGLE_RTOL * size))
+        if near.size:
+            vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
+            faces = np.asarray(self.mesh.faces)
+            a = vertices[faces[tri[near]]]
+            b = vertices[faces[tri[near + 1]]]
+            # a shared vertex: equal coordinates (a mesh whose vertices are not merged
+            # shares none by index)
+            shared = (a[:, :, None, :] == b[:, None, :, :]).all(axis=3).any(axis=(1, 2))
+            same[near[shared]] = True
+        group = np.cumsum(np.concatenate([[True], ~same])) - 1
+        pick = np.lexsort((tri, group))
+        first = pick[np.concatenate([[True], np.diff(group[pick]) != 0])]
+        return ray[first], tri[first], t[first]
+
+    def _sizes(self, o):
+        """(n,) float64 the scene's size a ray sees: the largest coordinate of its origin
+        and of the mesh's box, from the box's centre."""
+        bounds = np.asarray(self.mesh.bounds, dtype=np.float64)
+        centre = bounds.mean(axis=0)
+        box = np.abs(bounds - centre).max()
+        with np.errstate(invalid="ignore"):
+            return np.fmax(np.abs(o - centre).max(axis=1), box)
+
+    # -- pickling and copies: without OpenCL objects --------------------------------------
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state.pop("_cache", None)
+        state["_kept"] = None
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._kept = None
+        self._cache = caching.Cache(id_function=self.mesh.__hash__)
+
+    def __copy__(self):
+        return type(self)(self.mesh, scale_to_box=self._scale_to_box, device=self.device)
+
+    def __deepcopy__(self, memo):
+        other = type(self).__new__(type(self))
+        memo[id(self)] = other
+        other.__setstate__(copy.deepcopy(self.__getstate__(), memo))
+        return other
+
+    def __repr__(self):
+        return (f"<kdray.integrations.trimesh.RayMeshIntersector of {len(self.mesh.faces)} "
+                f"faces, device={self.device!r}>")
+
+
+def _rays(ray_origins, ray_directions):
+    """(o (n, 3) float64, d (n, 3) float64 unit directions; zero where a direction is
+    zero or not finite, which kdray takes as a miss). ParameterError for shapes that
+    differ or are not (n, 3) (a single (3,) ray is one ray)."""
+    o = np.array(ray_origins, dtype=np.float64)
+    d = np.array(ray_directions, dtype=np.float64)
+    if o.shape != d.shape:
+        raise ParameterError(f"ray origins {o.shape} and directions {d.shape} must have "
+                             f"the same shape")
+    if o.ndim not in (1, 2) or o.shape[-1] != 3:
+        raise ParameterError(f"rays must be (n, 3) arrays, got shape {o.shape}")
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    # scaled by the largest component first: a finite direction of any size has a norm
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        big = np.abs(d).max(axis=1, keepdims=True) if len(d) else np.ones((0, 1))
+        unit = d / big
+        unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    ok = np.isfinite(unit).all(axis=1)
+    unit[~ok] = 0.0
+    return o, unit
+
+
+def _max_hits(max_hits):
+    """max_hits as an int >= 0, or None (all hits); ParameterError otherwise."""
+    if max_hits is None:
+        return None
+    if isinstance(max_hits, bool) or not isinstance(max_hits, (int, np.integer)):
+        raise ParameterError(f"max_hits must be an integer >= 0 or None, got {max_hits!r}")
+    if max_hits < 0:
+        raise ParameterError(f"max_hits must be >= 0, got {max_hits}")
+    return int(max_hits)
+
+
+def _first(tracer, o, d):
+    """(ray (h,) int64, tri (h,) int64, t (h,) float32) of the rays that hit, by ray:
+    their nearest hits (Tracer.trace; ties by the lowest triangle index)."""
+    hits = tracer.trace(o, d, outputs=())
+    ray = np.flatnonzero(hits.prim != MISS)
+    return ray, hits.prim[ray].astype(np.int64), hits.t[ray]
+
+
+def _empty(locations):
+    """intersects_id's result with no hits."""
+    none = np.zeros(0, dtype=np.int64)
+    if locations:
+        return none, none.copy(), np.zeros((0, 3), dtype=np.float64)
+    return none, none.copy()
+
+
+def _usable(vertices, faces):
+    """(m,) bool: triangles with finite vertices and a nonzero float32 cross product of
+    their edges, about the triangles kdray.build keeps (it raises MeshError when it
+    keeps none; asked only then)."""
+    tri = vertices[faces]
+    finite = np.isfinite(tri).all(axis=(1, 2))
+    with np.errstate(invalid="ignore", over="ignore"):
+        e1 = (tri[:, 1] - tri[:, 0]).astype(np.float32)
+        e2 = (tri[:, 2] - tri[:, 0]).astype(np.float32)
+        cross = np.cross(e1, e2)
+    return finite & (cross != 0).any(axis=1)
+
