@@ -194,7 +194,7 @@ def _program(tracer):
         program = _device.build_program(tracer.context, "queries.cl", defines)
         log.debug("built queries.cl with %s in %.2f s", defines, time.perf_counter() - started)
         entry = {"program": program, "run": run, "local": local}
-        for name in ("occluded_rays", "count_rays", "list_rays"):
+        for name in ("occluded_rays", "count_rays", "list_rays", "nearest_rays"):
             entry[name] = cl.Kernel(program, name)
         tracer._programs[key] = entry
     return entry
@@ -222,8 +222,10 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
             return tracer._buffer(array)         # queries.cl takes no offsets: a copy
         return tracer._input_buffer(array)[0]
 
-    # list_rays keeps its slots sorted in place: it reads what it wrote
-    device_out = {name: tracer._output_buffer(a, read=kernel_name == "list_rays")
+    # list_rays keeps its slots sorted in place: it reads what it wrote. An output
+    # given as None is not written (NULL).
+    device_out = {name: None if a is None else
+                  tracer._output_buffer(a, read=kernel_name == "list_rays")
                   for name, a in outputs.items()}
     args = (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
             np.uint32(tracer._n_nodes), inp(o), inp(d), np.uint32(rays.o_step), inp(t_mins),
@@ -236,7 +238,7 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
     items = -(-n // entry["run"])
     local = entry["local"]
     kernel(tracer.queue, (-(-items // local) * local,), (local,), *args)
-    tracer._read_outputs(device_out, outputs)
+    tracer._read_outputs({k: v for k, v in device_out.items() if v is not None}, outputs)
 
 
 def _launches(tracer, rays, widths):
@@ -262,6 +264,36 @@ def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
         _launch(tracer, "occluded_rays", rays, start, stop, (), {"out": out[start:stop]})
     _check_fault(out, "occluded")
     return out.view(bool).reshape(rays.shape)
+
+
+def nearest(tracer, origins, directions, t_min, t_max, outputs=("UV", "NORMAL")):
+    """Tracer.trace's Hits for rays with a t range each (t_min, t_max (N,) arrays, or
+    numbers): the walk's nearest hit (queries.cl, nearest_rays), the hit trace_rays
+    finds, refined alike; outputs: which of "UV", "NORMAL" to compute besides t and
+    prim. Hits of the rays' flattened shape."""
+    from .trace import Hits
+    rays = _Rays(tracer, origins, directions, t_min, t_max)
+    t = page_aligned_empty((rays.n,), np.float32)
+    prim = page_aligned_empty((rays.n,), np.uint32)
+    uv = page_aligned_empty((rays.n, 2), np.float32) if "UV" in outputs else None
+    normal = page_aligned_empty((rays.n, 3), np.float32) if "NORMAL" in outputs else None
+    exact = rays.exact() if tracer.refine else None
+    widths = [4, 4] + [8] * (uv is not None) + [12] * (normal is not None)
+    if exact is not None:
+        widths += [24 * rays.o_step, 24]
+    for start, stop in _launches(tracer, rays, widths):
+        extra = () if exact is None else (
+            exact[0][start:stop] if rays.o_step else exact[0], exact[1][start:stop])
+        part = slice(start, stop)
+        _launch(tracer, "nearest_rays", rays, start, stop, extra,
+                {"t": t[part], "uv": None if uv is None else uv[part],
+                 "normal": None if normal is None else normal[part], "prim": prim[part]})
+    if np.isnan(t).any():
+        _check_fault(np.where(np.isnan(t), WALK_FAULT, 0), "trace")
+    t *= np.float32(tracer._scale)           # a power of two: exact
+    return Hits(t=t, prim=prim, u=None if uv is None else uv[:, 0],
+                v=None if uv is None else uv[:, 1], normal=normal,
+                object_table=tracer.tree.objects)
 
 
 def _counts(tracer, rays, crossing):

@@ -567,6 +567,9 @@ class Tracer:
             are found to be one (kdray.ray_grid) and traced in blocks too, from
             IMAGE_SEARCH_MIN_RAYS rays on (below, the search costs more than it saves).
         t_min : >= 0 (default 0: hits behind the origin or at it never count)
+        t_min, t_max : numbers, or (N,) arrays, a range a ray: such rays are traced
+            one a work-item by the ray queries' walk (kdray.rays.nearest), with the
+            same hits, t, u, v and normals as they would get from a number
         precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
             v in float64 from the tree's float64 triangles (KdTree.triangles64) and
             the rays as given (kdray.double)
@@ -586,16 +589,20 @@ class Tracer:
         if double:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
         origins, directions, shape = ray_input.flat_rays(origins, directions)
-        if len(shape) >= 2:
-            image_w, search = shape[-1], None
-        elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
-            # (N, 3) rays that are an image in rows, as cameras give them, are traced
-            # in blocks too; the packets do not change a hit, only the time
-            image_w, search = self._image_width(origins, directions)
+        if np.ndim(t_min) or np.ndim(t_max):
+            # a t range a ray: the queries' walk, the same hits (kdray.rays.nearest)
+            hits = _rays.nearest(self, origins, directions, t_min, t_max, kernel)
         else:
-            image_w, search = 0, None
-        hits, _ = self._trace(origins, directions, t_min, t_max, outputs=kernel,
-                              image_w=image_w, while_running=search)
+            if len(shape) >= 2:
+                image_w, search = shape[-1], None
+            elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
+                # (N, 3) rays that are an image in rows, as cameras give them, are
+                # traced in blocks too; the packets do not change a hit, only the time
+                image_w, search = self._image_width(origins, directions)
+            else:
+                image_w, search = 0, None
+            hits, _ = self._trace(origins, directions, t_min, t_max, outputs=kernel,
+                                  image_w=image_w, while_running=search)
         if double:
             hits = self._double_hits(hits, origins, directions)
             if "uv" not in outputs:

@@ -5,6 +5,8 @@
  *                  it crosses the surface (triangle.cl, kd_tie: a shared edge or
  *                  vertex counts once); else every triangle hit, for list_rays' sizes
  *   list_rays      every hit, into the ray's own slots, sorted by (t, input id)
+ *   nearest_rays   the nearest hit, as trace_rays finds it (render.cl), for rays with
+ *                  a t range each (trace_rays takes one for all)
  *
  * One walk (kd_walk) serves them all: it visits every leaf the ray's range reaches,
  * near child first, and hands each to kd_query_leaf, which does what the query does
@@ -52,11 +54,14 @@
 #define KD_ANY 0u
 #define KD_COUNT 1u
 #define KD_LIST 2u
+#define KD_NEAREST 3u
 
 /* What a query keeps of one ray while it walks. */
 typedef struct {
     bool crossing;                       /* the count's rule (intersect_triangle) */
     bool fault;                          /* the walk's stack or leaf bound was exceeded */
+    bool in_plane;                       /* nearest: a node's plane held the ray */
+    Hit hit;                             /* nearest: the best hit so far */
     uint n;                              /* distinct hits (any: 1 once hit) */
     uint raw;                            /* count: hits found, copies included */
     uint seen[KD_SEEN];                  /* count: the input ids counted */
@@ -113,12 +118,19 @@ void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const
     q->tri[j] = tri;
 }
 
-/* Test a leaf's triangles for `query`; true when the walk may stop (any: a hit). */
+/* Test a leaf's triangles for `query`; true when the walk may stop: any, at a hit;
+ * nearest, when its best hit is final at the leaf's exit t_exit (traverse.cl,
+ * kd_hit_final), unless the walk has met a node whose plane holds the ray: its
+ * second child is then walked over the same range, and may hold a nearer hit. */
 KD_INLINE
 bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                    __global const uint *tri_ids, const RayShear *shear, float3 o, float t_min,
-                   float t_max, KdQuery *q)
+                   float t_max, float t_exit, KdQuery *q)
 {
+    if (query == KD_NEAREST) {
+        kd_intersect_leaf(leaf, tris, tri_ids, shear, o, t_min, t_max, &q->hit);
+        return !q->in_plane && kd_hit_final(q->hit.t, t_exit);
+    }
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
     for (uint i = 0; i < count; i++) {
@@ -184,8 +196,10 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
                     q->fault = true;
                     return;
                 }
-                if (step == KD_STEP_IN_PLANE)
+                if (step == KD_STEP_IN_PLANE) {
                     t_mid = t1;
+                    q->in_plane = true;
+                }
                 stack_node[count] = second;
                 stack_t_min[count] = step == KD_STEP_IN_PLANE ? t0 : t_mid;
                 stack_t_max[count] = t1;
@@ -199,7 +213,7 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
             q->fault = true;
             return;
         }
-        if (kd_query_leaf(query, n, tris, tri_ids, &shear, o, t_min, t_max, q))
+        if (kd_query_leaf(query, n, tris, tri_ids, &shear, o, t_min, t_max, t1, q))
             return;
         if (count == 0u)
             return;
@@ -234,6 +248,7 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
     KD_FOR_ITEM_RAYS(k) {
         KdQuery q;
         q.fault = false;
+        q.in_plane = false;
         q.n = 0u;
         KD_WALK_RAY(KD_ANY, k, &q);
         out[k] = q.fault ? (uchar)2 : (uchar)q.n;
@@ -250,6 +265,7 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
         KdQuery q;
         q.crossing = crossing != 0u;
         q.fault = false;
+        q.in_plane = false;
         q.n = 0u;
         q.raw = 0u;
         KD_WALK_RAY(KD_COUNT, k, &q);
@@ -265,20 +281,21 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 /* the caller's rays in double, relative to the tree's origin in its units (origins
  * o_step apart, as `origins`), which the hits are refined from, as trace_rays refines
  * its hit from them (render.cl, kd_exact_ray) */
-#define KD_LIST_EXACT_ARGS , __global const double *exact_o, __global const double *exact_d
+#define KD_EXACT_RAY_ARGS , __global const double *exact_o, __global const double *exact_d
 #else
-#define KD_LIST_EXACT_ARGS
+#define KD_EXACT_RAY_ARGS
 #endif
 
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
-               __global const uint *caps KD_LIST_EXACT_ARGS, __global float *hit_t,
+               __global const uint *caps KD_EXACT_RAY_ARGS, __global float *hit_t,
                __global float *hit_uv, __global uint *hit_id, __global uint *out_n)
 {
     KD_FOR_ITEM_RAYS(k) {
         KdQuery q;
         q.crossing = crossing != 0u;
         q.fault = false;
+        q.in_plane = false;
         q.n = 0u;
         ulong at = offsets[k];
         q.t = hit_t + at;
@@ -318,5 +335,52 @@ void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
         for (uint j = 0; j < q.n; j++)
             q.tri[j] = tri_ids[q.tri[j]];
         out_n[k] = q.n;
+    }
+}
+
+/* Ray k's nearest hit with t_mins[k] < t < t_maxs[k], the one trace_rays finds
+ * (render.cl; the hit depends on the ray and the triangles only, not on the walk):
+ * out_t its t (+inf on a miss, NaN on a fault), and where not NULL out_uv (u, v; 0 on
+ * a miss), out_normal (unit geometric normal, render.cl's store_hit; 0) and out_id
+ * (input id; KD_NO_HIT). With REFINE its t, u, v are refined as trace_rays refines
+ * them, from the caller's rays. */
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
+void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
+                  __global float *out_uv, __global float *out_normal, __global uint *out_id)
+{
+    KD_FOR_ITEM_RAYS(k) {
+        KdQuery q;
+        q.fault = false;
+        q.in_plane = false;
+        float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
+        q.hit.t = t_max;
+        q.hit.u = 0.0f;
+        q.hit.v = 0.0f;
+        q.hit.tri = KD_NO_HIT;
+        KD_WALK_RAY(KD_NEAREST, k, &q);
+        bool found = q.hit.tri != KD_NO_HIT && !q.fault;
+        float3 p0 = (float3)(0.0f), p1 = (float3)(0.0f), p2 = (float3)(0.0f);
+        if (found) {
+            p0 = kd_vertex(tris, q.hit.tri, 0);
+            p1 = kd_vertex(tris, q.hit.tri, 1);
+            p2 = kd_vertex(tris, q.hit.tri, 2);
+#if defined(REFINE) && defined(cl_khr_fp64)
+            kd_refine_hit(vload3((size_t)k * o_step, exact_o), vload3(k, exact_d), p0, p1, p2,
+                          t_min, t_max, &q.hit.t, &q.hit.u, &q.hit.v);
+#endif
+        }
+        out_t[k] = q.fault ? NAN : (found ? q.hit.t : INFINITY);
+        if (out_uv) {
+            out_uv[2 * (size_t)k] = found ? q.hit.u : 0.0f;
+            out_uv[2 * (size_t)k + 1] = found ? q.hit.v : 0.0f;
+        }
+        if (out_normal) {
+            float3 normal = found ? kd_normalize(kd_cross(p1 - p0, p2 - p0)) : (float3)(0.0f);
+            out_normal[3 * (size_t)k] = normal.x;
+            out_normal[3 * (size_t)k + 1] = normal.y;
+            out_normal[3 * (size_t)k + 2] = normal.z;
+        }
+        if (out_id)
+            out_id[k] = found ? tri_ids[q.hit.tri] : KD_NO_HIT;
     }
 }

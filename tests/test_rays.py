@@ -6,7 +6,8 @@ it passes through)."""
 import numpy as np
 import pytest
 
-from helpers import RTOL_T, SCENES, edge_distance, graze_tolerance, random_rays, real_mesh_arrays
+from helpers import (RTOL_T, SCENES, edge_distance, graze_tolerance, random_rays,
+                     real_mesh_arrays, split_plane_rays)
 from kdray import rays as krays
 from kdray.builder import build
 from kdray.errors import KdrayError
@@ -347,3 +348,35 @@ def test_contains_command(tmp_path, capsys):
         code, _, err = run(capsys, "contains", SCENES / "sphere.obj", *argv)
         assert code == 1 and err.count("\n") == 1 and err.startswith("kdray: error:")
     assert np.load(tmp_path / "p.npy").shape == (3, 3)          # the input is kept
+
+
+def test_trace_takes_a_t_range_a_ray(runtime, teapot_tree):
+    """Per-ray t_min, t_max give each ray the hit a number would: bit for bit, t, u, v,
+    normal and prim, whichever of three ranges a ray has."""
+    tree = teapot_tree
+    n = runtime.small(1501, 37)
+    o, d, tracer = poisoned_case(runtime, tree, n, seed=11)
+    pairs = [(0.0, np.inf), (0.2, 0.7), (0.45, 3.0)]
+    which = np.random.default_rng(12).integers(0, len(pairs), n)
+    lo = np.array([pairs[i][0] for i in which])
+    hi = np.array([pairs[i][1] for i in which])
+    got = tracer.trace(o, d, lo, hi)
+    for i, (a, b) in enumerate(pairs):
+        want = tracer.trace(o, d, a, b)
+        m = which == i
+        for name in ("t", "prim", "u", "v", "normal"):
+            assert np.array_equal(getattr(got, name)[m], getattr(want, name)[m]), name
+    # rays in the tree's split planes (both children over one range: no early stop)
+    o2, d2 = split_plane_rays(tree, runtime.small(600, 30), seed=13)
+    want = tracer.trace(o2, d2)
+    got2 = tracer.trace(o2, d2, np.zeros(len(o2)), np.inf)
+    assert want.hit.sum() > 0
+    for name in ("t", "prim", "u", "v", "normal"):
+        assert np.array_equal(getattr(got2, name), getattr(want, name)), name
+    # outputs left out, image-shaped rays, a range of the wrong length
+    few = tracer.trace(o, d, lo, hi, outputs=())
+    assert few.u is None and few.normal is None and np.array_equal(few.prim, got.prim)
+    shaped = tracer.trace(o[:20].reshape(4, 5, 3), d[:20].reshape(4, 5, 3), lo[:20], hi[:20])
+    assert shaped.t.shape == (4, 5) and np.array_equal(shaped.prim.ravel(), got.prim[:20])
+    with pytest.raises(KdrayError):
+        tracer.trace(o, d, lo[:-1], hi)
