@@ -232,6 +232,13 @@ float kd_tie(float e, float qy_py, float px_qx)
     return e != 0.0f ? e : (qy_py != 0.0f ? qy_py : px_qx);
 }
 
+/* The float edge function e = fl(fl(p) - fl(q)) of the products p and q has the sign
+ * of p - q: its error is under 2^-24 (|p| + |q|) + 2^-24 |e| (two products and a
+ * difference, each rounded once), so an e larger than 2^-22 (|p| + |q|) (and than the
+ * smallest normal float, for products that underflowed) cannot have the wrong sign. */
+#define KD_EDGE_SURE(e, p, q) \
+    (kd_abs(e) > 0x1p-22f * (kd_abs(p) + kd_abs(q)) + 0x1p-126f)
+
 /* Intersect the ray (o, shear) with triangle `tri` (p0, p1, p2), all relative to the
  * tree's origin. On a hit with t_min < t < t_max that comes before (t_best,
  * tri_best), write t, u, v and return true.
@@ -269,8 +276,12 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     /* On an edge, recompute in double: the products of floats are exact there, so
      * the sign of each edge function is exact (and kept: kd_signed_float). The count's
      * rule takes every sign exact, so that two triangles never see their shared edge
-     * one in float and one in double. */
-    if (crossing || U == 0.0f || V == 0.0f || W == 0.0f) {
+     * with two signs: a float edge function's where it exceeds its rounding bound
+     * (KD_EDGE_SURE), else all three from double. */
+    bool unsure = crossing && !(KD_EDGE_SURE(U, Cx * By, Cy * Bx)
+                                && KD_EDGE_SURE(V, Ax * Cy, Ay * Cx)
+                                && KD_EDGE_SURE(W, Bx * Ay, By * Ax));
+    if (unsure || U == 0.0f || V == 0.0f || W == 0.0f) {
         U = kd_signed_float((double)Cx * (double)By - (double)Cy * (double)Bx);
         V = kd_signed_float((double)Ax * (double)Cy - (double)Ay * (double)Cx);
         W = kd_signed_float((double)Bx * (double)Ay - (double)By * (double)Ax);
