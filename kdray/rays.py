@@ -37,7 +37,6 @@ from . import ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
-from .layout import MISS
 from .tree import object_ids
 
 log = logging.getLogger(__name__)
@@ -150,12 +149,16 @@ class _Rays:
         self._given = (o, d, tracer._origin, tracer._scale)
         self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
 
-    def exact(self):
-        """(o64 (M, 3), d64 (N, 3)) float64: the rays as given, origins relative to the
-        tree's origin in its units (what list_rays refines hits from with REFINE)."""
-        o, d, origin, scale = self._given
-        return ((np.asarray(o, dtype=np.float64) - origin) / scale,
-                np.ascontiguousarray(d, dtype=np.float64))
+    def exact(self, start, stop):
+        """(o64, d64) float64 of rays start .. stop - 1 as given, origins relative to the
+        tree's origin in its units: what list_rays and nearest_rays refine hits from
+        with REFINE (made once, at the first call)."""
+        if not hasattr(self, "_exact"):
+            o, d, origin, scale = self._given
+            self._exact = ((np.asarray(o, dtype=np.float64) - origin) / scale,
+                           np.ascontiguousarray(d, dtype=np.float64))
+        o, d = self._exact
+        return (o[start:stop] if self.o_step else o), d[start:stop]
 
     def part(self, start, stop):
         """(o, d, t_mins, t_maxs) of rays start .. stop - 1."""
@@ -248,8 +251,9 @@ def _launches(tracer, rays, widths):
     return [(start, min(rays.n, start + step)) for start in range(0, rays.n, step)]
 
 
-def _check_fault(values, what):
-    if (values == WALK_FAULT).any():
+def _check_fault(faulty, what):
+    """DeviceError when any ray's walk met a corrupt tree (faulty: (N,) bool)."""
+    if faulty.any():
         raise DeviceError(f"{what}: the walk met a tree deeper than its depth or with more "
                           f"leaves than nodes; the tree is corrupt (kdray info --check)")
 
@@ -262,7 +266,7 @@ def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     out = page_aligned_empty((rays.n,), np.uint8)
     for start, stop in _launches(tracer, rays, [1]):
         _launch(tracer, "occluded_rays", rays, start, stop, (), {"out": out[start:stop]})
-    _check_fault(out, "occluded")
+    _check_fault(out == 2, "occluded")
     return out.view(bool).reshape(rays.shape)
 
 
@@ -277,19 +281,16 @@ def nearest(tracer, origins, directions, t_min, t_max, outputs=("UV", "NORMAL"))
     prim = page_aligned_empty((rays.n,), np.uint32)
     uv = page_aligned_empty((rays.n, 2), np.float32) if "UV" in outputs else None
     normal = page_aligned_empty((rays.n, 3), np.float32) if "NORMAL" in outputs else None
-    exact = rays.exact() if tracer.refine else None
     widths = [4, 4] + [8] * (uv is not None) + [12] * (normal is not None)
-    if exact is not None:
+    if tracer.refine:
         widths += [24 * rays.o_step, 24]
     for start, stop in _launches(tracer, rays, widths):
-        extra = () if exact is None else (
-            exact[0][start:stop] if rays.o_step else exact[0], exact[1][start:stop])
+        extra = rays.exact(start, stop) if tracer.refine else ()
         part = slice(start, stop)
         _launch(tracer, "nearest_rays", rays, start, stop, extra,
                 {"t": t[part], "uv": None if uv is None else uv[part],
                  "normal": None if normal is None else normal[part], "prim": prim[part]})
-    if np.isnan(t).any():
-        _check_fault(np.where(np.isnan(t), WALK_FAULT, 0), "trace")
+    _check_fault(np.isnan(t), "trace")
     t *= np.float32(tracer._scale)           # a power of two: exact
     return Hits(t=t, prim=prim, u=None if uv is None else uv[:, 0],
                 v=None if uv is None else uv[:, 1], normal=normal,
@@ -302,7 +303,7 @@ def _counts(tracer, rays, crossing):
     for start, stop in _launches(tracer, rays, [4]):
         _launch(tracer, "count_rays", rays, start, stop, (np.uint32(crossing),),
                 {"out": out[start:stop]})
-    _check_fault(out, "count")
+    _check_fault(out == WALK_FAULT, "count")
     counts = out.astype(np.int64)
     raw = np.flatnonzero(out & COUNT_RAW)
     if raw.size:
@@ -366,7 +367,6 @@ def _list(tracer, rays, caps, crossing=False):
     found = page_aligned_empty((rays.n,), np.uint32)
     # a launch's rays and slots fit the device (a ray's slots counted at their mean)
     mean = HIT_BYTES * total / max(rays.n, 1)
-    exact = rays.exact() if tracer.refine else None
     # (the float32 rays, their float64 copies, t ranges, offsets, caps, count, slots)
     step = tracer._launch_size([36 * rays.o_step, 36, 8 * rays.t_step, 16, int(mean) + 1])
     start = 0
@@ -383,15 +383,15 @@ def _list(tracer, rays, caps, crossing=False):
         local_offsets = offsets[start:stop] - a
         extra = (np.uint32(crossing), local_offsets.astype(np.uint64),
                  caps[start:stop].astype(np.uint32))
-        if exact is not None:
-            extra += (exact[0][start:stop] if rays.o_step else exact[0], exact[1][start:stop])
+        if tracer.refine:
+            extra += rays.exact(start, stop)
         _launch(tracer, "list_rays", rays, start, stop, extra,
                 {"t": t[a:b] if b > a else np.empty(1, np.float32),
                  "uv": uv[a:b] if b > a else np.empty((1, 2), np.float32),
                  "prim": prim[a:b] if b > a else np.empty(1, np.uint32),
                  "found": found[start:stop]})
         start = stop
-    _check_fault(found, "intersections")
+    _check_fault(found == WALK_FAULT, "intersections")
     n_found = found.astype(np.int64)
     if (n_found == caps).all():
         return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1],

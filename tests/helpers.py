@@ -272,3 +272,63 @@ def assert_watertight(tracers, tree, o, d, stack_sizes, atol, label=""):
             base = hits
         assert np.array_equal(hits.prim, base.prim) and np.array_equal(hits.t, base.t)
     return base
+
+
+# -- closed meshes whose vertices and edges rays can be aimed at exactly ----------------
+
+def icosphere(subdivisions=2):
+    """A closed, consistently oriented sphere of 20 * 4^s triangles (vertices shared)."""
+    t = (1 + 5 ** 0.5) / 2
+    v = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t),
+         (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
+         (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8),
+         (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    v = [np.array(p, float) / np.linalg.norm(p) for p in v]
+    for _ in range(subdivisions):
+        mid, faces = {}, []
+
+        def m(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in mid:
+                p = v[a] + v[b]
+                v.append(p / np.linalg.norm(p))
+                mid[key] = len(v) - 1
+            return mid[key]
+        for a, b, c in f:
+            ab, bc, ca = m(a, b), m(b, c), m(c, a)
+            faces += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        f = faces
+    return np.array(v), np.array(f, dtype=np.int64)
+
+
+def grid_cube(n=3):
+    """The cube [-n, n]^3 made of 2 triangles per unit square, every vertex on the integer
+    grid, outward normals: the k-d tree's planes go through its vertices and edges."""
+    verts, faces, index = [], [], {}
+
+    def vid(p):
+        if p not in index:
+            index[p] = len(verts)
+            verts.append(p)
+        return index[p]
+    for axis in range(3):
+        for side in (-n, n):
+            u, w = (axis + 1) % 3, (axis + 2) % 3
+            for i in range(-n, n):
+                for j in range(-n, n):
+                    q = []
+                    for a, b in ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)):
+                        p = [0, 0, 0]
+                        p[axis], p[u], p[w] = side, a, b
+                        q.append(vid(tuple(p)))
+                    if side < 0:
+                        q = q[::-1]
+                    faces += [(q[0], q[1], q[2]), (q[0], q[2], q[3])]
+    return np.array(verts, float), np.array(faces, dtype=np.int64)
+
+
+def edge_midpoints(v, f):
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    e = np.unique(e, axis=0)
+    return 0.5 * (v[e[:, 0]] + v[e[:, 1]])
