@@ -17,6 +17,10 @@ the box for the inside tests:
 Each kdray query is checked against trace on the same rays (occluded is its hit,
 intersections' first hit its triangle).
 
+Wrong counts: rays from outside through every vertex and edge midpoint of the grid cube
+and the icosphere, on through the centre, cross exactly twice: kdray's `count`, Open3D's
+`count_intersections`, trimesh+embreex's hits a ray.
+
 Wrong answers (`contains` and the peers' inside tests against an exact oracle: a convex
 mesh's half-spaces): points on a grid through every vertex of a grid cube (its vertices
 on integer points, the k-d tree's planes through them), on a grid through the centre of
@@ -34,7 +38,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tests"))
-from helpers import grid_cube, icosphere  # noqa: E402  (closed meshes of the tests)
+from helpers import edge_midpoints, grid_cube, icosphere  # noqa: E402  (closed meshes of the tests)
 from meshes import framed  # noqa: E402
 from peers import installed, open3d_scene  # noqa: E402
 from timing import round_robin  # noqa: E402
@@ -162,6 +166,33 @@ def wrong_answers(args):
                 print(f"    {key:<28} {int((a[clear] != inside[clear]).sum()):>8} wrong")
 
 
+def wrong_counts(args):
+    """Crossing counts of rays from outside through every vertex and edge midpoint of
+    the closed convex test meshes, on through the centre: exactly 2 each."""
+    print("wrong crossing counts of rays through every vertex and edge midpoint, from "
+          "outside through the centre (each crosses exactly twice)")
+    for label, (v, f) in (("grid cube [-2, 2]^3", grid_cube(2)),
+                          ("icosphere, 1280 triangles", icosphere(3))):
+        targets = np.concatenate([v, edge_midpoints(v, f)])
+        o, d = 3 * targets, -targets
+        counts = {"kdray count": kdray.Tracer(kdray.build(v, f), device=args.device).count(o, d)}
+        if not args.no_peers and installed("open3d"):
+            import open3d as o3d
+            scene, _ = open3d_scene(types.SimpleNamespace(vertices=v, faces=f))
+            rays = o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32))
+            counts["open3d count_intersections"] = scene.count_intersections(rays).numpy()
+        if not args.no_peers and installed("embreex"):
+            import trimesh
+            from trimesh.ray.ray_pyembree import RayMeshIntersector
+            tm = trimesh.Trimesh(v, f, process=False)
+            _, ray = RayMeshIntersector(tm).intersects_id(o, d, multiple_hits=True)
+            counts["trimesh+embree hits"] = np.bincount(ray, minlength=len(o))
+        print(f"  {label}: {len(targets):,} rays")
+        for key, c in counts.items():
+            print(f"    {key:<28} {int((c != 2).sum()):>8} wrong  (counts seen: "
+                  f"{sorted(set(np.asarray(c).tolist()))})")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")
@@ -174,6 +205,7 @@ def main():
     args = ap.parse_args()
     for name in filter(None, args.meshes.split(",")):
         speed(name, args)
+    wrong_counts(args)
     wrong_answers(args)
 
 
