@@ -27,8 +27,6 @@ Which hits (docs/conventions.md, "Ray queries"):
 """
 import dataclasses
 import functools
-import logging
-import time
 
 import numpy as np
 
@@ -39,7 +37,6 @@ from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
 from .tree import object_ids
 
-log = logging.getLogger(__name__)
 
 CONTAINS_DIRECTION = np.array([0.5377513, 0.6153846, 0.5763888], dtype=np.float32)
 """The direction `contains` casts every point's ray along: fixed, so that an answer is
@@ -189,17 +186,9 @@ def _program(tracer):
     defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local, "RUN": run}
     if tracer.refine:
         defines["REFINE"] = None
-    key = ("queries.cl",) + tuple(sorted(defines.items()))
-    entry = tracer._programs.get(key)
-    if entry is None:
-        cl = _device._cl()
-        started = time.perf_counter()
-        program = _device.build_program(tracer.context, "queries.cl", defines)
-        log.debug("built queries.cl with %s in %.2f s", defines, time.perf_counter() - started)
-        entry = {"program": program, "run": run, "local": local}
-        for name in ("occluded_rays", "count_rays", "list_rays", "nearest_rays"):
-            entry[name] = cl.Kernel(program, name)
-        tracer._programs[key] = entry
+    entry = tracer._built("queries.cl", defines,
+                          ("occluded_rays", "count_rays", "list_rays", "nearest_rays"))
+    entry["run"], entry["local"] = run, local
     return entry
 
 
@@ -212,7 +201,6 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
     if n == 0:
         return
     entry = _program(tracer)
-    kernel = entry[kernel_name]
     o, d, t_mins, t_maxs = rays.part(start, stop)
     keep = []                                    # the host arrays the buffers use
 
@@ -234,13 +222,9 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
             np.uint32(tracer._n_nodes), inp(o), inp(d), np.uint32(rays.o_step), inp(t_mins),
             inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), *map(inp, extra),
             *device_out.values())
-    types = tuple(a.dtype if isinstance(a, np.generic) else None for a in args)
-    if entry.get(("arg_types", kernel_name)) != types:
-        kernel.set_arg_types(types)
-        entry[("arg_types", kernel_name)] = types
     items = -(-n // entry["run"])
     local = entry["local"]
-    kernel(tracer.queue, (-(-items // local) * local,), (local,), *args)
+    tracer._enqueue(entry, kernel_name, -(-items // local) * local, local, args)
     tracer._read_outputs({k: v for k, v in device_out.items() if v is not None}, outputs)
 
 

@@ -160,7 +160,8 @@ def all_hits(triangles, origins, directions, t_min=0.0, t_max=np.inf, crossing=F
              chunk=1 << 21):
     """Every hit of every ray against every triangle, float64: (ray, prim, t, u, v),
     each (H,), sorted by ray, then t, then prim. crossing: the count's rule
-    (`intersect`). t_min, t_max : scalars or (N,)."""
+    (`intersect`). t_min, t_max : scalars or (N,). A conservative (slightly inflated)
+    box test prunes pairs before the exact test."""
     tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
     o, d = _as_rays(origins, directions)
     n, m = len(o), len(tri)
@@ -188,34 +189,14 @@ def all_hits(triangles, origins, directions, t_min=0.0, t_max=np.inf, crossing=F
 
 
 def brute_force(triangles, origins, directions, t_min=0.0, t_max=np.inf, chunk=1 << 21):
-    """Nearest hit of every ray against every triangle, float64.
+    """Nearest hit of every ray against every triangle, float64: the first of
+    `all_hits` in the order (t, prim).
 
     triangles : (m, 3, 3) float-like;  origins, directions : (N, 3) float-like.
     Returns Hits with prim = row index into `triangles`.
-    A conservative (slightly inflated) box test prunes pairs before the exact test.
     """
-    tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
-    o, d = _as_rays(origins, directions)
-    n, m = len(o), len(tri)
-    if n == 0 or m == 0:
-        return Hits.misses(n)
-    lo = tri.min(axis=1)
-    hi = tri.max(axis=1)
-    pad = 1e-9 * (np.abs(lo) + np.abs(hi)) + 1e-300
-    lo, hi = lo - pad, hi + pad
-    rays_per = max(1, chunk // m)
-    found = []
-    for start in range(0, n, rays_per):
-        r = np.arange(start, min(n, start + rays_per))
-        rr = np.repeat(r, m)
-        tt = np.tile(np.arange(m), len(r))
-        t0, t1 = _slab(lo[tt], hi[tt], o[rr], d[rr], -np.inf, np.inf)
-        keep = (t0 <= t1) & (t1 >= t_min)
-        rr, tt = rr[keep], tt[keep]
-        hit, t, u, v = intersect(tri[tt], o[rr], d[rr], t_min, t_max)
-        found.append((rr[hit], tt[hit], t[hit], u[hit], v[hit]))
-    ray, prim, t, u, v = (np.concatenate(x) for x in zip(*found))
-    return _nearest(n, ray, prim, t, u, v)
+    n = len(_as_rays(origins, directions)[0])
+    return _nearest(n, *all_hits(triangles, origins, directions, t_min, t_max, chunk=chunk))
 
 
 def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096, triangles64=None):

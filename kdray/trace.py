@@ -414,19 +414,38 @@ class Tracer:
             defines[f"OUT_{name}"] = None
         if stats:
             defines["STATS"] = None
-        key = tuple(sorted(defines.items(), key=lambda kv: kv[0]))
+        return self._built("render.cl", defines, ("trace_rays", "render_camera"))
+
+    def _built(self, source, defines, kernels):
+        """kernels/<source> built with `defines` (dict name -> value or None), once per
+        Tracer and option set (a program build takes seconds on some runtimes), with
+        its kernels: {"program": Program, name: Kernel for each of `kernels`}."""
+        # the key: (name, value) pairs of the defines and the source, in name order
+        key = tuple(sorted({**defines, "source": source}.items(), key=lambda kv: kv[0]))
         entry = self._programs.get(key)
         if entry is None:
             cl = _device._cl()
             started = time.perf_counter()
-            program = _device.build_program(self.context, "render.cl", defines)
-            log.debug("built render.cl with %s in %.2f s", " ".join(
-                k if v is None else f"{k}={v}" for k, v in key), time.perf_counter() - started)
+            program = _device.build_program(self.context, source, defines)
+            log.debug("built %s with %s in %.2f s", source, " ".join(
+                k if v is None else f"{k}={v}" for k, v in defines.items()),
+                time.perf_counter() - started)
             entry = {"program": program}
-            for name in ("trace_rays", "render_camera"):
+            for name in kernels:
                 entry[name] = cl.Kernel(program, name)
             self._programs[key] = entry
         return entry
+
+    def _enqueue(self, entry, kernel_name, global_size, local_size, args):
+        """Launch kernel `kernel_name` of a program entry (`_built`) on args. Told the
+        scalars' types, pyopencl packs them itself: its untyped set_arg takes about
+        20 us a scalar, half the time of a launch of a few rays."""
+        kernel = entry[kernel_name]
+        types = tuple(a.dtype if isinstance(a, np.generic) else None for a in args)
+        if entry.get(("arg_types", kernel_name)) != types:
+            kernel.set_arg_types(types)
+            entry[("arg_types", kernel_name)] = types
+        kernel(self.queue, (global_size,), (local_size,), *args)
 
     def compile(self, aovs=DEFAULT_AOVS, trace=False, precision="single"):
         """Build the program `render` uses for `aovs` at `precision` (and with
@@ -463,7 +482,6 @@ class Tracer:
         if n == 0:
             return
         entry = self.program(outputs, stats, rays_world, rays)
-        kernel = entry[kernel_name]
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
@@ -473,13 +491,7 @@ class Tracer:
         call_args = (self._nodes, self._tris, self._tri_ids, self._bounds,
                      np.uint32(self._n_nodes), *args, self._counter,
                      *(device_out.get(name) for name in _OUTPUTS))
-        # Told the scalars' types, pyopencl packs them itself: its untyped set_arg
-        # takes about 20 us a scalar, half the time of a launch of a few rays.
-        types = tuple(a.dtype if isinstance(a, np.generic) else None for a in call_args)
-        if entry.get(("arg_types", kernel_name)) != types:
-            kernel.set_arg_types(types)
-            entry[("arg_types", kernel_name)] = types
-        kernel(self.queue, (groups * self.local_size,), (self.local_size,), *call_args)
+        self._enqueue(entry, kernel_name, groups * self.local_size, self.local_size, call_args)
         if while_running is not None:
             self.queue.flush()
             try:
