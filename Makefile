@@ -65,7 +65,8 @@ bench-deps: $(STAMP)
 # Speed against Open3D, Mitsuba 3 and embreex on the same rays (1024x1024, the bunny and
 # a 1.6M-triangle mesh, with the ratios of issue 6's two workflows against Open3D and
 # issue 20's against Mitsuba), then bench/bench_error.py: error against run time for
-# kdray's settings and the peers.
+# kdray's settings and the peers; then bench/bench_queries.py: the ray queries beside
+# Open3D's and trimesh+embreex's, and their wrong answers.
 BENCH_MESHES ?= bunny,bunny-1.6M
 bench-trace: bench-deps
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
@@ -74,6 +75,7 @@ bench: bench-deps
 	mkdir -p $(OUT)
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
 	$(BIN)/python bench/bench_error.py --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
+	$(BIN)/python bench/bench_queries.py --meshes $(BENCH_MESHES)
 
 # Everything in BENCHMARKS.md: the above, the stiff cases beside Open3D and embreex,
 # build scaling to 6M triangles, what leaving out saves, the cold start, and datasets
