@@ -186,6 +186,13 @@ def _program(tracer):
     defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local, "RUN": run}
     if tracer.refine:
         defines["REFINE"] = None
+    if tracer.packet > 1:
+        # a lone ray's leaf tested a packet's width of triangles at a time (the tree's
+        # leaves are laid out in such runs for packet Tracers)
+        defines["PACKET"] = tracer.packet
+        defines["PACKET_STACK_SIZE"] = tracer.packet_stack_size
+        if tracer._plain_vector_ops:
+            defines["KD_PLAIN_VECTOR_OPS"] = None
     entry = tracer._built("queries.cl", defines,
                           ("occluded_rays", "count_rays", "list_rays", "nearest_rays"))
     entry["run"], entry["local"] = run, local

@@ -337,25 +337,38 @@ void kd_gather_tris(__global const float *tris, uint first, KdFP *q)
 /* One ray (shear s, origin o, range t_min < t < t_max, best hit so far best_t,
  * best_tri) against up to KD_PACKET triangles at once, the lanes of q in `valid`
  * (indices triP): the pairs and arithmetic of kd_packet_intersect with rays and
- * triangles swapped. Returns whether one hits before the best; then the first in the
- * order (t, index), its t, V, W, det (u = V / det, v = W / det) and index. */
+ * triangles swapped. Returns the lanes whose triangle is hit before the best, with
+ * each lane's t, V, W, det (u = V / det, v = W / det): every hit of the block when
+ * the best is (t_max, KD_NO_HIT) (queries.cl). */
+KD_INLINE
+intP kd_ray_block_all(const RayShear *s, float3 o, float t_min, float t_max, float best_t,
+                      uint best_tri, const KdFP *q, uintP triP, intP valid,
+                      __global const uint *tri_ids, floatP *t, floatP *V, floatP *W,
+                      floatP *det)
+{
+    uint ax = s->kx, ay = s->ky, az = s->kz;
+    KdPairs src;
+    src.r = 0; src.s = s; src.o = o; src.q = q;
+    return kd_test_pairs(q[ax].v, q[ay].v, q[az].v, q[3 + ax].v, q[3 + ay].v, q[3 + az].v,
+                         q[6 + ax].v, q[6 + ay].v, q[6 + az].v,
+                         (floatP)(kd_comp(o, ax)), (floatP)(kd_comp(o, ay)),
+                         (floatP)(kd_comp(o, az)),
+                         (floatP)(s->Sx), (floatP)(s->Sy), (floatP)(s->Sz),
+                         (floatP)(t_min), (floatP)(t_max), (floatP)(best_t),
+                         (uintP)(best_tri), triP, tri_ids, valid, &src, t, V, W, det);
+}
+
+/* kd_ray_block_all's first candidate in the order (t, index): whether there is one,
+ * then its t, V, W, det and index. */
 KD_INLINE
 bool kd_ray_block(const RayShear *s, float3 o, float t_min, float t_max, float best_t,
                   uint best_tri, const KdFP *q, uintP triP, intP valid,
                   __global const uint *tri_ids, float *t_out, float *V_out, float *W_out,
                   float *det_out, uint *tri_out)
 {
-    uint ax = s->kx, ay = s->ky, az = s->kz;
-    KdPairs src;
-    src.r = 0; src.s = s; src.o = o; src.q = q;
     floatP t, V, W, det;
-    intP cand = kd_test_pairs(q[ax].v, q[ay].v, q[az].v, q[3 + ax].v, q[3 + ay].v, q[3 + az].v,
-                              q[6 + ax].v, q[6 + ay].v, q[6 + az].v,
-                              (floatP)(kd_comp(o, ax)), (floatP)(kd_comp(o, ay)),
-                              (floatP)(kd_comp(o, az)),
-                              (floatP)(s->Sx), (floatP)(s->Sy), (floatP)(s->Sz),
-                              (floatP)(t_min), (floatP)(t_max), (floatP)(best_t),
-                              (uintP)(best_tri), triP, tri_ids, valid, &src, &t, &V, &W, &det);
+    intP cand = kd_ray_block_all(s, o, t_min, t_max, best_t, best_tri, q, triP, valid,
+                                 tri_ids, &t, &V, &W, &det);
     if (!kd_anyP(cand))
         return false;
     /* the first candidate in the order (t, index); each one is before the best */

@@ -33,6 +33,12 @@
 #include "layout.h"
 #include "triangle.cl"
 #include "traverse.cl"
+#ifdef PACKET
+/* packet programs test a lone ray's leaf KD_PACKET triangles at a time (packet.cl,
+ * kd_ray_leaf: kd_intersect_leaf's hit bit for bit), which the nearest and any-hit
+ * queries use: they keep one best hit a leaf; count and list need every hit */
+#include "packet.cl"
+#endif
 
 #ifndef LOCAL_SIZE
 #define LOCAL_SIZE 8
@@ -128,11 +134,46 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                    float t_max, float t_exit, KdQuery *q)
 {
     if (query == KD_NEAREST) {
-        kd_intersect_leaf(leaf, tris, tri_ids, shear, o, t_min, t_max, &q->hit);
+        KD_RAY_LEAF(leaf, tris, tri_ids, shear, o, t_min, t_max, &q->hit);
         return !q->in_plane && kd_hit_final(q->hit.t, t_exit);
     }
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
+#ifdef PACKET
+    if (query == KD_ANY) {
+        /* the leaf's nearest hit, a vector of triangles at a time: any is one */
+        KD_RAY_LEAF(leaf, tris, tri_ids, shear, o, t_min, t_max, &q->hit);
+        q->n = q->hit.tri != KD_NO_HIT;
+        return q->n != 0u;
+    }
+    if (!(query == KD_COUNT && q->crossing)) {
+        /* every hit of the nearest hit's rule: the block test's lanes (kd_ray_block_all
+         * with no best hit yet), each as kd_query_leaf's loop below takes it */
+        for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
+            KdFP qv[9];
+            kd_gather_tris(tris, first + i0, qv);
+            uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
+            KdIP c;
+            KdFP t, V, W, det;
+            c.v = kd_ray_block_all(shear, o, t_min, t_max, t_max, KD_NO_HIT, qv,
+                                   (uintP)(first + i0) + KD_LANE_INDEX_U,
+                                   KD_LANE_INDEX < (intP)((int)m), tri_ids, &t.v, &V.v,
+                                   &W.v, &det.v);
+            if (!kd_anyP(c.v))
+                continue;
+            for (uint j = 0; j < m; j++) {
+                if (!c.s[j])
+                    continue;
+                uint tri = first + i0 + j;
+                if (query == KD_COUNT)
+                    kd_count_hit(q, tri_ids[tri]);
+                else
+                    kd_list_hit(q, tri, t.s[j], V.s[j] / det.s[j], W.s[j] / det.s[j], tri_ids);
+            }
+        }
+        return false;
+    }
+#endif
     for (uint i = 0; i < count; i++) {
         uint tri = first + i;
         float t, u, v;
@@ -250,6 +291,8 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
         q.fault = false;
         q.in_plane = false;
         q.n = 0u;
+        q.hit.t = t_maxs[k * t_step];
+        q.hit.tri = KD_NO_HIT;
         KD_WALK_RAY(KD_ANY, k, &q);
         out[k] = q.fault ? (uchar)2 : (uchar)q.n;
     }

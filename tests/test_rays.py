@@ -13,7 +13,7 @@ from kdray.builder import build
 from kdray.errors import KdrayError
 from kdray.load import load
 from kdray.reference import all_hits
-from kdray.trace import Tracer
+from kdray.trace import PACKETS, Tracer
 
 
 @pytest.fixture(scope="module")
@@ -191,18 +191,32 @@ def test_contains_on_grids_through_vertices(runtime):
     assert tracer.contains(q.reshape(-1, 2, 3)[:3]).shape == (3, 2)
 
 
-def test_queries_do_not_depend_on_work_sizes(runtime, teapot_tree, monkeypatch):
+def test_queries_do_not_depend_on_work_sizes_or_packets(runtime, teapot_tree, monkeypatch):
+    """Work sizes, rays a work-item, and packet programs (a leaf tested a packet's
+    width of triangles at a time, PoCL's plain vector operations too) give the same
+    answers bit for bit, per-ray trace included."""
     tree = teapot_tree
     o, d = random_rays(tree, runtime.small(777, 33), seed=9)
-    base = Tracer(tree, device=runtime.spec)
-    want = (base.occluded(o, d), base.count(o, d), base.intersections(o, d))
+    lo, hi = ranges(np.random.default_rng(10), len(o), 0.5)
+
+    def answers(tracer):
+        listed = tracer.intersections(o, d)
+        near = tracer.trace(o, d, lo, hi)
+        return (tracer.occluded(o, d), tracer.count(o, d), listed.offsets, listed.prim,
+                listed.t, listed.u, near.t, near.prim, near.u, near.normal)
+
+    want = answers(Tracer(tree, device=runtime.spec, packet=1))
     monkeypatch.setattr(krays, "RUN_CPU", 3)
-    for local in (1, 4):
-        other = Tracer(tree, device=runtime.spec, local_size=local, batch_size=local * base.packet)
-        got = (other.occluded(o, d), other.count(o, d), other.intersections(o, d))
-        assert (got[0] == want[0]).all() and (got[1] == want[1]).all()
-        assert (got[2].offsets == want[2].offsets).all() and (got[2].prim == want[2].prim).all()
-        assert (got[2].t == want[2].t).all()
+    options = [dict(packet=1, local_size=1, batch_size=1), dict(packet=1, local_size=4, batch_size=4)]
+    if not runtime.simulator:
+        options += [dict(packet=p) for p in PACKETS]
+        options.append(dict(packet=PACKETS[0], plain_vector_ops=True))
+    for opts in options:
+        plain = opts.pop("plain_vector_ops", False)
+        other = Tracer(tree, device=runtime.spec, **opts)
+        other._plain_vector_ops = plain or other._plain_vector_ops
+        for a, b in zip(answers(other), want):
+            assert np.array_equal(a, b), opts
 
 
 def test_many_hits_a_ray_are_counted_exactly(tracers):
