@@ -42,6 +42,12 @@ def _size(ctx, param, value):
     return w, h
 
 
+device_option = click.option(
+    "--device", default=None,
+    help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+"""The --device option every command that traces takes."""
+
+
 def build_options(f):
     """The builder's parameters as options (defaults documented in kdray.tree.BuildParams)."""
     from .tree import BuildParams
@@ -302,8 +308,7 @@ def devices():
 @dataset_options
 @click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
               help="Render from this dumped tree instead of building one.")
-@click.option("--device", default=None,
-              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+@device_option
 @click.option("--cull", is_flag=True,
               help="Build the tree of only the triangles the camera can see (same images).")
 @click.option("--precision", type=click.Choice(["single", "double"]), default="single",
@@ -427,8 +432,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
                    "object).")
 @click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
               help="Scan this dumped tree instead of building one.")
-@click.option("--device", default=None,
-              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+@device_option
 @build_options
 def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
     """Scan SCENE with a lidar: a range image (rows = beams, columns = azimuth steps)
@@ -495,8 +499,7 @@ def _read_points(path):
                    "instead of inside or not.")
 @click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
               help="Use this dumped tree instead of building one.")
-@click.option("--device", default=None,
-              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+@device_option
 @build_options
 def contains(scene, points_file, output, direction, tree_file, device, **kw):
     """Which points lie inside SCENE, a closed mesh (the parity of one ray's exact
@@ -544,8 +547,7 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
                    "leaf_size, stack, local, batch, refine=0|1). "
                    "[default: kdray,kdray:refine=0,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1]")
 @click.option("--csv", "csv_file", type=click.Path(dir_okay=False), help="Also write the table as CSV.")
-@click.option("--device", default=None,
-              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+@device_option
 @click.option("--offset", type=float, default=0.0, show_default=True,
               help="Move scene and camera by D along (1,1,1) (precision far from the origin).")
 def bench(scenes, size, repeat, sample, settings, csv_file, device, offset):
@@ -600,8 +602,7 @@ def _run_jobs(jobs, workers, scheduler, device, no_cache, overwrite):
 @cli.command()
 @click.argument("jobs_file", metavar="JOBS", type=click.Path(dir_okay=False))
 @dataset_options
-@click.option("--device", default=None,
-              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+@device_option
 def batch(jobs_file, workers, scheduler, no_cache, overwrite, device):
     """Render many scenes: JOBS holds one JSON object a line with scene, cameras,
     output (a folder) and optionally aovs, preview, precision and build (build
@@ -613,8 +614,7 @@ def batch(jobs_file, workers, scheduler, no_cache, overwrite, device):
 
 
 @cli.command()
-@click.option("--device", default=None,
-              help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
+@device_option
 def setup(device):
     """Compile the tree builder (once per install), the kernels of a default render
     on the device and the camera models' inversions, so that the first render does not

@@ -265,6 +265,22 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
     }
 }
 
+/* A query's state before its walk: nothing found (a nearest hit of t_max), the
+ * count's rule when `crossing`. */
+KD_INLINE
+void kd_query_start(KdQuery *q, bool crossing, float t_max)
+{
+    q->crossing = crossing;
+    q->fault = false;
+    q->in_plane = false;
+    q->n = 0u;
+    q->raw = 0u;
+    q->hit.t = t_max;
+    q->hit.u = 0.0f;
+    q->hit.v = 0.0f;
+    q->hit.tri = KD_NO_HIT;
+}
+
 /* A work-item's rays: RUN consecutive ones from get_global_id(0) * RUN. */
 #define KD_FOR_ITEM_RAYS(k)                                                                \
     uint first_ray = (uint)get_global_id(0) * RUN;                                         \
@@ -288,11 +304,7 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
 {
     KD_FOR_ITEM_RAYS(k) {
         KdQuery q;
-        q.fault = false;
-        q.in_plane = false;
-        q.n = 0u;
-        q.hit.t = t_maxs[k * t_step];
-        q.hit.tri = KD_NO_HIT;
+        kd_query_start(&q, false, t_maxs[k * t_step]);
         KD_WALK_RAY(KD_ANY, k, &q);
         out[k] = q.fault ? (uchar)2 : (uchar)q.n;
     }
@@ -306,11 +318,7 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 {
     KD_FOR_ITEM_RAYS(k) {
         KdQuery q;
-        q.crossing = crossing != 0u;
-        q.fault = false;
-        q.in_plane = false;
-        q.n = 0u;
-        q.raw = 0u;
+        kd_query_start(&q, crossing != 0u, t_maxs[k * t_step]);
         KD_WALK_RAY(KD_COUNT, k, &q);
         out[k] = q.fault ? KD_WALK_FAULT : (q.n > KD_SEEN ? q.raw | KD_COUNT_RAW : q.n);
     }
@@ -336,10 +344,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
 {
     KD_FOR_ITEM_RAYS(k) {
         KdQuery q;
-        q.crossing = crossing != 0u;
-        q.fault = false;
-        q.in_plane = false;
-        q.n = 0u;
+        kd_query_start(&q, crossing != 0u, t_maxs[k * t_step]);
         ulong at = offsets[k];
         q.t = hit_t + at;
         q.uv = hit_uv + 2u * at;
@@ -393,13 +398,8 @@ void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
 {
     KD_FOR_ITEM_RAYS(k) {
         KdQuery q;
-        q.fault = false;
-        q.in_plane = false;
         float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
-        q.hit.t = t_max;
-        q.hit.u = 0.0f;
-        q.hit.v = 0.0f;
-        q.hit.tri = KD_NO_HIT;
+        kd_query_start(&q, false, t_max);
         KD_WALK_RAY(KD_NEAREST, k, &q);
         bool found = q.hit.tri != KD_NO_HIT && !q.fault;
         float3 p0 = (float3)(0.0f), p1 = (float3)(0.0f), p2 = (float3)(0.0f);
