@@ -30,11 +30,12 @@ from .errors import (CameraError, DeviceError, KdrayError, KernelBuildError, Mes
 from .load import load
 from .mesh import Mesh
 from .rays import Intersections
+from .points import ClosestPoints
 from .trace import Hits, Tracer
 from .tree import BuildParams, KdTree
 
 __version__ = "0.1.0"
 
-__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Intersections", "Camera", "Lidar",
+__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Intersections", "ClosestPoints", "Camera", "Lidar",
            "KdrayError", "MeshError", "TreeError", "TreeFileError", "DeviceError",
            "KernelBuildError", "CameraError", "OutputError", "ParameterError"]

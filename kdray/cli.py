@@ -537,6 +537,100 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
 
 
 @cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The .npz file to write: a grid (sdf or occupancy, origin, spacing, "
+                   "sign), or with --samples the points and their sdf.")
+@click.option("--resolution", type=int, default=128, show_default=True,
+              help="Grid samples a side (the grid is N x N x N).")
+@click.option("--padding", type=float, default=0.1, show_default=True,
+              help="Room around the scene's box, a fraction of its largest side, each side.")
+@click.option("--sign", type=click.Choice(["winding", "parity"]), default="winding",
+              show_default=True,
+              help="Inside by the generalized winding number (meshes with holes too) or "
+                   "by the parity of an exact crossing count (closed meshes).")
+@click.option("--occupancy", is_flag=True,
+              help="Write a uint8 grid, 1 inside, instead of signed distances.")
+@click.option("--samples", type=int, default=None,
+              help="Instead of a grid, N points as DeepSDF samples them: on the surface "
+                   "moved by Gaussian noise, and --uniform of them uniform in the box.")
+@click.option("--sigma", type=float, default=None,
+              help="--samples: the noise's deviation, world units [default: 1/200 of the "
+                   "box's diagonal].")
+@click.option("--uniform", type=float, default=0.1, show_default=True,
+              help="--samples: the fraction of points uniform in the padded box.")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="--samples: the random seed (the same seed, the same samples).")
+@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
+              help="Use this dumped tree instead of building one.")
+@device_option
+@build_options
+def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uniform, seed,
+        tree_file, device, **kw):
+    """Signed distances of SCENE (negative inside) on a grid, or at points sampled near
+    its surface (docs/conventions.md, "Point queries")."""
+    import warnings
+    from . import sdf as _sdf
+    from .files import atomic_write
+    from .points import OpenMeshWarning, open_edges
+    from .trace import Tracer
+    params = _build_kwargs(kw)
+    for source in (scene, tree_file):
+        _check_not_same(source, output)
+    _check_folder(output)
+    if samples is None:
+        for name, value in (("--sigma", sigma), ("--seed", seed if seed != 0 else None)):
+            if value is not None:
+                raise click.UsageError(f"{name} goes with --samples")
+    elif occupancy:
+        raise click.UsageError("--occupancy makes a grid; it cannot be combined with --samples")
+    step = Steps()
+    tree = _scene_tree(step, scene, tree_file, params)
+    if sign == "parity":
+        edges = open_edges(tree)
+        if edges:
+            log.warning("%s has %d open edges: --sign parity is undefined where a point's "
+                        "ray leaves through a hole (--sign winding is meant for such meshes)",
+                        scene, edges)
+    with step("setting up the device"):
+        tracer = Tracer(tree, device=device)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OpenMeshWarning)     # said once above
+        if samples is None:
+            _sdf.grid_frame(tracer, resolution, padding)       # bad values: before any work
+            what = "occupancy" if occupancy else "signed distances"
+            total = resolution ** 3
+            shown = [0]
+
+            def progress(done, total):
+                if total >= 1 << 22 and (done == total or done - shown[0] >= total // 20):
+                    shown[0] = done
+                    click.echo(f"\r{what}: {100 * done // total}% of {total:,} points",
+                               err=True, nl=done == total)
+
+            with step(f"{what} of a {resolution}^3 grid ({sign})"):
+                grid = _sdf.sdf_grid(tracer, resolution, padding, sign, occupancy, progress)
+            arrays = {"occupancy" if occupancy else "sdf": grid.values, "origin": grid.origin,
+                      "spacing": np.float64(grid.spacing), "sign": np.str_(sign)}
+            inside = int(np.count_nonzero(grid.values if occupancy else grid.values < 0))
+            summary = f"{resolution}^3 grid, {inside:,} points inside"
+        else:
+            with step(f"signed distances of {samples:,} samples ({sign})"):
+                p, d = _sdf.sdf_samples(tracer, samples, sigma, uniform, padding, sign, seed)
+            arrays = {"points": p, "sdf": d, "sign": np.str_(sign)}
+            summary = f"{samples:,} samples, {int(np.count_nonzero(d < 0)):,} inside"
+
+    def save(tmp):
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+
+    with step("writing"):
+        atomic_write(output, save)
+    step.log()
+    click.echo(f"wrote {output} ({summary})")
+
+
+@cli.command()
 @click.argument("scenes", metavar="SCENE...", nargs=-1, type=click.Path(dir_okay=False))
 @click.option("--size", default="512x512", show_default=True, callback=_size, help="Rays: WIDTHxHEIGHT pixels.")
 @click.option("--repeat", type=int, default=5, show_default=True, help="Warm runs timed (median).")

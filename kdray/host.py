@@ -40,10 +40,10 @@ def available_memory():
         return None
 
 
-def check_host_memory(nbytes, what):
+def check_host_memory(nbytes, what, hint="ask for a smaller image or fewer AOVs"):
     """KdrayError, before anything is allocated, when `what` needs more host memory
-    than is available."""
+    than is available (the message ends with `hint`)."""
     have = available_memory()
     if have is not None and nbytes > have:
         raise KdrayError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory, but "
-                         f"{have / 2**30:.1f} GiB are available: ask for a smaller image or fewer AOVs")
+                         f"{have / 2**30:.1f} GiB are available: {hint}")

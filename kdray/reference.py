@@ -279,3 +279,74 @@ def traverse(tree, origins, directions, t_min=0.0, t_max=np.inf, chunk=4096, tri
         out.t[sel], out.prim[sel], out.u[sel], out.v[sel] = part.t[sel], part.prim[sel], part.u[sel], part.v[sel]
     out.t *= scale
     return out
+
+
+def _segment_d2(p, a, b):
+    """(k, m) squared distances from points p (k, 1, 3) to segments a-b (1, m, 3)."""
+    ab = b - a
+    ab2 = np.einsum("...i,...i", ab, ab)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.clip(np.einsum("...i,...i", p - a, ab) / ab2, 0.0, 1.0)
+    s = np.where(ab2 > 0, s, 0.0)
+    e = p - (a + s[..., None] * ab)
+    return np.einsum("...i,...i", e, e)
+
+
+def point_triangle_d2(points, triangles):
+    """(k, m) float64 squared distances from k points to m triangles, exact in float64
+    and computed unlike the kernel's (Ericson's Voronoi regions): the plane's distance
+    where the point's projection falls inside the triangle (all three edge functions of
+    one sign), else the nearest of the three edges as segments."""
+    p = np.asarray(points, dtype=np.float64)[:, None, :]
+    t = np.asarray(triangles, dtype=np.float64)[None]
+    a, b, c = t[..., 0, :], t[..., 1, :], t[..., 2, :]
+    n = np.cross(b - a, c - a)
+    nn = np.einsum("...i,...i", n, n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        plane = np.einsum("...i,...i", p - a, n)
+        proj = p - (plane / nn)[..., None] * n
+        inside = ((np.einsum("...i,...i", np.cross(b - a, proj - a), n) >= 0)
+                  & (np.einsum("...i,...i", np.cross(c - b, proj - b), n) >= 0)
+                  & (np.einsum("...i,...i", np.cross(a - c, proj - c), n) >= 0) & (nn > 0))
+        face = plane * plane / nn
+    edges = np.minimum(np.minimum(_segment_d2(p, a, b), _segment_d2(p, b, c)),
+                       _segment_d2(p, c, a))
+    return np.where(inside, np.minimum(face, edges), edges)
+
+
+def closest_points(triangles, points, chunk=1 << 22):
+    """(distance (k,) float64, prim (k,) int64) of k points' nearest triangles, every
+    triangle tried (zero-area triangles left out, as the tree leaves them out); of equal
+    distances the lowest index."""
+    tri = np.asarray(triangles, dtype=np.float64)
+    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    keep = np.flatnonzero(area2 > 0)
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    step = max(1, chunk // max(len(keep), 1))
+    d = np.empty(len(p))
+    prim = np.empty(len(p), dtype=np.int64)
+    for s in range(0, len(p), step):
+        d2 = point_triangle_d2(p[s:s + step], tri[keep])
+        j = np.argmin(d2, axis=1)
+        d[s:s + step] = np.sqrt(d2[np.arange(len(j)), j])
+        prim[s:s + step] = keep[j]
+    return d, prim
+
+
+def winding_number(triangles, points, chunk=1 << 22):
+    """(k,) float64 generalized winding numbers: the sum of every triangle's signed solid
+    angle at each point over 4 pi (Van Oosterom & Strackee's formula in float64)."""
+    tri = np.asarray(triangles, dtype=np.float64)
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    step = max(1, chunk // max(len(tri), 1))
+    w = np.empty(len(p))
+    for s in range(0, len(p), step):
+        q = p[s:s + step, None, None, :]
+        v = tri[None] - q                                   # (k, m, 3, 3)
+        a, b, c = v[:, :, 0], v[:, :, 1], v[:, :, 2]
+        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
+        num = np.einsum("...i,...i", a, np.cross(b, c))
+        den = (la * lb * lc + np.einsum("...i,...i", a, b) * lc
+               + np.einsum("...i,...i", a, c) * lb + np.einsum("...i,...i", b, c) * la)
+        w[s:s + step] = np.arctan2(num, den).sum(axis=1) / (2 * np.pi)
+    return w

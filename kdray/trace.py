@@ -43,6 +43,7 @@ import numpy as np
 from . import device as _device
 from . import ray_input
 from . import rays as _rays
+from . import points as _points
 from . import render as _render
 from .double import wants_double
 from .errors import DeviceError, KdrayError
@@ -641,6 +642,29 @@ class Tracer:
         (kdray.rays.intersections)."""
         return _rays.intersections(self, origins, directions, t_min, t_max, max_hits,
                                    precision)
+
+    # -- point queries (kdray.points) ---------------------------------------------------
+
+    def closest_points(self, points, max_distance=np.inf, precision="single"):
+        """The nearest surface point of each point: kdray.points.ClosestPoints
+        (kdray.points.closest_points)."""
+        return _points.closest_points(self, points, max_distance, precision)
+
+    def distance(self, points, max_distance=np.inf, precision="single"):
+        """(N,) float32 unsigned distance to the surface (kdray.points.distance)."""
+        return _points.distance(self, points, max_distance, precision)
+
+    def signed_distance(self, points, sign="winding", max_distance=np.inf, precision="single"):
+        """(N,) float32 distance, negative inside (kdray.points.signed_distance)."""
+        return _points.signed_distance(self, points, sign, max_distance, precision)
+
+    def winding_number(self, points, beta=_points.WINDING_BETA):
+        """(N,) float64 generalized winding number (kdray.points.winding_number)."""
+        return _points.winding_number(self, points, beta)
+
+    def occupancy(self, points, sign="winding"):
+        """(N,) bool: points inside the surface (kdray.points.occupancy)."""
+        return _points.occupancy(self, points, sign)
 
     def _image_width(self, origins, directions):
         """(width, search) for (N, 3) rays: the width of the image they are to be traced

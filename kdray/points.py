@@ -1,0 +1,458 @@
+"""Point queries: closest points, distances, signed distances, winding numbers, occupancy.
+
+    near = tracer.closest_points(points)          # ClosestPoints: .distance .point .prim .u .v
+    d = tracer.distance(points)                   # (N,) float32, unsigned
+    s = tracer.signed_distance(points, sign="winding")   # negative inside
+    w = tracer.winding_number(points)             # (N,) float64
+    inside = tracer.occupancy(points)             # (N,) bool
+
+The functions here take a Tracer (kdray.trace) and run kernels/points.cl on its device
+and tree; the Tracer methods are thin faces over them. Points are (N, 3) or (..., 3),
+world coordinates, float64 or float32, answered in the points' shape (less the last
+axis); NaN or infinite points are refused.
+
+The rules (docs/conventions.md, "Point queries"):
+- the surface is the tree's triangles (zero-area triangles are no part of it, as for
+  rays), in double: the points as given (float64) against the float32 triangles the
+  tree holds, converted exactly; precision="double" against the input's float64
+  triangles (a tree built with keep_double).
+- closest_points: of equidistant triangles the lowest input id; nothing within
+  max_distance is a miss (distance +inf, prim MISS, point and u, v 0).
+- signed distance is negative inside (Open3D's and the SDF literature's sign; trimesh's
+  `proximity.signed_distance` is positive inside). Inside is decided by sign="winding"
+  (the generalized winding number above 1/2: meaningful for meshes with holes and
+  self-intersections) or sign="parity" (the exact crossing count of kdray.rays.contains:
+  right for every point of a closed mesh, and undefined for an open one, which is
+  warned about).
+"""
+import dataclasses
+import functools
+import warnings
+
+import numpy as np
+
+from . import device as _device
+from .double import wants_double
+from .errors import DeviceError, KdrayError
+from .host import check_host_memory, page_aligned_empty
+from .layout import MISS, device_triangles, is_leaf, leaf_offset, n_prims
+from .tree import object_ids
+
+RUN_CPU = 32
+"""Consecutive points a work-item takes on a CPU device (one a work-item on a GPU)."""
+
+WINDING_BETA = 5.0
+"""winding_number's beta: a node's far-field expansion (to the third order) stands for
+its triangles where the point is farther than beta times the node's radius from its
+centre; nearer, their solid angles are summed exactly. The error falls about as
+beta^-5; at 5 it is within 1e-4 of the exact sum (BENCHMARKS.md, "Point queries")."""
+
+SIGN_BETA = 2.0
+"""The beta of sign="winding" (occupancy, signed_distance): Barill et al. 2018's 2,
+about 30 times faster than WINDING_BETA and within about 4e-3 of the exact sum, far
+inside the 1/2 the sign is decided by."""
+
+SIGNS = ("winding", "parity")
+
+
+class OpenMeshWarning(UserWarning):
+    """sign="parity" on a mesh with open edges: a point's sign may be wrong where its
+    ray leaves through a hole."""
+
+
+@dataclasses.dataclass(eq=False)
+class ClosestPoints:
+    """The nearest surface point of N points (in the points' shape).
+
+    distance : float32 (float64 with precision="double"), world units; +inf on a miss
+    point : (..., 3) float64 world coordinates of the nearest point (0 on a miss)
+    prim : uint32 input triangle id (MISS on a miss)
+    u, v : float32 barycentrics of `point` on its triangle, P = (1-u-v) v0 + u v1 + v v2
+    object_table : the tree's KdTree.objects, which `object` looks up prim in"""
+
+    distance: np.ndarray
+    point: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    object_table: np.ndarray = dataclasses.field(default=None, repr=False)
+
+    @property
+    def hit(self):
+        """bool: a surface point was found within max_distance."""
+        return self.prim != MISS
+
+    @functools.cached_property
+    def object(self):
+        """uint32: each nearest triangle's object (kdray.tree.object_ids)."""
+        return object_ids(self.prim, self.object_table)
+
+
+def check_points(points):
+    """(p (N, 3) float64, shape) for points given as (..., 3): KdrayError for non-numbers,
+    another last axis, or a point that is not finite (naming it)."""
+    p = np.asarray(points)
+    if p.dtype.kind not in "fiu":
+        raise KdrayError(f"points must be an array of numbers, got dtype {p.dtype}")
+    if p.ndim < 1 or p.shape[-1] != 3:
+        raise KdrayError(f"points must be an (N, 3) array, got shape {p.shape}")
+    shape = p.shape[:-1]
+    p = np.ascontiguousarray(p.reshape(-1, 3), dtype=np.float64)
+    finite = np.isfinite(p).all(axis=1)
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        raise KdrayError(f"points must be finite, point {i} is {p[i].tolist()}")
+    return p, shape
+
+
+def _relative(tracer, p):
+    """(N, 3) float64 points relative to the tree's origin in its units (scale a power
+    of two: the division is exact)."""
+    return np.ascontiguousarray((p - tracer._origin) / tracer._scale)
+
+
+def _state(tracer):
+    """The point queries' per-Tracer device data, made when first needed."""
+    return tracer.__dict__.setdefault("_point_queries", {})
+
+
+def _program(tracer, geometry64, outputs=()):
+    """points.cl built for the tracer's device and tree: {"program", "closest_points",
+    "winding_points", "run", "local"}."""
+    cpu = _device.is_cpu(tracer.device)
+    run = RUN_CPU if cpu else 1
+    local = tracer.local_size if cpu else min(64, int(tracer.device.max_work_group_size))
+    defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local, "RUN": run}
+    if tracer.packet > 1:
+        # leaves in runs of a packet: a run's boxes tested at once (points.cl)
+        defines["PACKET"] = tracer.packet
+        if tracer._plain_vector_ops:
+            defines["KD_PLAIN_VECTOR_OPS"] = None
+    if geometry64:
+        defines["GEOMETRY64"] = None
+        defines["SLACK"] = float(_slack(tracer)).hex()
+    for name in outputs:
+        defines[f"OUT_{name}"] = None
+    entry = tracer._built("points.cl", defines, ("closest_points", "winding_points"))
+    entry["run"], entry["local"] = run, local
+    return entry
+
+
+def _need_fp64(tracer):
+    if not _device.has_fp64(tracer.device):
+        raise DeviceError(f"point queries need double precision, which "
+                          f"{tracer.device.name.strip()} does not have")
+
+
+def _tris64(tracer):
+    """The device buffer of the input's float64 triangles, relative to the tree's origin
+    in its units (9 doubles an input id)."""
+    state = _state(tracer)
+    if "tris64" not in state:
+        t64 = (np.asarray(tracer.tree.triangles64, dtype=np.float64) - tracer._origin) / tracer._scale
+        state["tris64"] = tracer._buffer(np.ascontiguousarray(t64.reshape(-1)))
+    return state["tris64"]
+
+
+def _slack(tracer):
+    """How far (tree units) the float64 triangles may lie outside the float32 ones the
+    tree's regions bound: the largest distance between a float64 vertex and its float32
+    copy, doubled, plus a float rounding of the scene's size."""
+    state = _state(tracer)
+    if "slack" not in state:
+        tree = tracer.tree
+        t64 = (np.asarray(tree.triangles64, dtype=np.float64)[tree.tri_ids] - tracer._origin) / tracer._scale
+        gap = np.abs(t64 - np.asarray(tree.triangles, dtype=np.float64)).max(initial=0.0)
+        size = float(np.abs(np.asarray(tree.bounds, dtype=np.float64)).max())
+        state["slack"] = 2.0 * float(np.sqrt(3.0) * gap) + size * 2.0 ** -23
+    return state["slack"]
+
+
+def _launch(tracer, entry, kernel_name, n, args, outputs):
+    """Run kernel_name over n points: args (after the tree's buffers), outputs (dict name
+    -> host array or None, in argument order)."""
+    if n == 0:
+        return
+    device_out = {name: None if a is None else tracer._output_buffer(a)
+                  for name, a in outputs.items()}
+    items = -(-n // entry["run"])
+    local = entry["local"]
+    tracer._enqueue(entry, kernel_name, -(-items // local) * local, local,
+                    (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
+                     np.uint32(tracer._n_nodes), *args, *device_out.values()))
+    tracer._read_outputs({k: v for k, v in device_out.items() if v is not None}, outputs)
+
+
+def _steps(tracer, n, widths):
+    """(start, stop) of each launch over n points; widths: bytes a point of each buffer."""
+    step = tracer._launch_size(widths, what="point")
+    return [(start, min(n, start + step)) for start in range(0, n, step)]
+
+
+def _check_fault(values, what):
+    if np.isnan(values).any():
+        raise DeviceError(f"{what}: the walk met a tree deeper than its depth or with more "
+                          f"leaves than nodes; the tree is corrupt (kdray info --check)")
+
+
+def _closest(tracer, points, max_distance, precision, outputs):
+    """(distance (N,) float64 world, point (N, 3) float64 relative or None, uv (N, 2)
+    float32 or None, prim (N,) uint32 or None, shape)."""
+    _need_fp64(tracer)
+    geometry64 = wants_double(precision, tracer.tree)
+    p, shape = check_points(points)
+    try:
+        limit = float(max_distance)
+    except (TypeError, ValueError):
+        raise KdrayError(f"max_distance must be a number, got {max_distance!r}") from None
+    if not limit >= 0:
+        raise KdrayError(f"max_distance must be >= 0, got {max_distance!r}")
+    n = len(p)
+    widths = {"POINT": 24, "UV": 8, "ID": 4}
+    check_host_memory(n * (24 + 8 + sum(widths[k] for k in outputs)),
+                      f"the closest points of {n} points", "ask for fewer points at once")
+    rel = _relative(tracer, p)
+    entry = _program(tracer, geometry64, outputs)
+    geometry = (_tris64(tracer),) if geometry64 else ()
+    with np.errstate(over="ignore"):
+        max_d2 = np.float64((limit / tracer._scale) ** 2)
+    d = page_aligned_empty((n,), np.float64)
+    q = page_aligned_empty((n, 3), np.float64) if "POINT" in outputs else None
+    uv = page_aligned_empty((n, 2), np.float32) if "UV" in outputs else None
+    prim = page_aligned_empty((n,), np.uint32) if "ID" in outputs else None
+    for start, stop in _steps(tracer, n, [24, 8] + [widths[k] for k in outputs]):
+        part = slice(start, stop)
+        _launch(tracer, entry, "closest_points", stop - start,
+                (*geometry, tracer._buffer(rel[part]), max_d2, np.uint32(stop - start)),
+                {"d": d[part], "point": None if q is None else q[part],
+                 "uv": None if uv is None else uv[part],
+                 "prim": None if prim is None else prim[part]})
+    _check_fault(d, "closest points")
+    d *= tracer._scale
+    return d, q, uv, prim, shape
+
+
+def closest_points(tracer, points, max_distance=np.inf, precision="single"):
+    """ClosestPoints of each point: the nearest point of the surface within
+    max_distance (world units), its distance, triangle and barycentrics. A walk of the
+    tree nearest region first, pruned by the best distance so far; of equidistant
+    triangles the lowest input id. precision="double": against the input's float64
+    triangles (a tree built with keep_double), distance float64."""
+    d, q, uv, prim, shape = _closest(tracer, points, max_distance, precision,
+                                     ("POINT", "UV", "ID"))
+    hit = prim != MISS
+    world = np.where(hit[:, None], tracer._origin + tracer._scale * q, 0.0)
+    dist = d if precision == "double" else d.astype(np.float32)
+    return ClosestPoints(distance=dist.reshape(shape), point=world.reshape(shape + (3,)),
+                         prim=prim.reshape(shape), u=uv[:, 0].reshape(shape),
+                         v=uv[:, 1].reshape(shape), object_table=tracer.tree.objects)
+
+
+def distance(tracer, points, max_distance=np.inf, precision="single"):
+    """(N,) unsigned distance from each point to the surface (float32; float64 with
+    precision="double"), +inf beyond max_distance: closest_points' distance alone
+    (nothing else is computed or moved)."""
+    d, _, _, _, shape = _closest(tracer, points, max_distance, precision, ())
+    return (d if precision == "double" else d.astype(np.float32)).reshape(shape)
+
+
+def winding_number(tracer, points, beta=WINDING_BETA):
+    """(N,) float64 generalized winding number of the surface at each point: 1 inside a
+    closed, outward-oriented mesh and 0 outside, fractional near holes (Jacobson et
+    al. 2013). Triangles near the point are summed exactly (solid angles in double),
+    farther groups by their far-field expansion to the third order where the point is
+    beyond beta times their radius (Barill et al. 2018); beta=inf sums every triangle.
+    Within 1e-4 of the exact sum at the default beta."""
+    _need_fp64(tracer)
+    try:
+        beta = float(beta)
+    except (TypeError, ValueError):
+        raise KdrayError(f"beta must be a number, got {beta!r}") from None
+    if not beta >= 1.0:
+        raise KdrayError(f"beta must be at least 1 (the expansion needs the point outside "
+                         f"the group's sphere), got {beta!r}")
+    p, shape = check_points(points)
+    n = len(p)
+    check_host_memory(n * 48, f"the winding numbers of {n} points",
+                      "ask for fewer points at once")
+    rel = _relative(tracer, p)
+    entry = _program(tracer, False)
+    moments, owned = _winding_data(tracer)
+    w = page_aligned_empty((n,), np.float64)
+    for start, stop in _steps(tracer, n, [24, 8]):
+        part = slice(start, stop)
+        _launch(tracer, entry, "winding_points", stop - start,
+                (tracer._buffer(rel[part]), moments, owned, np.float64(beta * beta),
+                 np.uint32(stop - start)), {"w": w[part]})
+    _check_fault(w, "winding number")
+    return w.reshape(shape)
+
+
+def _check_sign(sign):
+    if sign not in SIGNS:
+        raise KdrayError(f"sign must be one of {', '.join(SIGNS)}, got {sign!r}")
+
+
+def occupancy(tracer, points, sign="winding"):
+    """(N,) bool: whether each point is inside the surface, by its winding number above
+    1/2 (sign="winding", at SIGN_BETA) or by the parity of its crossing count
+    (sign="parity", kdray.rays.contains; an OpenMeshWarning for a mesh with open
+    edges)."""
+    _check_sign(sign)
+    if sign == "parity":
+        _warn_open(tracer)
+    return inside(tracer, points, sign)
+
+
+def inside(tracer, points, sign):
+    """`occupancy` without its warning (for callers that warned once already)."""
+    if sign == "winding":
+        return winding_number(tracer, points, SIGN_BETA) > 0.5
+    from .rays import contains
+    return contains(tracer, points)
+
+
+def signed_distance(tracer, points, sign="winding", max_distance=np.inf, precision="single"):
+    """(N,) distance to the surface, negative inside (`occupancy` with `sign`), float32
+    (float64 with precision="double"). A point on the surface has distance 0 either way.
+    Beyond max_distance: +inf outside, -inf inside."""
+    _check_sign(sign)
+    if sign == "parity":
+        _warn_open(tracer)
+    return signed(tracer, points, sign, max_distance, precision)
+
+
+def signed(tracer, points, sign, max_distance=np.inf, precision="single"):
+    """`signed_distance` without its warning."""
+    d = distance(tracer, points, max_distance, precision)
+    return np.where(inside(tracer, points, sign), -d, d)
+
+
+def open_edges(tree):
+    """The number of edges of the tree's triangles not shared by exactly two triangles
+    in opposite directions (vertices welded where their float32 coordinates are equal):
+    0 for a closed, consistently oriented mesh."""
+    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3)
+    _, vid = np.unique(tris.view(np.dtype((np.void, 12))).ravel(), return_inverse=True)
+    f = vid.reshape(-1, 3).astype(np.int64)
+    a = f.reshape(-1)
+    b = f[:, [1, 2, 0]].reshape(-1)
+    n = int(vid.max()) + 1 if vid.size else 1
+    directed = np.unique(a * n + b)
+    reverse = np.isin(b * n + a, directed)
+    # an edge is closed when its reverse is there too; count each open undirected edge once
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    return int(len(np.unique((lo * n + hi)[~reverse])))
+
+
+def _warn_open(tracer):
+    state = _state(tracer)
+    if "open_edges" not in state:
+        state["open_edges"] = open_edges(tracer.tree)
+    if state["open_edges"]:
+        warnings.warn(f"sign='parity' on a mesh with {state['open_edges']} open edges: a "
+                      f"point's sign is undefined where its ray leaves through a hole; "
+                      f"sign='winding' is meant for such meshes", OpenMeshWarning, stacklevel=3)
+
+
+NODE_VALUES = 32
+"""winding_points: float32 values a node (kernels/points.cl)."""
+
+_MONOMIALS = [(0, 0, 0), (1, 1, 1), (2, 2, 2), (0, 0, 1), (0, 0, 2), (0, 1, 1), (1, 1, 2),
+              (0, 2, 2), (1, 2, 2), (0, 1, 2)]
+"""The cubic monomials d_i d_j d_k (i <= j <= k) in the kernel's order."""
+
+
+def winding_moments(nodes, tris, tri_ids, depth, parent):
+    """(moments (n_nodes, NODE_VALUES) float32, owned (n,) uint8) for winding_points.
+
+    nodes, tris (n, 3, 3) float32, tri_ids : the device's layout (layout.device_triangles);
+    depth, parent : KdTree._topology's. Each input id is owned by its first copy; a
+    node's values are over the triangles its subtree owns, with x the surface point,
+    c the node's centre and n the unit normal (Barill et al. 2018's expansion of
+    w = 1/4pi sum of the integrals of (x - q).n / |x - q|^3):
+        0-2 c, the area-weighted centroid;  3 radius (to the farthest corner of their
+        vertices' box; -1: the node owns nothing);  4-6 N = integral of n;  7 area;
+        8 tr C, 9-11 C's diagonal, 12-14 C01 + C10, C02 + C20, C12 + C21, with
+        C = integral of (x - c) n^T;  15-17 2 a + b, with T_ijk = integral of
+        n_i (x - c)_j (x - c)_k, a_k = T_iik and b_i = T_ijj;  18-27 the coefficients
+        of the cubic sum T_ijk d_i d_j d_k in the monomials _MONOMIALS;  28-31 unused."""
+    n_nodes = len(nodes)
+    ids = np.asarray(tri_ids)
+    owned = np.zeros(len(ids), dtype=np.uint8)
+    real = np.flatnonzero(ids != MISS)
+    _, first = np.unique(ids[real], return_index=True)
+    own = real[first]
+    owned[own] = 1
+    # each owned copy's leaf: the last non-empty leaf (node order) starting at or before it
+    leaves = np.flatnonzero(is_leaf(nodes))
+    starts = leaf_offset(nodes)[leaves].astype(np.int64)
+    has = n_prims(nodes)[leaves] > 0
+    leaves, starts = leaves[has], starts[has]
+    leaf = leaves[np.searchsorted(starts, own, side="right") - 1]
+    t = np.asarray(tris, dtype=np.float64)[own]
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    half_n = 0.5 * np.cross(b - a, c - a)              # area times unit normal
+    area = np.linalg.norm(half_n, axis=1)
+    centroid = (a + b + c) / 3.0
+    # integral of x x^T over a triangle: area / 12 (sum of v v^T + S S^T), S = a + b + c
+    s = a + b + c
+    G = (np.einsum("ki,kj->kij", a, a) + np.einsum("ki,kj->kij", b, b)
+         + np.einsum("ki,kj->kij", c, c) + np.einsum("ki,kj->kij", s, s)) / 12.0
+    # sums about the tree's origin, added up the tree: area, area * centroid, N,
+    # W = sum (area n) centroid^T, U = sum (area n) (x) G
+    k = len(own)
+    sums = np.zeros((n_nodes, 1 + 3 + 3 + 9 + 27))
+    np.add.at(sums, leaf, np.concatenate(
+        [area[:, None], area[:, None] * centroid, half_n,
+         np.einsum("ki,kj->kij", half_n, centroid).reshape(k, 9),
+         np.einsum("ki,kjl->kijl", half_n, G).reshape(k, 27)], axis=1))
+    lo = np.full((n_nodes, 3), np.inf)
+    hi = np.full((n_nodes, 3), -np.inf)
+    np.minimum.at(lo, leaf, t.min(axis=1))
+    np.maximum.at(hi, leaf, t.max(axis=1))
+    order = np.argsort(depth, kind="stable")[::-1]
+    levels = np.split(order, np.flatnonzero(np.diff(depth[order])) + 1)
+    for at in levels[:-1]:                              # deepest first; the root last
+        up = parent[at]
+        np.add.at(sums, up, sums[at])
+        np.minimum.at(lo, up, lo[at])
+        np.maximum.at(hi, up, hi[at])
+    S, N = sums[:, 0], sums[:, 4:7]
+    W = sums[:, 7:16].reshape(-1, 3, 3)
+    U = sums[:, 16:].reshape(-1, 3, 3, 3)
+    present = np.isfinite(lo).all(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        centre = np.where((S > 0)[:, None], sums[:, 1:4] / S[:, None], 0.5 * (lo + hi))
+    centre = np.where(present[:, None], centre, 0.0)
+    corner = np.maximum(np.abs(np.where(present[:, None], centre - lo, 0.0)),
+                        np.abs(np.where(present[:, None], hi - centre, 0.0)))
+    radius = np.where(present, np.linalg.norm(corner, axis=1), -1.0)
+    # about the centre: C_ij = W_ji - c_i N_j;
+    # T_ijk = U_ijk - c_j W_ik - W_ij c_k + c_j c_k N_i
+    C = np.swapaxes(W, 1, 2) - centre[:, :, None] * N[:, None, :]
+    T = (U - np.einsum("nj,nik->nijk", centre, W) - np.einsum("nij,nk->nijk", W, centre)
+         + np.einsum("nj,nk,ni->nijk", centre, centre, N))
+    va = np.einsum("niik->nk", T)
+    vb = np.einsum("nijj->ni", T)
+    sym = np.zeros((n_nodes, len(_MONOMIALS)))
+    for m, (i, j, l) in enumerate(_MONOMIALS):
+        perms = {(i, j, l), (i, l, j), (j, i, l), (j, l, i), (l, i, j), (l, j, i)}
+        sym[:, m] = sum(T[:, p, q, r] for p, q, r in perms)
+    moments = np.concatenate([
+        centre, radius[:, None], N, S[:, None], np.trace(C, axis1=1, axis2=2)[:, None],
+        C[:, [0, 1, 2], [0, 1, 2]], (C[:, 0, 1] + C[:, 1, 0])[:, None],
+        (C[:, 0, 2] + C[:, 2, 0])[:, None], (C[:, 1, 2] + C[:, 2, 1])[:, None],
+        2.0 * va + vb, sym, np.zeros((n_nodes, NODE_VALUES - 28))], axis=1)
+    return np.ascontiguousarray(moments, dtype=np.float32), owned
+
+
+def _winding_data(tracer):
+    """(moments buffer, owned buffer) of the tracer's tree, made once."""
+    state = _state(tracer)
+    if "winding" not in state:
+        nodes, tris, tri_ids = device_triangles(tracer.tree, tracer.packet)
+        depth, parent, _ = tracer.tree._topology()
+        moments, owned = winding_moments(nodes, tris, tri_ids, depth, parent)
+        state["winding"] = (tracer._buffer(moments.reshape(-1)), tracer._buffer(owned))
+    return state["winding"]

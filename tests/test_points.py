@@ -1,0 +1,308 @@
+"""Point queries (kdray.points, kdray.sdf, kernels/points.cl) against independent
+oracles: the float64 brute force over every triangle (kdray.reference.closest_points,
+computed unlike the kernel, and reference.winding_number, the exact sum of solid
+angles), and geometry (points on a closed mesh's vertices and edges are at distance
+0; a grid cube's distances are known in closed form)."""
+import warnings
+
+import numpy as np
+import pytest
+
+from helpers import edge_midpoints, grid_cube, icosphere, real_mesh_arrays, run
+from kdray import points as kpoints
+from kdray import reference
+from kdray.builder import build
+from kdray.errors import KdrayError
+from kdray.layout import MISS
+from kdray.sdf import sdf_grid, sdf_samples
+from kdray.trace import PACKETS, Tracer
+
+
+@pytest.fixture(scope="module")
+def spot():
+    v, f = real_mesh_arrays("spot.obj")
+    return v, f, build(v, f, keep_double=True)
+
+
+def by_input_id(tree):
+    """(m, 3, 3) float64 world triangles the tree holds (its float32 ones), by input id;
+    zero-area triangles, which the tree leaves out, as NaN."""
+    tri = np.full((tree.n_input_tris, 3, 3), np.nan)
+    tri[tree.tri_ids] = tree.world(tree.triangles)
+    return tri
+
+
+def sample_points(v, f, n, seed):
+    """Seeded points of four kinds, n of each: uniform in the box padded by half its
+    size; 1e-6 of the box's size off the surface along the normal (both sides); on
+    vertices; on edge midpoints."""
+    rng = np.random.default_rng(seed)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    size = float((hi - lo).max())
+    box = rng.uniform(lo - 0.5 * (hi - lo), hi + 0.5 * (hi - lo), (n, 3))
+    tri = v[f[rng.integers(0, len(f), n)]]
+    b = rng.dirichlet([1, 1, 1], n)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    side = np.where(rng.random(n) < 0.5, -1.0, 1.0)[:, None]
+    near = np.einsum("ki,kij->kj", b, tri) + side * 1e-6 * size * normal
+    on_vertex = v[np.unique(f)][rng.integers(0, len(np.unique(f)), n)]
+    mids = edge_midpoints(v, f)
+    on_edge = mids[rng.integers(0, len(mids), n)]
+    return np.concatenate([box, near, on_vertex, on_edge])
+
+
+def check_distances(got, want, size, rtol_p99=1e-6, rtol_max=4e-6):
+    """Relative error p99 and max within bounds; points on the surface (want 0) within
+    a float rounding of the scene's size."""
+    on = want <= 1e-12 * size
+    assert (np.abs(got[on]) <= 1e-6 * size).all()
+    rel = np.abs(got[~on] - want[~on]) / want[~on]
+    assert np.quantile(rel, 0.99) <= rtol_p99 and rel.max() <= rtol_max, (
+        np.quantile(rel, 0.99), rel.max())
+
+
+def test_closest_points_match_brute_force(runtime, spot):
+    v, f, tree = spot
+    n = runtime.small(150, 6)
+    p = sample_points(v, f, n, seed=1)
+    tracer = Tracer(tree, device=runtime.spec)
+    tracer._poison_outputs = True
+    near = tracer.closest_points(p)
+    want_d, want_prim = reference.closest_points(by_input_id(tree), p)
+    size = float(np.ptp(v, axis=0).max())
+    check_distances(near.distance.astype(np.float64), want_d, size)
+    assert near.distance.dtype == np.float32 and near.hit.all()
+    # the point, its triangle and barycentrics agree with each other
+    tri = by_input_id(tree)[near.prim]
+    bary = ((1 - near.u - near.v)[:, None] * tri[:, 0] + near.u[:, None] * tri[:, 1]
+            + near.v[:, None] * tri[:, 2])
+    assert np.allclose(bary, near.point, atol=1e-6 * size)
+    assert np.allclose(np.linalg.norm(near.point - p, axis=1), near.distance, rtol=1e-5,
+                       atol=1e-6 * size)
+    # the triangle is the brute force's wherever the nearest is clearly one triangle
+    d2 = reference.point_triangle_d2(p, np.nan_to_num(by_input_id(tree), nan=1e30))
+    second = np.partition(d2, 1, axis=1)[:, 1]
+    clear = np.sqrt(second) > want_d * (1 + 1e-4) + 1e-9 * size
+    assert (near.prim[clear] == want_prim[clear]).all()
+    # the distance alone: the same numbers
+    assert np.array_equal(tracer.distance(p), near.distance)
+
+
+def test_ties_go_to_the_lowest_input_id(tracers):
+    """A point on a vertex or an edge of the grid cube is at distance 0 from several
+    triangles: the lowest input id wins, as for equal t in trace."""
+    v, f = grid_cube(2)
+    tracer = tracers(build(v, f))
+    p = np.concatenate([v, edge_midpoints(v, f)])
+    near = tracer.closest_points(p)
+    assert (near.distance == 0).all()
+    d2 = reference.point_triangle_d2(p, v[f])
+    assert (near.prim == np.argmax(d2 == 0, axis=1)).all()
+    # in closed form: the distance from the cube [-2, 2]^3 of points outside and inside
+    rng = np.random.default_rng(2)
+    q = rng.uniform(-5, 5, (400, 3))
+    outside = np.linalg.norm(np.maximum(np.abs(q) - 2, 0), axis=1)
+    inside = 2 - np.abs(q).max(axis=1)
+    want = np.where(outside > 0, outside, inside)
+    assert np.allclose(tracer.distance(q), want, rtol=1e-6, atol=1e-12)
+    signed = tracer.signed_distance(q, sign="parity")
+    assert np.allclose(signed, np.where(outside > 0, want, -want), rtol=1e-6, atol=1e-12)
+
+
+def test_max_distance_and_misses(tracers, spot):
+    v, f, tree = spot
+    tracer = tracers(tree)
+    p = sample_points(v, f, 50, seed=3)[:50]
+    full = tracer.closest_points(p)
+    limit = float(np.median(full.distance))
+    near = tracer.closest_points(p, max_distance=limit)
+    kept = full.distance <= np.float32(limit)
+    assert np.array_equal(near.distance[kept], full.distance[kept])
+    assert np.array_equal(near.prim[kept], full.prim[kept])
+    assert (near.distance[~kept] == np.inf).all() and (near.prim[~kept] == MISS).all()
+    assert (near.point[~kept] == 0).all() and not near.hit[~kept].any()
+    assert (tracer.distance(p, max_distance=0.0)[full.distance > 0] == np.inf).all()
+    # shapes are kept; no points, no answers
+    assert tracer.distance(p[:12].reshape(3, 4, 3)).shape == (3, 4)
+    assert tracer.closest_points(np.zeros((0, 3))).distance.shape == (0,)
+
+
+def test_precision_double(tracers, spot):
+    """precision="double": against the input's float64 triangles, float64 distances."""
+    v, f, tree = spot
+    tracer = tracers(tree)
+    p = sample_points(v, f, 100, seed=4)
+    d = tracer.distance(p, precision="double")
+    assert d.dtype == np.float64
+    want, _ = reference.closest_points(v[f], p)
+    size = float(np.ptp(v, axis=0).max())
+    on = want <= 1e-12 * size
+    assert (d[on] <= 1e-13 * size).all()
+    rel = np.abs(d[~on] - want[~on]) / want[~on]
+    # 1e-12 of the distance, or of the scene's size for the points 1e-6 of it away
+    assert ((rel <= 1e-12) | (np.abs(d - want)[~on] <= 1e-15 * size)).all(), rel.max()
+    near = tracer.closest_points(p, precision="double")
+    assert np.array_equal(near.distance, d)
+    with pytest.raises(KdrayError, match="keep_double"):
+        tracers(build(v, f)).distance(p, precision="double")
+
+
+@pytest.mark.parametrize("scale, shift", [(1e-20, 0.0), (1.0, 1e6), (1e20, 3e21)])
+def test_any_scale_and_offset(tracers, scale, shift):
+    """The same relative accuracy far from the origin and at extreme scales."""
+    v, f = icosphere(2)
+    p = sample_points(v, f, 40, seed=5)
+    tracer = tracers(build(v * scale + shift, f, keep_double=True))
+    q = p * scale + shift
+    tree = tracer.tree
+    want, _ = reference.closest_points(by_input_id(tree), q)
+    size = 2.0 * scale
+    got = tracer.distance(q).astype(np.float64)
+    if shift:
+        # the points' own rounding in float64 at the offset: 1e-6 of 1e6 is 1e-16 of it
+        check_distances(got[:40], want[:40], size)
+        assert np.allclose(got, want, rtol=1e-6, atol=1e-9 * shift)
+    else:
+        check_distances(got, want, size)
+    w = tracer.winding_number(q[:40])
+    assert np.abs(w - reference.winding_number(by_input_id(tree), q[:40])).max() <= 1e-4
+
+
+def test_winding_number_within_1e4_of_the_exact_sum(runtime, spot):
+    v, f, tree = spot
+    n = runtime.small(60, 4)
+    p = sample_points(v, f, n, seed=6)[:2 * n]        # box and near-surface points
+    tracer = Tracer(tree, device=runtime.spec)
+    tracer._poison_outputs = True
+    want = reference.winding_number(by_input_id(tree)[np.isfinite(by_input_id(tree)).all(axis=(1, 2))], p)
+    w = tracer.winding_number(p)
+    assert np.abs(w - want).max() <= 1e-4
+    assert np.abs(tracer.winding_number(p, beta=np.inf) - want).max() <= 1e-10
+    # the sign's quicker expansion: right wherever the exact number is 0.1 from 1/2
+    clear = np.abs(want - 0.5) > 0.1
+    assert (tracer.occupancy(p)[clear] == (want > 0.5)[clear]).all()
+
+
+def test_signs_on_closed_meshes(tracers):
+    """On a closed mesh parity and winding agree with the exact winding number for
+    every point farther from the surface than its rounding (the float32 triangles are
+    the input's within 6e-8 here); the points on vertices and edges are within it."""
+    v, f = icosphere(2)
+    tracer = tracers(build(v, f))
+    p = sample_points(v, f, 200, seed=7)
+    exact = reference.winding_number(v[f], p)
+    d = tracer.distance(p)
+    off = d > 1e-7
+    assert off[:400].all() and not off[400:].any()
+    inside = exact > 0.5
+    assert (tracer.occupancy(p, sign="parity")[off] == inside[off]).all()
+    assert (tracer.occupancy(p, sign="winding")[off] == inside[off]).all()
+    for sign in ("parity", "winding"):
+        s = tracer.signed_distance(p, sign=sign)
+        assert ((s < 0) == inside)[off].all() and (np.abs(s) == d).all()
+
+
+def test_parity_on_an_open_mesh_warns(tracers):
+    v, f = grid_cube(1)
+    assert kpoints.open_edges(build(v, f)) == 0
+    tracer = tracers(build(v, f[2:]))     # a unit square of a face (2 triangles) less
+    assert kpoints.open_edges(tracer.tree) == 4
+    with pytest.warns(kpoints.OpenMeshWarning, match="4 open edges"):
+        tracer.occupancy(np.zeros((1, 3)), sign="parity")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tracer.occupancy(np.zeros((1, 3)))            # winding: no warning
+        # the hole is a quarter of a face: 1/24 of the centre's solid angle
+        assert abs(tracer.winding_number(np.zeros((1, 3)))[0] - 23 / 24) < 1e-4
+
+
+def test_answers_do_not_depend_on_work_sizes_or_packets(runtime, spot, monkeypatch):
+    v, f, tree = spot
+    p = sample_points(v, f, runtime.small(40, 3), seed=8)
+
+    def answers(tracer):
+        near = tracer.closest_points(p)
+        return (near.distance, near.prim, near.point, near.u, near.v,
+                tracer.winding_number(p[:len(p) // 2], beta=2.0),
+                tracer.closest_points(p, precision="double").distance)
+
+    want = answers(Tracer(tree, device=runtime.spec, packet=1))
+    monkeypatch.setattr(kpoints, "RUN_CPU", 3)
+    options = [dict(packet=1, local_size=1), dict(packet=1, local_size=4)]
+    if not runtime.simulator:
+        options += [dict(packet=k) for k in PACKETS]
+        options.append(dict(packet=PACKETS[0], plain_vector_ops=True))
+    for opts in options:
+        plain = opts.pop("plain_vector_ops", False)
+        other = Tracer(tree, device=runtime.spec, **opts)
+        other._plain_vector_ops = plain or other._plain_vector_ops
+        for a, b in zip(answers(other), want):
+            assert np.array_equal(a, b), opts
+
+
+def test_bad_input_is_refused(tracers, spot):
+    tracer = tracers(spot[2])
+    for bad, match in ((np.array([[0.0, np.nan, 0.0]]), "finite, point 0"),
+                       (np.zeros((3, 2)), r"\(N, 3\)"), (np.array(["a", "b", "c"]), "numbers")):
+        for query in (tracer.distance, tracer.closest_points, tracer.winding_number,
+                      tracer.occupancy, tracer.signed_distance):
+            with pytest.raises(KdrayError, match=match):
+                query(bad)
+    for limit in (-1.0, np.nan, "far"):
+        with pytest.raises(KdrayError, match="max_distance"):
+            tracer.distance(np.zeros((1, 3)), max_distance=limit)
+    with pytest.raises(KdrayError, match="beta"):
+        tracer.winding_number(np.zeros((1, 3)), beta=0.5)
+    with pytest.raises(KdrayError, match="sign must be"):
+        tracer.signed_distance(np.zeros((1, 3)), sign="vote")
+    with pytest.raises(KdrayError, match="resolution"):
+        sdf_grid(tracer, 1)
+    with pytest.raises(KdrayError, match="padding"):
+        sdf_grid(tracer, 8, padding=-1)
+    with pytest.raises(KdrayError, match=r"4096\^3 grid needs about 25[67]"):
+        sdf_grid(tracer, 4096)
+
+
+def test_grids_and_samples(tracers):
+    v, f = grid_cube(1)
+    tracer = tracers(build(v, f))
+    grid = sdf_grid(tracer, 5, padding=0.25)           # [-1.5, 1.5]^3, spacing 0.75
+    assert grid.spacing == 0.75 and grid.origin.tolist() == [-1.5, -1.5, -1.5]
+    x = 0.75 * np.arange(5) - 1.5
+    q = np.stack(np.meshgrid(x, x, x, indexing="ij"), axis=-1)
+    outside = np.linalg.norm(np.maximum(np.abs(q) - 1, 0), axis=-1)
+    want = np.where(outside > 0, outside, -(1 - np.abs(q).max(axis=-1)))
+    assert np.allclose(grid.values, want, atol=1e-7) and grid.values.dtype == np.float32
+    occupancy = sdf_grid(tracer, 5, padding=0.25, sign="parity", occupancy=True)
+    assert occupancy.values.dtype == np.uint8
+    assert np.array_equal(occupancy.values, (want < 0).astype(np.uint8))
+    p, s = sdf_samples(tracer, 1000, sigma=0.01, uniform=0.2, seed=3)
+    assert p.shape == (1000, 3) and s.shape == (1000,)
+    again = sdf_samples(tracer, 1000, sigma=0.01, uniform=0.2, seed=3)
+    assert np.array_equal(p, again[0]) and np.array_equal(s, again[1])
+    assert (np.abs(s[:800]) < 0.06).all()              # near the surface
+    assert np.allclose(s, tracer.signed_distance(p))
+
+
+def test_sdf_command(tmp_path, capsys):
+    v, f = icosphere(1)
+    mesh = tmp_path / "ball.obj"
+    mesh.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    out = tmp_path / "grid.npz"
+    code, stdout, _ = run(capsys, "sdf", mesh, "-o", out, "--resolution", 9)
+    assert code == 0 and "9^3 grid" in stdout
+    grid = np.load(out)
+    assert grid["sdf"].shape == (9, 9, 9) and str(grid["sign"]) == "winding"
+    assert grid["sdf"][4, 4, 4] < 0 < grid["sdf"][0, 0, 0]
+    code, stdout, _ = run(capsys, "sdf", mesh, "-o", out, "--samples", 100, "--seed", 1,
+                          "--sign", "parity")
+    samples = np.load(out)
+    assert code == 0 and samples["points"].shape == (100, 3) and samples["sdf"].shape == (100,)
+    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--resolution", 1)
+    assert code == 1 and "resolution must be from 2" in err and "Traceback" not in err
+    code, _, err = run(capsys, "sdf", mesh, "-o", mesh, "--resolution", 4)
+    assert code != 0 and mesh.read_text().startswith("v ")
+    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--occupancy", "--samples", 5)
+    assert code == 2
