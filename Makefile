@@ -17,7 +17,8 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q --upgrade pip 'setuptools>=77' wheel
 	$(BIN)/python -m pip install -q -e '.[test]'
 	@# the tree builder (numba, into kdray/builder/__pycache__) and a default render's
-	@# kernels on the default device, compiled once here rather than in the first render
+	@# kernels on the default device, compiled once here rather than in the first render;
+	@# on Linux, kdray's copy of Intel's CPU runtime (.venv/lib/kdray-intel-cpu-*: kdray.runtimes)
 	$(BIN)/kdray setup
 	rm -f $(VENV)/.installed-*
 	touch $@

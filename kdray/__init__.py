@@ -15,8 +15,8 @@
 The public API is what this module exports, nothing else.
 """
 # First: OpenCL runtimes installed with pip become visible to pyopencl's loader before
-# anything lists platforms, and Intel's runtime's TBB is loaded before a library that
-# bundles an older one (Open3D) can be (kdray.runtimes says why).
+# anything lists platforms; Intel's runtime as kdray's copy with a TBB of its own, which
+# loads whatever was imported before (Open3D's older TBB: kdray.runtimes says why).
 from .runtimes import register_runtimes as _register_runtimes
 
 _register_runtimes()

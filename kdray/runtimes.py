@@ -7,18 +7,30 @@ reads driver files (.icd) from /etc/OpenCL/vendors and from its own folder
 process. Intel's CPU runtime (`pip install intel-opencl-rt intel-cmplr-lib-rt`) puts
 its library into the environment (`<prefix>/lib/libintelocl.so`) with no .icd file the
 loader can use, so `register_runtimes` writes one into pyopencl/.libs; kdray calls it
-at import and before every listing. Intel's runtime needs the environment's TBB
-(libtbb.so.12, from the `tbb` wheel), newer than the one Open3D bundles: once Open3D's
-is loaded, Intel's runtime cannot load in that process. So at import kdray loads the
-environment's TBB when Intel's runtime is installed and no TBB is loaded yet (an
-Open3D imported afterwards shares it and works); in the other order the Intel
-platform is missing, and `list_devices` and the no-working-device error say why.
+at import and before every listing.
+
+Intel's runtime needs the environment's TBB (libtbb.so.12, from the `tbb` wheel), newer
+than the one Open3D bundles under the same name: once Open3D's is loaded, the dynamic
+linker hands it to Intel's runtime too, which then cannot load (a TBB symbol is
+missing). So on Linux kdray registers its own copy of the runtime (`private_runtime`):
+a folder `<prefix>/lib/kdray-intel-cpu-<key>/` holding a copy of libintelocl.so that
+needs its TBB under another name (PRIVATE_TBB), a copy of that TBB under that name, and
+links to the runtime's other files. Each library then has its own TBB, whatever was
+imported first. kdray makes the folder once per installed runtime, at set-up or at the
+first import (about 100 MB, one copy; `private_runtime`). Where it cannot, kdray
+registers the runtime itself as before and loads the environment's TBB at import when
+no TBB is loaded yet (an Open3D imported afterwards shares it); in the other order the
+Intel platform is missing, and `list_devices` and the no-working-device error say why.
 """
 import ctypes
 import importlib.util
 import logging
+import hashlib
+import mmap
 import os
 import re
+import shutil
+import struct
 import sys
 import time
 from pathlib import Path
@@ -126,6 +138,260 @@ def windows_icd_filenames(current, library):
     return ";".join(parts + [str(library)])
 
 
+# ---------------------------------------------------------------- kdray's copy of Intel's runtime
+
+PRIVATE_TBB = "libtbbkd.so"
+"""The name under which kdray's copy of Intel's runtime needs its TBB, and the name (file
+and SONAME) of its copy of that TBB: no other library is or needs one of that name, so
+the dynamic linker never hands it another's TBB (nor another library this one). No
+longer than the name it replaces ("libtbb.so.12"): `rename_dynamic` renames in place."""
+
+PRIVATE_PREFIX = "kdray-intel-cpu-"
+"""The folders of kdray's copy of Intel's runtime: <prefix>/lib/kdray-intel-cpu-<key>,
+beside the runtime, so that its links are relative and it goes with the environment."""
+
+PRIVATE_VERSION = 1
+"""In the folder's key: changes when the way the copy is made does."""
+
+_STRING_TAGS = {1: "NEEDED", 14: "SONAME", 15: "RPATH", 29: "RUNPATH", 0x6ffffefa: "CONFIG",
+                0x6ffffefb: "DEPAUDIT", 0x6ffffefc: "AUDIT", 0x7ffffffd: "AUXILIARY",
+                0x7fffffff: "FILTER"}
+"""The dynamic entries (d_tag) whose value names something in the dynamic string table."""
+
+
+def _dynamic(elf):
+    """The dynamic section of a 64-bit little-endian ELF file (bytes-like `elf`, the whole
+    file): ([(d_tag, d_val)], file offset of the dynamic string table, its size).
+    Raises ValueError for any other file."""
+    if len(elf) < 64 or elf[:4] != b"\x7fELF" or elf[4] != 2 or elf[5] != 1:
+        raise ValueError("not a 64-bit little-endian ELF file")
+    phoff, = struct.unpack_from("<Q", elf, 0x20)
+    phentsize, phnum = struct.unpack_from("<HH", elf, 0x36)
+    loads, dynamic = [], None
+    for i in range(phnum):
+        p_type, _, offset, vaddr, _, filesz, _, _ = struct.unpack_from(
+            "<IIQQQQQQ", elf, phoff + i * phentsize)
+        if p_type == 1:                                 # PT_LOAD
+            loads.append((vaddr, offset, filesz))
+        elif p_type == 2:                               # PT_DYNAMIC
+            dynamic = (offset, filesz)
+    if dynamic is None:
+        raise ValueError("no dynamic section")
+    entries = []
+    for at in range(dynamic[0], dynamic[0] + dynamic[1] - 15, 16):
+        tag, value = struct.unpack_from("<qQ", elf, at)
+        if tag == 0:                                    # DT_NULL
+            break
+        entries.append((tag, value))
+    table = {tag: value for tag, value in entries if tag in (5, 10)}   # DT_STRTAB, DT_STRSZ
+    if len(table) != 2:
+        raise ValueError("no dynamic string table")
+    strtab = next((offset + table[5] - vaddr for vaddr, offset, size in loads
+                   if vaddr <= table[5] < vaddr + size), None)
+    if strtab is None:
+        raise ValueError("the dynamic string table is in no loaded segment")
+    return entries, strtab, table[10]
+
+
+def _string(elf, strtab, size, index):
+    end = elf.find(b"\0", strtab + index, strtab + size) if index < size else -1
+    if end < 0:
+        raise ValueError(f"string {index} is outside the dynamic string table")
+    return bytes(elf[strtab + index:end]).decode("utf-8", "replace")
+
+
+def dynamic_strings(elf):
+    """[(name of the entry, string)] of an ELF shared object's dynamic entries that name
+    something ("NEEDED", "SONAME", "RUNPATH", ...), in order. elf : bytes-like, the whole
+    file. Raises ValueError for a file that is not a 64-bit little-endian ELF."""
+    entries, strtab, size = _dynamic(elf)
+    return [(_STRING_TAGS[tag], _string(elf, strtab, size, value))
+            for tag, value in entries if tag in _STRING_TAGS]
+
+
+def _string_uses(elf, strtab, entries):
+    """Every index into the dynamic string table that the file holds: the dynamic entries',
+    and the symbols' and symbol versions' names (found through the section headers)."""
+    uses = [value for tag, value in entries if tag in _STRING_TAGS]
+    shoff, = struct.unpack_from("<Q", elf, 0x28)
+    shentsize, shnum = struct.unpack_from("<HH", elf, 0x3A)
+    if shoff == 0 or shnum == 0:
+        raise ValueError("no section headers (which names share bytes is unknown)")
+    sections = [struct.unpack_from("<IIQQQQIIQQ", elf, shoff + i * shentsize)
+                for i in range(shnum)]
+    dynstr = {i for i, s in enumerate(sections) if s[4] == strtab}      # sh_offset
+    for _, sh_type, _, _, offset, size, link, info, _, entsize in sections:
+        if link not in dynstr:
+            continue
+        if sh_type == 11:                               # SHT_DYNSYM: st_name first
+            uses += [struct.unpack_from("<I", elf, at)[0]
+                     for at in range(offset, offset + size, entsize or 24)]
+        elif sh_type in (0x6ffffffd, 0x6ffffffe):       # SHT_GNU_verdef, SHT_GNU_verneed
+            at = offset
+            for _ in range(info):                       # sh_info: the number of entries
+                if sh_type == 0x6ffffffd:               # Verdef, its Verdaux: vda_name
+                    _, _, _, count, _, aux, step = struct.unpack_from("<HHHHIII", elf, at)
+                    name_at = 0
+                else:                                   # Verneed (vn_file), its Vernaux: vna_name
+                    _, count, file, aux, step = struct.unpack_from("<HHIII", elf, at)
+                    uses.append(file)
+                    name_at = 8
+                a = at + aux
+                for _ in range(count):
+                    name, = struct.unpack_from("<I", elf, a + name_at)
+                    uses.append(name)
+                    a += struct.unpack_from("<I", elf, a + name_at + 4)[0]
+                at += step
+    return uses
+
+
+def rename_dynamic(path, tag, old, new):
+    """Rename the dynamic entry `tag` ("NEEDED", "SONAME") `old` of the ELF shared object
+    `path` to `new`, in the file: the string is overwritten, so `new` may be no longer than
+    `old`, and no other name may share its bytes (a linker may keep "c.so.6" as the tail
+    of "libc.so.6"). What patchelf --replace-needed and --set-soname do, for a name that
+    fits. Raises ValueError when the file has no such entry or it cannot be renamed so,
+    OSError when the file cannot be written."""
+    code = next(t for t, name in _STRING_TAGS.items() if name == tag)
+    raw_old, raw_new = old.encode(), new.encode()
+    if not raw_new or b"\0" in raw_new or len(raw_new) > len(raw_old):
+        raise ValueError(f"cannot rename {old} to {new} in place: the new name is longer")
+    with open(path, "r+b") as f, mmap.mmap(f.fileno(), 0) as elf:
+        entries, strtab, size = _dynamic(elf)
+        starts = {value for t, value in entries
+                  if t == code and _string(elf, strtab, size, value) == old}
+        if not starts:
+            raise ValueError(f"{path} has no {tag} entry {old}")
+        uses = _string_uses(elf, strtab, entries)
+        for start in starts:
+            if any(start < u < start + len(raw_old) for u in uses):
+                raise ValueError(f"another name in {path} shares the bytes of {tag} {old}")
+            elf[strtab + start:strtab + start + len(raw_old)] = raw_new.ljust(len(raw_old), b"\0")
+        elf.flush()
+
+
+def _tbb_needed(library):
+    """The TBB (a NEEDED "libtbb.so.N") that the shared object `library` needs, or None."""
+    with open(library, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as elf:
+        needed = [s for tag, s in dynamic_strings(elf) if tag == "NEEDED"]
+    return next((s for s in needed if re.fullmatch(r"libtbb\.so(\.\d+)*", s)), None)
+
+
+def private_folder(library):
+    """Where kdray's copy of Intel's runtime `library` (Path) lies, and the TBB the runtime
+    needs: (folder Path, which need not exist, TBB name), or None when the runtime needs
+    no TBB of that name. The folder's key changes with the library's and its TBB's size
+    and time, so that an upgraded runtime or TBB gets a new copy. Raises OSError when a
+    file cannot be read, ValueError when the library is not an ELF shared object."""
+    tbb = _tbb_needed(library)
+    if tbb is None:
+        return None
+    digest = hashlib.blake2b(str(PRIVATE_VERSION).encode(), digest_size=8)
+    for path in (library, library.parent / tbb):
+        st = os.stat(path)
+        digest.update(f"\0{os.path.realpath(path)}\0{st.st_size}\0{st.st_mtime_ns}".encode())
+    return library.parent / f"{PRIVATE_PREFIX}{digest.hexdigest()}", tbb
+
+
+def make_private_runtime(library, folder, tbb):
+    """Make `folder` (see `private_folder`): links to every file beside `library` (its
+    libraries, the builtins it loads at run time, its configuration), except the runtime
+    itself and its TBB, which are copied: libintelocl.so needing PRIVATE_TBB instead of
+    `tbb`, and `tbb` as PRIVATE_TBB. Made in a temporary folder renamed into place, so
+    that a process sees all of it or none, and several may make it at once. Returns
+    the copy of the library. Raises OSError (e.g. the environment is read-only or the
+    disk full) or ValueError (`rename_dynamic`)."""
+    library, folder = Path(library), Path(folder)
+    source = library.parent
+    copy = folder / library.name
+    temporary = source / f".{folder.name}.{os.getpid()}.tmp"
+    shutil.rmtree(temporary, ignore_errors=True)
+    temporary.mkdir()
+    try:
+        for entry in os.scandir(source):
+            name = entry.name
+            if (name.startswith((".", "libintelocl.so", PRIVATE_PREFIX)) or name == PRIVATE_TBB
+                    or re.fullmatch(r"libtbb\.so(\.\d+)*", name) or entry.is_dir()):
+                continue
+            os.symlink(os.path.join("..", name), temporary / name)
+        shutil.copy(os.path.realpath(library), temporary / library.name)
+        shutil.copy(os.path.realpath(source / tbb), temporary / PRIVATE_TBB)
+        rename_dynamic(temporary / library.name, "NEEDED", tbb, PRIVATE_TBB)
+        with open(temporary / PRIVATE_TBB, "rb") as f, \
+                mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as elf:
+            soname = next((s for tag, s in dynamic_strings(elf) if tag == "SONAME"), None)
+        if soname is not None:
+            rename_dynamic(temporary / PRIVATE_TBB, "SONAME", soname, PRIVATE_TBB)
+        try:
+            os.rename(temporary, folder)
+        except OSError:
+            if not copy.is_file():          # not made by another process meanwhile
+                raise
+    finally:
+        shutil.rmtree(temporary, ignore_errors=True)
+    _remove_private(source, keep=folder.name)
+    return copy
+
+
+def _remove_private(source, keep=None):
+    """Remove the folders of kdray's copies of Intel's runtime in `source` other than
+    `keep`, and the temporary folders of processes that no longer run. Never raises."""
+    try:
+        entries = list(os.scandir(source))
+    except OSError:
+        return
+    for entry in entries:
+        name = entry.name
+        if name.startswith(PRIVATE_PREFIX) and name != keep:
+            shutil.rmtree(entry.path, ignore_errors=True)
+            log.info("removed %s: a copy of an Intel CPU runtime no longer installed", entry.path)
+        elif name.startswith("." + PRIVATE_PREFIX) and name.endswith(".tmp"):
+            pid = name[:-len(".tmp")].rpartition(".")[2]
+            if pid.isdigit() and not _running(int(pid)):
+                shutil.rmtree(entry.path, ignore_errors=True)
+
+
+def _running(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:                     # another user's: it runs
+        return True
+    return True
+
+
+def private_runtime(library, create=True):
+    """kdray's copy of Intel's runtime `library` (see the module's docstring): its Path,
+    made first when it is missing and `create` is true; None when the runtime needs no
+    TBB or the copy cannot be made (logged at INFO; then the runtime is registered
+    itself, as before). Cheap when the copy exists: one read of the library's header,
+    three stats."""
+    library = Path(library)
+    try:
+        where = private_folder(library)
+    except (OSError, ValueError) as e:
+        log.info("cannot read Intel's CPU runtime %s: %s", library, e)
+        return None
+    if where is None:
+        return None
+    folder, tbb = where
+    copy = folder / library.name
+    if copy.is_file() or not create:
+        return copy if copy.is_file() else None
+    t0 = time.perf_counter()
+    try:
+        made = make_private_runtime(library, folder, tbb)
+    except (OSError, ValueError) as e:
+        log.info("cannot make kdray's copy of Intel's CPU runtime in %s (%s): it is registered "
+                 "itself, and cannot load in a process that loaded another TBB first (Open3D's)",
+                 folder, getattr(e, "strerror", None) or e)
+        return None
+    log.info("made kdray's copy of Intel's CPU runtime in %s, with its own TBB (%.2f s)",
+             folder, time.perf_counter() - t0)
+    return made
+
+
 _TBB_FILE = re.compile(r"libtbb(_debug)?\.so(\.\d+)*")     # not libtbbmalloc, libtbbbind
 
 
@@ -203,12 +469,15 @@ def thread_binding(environ):
 
 def register_runtimes():
     """Make the OpenCL runtimes installed in this environment visible to pyopencl's loader:
-    Intel's CPU runtime (see the module docstring), and on Linux load its TBB first.
+    Intel's CPU runtime (see the module docstring), on Linux kdray's copy of it with its
+    own TBB (`private_runtime`, made here the first time), or where that cannot be made
+    the runtime itself, with its TBB loaded first.
 
-    Idempotent and cheap (a file read); to take effect it must run before the process
-    first lists OpenCL platforms, so kdray calls it at import and in every listing.
-    Writes only into the environment (pyopencl's folder), never raises; what cannot be
-    done is logged at INFO, and `list_devices` says why the platform is missing.
+    Idempotent and cheap (a few file reads and stats) once the copy exists; to take
+    effect it must run before the process first lists OpenCL platforms, so kdray calls
+    it at import and in every listing. Writes only into the environment (pyopencl's
+    folder, the copy's beside the runtime), never raises; what cannot be done is logged
+    at INFO, and `list_devices` says why the platform is missing.
     """
     library = intel_library()
     if os.name == "nt":
@@ -221,14 +490,16 @@ def register_runtimes():
             if value != current:
                 os.environ["OCL_ICD_FILENAMES"] = value
         return
+    linux = sys.platform.startswith("linux")
+    private = private_runtime(library) if linux and library.is_file() else None
     folder = _icd_folder()
-    if folder is not None:
-        sync_icd(library, folder)
-    if sys.platform.startswith("linux"):
+    if folder is not None and sync_icd(private or library, folder) == "removed":
+        _remove_private(library.parent)             # the runtime was uninstalled
+    if linux:
         # read by the runtimes when they start (PoCL) or create their first context
         # (Intel's): before the first listing is early enough
         os.environ.update(thread_binding(os.environ))
-        if library.is_file():
+        if library.is_file() and private is None:
             _preload_tbb(library.parent)
 
 
@@ -243,16 +514,27 @@ def _process_start():
         return None
 
 
+def registered_library(library=None):
+    """The library kdray registers for Intel's CPU runtime `library` (default
+    `intel_library()`): kdray's copy (`private_runtime`) where it exists, else `library`."""
+    library = intel_library() if library is None else Path(library)
+    if os.name == "nt" or not library.is_file():
+        return library
+    return private_runtime(library, create=False) or library
+
+
 def _intel_missing_reason(library):
-    """Why Intel's CPU runtime, installed at `library`, is not among the listed platforms:
-    one line."""
+    """Why Intel's CPU runtime, registered as `library` (the runtime's own library or
+    kdray's copy of it), is not among the listed platforms: one line."""
     cannot = "Intel's CPU runtime is installed but cannot load"
     not_listed = "Intel's CPU runtime is installed but not listed"
+    library = Path(library)
     try:
         ctypes.CDLL(str(library))      # what the OpenCL loader does, with the error kept
     except OSError as e:
         maps = _own_maps()
-        other = foreign_tbb(maps, library.parent) if maps is not None else None
+        own_tbb = library.parent.name.startswith(PRIVATE_PREFIX)     # no TBB can be in its way
+        other = foreign_tbb(maps, library.parent) if maps is not None and not own_tbb else None
         if other and "open3d" in other.lower():
             return (f"{cannot}: {other} was loaded first (Open3D bundles an older TBB); "
                     f"import kdray before open3d")
@@ -294,4 +576,5 @@ def unavailable_runtimes(platforms):
     library = intel_library()
     if not library.is_file() or any(p.name.strip() == INTEL_CPU_PLATFORM for p in platforms):
         return []
-    return [(f"{INTEL_CPU_PLATFORM} ({library})", _intel_missing_reason(library))]
+    registered = registered_library(library)
+    return [(f"{INTEL_CPU_PLATFORM} ({registered})", _intel_missing_reason(registered))]

@@ -338,7 +338,8 @@ def test_reasons_for_a_missing_intel_platform(tmp_path, monkeypatch):
     assert "OCL_ICD_DEBUG=15" in kruntimes._intel_missing_reason(lib)
 
 
-# ---------------------------------------------------------------- Open3D and Intel's TBB
+# ---------------------------------------------------------------- fresh processes
+# (Open3D and kdray in one process, in either order: tests/test_import_order.py)
 
 def _python(code, *args, **env):
     """(exit code, stdout, stderr) of a fresh `python -c code args...` in the repository,
@@ -350,52 +351,6 @@ def _python(code, *args, **env):
                           capture_output=True, text=True, cwd=ROOT, timeout=120,
                           env=dict(clean, **env))
     return proc.returncode, proc.stdout, proc.stderr
-
-
-OPEN3D_AND_KDRAY = """
-    import open3d as o3d
-    box = o3d.t.geometry.TriangleMesh.from_legacy(o3d.geometry.TriangleMesh.create_box())
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(box)
-    rays = o3d.core.Tensor([[0.5, 0.5, -1, 0, 0, 1]], dtype=o3d.core.Dtype.Float32)
-    print("open3d", float(scene.cast_rays(rays)["t_hit"].numpy()[0]))
-    from kdray import device
-    print("\\n".join(device.list_devices()))
-    if RENDER:
-        mesh = kdray.load("scenes/sphere.obj")
-        tracer = kdray.Tracer(kdray.build(mesh.vertices, mesh.faces), device="intel")
-        camera = kdray.Camera.look_at((0, 0, 3), (0, 0, 0), width=8, height=8)
-        hit = tracer.render(camera, aovs=("id",))["id"] != 0xFFFFFFFF
-        print("kdray", tracer.device.platform.name, int(hit.sum()))
-"""
-
-needs_open3d_and_intel = pytest.mark.skipif(
-    subprocess.run([sys.executable, "-c", "import open3d"], capture_output=True, timeout=120).returncode != 0
-    or not kruntimes.intel_library().is_file(), reason="needs open3d and Intel's CPU runtime")
-
-
-@needs_open3d_and_intel
-def test_kdray_before_open3d_both_work_on_intel():
-    code, out, err = _python("import kdray\nRENDER = True\n" + textwrap.dedent(OPEN3D_AND_KDRAY))
-    assert code == 0, err
-    assert "open3d 0.99999" in out and "not loaded" not in out
-    assert "kdray Intel(R) OpenCL " in out and not out.endswith(" 0\n")
-
-
-@needs_open3d_and_intel
-def test_open3d_before_kdray_names_the_tbb_conflict():
-    code, out, err = _python("import open3d\nimport kdray\nRENDER = False\n"
-                             + textwrap.dedent(OPEN3D_AND_KDRAY))
-    assert code == 0, err
-    assert "open3d 0.99999" in out
-    lines = out.splitlines()
-    line = next(ln for ln in lines if ln.startswith("not loaded: Intel(R) OpenCL"))
-    assert "cannot load: " in line and "open3d/libtbb.so.12 was loaded first (Open3D bundles an " \
-        "older TBB); import kdray before open3d" in line
-    # fell back to another working device (not Intel's platform: PoCL's device on an Intel
-    # CPU is named "...Intel(R) Xeon(R)..."); where none other works (PoCL 3.0 on Zen 5), none
-    assert (lines[-1].startswith("default: --device ") and "(Intel(R) OpenCL" not in lines[-1]) \
-        or lines[-1].startswith("default: none")
 
 
 # ---------------------------------------------------------------- the runtimes' worker threads
