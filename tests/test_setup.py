@@ -23,7 +23,6 @@ def _files(folder):
 
 @pytest.mark.slow     # compiles the whole tree builder from nothing (numba): 25-30 s on 2 cores
 def test_default_render_compiles_nothing_after_setup(tmp_path):
-    from kdray import builder
     caches = tmp_path / "caches"
     env = dict(os.environ, NUMBA_CACHE_DIR=str(caches / "numba"),
                XDG_CACHE_HOME=str(caches / "xdg"), POCL_CACHE_DIR=str(caches / "pocl"),
@@ -44,7 +43,7 @@ def test_default_render_compiles_nothing_after_setup(tmp_path):
     render = kdray("render", "scenes/cornell.obj", "--camera", "scenes/cornell.json",
                    "-o", tmp_path / "out" / "cornell.exr",
                    "--preview", tmp_path / "out" / "cornell.png")
-    assert builder.COMPILING not in render.stderr and "compiling the tree builder" not in render.stderr
+    assert "compiling the tree builder" not in render.stderr       # builder.COMPILING
     after = {p for p in _files(caches) if not p.name.startswith("tempfile")}
     assert after == before, f"the render compiled: {sorted(map(str, after - before))}"
     assert (tmp_path / "out" / "cornell.exr").is_file()
