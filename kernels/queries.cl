@@ -124,6 +124,37 @@ void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const
     q->tri[j] = tri;
 }
 
+#ifdef PACKET
+/* The count's crossing rule a run of KD_PACKET triangles at a time: the lanes whose
+ * triangle the ray may cross. intersect_triangle's sheared edge functions U, V, W,
+ * computed alike lane by lane (the same operations in the same order), have the sign
+ * of their exact values wherever KD_EDGE_SURE holds; a triangle with one surely
+ * positive and one surely negative is crossed under no rule, and every other lane
+ * (NaN included) is left to intersect_triangle, which decides it exactly. So the
+ * lanes kept hold every crossing, and the count is the scalar loop's. */
+KD_INLINE
+intP kd_crossing_lanes(const RayShear *s, float3 o, const KdFP *q, intP valid)
+{
+    uint kx = s->kx, ky = s->ky, kz = s->kz;
+    float ox = kd_comp(o, kx), oy = kd_comp(o, ky), oz = kd_comp(o, kz);
+    floatP Sx = (floatP)(s->Sx), Sy = (floatP)(s->Sy);
+    floatP Az = q[kz].v - oz, Bz = q[3 + kz].v - oz, Cz = q[6 + kz].v - oz;
+    floatP Ax = (q[kx].v - ox) - Sx * Az, Ay = (q[ky].v - oy) - Sy * Az;
+    floatP Bx = (q[3 + kx].v - ox) - Sx * Bz, By = (q[3 + ky].v - oy) - Sy * Bz;
+    floatP Cx = (q[6 + kx].v - ox) - Sx * Cz, Cy = (q[6 + ky].v - oy) - Sy * Cz;
+    floatP u1 = Cx * By, u2 = Cy * Bx, v1 = Ax * Cy, v2 = Ay * Cx, w1 = Bx * Ay, w2 = By * Ax;
+    floatP U = u1 - u2, V = v1 - v2, W = w1 - w2;
+    floatP tiny = (floatP)(0x1p-126f);
+    intP sure_u = kd_absP(U) > 0x1p-22f * (kd_absP(u1) + kd_absP(u2)) + tiny;
+    intP sure_v = kd_absP(V) > 0x1p-22f * (kd_absP(v1) + kd_absP(v2)) + tiny;
+    intP sure_w = kd_absP(W) > 0x1p-22f * (kd_absP(w1) + kd_absP(w2)) + tiny;
+    floatP zero = (floatP)(0.0f);
+    intP pos = (sure_u & (U > zero)) | (sure_v & (V > zero)) | (sure_w & (W > zero));
+    intP neg = (sure_u & (U < zero)) | (sure_v & (V < zero)) | (sure_w & (W < zero));
+    return valid & ~(pos & neg);
+}
+#endif
+
 /* Test a leaf's triangles for `query`; true when the walk may stop: any, at a hit;
  * nearest, when its best hit is final at the leaf's exit t_exit (traverse.cl,
  * kd_hit_final), unless the walk has met a node whose plane holds the ray: its
@@ -173,6 +204,27 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
         }
         return false;
     }
+    /* the count's crossing rule: the lanes that may be crossed, each then decided by
+     * intersect_triangle as the loop below decides it */
+    for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
+        KdFP qv[9];
+        kd_gather_tris(tris, first + i0, qv);
+        uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
+        KdIP c;
+        c.v = kd_crossing_lanes(shear, o, qv, KD_LANE_INDEX < (intP)((int)m));
+        if (!kd_anyP(c.v))
+            continue;
+        for (uint j = 0; j < m; j++) {
+            uint tri = first + i0 + j;
+            float t, u, v;
+            if (c.s[j] && intersect_triangle(shear, o, kd_vertex(tris, tri, 0),
+                                             kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2),
+                                             tri, t_min, t_max, t_max, KD_NO_HIT, tri_ids, true,
+                                             &t, &u, &v))
+                kd_count_hit(q, tri_ids[tri]);
+        }
+    }
+    return false;
 #endif
     for (uint i = 0; i < count; i++) {
         uint tri = first + i;
