@@ -175,7 +175,7 @@ void kd_nearest_triangle(__global const float *tris, __global const uint *tri_id
  * shrunk by more than its own rounding. */
 #define KD_PACKET PACKET
 #include "lanes.h"
-typedef union { intP v; int s[KD_PACKET]; } KdPointMask;
+typedef union { floatP v; float s[KD_PACKET]; } KdPointF;
 
 KD_INLINE floatP kd_run_row(__global const float *base, uint c)
 {
@@ -213,14 +213,20 @@ void kd_nearest_leaf(KdNode leaf, __global const float *tris, __global const uin
                                   pf.y, slack);
         floatP dz = kd_box_offset(kd_run_row(base, 2), kd_run_row(base, 5), kd_run_row(base, 8),
                                   pf.z, slack);
-        floatP d2 = (dx * dx + dy * dy + dz * dz) * (1.0f - 0x1p-19f);
-        KdPointMask near;
-        near.v = d2 <= (floatP)((float)best->bound2 * (1.0f + 0x1p-19f));
-        if (!kd_anyP(near.v))
+        KdPointF box;
+        box.v = (dx * dx + dy * dy + dz * dz) * (1.0f - 0x1p-19f);
+        if (!kd_anyP(box.v <= (floatP)((float)best->bound2 * (1.0f + 0x1p-19f))))
             continue;
+        /* the nearest box first: its triangle's distance mostly rules out the rest */
         uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
+        uint nearest = 0;
+        for (uint j = 1; j < m; j++)
+            if (box.s[j] < box.s[nearest])
+                nearest = j;
+        if (box.s[nearest] <= (float)best->bound2 * (1.0f + 0x1p-19f))
+            kd_nearest_triangle(tris, tri_ids KD_PASS_GEOMETRY, first + i0 + nearest, p, best);
         for (uint j = 0; j < m; j++)
-            if (near.s[j])
+            if (j != nearest && box.s[j] <= (float)best->bound2 * (1.0f + 0x1p-19f))
                 kd_nearest_triangle(tris, tri_ids KD_PASS_GEOMETRY, first + i0 + j, p, best);
     }
 }
