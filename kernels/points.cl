@@ -397,6 +397,50 @@ double kd_solid_angle(double3 a, double3 b, double3 c)
     return atan2(num, den) * (0.5 / M_PI);        /* 2 atan2 / (4 pi) */
 }
 
+#ifdef PACKET
+#if KD_PACKET == 16
+typedef uchar16 ucharP;
+#define vload_ucharP vload16
+#else
+typedef uchar8 ucharP;
+#define vload_ucharP vload8
+#endif
+typedef union { doubleP v; double s[KD_PACKET]; } KdPointD;
+
+/* The solid angles over 4 pi of a run of KD_PACKET triangles (a leaf starts on a
+ * multiple of KD_PACKET: one block), each as kd_solid_angle computes it, lane by
+ * lane in double, summed over the lanes whose copy is owned (padding never is). */
+KD_INLINE
+double kd_run_solid_angles(__global const float *tris, __global const uchar *owned,
+                           uint first, double3 p)
+{
+    __global const float *base = kd_tri_base(tris, first);
+    doubleP ax = convert_doubleP(kd_run_row(base, 0)) - p.x;
+    doubleP ay = convert_doubleP(kd_run_row(base, 1)) - p.y;
+    doubleP az = convert_doubleP(kd_run_row(base, 2)) - p.z;
+    doubleP bx = convert_doubleP(kd_run_row(base, 3)) - p.x;
+    doubleP by = convert_doubleP(kd_run_row(base, 4)) - p.y;
+    doubleP bz = convert_doubleP(kd_run_row(base, 5)) - p.z;
+    doubleP cx = convert_doubleP(kd_run_row(base, 6)) - p.x;
+    doubleP cy = convert_doubleP(kd_run_row(base, 7)) - p.y;
+    doubleP cz = convert_doubleP(kd_run_row(base, 8)) - p.z;
+    doubleP la = sqrt((ax * ax + ay * ay) + az * az);
+    doubleP lb = sqrt((bx * bx + by * by) + bz * bz);
+    doubleP lc = sqrt((cx * cx + cy * cy) + cz * cz);
+    doubleP num = (ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz)) + az * (bx * cy - by * cx);
+    doubleP ab = (ax * bx + ay * by) + az * bz;
+    doubleP ac = (ax * cx + ay * cy) + az * cz;
+    doubleP bc = (bx * cx + by * cy) + bz * cz;
+    doubleP den = ((la * lb * lc + ab * lc) + ac * lb) + bc * la;
+    KdPointD angle;
+    angle.v = atan2(num, den) * convert_doubleP(vload_ucharP(0, owned + first));
+    double sum = 0.0;
+    for (uint j = 0; j < KD_PACKET; j++)
+        sum += angle.s[j];
+    return sum * (0.5 / M_PI);
+}
+#endif
+
 /* Point k's generalized winding number into out_w (NaN on a corrupt tree); 0 for a
  * point that is not finite. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
@@ -455,6 +499,10 @@ void winding_points(__global const KdNode *nodes, __global const float *tris,
                          * (0.25 / M_PI);
                 } else if (kd_is_leaf(n)) {
                     uint first = kd_leaf_offset(n);
+#ifdef PACKET
+                    for (uint i = 0; i < kd_n_prims(n); i += KD_PACKET)
+                        w += kd_run_solid_angles(tris, owned, first + i, p);
+#else
                     for (uint i = 0; i < kd_n_prims(n); i++) {
                         uint tri = first + i;
                         if (!owned[tri])
@@ -462,6 +510,7 @@ void winding_points(__global const KdNode *nodes, __global const float *tris,
                         w += kd_solid_angle(KD_VERTEX_D(tri, 0) - p, KD_VERTEX_D(tri, 1) - p,
                                             KD_VERTEX_D(tri, 2) - p);
                     }
+#endif
                 } else {
                     if (count == STACK_SIZE) {
                         ok = false;
