@@ -35,6 +35,7 @@ from . import ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
+from .points import check_points
 from .tree import object_ids
 
 
@@ -325,16 +326,7 @@ def contains(tracer, points):
     that direction points into the mesh. For a mesh that is not closed, parity has no
     meaning (a ray may leave through a hole): the answer is that of the one ray.
     KdrayError for points that are not finite or not (..., 3)."""
-    p = np.asarray(points)
-    if p.dtype.kind not in "fiu":
-        raise KdrayError(f"points must be an array of numbers, got dtype {p.dtype}")
-    if p.ndim < 1 or p.shape[-1] != 3:
-        raise KdrayError(f"points must be an (N, 3) array, got shape {p.shape}")
-    shape = p.shape[:-1]
-    p = p.reshape(-1, 3)
-    if not np.isfinite(p).all():
-        i = int(np.flatnonzero(~np.isfinite(p).all(axis=1))[0])
-        raise KdrayError(f"points must be finite, point {i} is {p[i].tolist()}")
+    p, shape = check_points(points)
     if len(p) == 0:
         return np.zeros(shape, dtype=bool)
     d = np.broadcast_to(CONTAINS_DIRECTION, p.shape)
