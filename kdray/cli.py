@@ -541,8 +541,8 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The .npz file to write: a grid (sdf or occupancy, origin, spacing, "
                    "sign), or with --samples the points and their sdf.")
-@click.option("--resolution", type=int, default=128, show_default=True,
-              help="Grid samples a side (the grid is N x N x N).")
+@click.option("--resolution", type=int, default=None,
+              help="Grid samples a side (the grid is N x N x N)  [default: 128].")
 @click.option("--padding", type=float, default=0.1, show_default=True,
               help="Room around the scene's box, a fraction of its largest side, each side.")
 @click.option("--sign", type=click.Choice(["winding", "parity"]), default="winding",
@@ -582,8 +582,10 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
         for name, value in (("--sigma", sigma), ("--seed", seed if seed != 0 else None)):
             if value is not None:
                 raise click.UsageError(f"{name} goes with --samples")
-    elif occupancy:
-        raise click.UsageError("--occupancy makes a grid; it cannot be combined with --samples")
+        resolution = 128 if resolution is None else resolution
+    elif occupancy or resolution is not None:
+        raise click.UsageError(f"{'--occupancy' if occupancy else '--resolution'} makes a "
+                               f"grid; it cannot be combined with --samples")
     step = Steps()
     tree = _scene_tree(step, scene, tree_file, params)
     if sign == "parity":

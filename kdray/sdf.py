@@ -48,10 +48,10 @@ class Grid:
         return self.origin + self.spacing * ijk
 
 
-def grid_frame(tracer, resolution, padding):
-    """(origin (3,) float64, spacing) of an N^3 grid over the tracer's scene box padded
-    by `padding` times its largest side on each side. KdrayError for a resolution
-    outside 2 .. MAX_RESOLUTION or a padding that is negative or not finite."""
+def check_grid(resolution, padding, occupancy=False):
+    """(resolution, padding) checked: KdrayError for a resolution that is not an integer
+    from 2 to MAX_RESOLUTION, a padding that is negative or not finite, or a grid
+    that does not fit in the host's memory (saying how much it needs)."""
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
         raise KdrayError(f"resolution must be an integer, got {resolution!r}")
     if not 2 <= resolution <= MAX_RESOLUTION:
@@ -62,6 +62,17 @@ def grid_frame(tracer, resolution, padding):
         raise KdrayError(f"padding must be a number, got {padding!r}") from None
     if not (np.isfinite(padding) and padding >= 0):
         raise KdrayError(f"padding must be a finite number >= 0, got {padding!r}")
+    n = int(resolution)
+    slab = max(1, SLAB_POINTS // (n * n))
+    check_host_memory(n ** 3 * (1 if occupancy else 4) + slab * n * n * 64, f"a {n}^3 grid",
+                      "ask for a lower resolution")
+    return n, padding
+
+
+def grid_frame(tracer, resolution, padding):
+    """(origin (3,) float64, spacing) of an N^3 grid over the tracer's scene box padded
+    by `padding` times its largest side on each side (`check_grid`'s checks first)."""
+    resolution, padding = check_grid(resolution, padding, occupancy=True)
     lo, hi = tracer.tree.world_box()
     side = float((hi - lo).max()) * (1.0 + 2.0 * padding)
     if not side > 0:
@@ -79,12 +90,9 @@ def sdf_grid(tracer, resolution, padding=0.1, sign="winding", occupancy=False,
     (points done, points in all) after each slab. KdrayError when the grid does not fit
     in memory (saying how much it needs)."""
     _points._check_sign(sign)
+    n, _ = check_grid(resolution, padding, occupancy)
     origin, spacing = grid_frame(tracer, resolution, padding)
-    n = int(resolution)
-    itemsize = 1 if occupancy else 4
     slab = max(1, SLAB_POINTS // (n * n))
-    check_host_memory(n ** 3 * itemsize + slab * n * n * 64, f"a {n}^3 grid",
-                      "ask for a lower resolution")
     grid = Grid(np.empty((n, n, n), dtype=np.uint8 if occupancy else np.float32), origin,
                 spacing, sign)
     if sign == "parity":

@@ -309,5 +309,8 @@ def test_sdf_command(tmp_path, capsys):
     assert code == 1 and "resolution must be from 2" in err and "Traceback" not in err
     code, _, err = run(capsys, "sdf", mesh, "-o", mesh, "--resolution", 4)
     assert code != 0 and mesh.read_text().startswith("v ")
-    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--occupancy", "--samples", 5)
-    assert code == 2
+    for clash in (["--occupancy"], ["--resolution", 8]):
+        code, _, err = run(capsys, "sdf", mesh, "-o", out, *clash, "--samples", 5)
+        assert code == 2 and "cannot be combined with --samples" in err
+    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--sigma", 0.1)
+    assert code == 2 and "--sigma goes with --samples" in err
