@@ -105,6 +105,52 @@ def check_points(points):
     return p, shape
 
 
+SORT_FROM = 4096
+"""Point counts from which queries run in `spatial_order` (below, sorting costs more
+than it saves)."""
+
+
+def _spread(x):
+    """(n,) uint32: the 10 low bits of x spread to every third bit (0, 3, 6, ...)."""
+    x = x.astype(np.uint32)
+    x = (x | (x << 16)) & 0x030000FF
+    x = (x | (x << 8)) & 0x0300F00F
+    x = (x | (x << 4)) & 0x030C30C3
+    return (x | (x << 2)) & 0x09249249
+
+
+def spatial_order(points, lo, hi):
+    """(n,) int64 permutation that puts points (n, 3) in Morton order of a 32^3 grid over
+    the box lo .. hi (points outside it clamped to its cells): queries of near points
+    then run one after another in a work-item, on the same nodes and triangles in cache.
+    Bunny, 2^19 points, Intel's CPU runtime: contains 1.5-1.6x, distance 1.2-1.3x, for
+    0.04 s of sorting (16-bit keys: numpy's radix sort). Answers do not depend on it."""
+    scale = 32.0 / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
+    with np.errstate(invalid="ignore", over="ignore"):
+        q = np.clip((points - lo) * scale, 0, 31).astype(np.uint32)
+    code = (_spread(q[:, 0]) | (_spread(q[:, 1]) << 1) | (_spread(q[:, 2]) << 2)).astype(np.uint16)
+    return np.argsort(code, kind="stable")
+
+
+def _ordered(tracer, rel):
+    """(rel in spatial order, order or None): `spatial_order` over the tree's box, for
+    SORT_FROM points or more."""
+    if len(rel) < SORT_FROM:
+        return rel, None
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.bounds)
+    order = spatial_order(rel, lo, hi)
+    return rel[order], order
+
+
+def _unordered(a, order):
+    """a (rows in spatial order) back in the callers' order."""
+    if order is None or a is None:
+        return a
+    out = np.empty_like(a)
+    out[order] = a
+    return out
+
+
 def _relative(tracer, p):
     """(N, 3) float64 points relative to the tree's origin in its units (scale a power
     of two: the division is exact)."""
@@ -211,7 +257,7 @@ def _closest(tracer, points, max_distance, precision, outputs):
     widths = {"POINT": 24, "UV": 8, "ID": 4}
     check_host_memory(n * (24 + 8 + sum(widths[k] for k in outputs)),
                       f"the closest points of {n} points", "ask for fewer points at once")
-    rel = _relative(tracer, p)
+    rel, order = _ordered(tracer, _relative(tracer, p))
     entry = _program(tracer, geometry64, outputs)
     geometry = (_tris64(tracer),) if geometry64 else ()
     with np.errstate(over="ignore"):
@@ -229,7 +275,8 @@ def _closest(tracer, points, max_distance, precision, outputs):
                  "prim": None if prim is None else prim[part]})
     _check_fault(d, "closest points")
     d *= tracer._scale
-    return d, q, uv, prim, shape
+    return (_unordered(d, order), _unordered(q, order), _unordered(uv, order),
+            _unordered(prim, order), shape)
 
 
 def closest_points(tracer, points, max_distance=np.inf, precision="single"):
@@ -275,7 +322,7 @@ def winding_number(tracer, points, beta=WINDING_BETA):
     n = len(p)
     check_host_memory(n * 48, f"the winding numbers of {n} points",
                       "ask for fewer points at once")
-    rel = _relative(tracer, p)
+    rel, order = _ordered(tracer, _relative(tracer, p))
     entry = _program(tracer, False)
     moments, owned = _winding_data(tracer)
     w = page_aligned_empty((n,), np.float64)
@@ -285,7 +332,7 @@ def winding_number(tracer, points, beta=WINDING_BETA):
                 (tracer._buffer(rel[part]), moments, owned, np.float64(beta * beta),
                  np.uint32(stop - start)), {"w": w[part]})
     _check_fault(w, "winding number")
-    return w.reshape(shape)
+    return _unordered(w, order).reshape(shape)
 
 
 def _check_sign(sign):

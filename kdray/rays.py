@@ -35,7 +35,7 @@ from . import ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
-from .points import check_points
+from .points import SORT_FROM, check_points, spatial_order
 from .tree import object_ids
 
 
@@ -329,9 +329,17 @@ def contains(tracer, points):
     p, shape = check_points(points)
     if len(p) == 0:
         return np.zeros(shape, dtype=bool)
+    # near points one after another (kdray.points.spatial_order): the same answers
+    order = None
+    if len(p) >= SORT_FROM:
+        order = spatial_order(p, *tracer.tree.world_box())
+        p = p[order]
     d = np.broadcast_to(CONTAINS_DIRECTION, p.shape)
     rays = _Rays(tracer, p, d, 0.0, np.inf)
-    return (_counts(tracer, rays, True) % 2 == 1).reshape(shape)
+    inside = _counts(tracer, rays, True) % 2 == 1
+    if order is not None:
+        inside[order] = inside.copy()
+    return inside.reshape(shape)
 
 
 def _list(tracer, rays, caps, crossing=False):

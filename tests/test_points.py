@@ -246,6 +246,25 @@ def test_answers_do_not_depend_on_work_sizes_or_packets(runtime, spot, monkeypat
         assert np.allclose(got[-1], want[-1], rtol=0, atol=1e-12), opts
 
 
+def test_spatial_order_changes_no_answer(tracers, spot):
+    """From SORT_FROM points on, queries run in spatial order (kdray.points.
+    spatial_order) and their answers are put back: the same as in smaller calls."""
+    v, f, tree = spot
+    tracer = tracers(tree)
+    p = sample_points(v, f, kpoints.SORT_FROM // 4 + 77, seed=9)
+    p = np.concatenate([p, 5 * p[:100]])                 # some outside the box too
+    assert len(p) >= kpoints.SORT_FROM
+    chunks = [p[i:i + 1000] for i in range(0, len(p), 1000)]
+    near = tracer.closest_points(p)
+    parts = [tracer.closest_points(c) for c in chunks]
+    for name in ("distance", "point", "prim", "u", "v"):
+        assert np.array_equal(getattr(near, name),
+                              np.concatenate([getattr(c, name) for c in parts])), name
+    assert np.array_equal(tracer.winding_number(p, beta=2.0),
+                          np.concatenate([tracer.winding_number(c, beta=2.0) for c in chunks]))
+    assert np.array_equal(tracer.contains(p), np.concatenate([tracer.contains(c) for c in chunks]))
+
+
 def test_bad_input_is_refused(tracers, spot):
     tracer = tracers(spot[2])
     for bad, match in ((np.array([[0.0, np.nan, 0.0]]), "finite, point 0"),
