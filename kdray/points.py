@@ -142,11 +142,14 @@ def _ordered(tracer, rel):
     return rel[order], order
 
 
-def _unordered(a, order):
-    """a (rows in spatial order) back in the callers' order."""
-    if order is None or a is None:
-        return a
-    out = np.empty_like(a)
+def _unordered(a, order, dtype=None):
+    """a (rows in spatial order) back in the callers' order, as `dtype` (a's when None):
+    one pass."""
+    if a is None:
+        return None
+    if order is None:
+        return a if dtype is None else a.astype(dtype)
+    out = np.empty(a.shape, dtype=dtype or a.dtype)
     out[order] = a
     return out
 
@@ -242,8 +245,9 @@ def _check_fault(values, what):
 
 
 def _closest(tracer, points, max_distance, precision, outputs):
-    """(distance (N,) float64 world, point (N, 3) float64 relative or None, uv (N, 2)
-    float32 or None, prim (N,) uint32 or None, shape)."""
+    """(distance (N,) float32 (float64 with precision="double") world units, point (N,
+    3) float64 world or None, uv (N, 2) float32 or None, prim (N,) uint32 or None,
+    shape); outputs: which of "POINT" (needs "ID"), "UV", "ID" to compute."""
     _need_fp64(tracer)
     geometry64 = wants_double(precision, tracer.tree)
     p, shape = check_points(points)
@@ -275,7 +279,12 @@ def _closest(tracer, points, max_distance, precision, outputs):
                  "prim": None if prim is None else prim[part]})
     _check_fault(d, "closest points")
     d *= tracer._scale
-    return (_unordered(d, order), _unordered(q, order), _unordered(uv, order),
+    if q is not None:                               # world coordinates, 0 on a miss
+        q *= tracer._scale
+        q += tracer._origin
+        q[prim == MISS] = 0.0
+    dtype = np.float64 if geometry64 else np.float32
+    return (_unordered(d, order, dtype), _unordered(q, order), _unordered(uv, order),
             _unordered(prim, order), shape)
 
 
@@ -287,10 +296,7 @@ def closest_points(tracer, points, max_distance=np.inf, precision="single"):
     triangles (a tree built with keep_double), distance float64."""
     d, q, uv, prim, shape = _closest(tracer, points, max_distance, precision,
                                      ("POINT", "UV", "ID"))
-    hit = prim != MISS
-    world = np.where(hit[:, None], tracer._origin + tracer._scale * q, 0.0)
-    dist = d if precision == "double" else d.astype(np.float32)
-    return ClosestPoints(distance=dist.reshape(shape), point=world.reshape(shape + (3,)),
+    return ClosestPoints(distance=d.reshape(shape), point=q.reshape(shape + (3,)),
                          prim=prim.reshape(shape), u=uv[:, 0].reshape(shape),
                          v=uv[:, 1].reshape(shape), object_table=tracer.tree.objects)
 
@@ -300,7 +306,7 @@ def distance(tracer, points, max_distance=np.inf, precision="single"):
     precision="double"), +inf beyond max_distance: closest_points' distance alone
     (nothing else is computed or moved)."""
     d, _, _, _, shape = _closest(tracer, points, max_distance, precision, ())
-    return (d if precision == "double" else d.astype(np.float32)).reshape(shape)
+    return d.reshape(shape)
 
 
 def winding_number(tracer, points, beta=WINDING_BETA):
