@@ -46,6 +46,11 @@ from kdray import reference  # noqa: E402
 from kdray.sdf import grid_frame, sdf_grid  # noqa: E402
 
 
+SIGNED = {"kdray signed parity", "kdray signed winding", "open3d signed nsamples=1",
+          "open3d signed default", "warp sign_winding_number"}
+"""The calls whose answers carry a sign (negative inside), counted for wrong signs."""
+
+
 def point_sets(m, n, seed=0):
     """{label: (n, 3) float64 points}: uniform in the box; near the surface."""
     rng = np.random.default_rng(seed)
@@ -171,7 +176,7 @@ def speed(name, args):
                 dist = np.abs(np.asarray(d, dtype=np.float64)[s])
                 rel = np.abs(dist - exact) / np.maximum(exact, 1e-300)
                 err = f"rel p99 {np.quantile(rel, 0.99):.1e} max {rel.max():.1e}"
-                if "sign" in key or "winding" in key:
+                if key in SIGNED:
                     neg = np.asarray(d)[s] < 0
                     sign = f"{int((neg != inside)[clear].sum())} wrong"
             print(f"    {key:<32} {len(p) / times.min() / 1e6:7.3f} Mpts/s (best) "
