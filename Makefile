@@ -28,12 +28,14 @@ render: $(STAMP)
 	mkdir -p $(OUT)
 	$(BIN)/kdray render $(SCENE) --camera $(CAMERA) -o $(OUT)/cornell.exr --preview $(OUT)/cornell.png
 
-# The test suite (4.5-7 minutes on 2 cores with warm caches, by CPU and default runtime:
-# 7 on a Zen 4 where only Intel's CPU runtime works; a fresh clone, whose kernels (both
-# packet widths) and numba functions compile first, up to 19-23: Intel's CPU runtime
-# builds a program in about 5 s, PoCL in under 1): tests/test_runtimes.py on every OpenCL
-# implementation that works here, the rest on the default device; the summary says
-# which were covered. Long checks are `make test-long`.
+# The test suite: tests/test_runtimes.py on every OpenCL implementation that works here,
+# the rest on the default device; the summary says which were covered. On 2 cores (a
+# Zen 4 where Intel's CPU runtime and Oclgrind work): under 6 minutes from a fresh
+# clone, whose ~175 kernel programs compile first (Intel's runtime: about 1.6 s a
+# program with packets; most of the time), under 3 once they are in pyopencl's
+# compiler cache (~/.cache/pyopencl; a change to kernels/ compiles them again). Long
+# checks are `make test-long` (4 minutes): every work size and both scenes, packets of
+# the other width, more scales and leaf rules, the builder compiled from nothing.
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"
 

@@ -157,11 +157,13 @@ def _slab(lo, hi, o, d, t_min, t_max):
 
 
 def all_hits(triangles, origins, directions, t_min=0.0, t_max=np.inf, crossing=False,
-             chunk=1 << 21):
+             chunk=1 << 17):
     """Every hit of every ray against every triangle, float64: (ray, prim, t, u, v),
     each (H,), sorted by ray, then t, then prim. crossing: the count's rule
     (`intersect`). t_min, t_max : scalars or (N,). A conservative (slightly inflated)
-    box test prunes pairs before the exact test."""
+    box test prunes pairs before the exact test. chunk: ray/triangle pairs tested at a
+    time (whole rays; the answer does not depend on it): 2^17 pairs, whose arrays stay
+    in cache, ran twice as fast as 2^21 on a Zen 4 (1,500 rays into the teapot)."""
     tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
     o, d = _as_rays(origins, directions)
     n, m = len(o), len(tri)
@@ -188,7 +190,7 @@ def all_hits(triangles, origins, directions, t_min=0.0, t_max=np.inf, crossing=F
     return ray[order], prim[order], t[order], u[order], v[order]
 
 
-def brute_force(triangles, origins, directions, t_min=0.0, t_max=np.inf, chunk=1 << 21):
+def brute_force(triangles, origins, directions, t_min=0.0, t_max=np.inf, chunk=1 << 17):
     """Nearest hit of every ray against every triangle, float64: the first of
     `all_hits` in the order (t, prim).
 

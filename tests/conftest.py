@@ -100,6 +100,26 @@ def pytest_generate_tests(metafunc):
                              indirect=True)
 
 
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "slow_on_simulator(**params): the cases with these parameters are `slow` "
+        "on a simulator (pytest_collection_modifyitems)")
+
+
+@pytest.hookimpl(tryfirst=True)       # before `-m "not slow"` deselects
+def pytest_collection_modifyitems(items):
+    """`@pytest.mark.slow_on_simulator(scene="soup")`: the test's cases with those
+    parameters are long checks (`slow`) on a simulator, where another case of the test
+    (the same contract, on the same simulator) stays in `make test`."""
+    for item in items:
+        rt = getattr(item, "callspec", None) and item.callspec.params.get("runtime")
+        if not (isinstance(rt, Runtime) and rt.simulator):
+            continue
+        for mark in item.iter_markers("slow_on_simulator"):
+            if all(item.callspec.params.get(k) == v for k, v in mark.kwargs.items()):
+                item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture
 def runtime(request):
     """The Runtime a test runs on (see runtimes()); on Oclgrind, fails the test when

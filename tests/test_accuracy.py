@@ -157,9 +157,13 @@ def test_watertight_tessellated_box(tracers):
         assert near.all() and inside.all()
 
 
+@pytest.mark.slow
 def test_watertight_scene_sphere(tracers):
     """scenes/sphere.obj (closed icosphere, 1280 triangles) from inside, off-centre:
-    every vertex and edge midpoint is hit, stack sizes 1 and default."""
+    every vertex and edge midpoint is hit, stack sizes 1 and default. In `make test-long`
+    (two programs of its own): in `make test` test_watertight_tessellated_box checks the
+    same from inside a closed box, test_trace.py's test_watertight from inside an
+    icosphere of 5,120 triangles."""
     import trimesh
     from kdray import load
     m = load(SCENES / "sphere.obj")

@@ -33,6 +33,12 @@ WORK_SIZES = [(1, 1, 1, 1), (1, 4, 12, 3), (1, 16, 64, 4), (1, 32, 64, 2), (1, 6
               (8, 1, 8, 1), (8, 4, 96, 3), (8, 16, 128, 5), (8, 32, 256, 2), (8, 64, 512, 2),
               (8, 128, 1024, 1), (8, 256, 2048, 1),
               (16, 1, 16, 1), (16, 8, 1024, 4), (16, 32, 512, 2)]
+WORK_SIZES_CORE = [(1, 1, 1, 1), (1, 4, 12, 3), (1, 64, 256, 2), (1, 256, 512, 1),
+                   (8, 4, 96, 3), (16, 32, 512, 2)]
+"""The work sizes `make test` tries: one item at a time, an odd size, a wavefront (the
+GPUs' default), the largest group, and packets of each width in odd groups and a
+warp's; the others in `make test-long`. Each work size is a program of its own (about
+1.5 s to compile with packets)."""
 
 _TREES = {}
 
@@ -76,13 +82,19 @@ def test_matches_the_oracle(runtime, scene):
     assert check_hits(hits, tree, o, d) > len(o) // 4
 
 
-@pytest.mark.parametrize("scene", ["sphere", "soup"])
-def test_work_sizes_do_not_change_results(runtime, scene):
+@pytest.mark.parametrize("sizes", ["core", pytest.param("more", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("scene", ["soup", pytest.param("sphere", marks=pytest.mark.slow)])
+def test_work_sizes_do_not_change_results(runtime, scene, sizes):
     """Local size, batch size, group count, packets and the slots each work-item takes
     (runs of the batch, as on CPUs, or every local_size-th packet, as on GPUs) change
     the schedule, never the answer: bit for bit the result of one ray at a time, with
     every poisoned output written; with packets, rays shaped as an image 13 wide too
-    (packets of 4 x packet / 4 of them). Sizes the device cannot take are left out."""
+    (packets of 4 x packet / 4 of them). Sizes the device cannot take are left out.
+    `make test` runs WORK_SIZES_CORE on the soup, the deeper tree (on a simulator those
+    without packets: its packet kernels are checked in `make test` by the one-origin
+    and stack-size tests); `make test-long` the other sizes, and the sphere."""
+    core = [s for s in WORK_SIZES_CORE if not (runtime.simulator and s[0] > 1)]
+    sizes = core if sizes == "core" else [s for s in WORK_SIZES if s not in core]
     tree = scene_tree(scene)
     o, d = rays(runtime, tree, 4001, 307, seed=22)
     base = Tracer(tree, device=runtime.spec, packet=1, local_size=1, batch_size=1,
@@ -91,24 +103,24 @@ def test_work_sizes_do_not_change_results(runtime, scene):
     m = len(o) // 13 * 13
     image = (o[:m].reshape(-1, 13, 3), d[:m].reshape(-1, 13, 3))
     tried = 0
-    for packet, local, batch, groups in WORK_SIZES:
+    for packet, local, batch, groups in sizes:
         tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=1, batch_size=packet,
                     groups=1)
         if local > max_local_size(tr.device, packet, tr.packet_stack_size):
             continue
         if runtime.simulator and local in (16, 128):
             continue        # Oclgrind is slow: 32, 64 and 256 stand for the GPU sizes
-        orders = (False,) if runtime.simulator else (True, False)
-        for item_runs in orders:
-            tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local,
-                        batch_size=batch, groups=groups)
-            tr._item_runs = item_runs
-            tr._poison_outputs = True
+        tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local,
+                    batch_size=batch, groups=groups)
+        tr._poison_outputs = True
+        for item_runs in (False,) if runtime.simulator else (True, False):
+            tr._item_runs = item_runs            # a kernel argument: the same program
             same_hits(tr.trace(o, d), base)
             if packet > 1:
                 same_hits(tr.trace(*image), base[:m]._reshaped((m // 13, 13)))
             tried += 1
-    assert tried >= (len(WORK_SIZES) - 4 if runtime.simulator else 2 * len(WORK_SIZES) - 4)
+    skipped = sum(local in (16, 128) for _, local, _, _ in sizes)
+    assert tried >= (len(sizes) - skipped if runtime.simulator else 2 * len(sizes) - 4)
 
 
 def test_groups_fit_the_runtime(runtime):
@@ -262,13 +274,23 @@ def one_origin_rays(tree, seed, n_points, per_point=16):
     return o, d
 
 
-@pytest.mark.parametrize("scene", ["soup", "sphere"])
-def test_packets_of_one_origin_cull_exactly(runtime, scene):
+@pytest.mark.slow_on_simulator(cull="rule")
+@pytest.mark.parametrize("cull", ["every leaf", "rule"])
+@pytest.mark.parametrize("packet", [8, pytest.param(16, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("scene", [pytest.param("soup", marks=pytest.mark.slow), "sphere"])
+def test_packets_of_one_origin_cull_exactly(runtime, scene, packet, cull):
     """A packet whose rays share an origin and shear axes leaves out at once the
     triangles no lane can hit (packet.cl, kd_block_culls, from bounds on the lanes'
     sheared vertices): bit for bit the answer of one ray at a time, for a camera's
     image (render and trace) and for rays from one point that touch or just miss
-    corners and edges, where a triangle culled wrongly would be a lost hit."""
+    corners and edges, where a triangle culled wrongly would be a lost hit. The
+    camera's rays are traced as float64 (the float32 directions widened exactly): the
+    same rays, with the programs the other rays use. Every leaf culled, or by the
+    kernel's rule (culled or ray by ray). `make test` runs packets of 8 on the sphere,
+    whose leaves hold several blocks of triangles (on a simulator every leaf culled);
+    `make test-long` packets of 16 (whose culling by the kernel's rule every render of
+    an AVX-512 CPU's default Tracer goes through), the soup, and the rule on a
+    simulator."""
     tree = scene_tree(scene)
     w, h = runtime.small((67, 41), (19, 9))
     cam = camera_for(tree, w, h)
@@ -278,25 +300,29 @@ def test_packets_of_one_origin_cull_exactly(runtime, scene):
     base = scalar.trace(o, d)
     assert base.hit.sum() > len(o) // 2
     cam_o, cam_d = scalar.camera_rays(cam)
+    cam_d = cam_d.astype(np.float64)
     base_cam = scalar.trace(cam_o.reshape(h, w, 3), cam_d.reshape(h, w, 3))
-    for packet, cull_ratio in [(p, r) for p in PACKETS for r in (None, 0.0)]:
-        tr = Tracer(tree, device=runtime.spec, packet=packet)
-        tr._cull_lane_ratio = cull_ratio            # 0: every leaf culled, none ray by ray
-        tr._poison_outputs = True
-        same_hits(tr.trace(o, d), base)
-        same_hits(tr.trace(o, d.reshape(-1, 4, 3)), base._reshaped((len(d) // 4, 4)))
-        same_hits(tr.trace(cam_o.reshape(h, w, 3), cam_d.reshape(h, w, 3)), base_cam)
-        images = tr.render(cam, aovs=("depth", "normal", "bary", "id"))
-        for name, image in base_image.items():
-            assert np.array_equal(images[name], image, equal_nan=True), name
+    tr = Tracer(tree, device=runtime.spec, packet=packet)
+    tr._cull_lane_ratio = {"every leaf": 0.0, "rule": None}[cull]   # 0: none ray by ray
+    tr._poison_outputs = True
+    same_hits(tr.trace(o, d), base)
+    same_hits(tr.trace(o, d.reshape(-1, 4, 3)), base._reshaped((len(d) // 4, 4)))
+    same_hits(tr.trace(cam_o.reshape(h, w, 3), cam_d.reshape(h, w, 3)), base_cam)
+    images = tr.render(cam, aovs=("depth", "normal", "bary", "id"))
+    for name, image in base_image.items():
+        assert np.array_equal(images[name], image, equal_nan=True), name
 
 
-@pytest.mark.parametrize("scene", ["sphere", "soup"])
-def test_plain_vector_ops_give_the_same_hits(runtime, scene):
+@pytest.mark.parametrize("scene,packet", [
+    ("sphere", 8), pytest.param("sphere", 16, marks=pytest.mark.slow),
+    pytest.param("soup", 8, marks=pytest.mark.slow), pytest.param("soup", 16, marks=pytest.mark.slow)])
+def test_plain_vector_ops_give_the_same_hits(runtime, scene, packet):
     """The packets' code for PoCL (KD_PLAIN_VECTOR_OPS: no vload or shuffle, which it
     calls out of line) on every runtime with packets, so that it is checked where PoCL
     cannot run: bit for bit the answer of one ray at a time, for rays, rays shaped as
-    an image, and a render, in leaves read ray by ray and culled."""
+    an image, and a render, in leaves read ray by ray and culled. Packets of 8 on the
+    sphere, whose leaves hold several blocks of triangles to deal, run in `make test`;
+    packets of 16, and the soup, in `make test-long`."""
     tree = scene_tree(scene)
     if Tracer(tree, device=runtime.spec).packet == 1:
         pytest.skip("no packets on this runtime")
@@ -306,7 +332,7 @@ def test_plain_vector_ops_give_the_same_hits(runtime, scene):
     scalar = Tracer(tree, device=runtime.spec, packet=1)
     base, base_image = scalar.trace(o, d), scalar.render(cam, aovs=("depth", "id"))
     m = len(o) // 12 * 12
-    for packet, cull_ratio in [(p, r) for p in PACKETS for r in (None, 0.0)]:
+    for cull_ratio in (None, 0.0):
         tr = Tracer(tree, device=runtime.spec, packet=packet)
         tr._plain_vector_ops = True
         tr._cull_lane_ratio = cull_ratio
@@ -340,11 +366,28 @@ def test_render_is_trace_of_the_camera_rays(runtime, scene):
         assert (images["id"] != 0xFFFFFFFF).sum() > w * h // 10
 
 
-def poisoned_tracers(runtime, tree):
-    """Tracers of `tree` with poisoned outputs at a CPU's work sizes with each packet
-    width and at a GPU's without packets (on a simulator, one small size)."""
-    sizes = ([(p, 8, 64 * p, 4) for p in PACKETS] + [(1, 64, 256, 2)] if not runtime.simulator
-             else [(1, 4, 12, 3)])
+WIDTHS = ["default", pytest.param("other", marks=pytest.mark.slow)]
+"""The packet widths of `poisoned_tracers`: the device's default (and a GPU's work sizes)
+in `make test`, the other widths in `make test-long` (each a program of its own; on a
+CPU whose default is the other width every test goes through it)."""
+
+
+def poisoned_tracers(runtime, tree, widths="default"):
+    """Tracers of `tree` with poisoned outputs at a CPU's work sizes (its default local
+    and batch sizes: the programs other tests build) and at a GPU's without packets (on
+    a simulator, one small size). widths: "default", a CPU's sizes with the device's
+    default packet width (8 where that is 1) and a GPU's; "other", a CPU's sizes with the
+    other widths."""
+    first = Tracer(tree, device=runtime.spec).packet
+    first = first if first in PACKETS else PACKETS[0]
+    if widths == "other":
+        if runtime.simulator:
+            pytest.skip("a simulator runs one small work size")
+        sizes = [(p, 8, 128 * p, 4) for p in PACKETS if p != first]
+    elif runtime.simulator:
+        sizes = [(1, 4, 12, 3)]
+    else:
+        sizes = [(first, 8, 128 * first, 4), (1, 64, 256, 2)]
     for packet, local, batch, groups in sizes:
         tr = Tracer(tree, device=runtime.spec, packet=packet, local_size=local, batch_size=batch,
                     groups=groups)
@@ -352,8 +395,9 @@ def poisoned_tracers(runtime, tree):
         yield tr
 
 
+@pytest.mark.parametrize("widths", WIDTHS)
 @pytest.mark.parametrize("model", ["opencv", "fisheye", "equirectangular", "orthographic"])
-def test_camera_model_render_is_trace_of_its_rays(runtime, model):
+def test_camera_model_render_is_trace_of_its_rays(runtime, model, widths):
     """A camera model's render (its rays made in the kernel from a ray map, RAY_MAP)
     writes every pixel, poisoned first: the hit of its own ray (Tracer.camera_rays:
     the map turned by the pose with the kernel's float32 arithmetic), or a miss where
@@ -374,7 +418,7 @@ def test_camera_model_render_is_trace_of_its_rays(runtime, model):
         distortion = ()
         K = np.array([[0.4 * w, 0, w / 2], [0, 0.4 * w, h / 2], [0, 0, 1]])
     cam = Camera(w, h, K, pin.cam_to_world, model, distortion)
-    for tr in poisoned_tracers(runtime, tree):
+    for tr in poisoned_tracers(runtime, tree, widths):
         images = tr.render(cam, aovs=("depth", "normal", "bary", "id", "distance", "position"))
         o, d = tr.camera_rays(cam)
         hits = tr.trace(o, d)
@@ -392,7 +436,8 @@ def test_camera_model_render_is_trace_of_its_rays(runtime, model):
             assert 0 < (~valid).sum() < w * h // 2        # the corners are past its field
 
 
-def test_lidar_scan_is_trace_of_its_rays(runtime):
+@pytest.mark.parametrize("widths", WIDTHS)
+def test_lidar_scan_is_trace_of_its_rays(runtime, widths):
     """A scan (its rays made in the kernel from the Lidar's direction map, RAY_MAP; rows
     beams, columns azimuth steps) gives, for every beam, the hit of its own ray: the
     map turned by the pose with the kernel's float32 arithmetic, from inside a sphere
@@ -408,7 +453,7 @@ def test_lidar_scan_is_trace_of_its_rays(runtime):
     M = pose[:3, :3].astype(np.float32)
     v = lidar.directions().astype(np.float32)
     d = np.stack([M[r, 0] * v[:, 0] + M[r, 1] * v[:, 1] + M[r, 2] * v[:, 2] for r in range(3)], 1)
-    for tr in poisoned_tracers(runtime, tree):
+    for tr in poisoned_tracers(runtime, tree, widths):
         scan = tr.scan(lidar, pose)
         eye = tr._origin + tr._scale * ((pose[:3, 3] - tr._origin) / tr._scale).astype(np.float32)
         hits = tr.trace(eye, d)
@@ -418,6 +463,7 @@ def test_lidar_scan_is_trace_of_its_rays(runtime):
         assert hits.hit.all() and 0 < near.sum() < near.size        # max_range cuts some
 
 
+@pytest.mark.slow_on_simulator()
 @pytest.mark.parametrize("packet", PACKETS)
 def test_packet_kernels_say_they_are_vectorized_by_hand(runtime, packet, tmp_path):
     """Both entry points of a packet program carry vec_type_hint of the packet's float
@@ -426,7 +472,8 @@ def test_packet_kernels_say_they_are_vectorized_by_hand(runtime, packet, tmp_pat
     packets across its vector lanes: about 30 times slower with AVX2. Built from
     source with pyopencl's binary cache in a folder of its own (a program loaded from
     that cache reports no attributes on Intel's runtime); an implementation that
-    reports none is skipped."""
+    reports none is skipped. Each case compiles from nothing: on a simulator in
+    `make test-long` (the attribute is the source's, checked on the CPU runtimes)."""
     from kdray import device as _device
     cl = _device._cl()
     device = _device.choose_device(runtime.spec)

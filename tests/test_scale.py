@@ -21,6 +21,15 @@ from kdray.trace import Tracer
 
 DECIMAL = [1e-30, 1e-20, 1e-17, 1e15, 1e20, 1e30]
 BINARY = [2.0 ** -120, 2.0 ** -60, 2.0 ** 50, 2.0 ** 120]
+LONG = {1e-20, 1e-17, 1e15, 1e20, 2.0 ** -60, 2.0 ** 50}
+"""Scales checked in `make test-long` only: each scale is a program of its own (its power
+of two is compiled in), and every one of these is stored divided by its power of two,
+as the extremes are; `make test` keeps the extremes, 1e-30 and 1e30, 2^-120 and 2^120."""
+
+
+def scales(values, name):
+    return [pytest.param(s, id=name(s), marks=[pytest.mark.slow] if s in LONG else [])
+            for s in values]
 
 
 def fandisk():
@@ -46,7 +55,7 @@ def reference_of(runtime, unscaled):
     return unscaled[runtime.name]
 
 
-@pytest.mark.parametrize("s", BINARY, ids=[f"2^{int(np.log2(s))}" for s in BINARY])
+@pytest.mark.parametrize("s", scales(BINARY, lambda s: f"2^{int(np.log2(s))}"))
 def test_power_of_two_scales_render_exactly_scaled(runtime, unscaled, s):
     if runtime.simulator and s not in (2.0 ** -120, 2.0 ** 120):
         pytest.skip("a simulator runs the extremes only")
@@ -58,7 +67,7 @@ def test_power_of_two_scales_render_exactly_scaled(runtime, unscaled, s):
     assert np.array_equal(got["depth"], (want["depth"].astype(np.float64) * s).astype(np.float32))
 
 
-@pytest.mark.parametrize("s", DECIMAL, ids=[f"{s:g}" for s in DECIMAL])
+@pytest.mark.parametrize("s", scales(DECIMAL, lambda s: f"{s:g}"))
 def test_any_scale_gives_the_unscaled_picture(runtime, unscaled, s):
     """The same triangle at almost every pixel (rounding the scaled vertices may move
     an edge pixel), the depth s times the unscaled to float32 precision, and no
@@ -77,10 +86,12 @@ def test_any_scale_gives_the_unscaled_picture(runtime, unscaled, s):
     assert rel.max() <= 2e-6, rel.max()
 
 
-@pytest.mark.parametrize("s", [1e-30, 1e25], ids=["1e-30", "1e25"])
+@pytest.mark.parametrize("s", [pytest.param(1e-30, id="1e-30"),
+                               pytest.param(1e25, id="1e25", marks=pytest.mark.slow)])
 def test_traced_rays_at_extreme_scales_match_float64(runtime, s):
     """Random rays into the scaled teapot, far from the origin too: the float64 oracle's
-    hits, depth to 1e-6."""
+    hits, depth to 1e-6. 1e25 in `make test-long` (in `make test` 1e30 and 2^120 render
+    the scaled fandisk)."""
     v, f = real_mesh_arrays("teapot.obj")
     v = (v + np.array([3.0, -1.0, 2.0])) * s
     tree = build(v, f)

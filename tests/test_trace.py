@@ -60,11 +60,15 @@ def mesh_tree(name, kind):
 
 
 @pytest.mark.parametrize("name,kind,n", [
-    ("teapot.obj", "median", 1501), ("teapot.obj", "random", 1501), ("teapot.obj", "sah", 1501),
-    ("fandisk.obj", "sah", 1201), ("spot.obj", "median", 1201), ("spot.obj", "sah", 1201),
+    ("teapot.obj", "median", 1501), pytest.param("teapot.obj", "random", 1501, marks=pytest.mark.slow),
+    ("teapot.obj", "sah", 1501), ("fandisk.obj", "sah", 1201),
+    pytest.param("spot.obj", "median", 1201, marks=pytest.mark.slow), ("spot.obj", "sah", 1201),
     ("stanford-bunny.obj", "sah", 401),
 ])
 def test_mesh_matches_reference(name, kind, n, tracers):
+    """Real meshes against the oracle, in trees of several shapes. The random splits of
+    the teapot and the median splits of spot in `make test-long` (each kind is in
+    `make test` on the teapot, and on random triangles in test_soup_matches_reference)."""
     tree = mesh_tree(name, kind)
     o, d = random_rays(tree, n, seed=len(name))
     hits = tracers(tree).trace(o, d)
@@ -196,7 +200,7 @@ def test_stack_size_does_not_change_results(kind, tracers):
     rays in split planes and rays through vertices (where split planes cross)."""
     tree = deep_tree() if kind == "median" else mesh_tree("teapot.obj", "sah")
     assert tree.depth >= 16
-    o, d = random_rays(tree, 4001, seed=11, inside=0.5)
+    o, d = random_rays(tree, 2001, seed=11, inside=0.5)
     o2, d2 = split_plane_rays(tree, 600, seed=12)
     o3, d3 = vertex_and_edge_rays(tree, seed=13)
     pick = np.random.default_rng(14).choice(len(d3), 2000, replace=False)
@@ -242,9 +246,20 @@ def packet_rays(tree, camera_size=67):
     return o, d
 
 
-@pytest.mark.parametrize("packet", PACKETS)
+LEAF_RULES = ["rule", "by triangle", "by ray", "never alone", "all alone"]
+"""How test_packets_equal_single_rays has a packet test its leaves. Each forced rule is
+two programs of its own (trace and render): `make test` runs the kernel's rule with
+both packet widths, and with packets of 8 always triangle by triangle (culled) and never
+alone (the only way packets whose origins diverge stay packets); `make test-long` the
+others, always ray by ray and always alone: paths the rule itself takes on these rays
+(leaves that few of a packet's lanes reach, packets whose origins diverge)."""
+FAST_LEAF_RULES = {("rule", 8), ("rule", 16), ("by triangle", 8), ("never alone", 8)}
+
+
 @pytest.mark.parametrize("kind", ["median", "sah"])
-@pytest.mark.parametrize("leaf", ["rule", "by triangle", "by ray", "never alone", "all alone"])
+@pytest.mark.parametrize("leaf,packet", [
+    pytest.param(leaf, packet, marks=[] if (leaf, packet) in FAST_LEAF_RULES else [pytest.mark.slow])
+    for leaf in LEAF_RULES for packet in PACKETS])
 def test_packets_equal_single_rays(packet, kind, leaf, tracers):
     """Packets of 8 or 16 rays in vector lanes (CPUs) give bit for bit what one ray per
     work-item gives, for coherent and incoherent rays, rays the packet hands to the
@@ -344,13 +359,17 @@ def test_device_triangles_are_each_leafs_run(run):
     assert (~listed_anywhere).sum() == len(tris) - len(tree.leaf_tris)
 
 
-@pytest.mark.parametrize("packet", [1, *PACKETS])
+@pytest.mark.parametrize("packet", [1, pytest.param(8, marks=pytest.mark.slow),
+                                    pytest.param(16, marks=pytest.mark.slow)])
 def test_rays_converted_in_the_kernel(packet, tracers):
     """float64 and float32 rays shifted and rounded by trace_rays (RAYS_WORLD) give bit
     for bit what the host's conversion gives: rays near and far (1e6) from the tree's
     origin, one shared (3,) origin, NaN/inf and overflowing components, float32 input
     and mixed types. (Without refinement: refined hits take t, u, v from the rays
-    themselves, below.)"""
+    themselves, below.) Four programs a packet width: `make test` runs one ray a
+    work-item, `make test-long` packets too (in `make test` every other test traces
+    float64 rays with the default packets, test_image_shaped_rays float32 origins and
+    directions, test_rays_anywhere_in_memory both in float32)."""
     v, f = mesh("teapot.obj")
     shift = np.array([1e6, -3e5, 7.25e5])
     tree = sah_tree(v + shift, f)
@@ -600,13 +619,16 @@ def test_bad_rays_miss(tracers):
     assert np.all(hits.prim == MISS) and np.all(np.isposinf(hits.t))
 
 
-@pytest.mark.parametrize("packet", [1, *PACKETS])
+@pytest.mark.parametrize("packet", [1, pytest.param(8, marks=pytest.mark.slow), 16])
 def test_image_shaped_rays(monkeypatch, packet, tracers):
     """Rays shaped (H, W, 3) or (B, H, W, 3), which trace_rays takes in packets of 4 x
     packet / 4 pixels, give the hits of the same rays in (N, 3) rows bit for bit, shaped
     as the rays (normal (..., 3)), every poisoned output written: sizes that no block
     fits, one origin or one a ray, float32 and float64, several launches of whole bands
-    of blocks, and a band wider than a launch (traced in rows)."""
+    of blocks, and a band wider than a launch (traced in rows). Packets of 8 in
+    `make test-long` (those of 16 share their programs with the other tests on an
+    AVX-512 CPU); in `make test` test_runtimes.py's work sizes trace an image 13 wide
+    in packets of 8 on every CPU runtime."""
     import kdray.trace
     tree = mesh_tree("spot.obj", "sah")
     tr = tracers(tree, packet=packet)

@@ -19,6 +19,11 @@ reads them through its own environment:
 - <prefix>/lib, where Intel's CPU runtime and its TBB lie (`kdray.runtimes` looks for
   them under sys.prefix): hard links, left out where they cannot be made (PoCL then
   renders).
+The fresh environment also gets this one's compiled tree builder, as `kdray setup` leaves
+an install: numba's cache files (__pycache__/*.nbi, *.nbc) copied beside the wheel's
+copies of the same sources, which numba keys them by (their contents' hash). Compiling
+the builder from nothing takes half a minute on 2 cores; tests/test_setup.py does it
+(`make test-long`).
 """
 import gzip
 import json
@@ -136,6 +141,10 @@ def wheel_env(tmp_path_factory):
           "-q", wheels[0]], cwd=tmp)
     site = Path(_run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                      cwd=work).stdout.strip())
+    for cached in (ROOT / "kdray").rglob("__pycache__/*.nb[ic]"):     # numba's (see above)
+        dest = site / "kdray" / cached.relative_to(ROOT / "kdray")
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(cached, dest)
     ours = list(dict.fromkeys(sysconfig.get_paths()[k] for k in ("purelib", "platlib")))
     (site / "zz-kdray-test-dependencies.pth").write_text("".join(p + "\n" for p in ours))
     import pyopencl
