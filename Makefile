@@ -64,12 +64,18 @@ bench-deps: $(STAMP)
 	@ldconfig -p | grep -q libusb-1.0 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
 	  (apt-get install -y -q libusb-1.0-0 || (apt-get update -q && apt-get install -y -q libusb-1.0-0)); } || \
 	  echo "note: Open3D needs libusb-1.0 (apt-get install libusb-1.0-0); it is left out of the comparison"
+	@# Embree's own C++ API, the anchor of bench/bench_embree.py (g++, libembree-dev, libtbb-dev)
+	@[ -e /usr/include/embree3/rtcore.h ] && command -v g++ >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+	  (apt-get install -y -q g++ libembree-dev libtbb-dev || (apt-get update -q && apt-get install -y -q g++ libembree-dev libtbb-dev)); } || \
+	  echo "note: Embree's C++ anchor needs g++, libembree-dev and libtbb-dev; it is left out of the comparison"
 
 # Speed against Open3D, Mitsuba 3 and embreex on the same rays (1024x1024, the bunny and
 # a 1.6M-triangle mesh, with the ratios of issue 6's two workflows against Open3D and
 # issue 20's against Mitsuba), then bench/bench_error.py: error against run time for
 # kdray's settings and the peers; then bench/bench_queries.py: the ray queries beside
-# Open3D's and trimesh+embreex's, and their wrong answers.
+# Open3D's and trimesh+embreex's, and their wrong answers; then bench/bench_embree.py:
+# incoherent, ambient-occlusion and camera rays against Embree's own C++ API (compiled
+# here), beside Open3D and Mitsuba.
 BENCH_MESHES ?= bunny,bunny-1.6M
 bench-trace: bench-deps
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
@@ -79,6 +85,7 @@ bench: bench-deps
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
 	$(BIN)/python bench/bench_error.py --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
 	$(BIN)/python bench/bench_queries.py --meshes $(BENCH_MESHES)
+	$(BIN)/python bench/bench_embree.py --meshes $(BENCH_MESHES)
 
 # Everything in BENCHMARKS.md: the above, the stiff cases beside Open3D and embreex,
 # build scaling to 6M triangles, what leaving out saves, the cold start, and datasets
