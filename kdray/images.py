@@ -51,6 +51,7 @@ import numpy as np
 from .camera import Camera
 from .errors import KdrayError, OutputError
 from .files import atomic_write
+from .validate import parse_json
 from .layout import MISS
 from .render import AOVS
 
@@ -390,10 +391,7 @@ def read_lidar(path):
     if spec_found[0] != "string" or pose_found[0] != "matrixd":
         raise KdrayError(f"EXR {path}: attributes kdray/lidar and kdray/sensorToWorld must be "
                          f"a string and a matrixd, got {spec_found[0]} and {pose_found[0]}.")
-    try:
-        spec_dict = json.loads(spec_found[1])
-    except ValueError:
-        raise KdrayError(f"EXR {path}: attribute kdray/lidar is not JSON.") from None
+    spec_dict = parse_json(spec_found[1], f"EXR {path}: attribute kdray/lidar", KdrayError)
     lidar = Lidar.from_dict(spec_dict, f"EXR {path}: attribute kdray/lidar")
     pose = check_pose(np.array(pose_found[1], dtype=np.float64).reshape(4, 4),
                       f"kdray/sensorToWorld of EXR {path}")
@@ -483,8 +481,8 @@ def read_object_names(path):
         return None
     type_name, value = found
     try:
-        names = json.loads(value) if type_name == "string" else None
-    except ValueError:
+        names = parse_json(value, "", KdrayError) if type_name == "string" else None
+    except KdrayError:
         names = None
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise KdrayError(f"EXR {path}: attribute {OBJECT_NAMES_ATTRIBUTE} is not a JSON array "
@@ -540,8 +538,8 @@ def _camera_model(spec, path):
         raise KdrayError(f"EXR {path}: attributes kdray/cameraModel and kdray/distortion must "
                          f"both be strings.")
     try:
-        coefficients = json.loads(distortion[1])
-    except ValueError:
+        coefficients = parse_json(distortion[1], "", KdrayError)
+    except KdrayError:
         coefficients = None
     if not isinstance(coefficients, list):
         raise KdrayError(f"EXR {path}: attribute kdray/distortion is not a JSON array of numbers.")

@@ -266,9 +266,11 @@ def decode_names(data, name="tree file"):
     """The object names from the file's JSON (`encode_names`): a tuple of str, or
     TreeFileError. That they are unique and match the objects is
     `KdTree.validate()`'s job."""
+    from .validate import parse_json
     try:
-        names = json.loads(bytes(data).decode("utf-8"))
-    except (ValueError, RecursionError) as e:       # UnicodeDecodeError is a ValueError
+        text = bytes(data).decode("utf-8")
+        names = parse_json(text, "they", TreeFileError)   # nesting, huge numbers: refused
+    except (ValueError, TreeFileError) as e:       # UnicodeDecodeError is a ValueError
         raise TreeFileError(f"{name}: the object names are not UTF-8 JSON ({e})") from None
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise TreeFileError(f"{name}: the object names are not a JSON array of strings")

@@ -1,0 +1,111 @@
+"""Checks that several input surfaces share, so that the command line and the Python
+API refuse the same values with the same one-line messages.
+
+    data = read_json(path, f"camera file {path}", CameraError)   # a JSON file, checked
+    data = parse_json(text, f"{path}, line 3", DatasetError)      # the same, of a string
+    check_float32(values, "K", CameraError)                      # values the kernels hold
+
+Every JSON input of kdray (camera files and lists, lidar specs, jobs files, the JSON
+in tree files and EXR headers) is read here: JSON that Python's parser cannot take
+(nesting 1,000 deep: RecursionError; integers of over 4,300 digits: ValueError) or
+that kdray cannot use (nesting deeper than JSON_MAX_DEPTH, an integer no float64
+holds) is a one-line error of the caller's class naming the source and the limit.
+Floats beyond float64's range (1e999) are read as inf, as NaN and Infinity are: the
+caller's checks then refuse them naming the field ("cx must be finite").
+"""
+import json
+
+import numpy as np
+
+from .errors import one_line
+
+JSON_MAX_DEPTH = 32
+"""Deepest nesting of arrays and objects in a JSON input. kdray's deepest is 4 (a
+4x4 matrix in a frame in a list of frames in an object); Python's parser fails with
+RecursionError near 1,000, and code that walks a nested list recurses too."""
+
+JSON_MAX_DIGITS = 309
+"""Most digits of a JSON integer: float64 holds at most 1.8e308 (309 digits). Every
+number kdray reads is used as a float64 (sizes and counts are far smaller), so a
+longer integer is refused here, before Python's parser (4,300 digits at most) or
+float() (OverflowError) would fail on it."""
+
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+"""Largest float32, about 3.4e38: the kernels compute in float32, and EXR headers hold
+cameras' matrices as float32 (docs/exr.md)."""
+
+
+class _Refused(Exception):
+    """A JSON number kdray cannot use (not a ValueError: json would not wrap it)."""
+
+
+def _parse_int(text):
+    digits = len(text.lstrip("-"))
+    if digits > JSON_MAX_DIGITS:
+        raise _Refused(f"an integer of {digits} digits is beyond float64's range (at most "
+                       f"{JSON_MAX_DIGITS} digits, 1.8e308)")
+    value = int(text)
+    try:
+        float(value)
+    except OverflowError:
+        raise _Refused(f"the integer {text[:12]}... is beyond float64's range "
+                       f"(at most 1.8e308)") from None
+    return value
+
+
+def _depth_beyond(data, limit):
+    """True when `data` (parsed JSON) nests arrays and objects more than `limit` deep;
+    an explicit stack, no recursion."""
+    stack = [(data, 1)]
+    while stack:
+        value, depth = stack.pop()
+        items = value.values() if isinstance(value, dict) else value
+        if depth > limit:
+            return True
+        stack.extend((v, depth + 1) for v in items if isinstance(v, (list, dict)))
+    return False
+
+
+def parse_json(text, source, error):
+    """The value of JSON `text`, read by the rules of the module docstring; `error`
+    (a KdrayError class) "<source> is not valid JSON: ..." or "<source>: ..." for text
+    that breaks them."""
+    try:
+        data = json.loads(text, parse_int=_parse_int)
+    except _Refused as e:
+        raise error(f"{source}: {e}") from None
+    except RecursionError:
+        raise error(f"{source}: JSON nested more than {JSON_MAX_DEPTH} deep "
+                    f"(JSON_MAX_DEPTH)") from None
+    except ValueError as e:                    # JSONDecodeError
+        raise error(f"{source} is not valid JSON: {one_line(e)}") from None
+    if isinstance(data, (list, dict)) and _depth_beyond(data, JSON_MAX_DEPTH):
+        raise error(f"{source}: JSON nested more than {JSON_MAX_DEPTH} deep (JSON_MAX_DEPTH)")
+    return data
+
+
+def read_text(path, source, error):
+    """A UTF-8 text file's content; `error` "<source> does not exist" / "cannot be read"."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read()
+    except FileNotFoundError:
+        raise error(f"{source} does not exist.") from None
+    except (OSError, ValueError) as e:   # ValueError: not UTF-8, or a NUL in the path
+        raise error(f"{source} cannot be read: {getattr(e, 'strerror', None) or e}.") from None
+
+
+def read_json(path, source, error):
+    """parse_json of a UTF-8 file's content (read_text's errors for a missing or
+    unreadable one)."""
+    return parse_json(read_text(path, source, error), source, error)
+
+
+def check_float32(values, name, error):
+    """`error` naming `name` when a value of `values` (array-like of float64) lies beyond
+    float32's range (FLOAT32_MAX): values the kernels compute with in float32."""
+    array = np.asarray(values, dtype=np.float64)
+    big = np.abs(array) > FLOAT32_MAX
+    if np.any(big):
+        raise error(f"{name} holds {float(array[big].flat[0])!r}, beyond float32's range (at most "
+                    f"{FLOAT32_MAX:.4g} in magnitude), which the kernels compute in.")
