@@ -49,14 +49,14 @@ import dataclasses
 import json
 import math
 import numbers
-import os
-import secrets
 from pathlib import Path
 
 import numpy as np
 
 from . import lens
-from .errors import CameraError, OutputError
+from .errors import CameraError
+from .files import atomic_write
+from .validate import check_float32, read_json
 
 ORTHONORMAL_TOL = 1e-6
 """Largest |R^T R - I| entry and |det R - 1| accepted for a pose's rotation."""
@@ -75,30 +75,41 @@ y-up model facing +z."""
 FRAME_FILL = 0.9
 """`frame` keeps the box inside this fraction of the image's half-width and half-height."""
 
+MAX_SIDE = 65536
+"""Largest width or height of a camera, in pixels. A render holds at most 2^32 - 1
+pixels (its pixel index is 32-bit: `Tracer.render` checks the product), about 65536 on
+each side; a larger side is a typo or a wrong unit, refused by every camera (a camera
+file, a file of views, the API) before any rendering starts."""
+
 
 def _vector(value, name, n=3):
-    """`value` as a finite (n,) float64 array, or CameraError naming it."""
+    """`value` as a finite (n,) float64 array within float32's range (positions and
+    directions go to the kernels in float32), or CameraError naming it."""
     try:
         array = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise CameraError(f"{name} must be {n} numbers, got {value!r}.") from None
     if array.shape != (n,):
         raise CameraError(f"{name} must be {n} numbers, got {value!r}.")
     if not np.all(np.isfinite(array)):
         raise CameraError(f"{name} must be finite, got {array.tolist()}.")
+    check_float32(array, name, CameraError)
     return array
 
 
 def _size(value, name):
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-        raise CameraError(f"{name} must be a whole number of pixels >= 1, got {value!r}.")
+    """A width or height: an integer (not a bool, not a float) from 1 to MAX_SIDE."""
+    if (isinstance(value, bool) or not isinstance(value, numbers.Integral)
+            or not 1 <= value <= MAX_SIDE):
+        raise CameraError(f"{name} must be a whole number of pixels >= 1 and at most "
+                          f"{MAX_SIDE} (MAX_SIDE), got {value!r}.")
     return int(value)
 
 
 def _matrix(value, shape, name):
     try:
         array = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise CameraError(f"{name} must be a {shape[0]}x{shape[1]} matrix of numbers.") from None
     if array.shape != shape:
         raise CameraError(
@@ -110,6 +121,9 @@ def _matrix(value, shape, name):
 
 
 def _check_intrinsics(K):
+    """K checked: finite, fx and fy positive, upper triangular with last row [0, 0, 1],
+    and K and its inverse within float32's range (the kernels turn pixels into rays
+    with R K^-1 in float32): no camera has a focal length of 1e300 or 1e-300."""
     K = _matrix(K, (3, 3), "K")
     if not (K[0, 0] > 0 and K[1, 1] > 0):
         raise CameraError(f"K must have positive fx and fy, got fx={K[0, 0]}, fy={K[1, 1]}.")
@@ -117,6 +131,12 @@ def _check_intrinsics(K):
         raise CameraError(
             f"K must be upper triangular with last row [0, 0, 1], got {K.tolist()}."
         )
+    check_float32(K, "K", CameraError)
+    with np.errstate(all="ignore"):              # checked below, not warned about
+        inverse = np.linalg.inv(K)
+    if not np.all(np.isfinite(inverse)):
+        raise CameraError(f"K must be invertible, got {K.tolist()}.")
+    check_float32(inverse, "K's inverse (fx or fy too small)", CameraError)
     return K
 
 
@@ -124,6 +144,8 @@ def _check_pose(cam_to_world, name="cam_to_world"):
     M = _matrix(cam_to_world, (4, 4), name)
     if not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
         raise CameraError(f"{name} must have last row [0, 0, 0, 1], got {M[3].tolist()}.")
+    # the eye goes to the kernels (and to EXR headers) in float32
+    check_float32(M[:3, 3], f"the translation of {name}", CameraError)
     R = M[:3, :3]
     error = np.abs(R.T @ R - np.eye(3)).max()
     det = np.linalg.det(R)
@@ -161,8 +183,10 @@ def _look_at_rotation(eye, target, up):
 
 def _fov_intrinsics(fov_deg, width, height):
     try:
+        if isinstance(fov_deg, (bool, str, bytes)):     # a type kept, never converted
+            raise TypeError
         fov = float(fov_deg)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise CameraError(f"fov must be a number of degrees, got {fov_deg!r}.") from None
     if not (0.0 < fov < 180.0):
         raise CameraError(f"fov must be between 0 and 180 degrees (exclusive), got {fov_deg!r}.")
@@ -205,8 +229,6 @@ class Camera:
                               f"got {self.model!r}.")
         object.__setattr__(self, "distortion", lens.check_distortion(self.model, self.distortion))
         K = _check_intrinsics(self.K)
-        if abs(np.linalg.det(K)) == 0 or not np.all(np.isfinite(np.linalg.inv(K))):
-            raise CameraError(f"K must be invertible, got {K.tolist()}.")
         object.__setattr__(self, "K", _readonly(K))
         object.__setattr__(self, "cam_to_world", _readonly(_check_pose(self.cam_to_world)))
 
@@ -317,15 +339,7 @@ class Camera:
     @classmethod
     def from_json(cls, path):
         """Read a camera file (see the module docstring for its two forms)."""
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise CameraError(f"camera file {path} does not exist.") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise CameraError(f"camera file {path} cannot be read: {exc}.") from None
-        except json.JSONDecodeError as exc:
-            raise CameraError(f"camera file {path} is not valid JSON: {exc}.") from None
+        data = read_json(path, f"camera file {path}", CameraError)
         try:
             return cls._from_dict(data)
         except CameraError as exc:
@@ -410,17 +424,7 @@ class Camera:
         if self.model != "pinhole":
             fields.update(model=self.model, distortion=list(self.distortion))
         text = json.dumps(fields, indent=2)
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
-        try:
-            with open(tmp, "x", encoding="utf-8") as f:
-                f.write(text + "\n")
-            os.replace(tmp, path)
-        except OSError as exc:
-            tmp.unlink(missing_ok=True)
-            raise OutputError(f"cannot write camera file {path}: {exc.strerror or exc}.") from None
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
+        atomic_write(path, lambda tmp: Path(tmp).write_text(text + "\n", encoding="utf-8"))
 
     # Properties and rays ---------------------------------------------------------
 

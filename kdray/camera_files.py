@@ -66,7 +66,6 @@ are two views whose names are equal or differ only in case (they would overwrite
 other on a case-insensitive file system).
 """
 import dataclasses
-import json
 import math
 import numbers
 import os
@@ -76,8 +75,10 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from .camera import Camera, _check_pose, _is_nested_numbers
+from .camera import MAX_SIDE, Camera, _check_pose, _is_nested_numbers
 from .errors import CameraError
+from .files import name_problem
+from .validate import read_json, read_text
 
 MAX_VIEWS = 1_000_000
 """Most views one file may name. Each is a render and an output file, and a View takes
@@ -85,18 +86,10 @@ about 0.7 KB and 50-100 us to read, so a million is already hours of rendering, 
 a gigabyte and a minute of reading: a file naming more is refused on its count alone,
 before any Camera is built."""
 
-MAX_SIDE = 65536
-"""Largest width or height, in pixels. A render holds at most 2^32 - 1 pixels (its pixel
-index is 32-bit: `Tracer.render` checks the product), about 65536 on each side; a
-larger side is a typo or a wrong unit, refused here before any rendering starts."""
-
 QUATERNION_TOL = 1e-3
 """A COLMAP quaternion whose norm is off 1 by more than this is refused, not normalized:
 COLMAP writes unit quaternions, so such a norm means a damaged or hand-made file, not
 rounding."""
-
-NAME_MAX_BYTES = 255
-"""Longest file name (bytes, UTF-8) on common file systems: <name>.exr must fit."""
 
 _WINDOWS = os.name == "nt"
 """On Windows a ':' in a name would make DIR/<name>.exr a drive-relative path or a stream."""
@@ -180,22 +173,11 @@ def _read_json_views(path):
 
 
 def _read_text(path, shown):
-    try:
-        return path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CameraError(f"{shown} does not exist.") from None
-    except (OSError, ValueError) as exc:  # ValueError: not UTF-8, or a NUL in the path
-        raise CameraError(f"{shown} cannot be read: {exc}.") from None
+    return read_text(path, shown, CameraError)
 
 
 def _read_json(path):
-    text = _read_text(path, f"camera file {path}")
-    try:
-        return json.loads(text)
-    except ValueError as exc:  # JSONDecodeError, or an integer of over 4300 digits
-        raise CameraError(f"camera file {path} is not valid JSON: {exc}.") from None
-    except RecursionError:
-        raise CameraError(f"camera file {path} is JSON nested too deeply to be a camera file.") from None
+    return read_json(path, f"camera file {path}", CameraError)
 
 
 def _json_type(value):
@@ -224,16 +206,12 @@ def _check_count(count, path):
 
 
 def _camera_from_dict(data, path, label):
-    """A kdray camera object -> Camera, errors prefixed with `label`."""
+    """A kdray camera object -> Camera (sides at most MAX_SIDE, as every Camera's),
+    errors prefixed with `label`."""
     try:
-        camera = Camera._from_dict(data)
+        return Camera._from_dict(data)
     except CameraError as exc:
         raise CameraError(f"{label}: {exc}") from None
-    for key in ("width", "height"):
-        if getattr(camera, key) > MAX_SIDE:
-            raise CameraError(f"{label}: {key} {getattr(camera, key)} is more than "
-                              f"{MAX_SIDE} pixels (MAX_SIDE).")
-    return camera
 
 
 # Names ------------------------------------------------------------------------------
@@ -256,10 +234,9 @@ def _name_problem(name):
             return f"contains the lone surrogate U+{ord(ch):04X} (not Unicode text)"
         if category in ("Zl", "Zp"):
             return f"contains the line separator U+{ord(ch):04X}"
-    size = len(name.encode("utf-8")) + len(".exr")
-    if size > NAME_MAX_BYTES:
-        return f"makes a file name of {size} bytes, more than {NAME_MAX_BYTES}"
-    return None
+    # the longest name written is the temporary one of <name>.exr (kdray.files)
+    problem = name_problem(name + ".exr")
+    return f"is too long: {problem}" if problem else None
 
 
 def _check_name(name, path, label):

@@ -13,6 +13,7 @@ import click
 import numpy as np
 
 from .errors import DeviceError, KdrayError, MeshError, OutputError, TreeError, one_line
+from .files import check_output
 
 log = logging.getLogger("kdray")
 
@@ -234,9 +235,8 @@ def build(scene, dump, **kw):
     """Build the SAH k-d tree of SCENE; print its statistics and the build time."""
     from .load import load
     params = _build_kwargs(kw)
-    _check_not_same(scene, dump)
     if dump:
-        _check_folder(dump)
+        check_output(dump, inputs=(scene,), what="--dump")
     step = Steps()
     with step("loading"):
         mesh = load(scene)
@@ -350,12 +350,10 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
         output = os.path.splitext(os.path.basename(scene))[0] + ".exr"
     if preview == "":
         preview = os.path.splitext(output)[0] + ".png"
-    for path in (output, preview):
-        _check_not_same(scene, path)
-        _check_not_same(tree_file, path)
-    _check_folder(output)
+    inputs = (scene, tree_file, camera_file, pose)
+    check_output(output, inputs, what="-o")
     if preview:
-        _check_folder(preview)
+        check_output(preview, inputs, others=(output,), what="--preview")
     if cull and tree_file:
         raise click.UsageError("--cull applies when building the tree; it cannot be combined with --tree")
     step = Steps()
@@ -444,15 +442,12 @@ def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
     params = _build_kwargs(kw)
     if output is None:
         output = os.path.splitext(os.path.basename(scene))[0] + ".exr"
-    for path in (output, points):
-        for source in (scene, tree_file, lidar_file, pose):
-            _check_not_same(source, path)
+    inputs = (scene, tree_file, lidar_file, pose)
+    check_output(output, inputs, what="-o")
     if points:
-        _check_not_same(output, points)
-    _check_folder(output)
-    if points:
-        _check_folder(points)
+        check_output(points, inputs, others=(output,), what="--points")
     lidar = Lidar.from_json(lidar_file)          # a bad spec or pose: one line, nothing read
+    lidar.check_memory()                         # before the tree is built
     sensor_to_world = pose_from_file(pose)
     step = Steps()
     tree = _scene_tree(step, scene, tree_file, params)
@@ -508,9 +503,7 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
     from .files import atomic_write
     from .trace import Tracer
     params = _build_kwargs(kw)
-    for source in (scene, tree_file, points_file):
-        _check_not_same(source, output)
-    _check_folder(output)
+    check_output(output, inputs=(scene, tree_file, points_file), what="-o")
     points = _read_points(points_file)
     if direction is not None and not (np.isfinite(direction).all() and np.any(direction)):
         raise KdrayError(f"--count needs a finite, nonzero direction, got {direction}")
@@ -575,9 +568,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
     from .points import OpenMeshWarning, open_edges
     from .trace import Tracer
     params = _build_kwargs(kw)
-    for source in (scene, tree_file):
-        _check_not_same(source, output)
-    _check_folder(output)
+    check_output(output, inputs=(scene, tree_file), what="-o")
     if samples is None:
         for name, value in (("--sigma", sigma), ("--seed", seed if seed != 0 else None)):
             if value is not None:
@@ -656,7 +647,7 @@ def bench(scenes, size, repeat, sample, settings, csv_file, device, offset):
     if not scenes:
         raise click.UsageError("name one or more mesh files to benchmark: kdray bench SCENE...")
     if csv_file:
-        _check_folder(csv_file)
+        check_output(csv_file, inputs=scenes, what="--csv")
     step = Steps()
     rows = _bench.run(scenes, size=size, repeat=repeat, sample=sample, settings=settings,
                       device=device, offset=offset, step=step)
@@ -778,27 +769,7 @@ def _tree_box(tree):
     return tree.world_box()
 
 
-def _same_file(a, b):
-    if not a or not b or not os.path.exists(a) or not os.path.exists(b):
-        return bool(a and b and os.path.abspath(a) == os.path.abspath(b))
-    return os.path.samefile(a, b)
-
-
-def _check_not_same(src, dst):
-    if _same_file(src, dst):
-        raise OutputError(f"{dst}: the output would overwrite the input {src}")
-
-
-def _check_folder(path):
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise OutputError(f"{path}: the folder {folder} does not exist")
-    if not os.access(folder, os.W_OK):
-        raise OutputError(f"{path}: the folder {folder} is not writable")
-
-
 def _save_tree(tree, path):
-    _check_folder(path)
     try:
         tree.save(path)
     except OSError as e:
@@ -825,7 +796,17 @@ def main(argv=None):
     except KdrayError as e:
         if debug:
             raise
-        click.echo(f"kdray: error: {e}", err=True)
+        # one line whatever the message quotes (a file name may hold a newline)
+        message = str(e).replace("\r", "\\r").replace("\n", "\\n")
+        click.echo(f"kdray: error: {message}", err=True)
+        sys.exit(1)
+    except MemoryError:
+        # a last guard: the host's memory is checked before large arrays
+        # (kdray.host.check_host_memory), but not before every small one
+        if debug:
+            raise
+        click.echo("kdray: error: out of memory (the host's memory or the process's "
+                   "address-space limit ran out)", err=True)
         sys.exit(1)
 
 

@@ -33,7 +33,6 @@ that is a file or cannot be written.
 import collections
 import concurrent.futures
 import dataclasses
-import json
 import logging
 import math
 import os
@@ -44,6 +43,7 @@ from pathlib import Path
 from .errors import DatasetError, KdrayError, MeshError, OutputError
 from .render import DEFAULT_AOVS, parse_aovs
 from .tree import BuildParams
+from .validate import parse_json, read_text
 
 log = logging.getLogger(__name__)
 
@@ -89,11 +89,22 @@ class Job:
     params: BuildParams = BuildParams()
 
     def __post_init__(self):
+        # the one check of a job's fields, for read_jobs and the Python API alike:
+        # types are kept, never converted
         for name in ("scene", "cameras", "output"):
-            object.__setattr__(self, name, Path(getattr(self, name)))
+            value = getattr(self, name)
+            if not isinstance(value, (str, os.PathLike)) or not os.fspath(value):
+                raise DatasetError(f"{name} must be a path, got {value!r}")
+            if "\0" in os.fspath(value):
+                raise DatasetError(f"{name} {os.fspath(value)!r}: a path cannot hold a NUL byte")
+            object.__setattr__(self, name, Path(value))
         object.__setattr__(self, "aovs", parse_aovs(self.aovs))
+        if not isinstance(self.preview, bool):
+            raise DatasetError(f"preview must be true or false, got {self.preview!r}")
         if self.precision not in ("single", "double"):
             raise DatasetError(f"precision must be 'single' or 'double', got {self.precision!r}")
+        if not isinstance(self.params, BuildParams):
+            raise DatasetError(f"params must be a kdray.BuildParams, got {self.params!r}")
 
     def files(self, name):
         """The files of view `name`: [OUTPUT/name.exr] (+ OUTPUT/name.png)."""
@@ -119,12 +130,7 @@ def read_jobs(path):
     jobs with one output folder; nothing is read beyond the first error.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise DatasetError(f"jobs file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"jobs file {path} cannot be read: {getattr(e, 'strerror', None) or e}") from None
+    text = read_text(path, f"jobs file {path}", DatasetError)
     lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip()]
     if not lines:
         raise DatasetError(f"jobs file {path} holds no jobs")
@@ -133,20 +139,13 @@ def read_jobs(path):
     jobs = []
     for number, line in lines:
         where = f"{path}, line {number}"
-        try:
-            data = json.loads(line, parse_constant=_no_constant)
-        except (json.JSONDecodeError, ValueError) as e:
-            raise DatasetError(f"{where}: not JSON ({e})") from None
+        data = parse_json(line, where, DatasetError)
         try:
             jobs.append(_job(data, path.parent))
         except KdrayError as e:
             raise DatasetError(f"{where}: {e}") from None
     check_jobs(jobs, [f"{path}, line {number}" for number, _ in lines])
     return jobs
-
-
-def _no_constant(name):
-    raise ValueError(f"{name} is not a number here")
 
 
 def _job(data, base):
@@ -201,7 +200,7 @@ def check_jobs(jobs, where=None):
             p = getattr(job, what)
             if not p.exists():
                 raise DatasetError(f"{where[i]}: the {what} file {p} does not exist")
-        key = os.path.normcase(os.path.abspath(job.output))
+        key = os.path.normcase(os.path.realpath(job.output))   # symlinks resolved
         if key in seen:
             first, _, line = where[seen[key]].rpartition("line ")
             both = (f"{first}lines {line} and {where[i].rpartition('line ')[2]}" if first
@@ -520,11 +519,30 @@ def plan(jobs, overwrite=False):
             planned.append((report, []))
             continue
         report.views = len(views)
+        clash = _overwritten_input(job, views)
+        if clash:
+            report.errors.append(clash)
+            planned.append((report, []))
+            continue
         remove_stale_temporaries(job, [v.name for v in views])
         todo = [v for v in views if overwrite or not all(f.exists() for f in job.files(v.name))]
         report.skipped = len(views) - len(todo)
         planned.append((report, todo))
     return planned
+
+
+def _overwritten_input(job, views):
+    """Why a view's file would overwrite the job's scene or camera file, or None."""
+    folder = os.path.realpath(job.output)
+    for what in ("scene", "cameras"):
+        source = getattr(job, what)
+        path = os.path.realpath(source)
+        if os.path.dirname(path) == folder:
+            names = {f.name for view in views for f in job.files(view.name)}
+            if os.path.basename(path) in names:
+                return (f"{source}: a view's file in {job.output} would overwrite the "
+                        f"{what} file")
+    return None
 
 
 def run(jobs, workers=None, scheduler=None, device=None, cache=None, overwrite=False,

@@ -26,7 +26,15 @@ def page_aligned_empty(shape, dtype):
 
 
 def available_memory():
-    """Bytes of host memory available now (Linux MemAvailable), or None if unknown."""
+    """Bytes of host memory this process may still allocate, or None if unknown: the
+    system's available memory (Linux MemAvailable), or less where the process's
+    address space is limited (RLIMIT_AS: `ulimit -v`, test harnesses) and the room
+    left under that limit is smaller."""
+    found = [n for n in (_system_available(), _address_space_room()) if n is not None]
+    return min(found) if found else None
+
+
+def _system_available():
     try:
         with open("/proc/meminfo") as f:
             for line in f:
@@ -38,6 +46,23 @@ def available_memory():
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):
         return None
+
+
+def _address_space_room():
+    """RLIMIT_AS less this process's virtual size (Linux VmSize), or None: no limit,
+    or not known."""
+    try:
+        import resource
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmSize:"):
+                    return max(limit - int(line.split()[1]) * 1024, 0)
+    except (ImportError, OSError, ValueError, IndexError):
+        pass
+    return None
 
 
 def check_host_memory(nbytes, what, hint="ask for a smaller image or fewer AOVs"):

@@ -36,13 +36,14 @@ import dataclasses
 import functools
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 
 from .errors import ParameterError
 from .files import atomic_write
+from .host import check_host_memory
 from .layout import MISS
+from .validate import read_json
 
 MAX_BEAMS = 1024
 """The most beams a spec may have: 8 times the largest sensors sold (128 beams: Ouster
@@ -53,6 +54,13 @@ MAX_COLUMNS = 1 << 16
 """The most azimuth steps: 0.0055 degrees at 360, finer than any spinning lidar's
 (2048 columns: 0.18 degrees); with MAX_BEAMS, 2^26 rays a scan at most."""
 
+SCAN_BYTES_PER_BEAM = 136
+"""Host bytes a scan holds at once per beam (Tracer.scan, kdray.scan_images): the
+float64 directions (24) and their float32 copy for the device (12), t and the
+triangle (8), the kernel's rays on the host (24 and 12 for its float32 components),
+copies of t and the triangle, the far mask and t in float64 (17), the points (24),
+the objects (4), and the PLY of `kdray scan --points` (38) less what is freed by then."""
+
 SPEC_KEYS = ("elevations", "channels", "fov_up", "fov_down", "columns", "horizontal_fov",
              "max_range", "azimuth_offsets")
 """The keys a spec may hold."""
@@ -62,7 +70,11 @@ def _number(value, what):
     """A finite float from a JSON number (not a bool); ParameterError otherwise."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ParameterError(f"{what} must be a number, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:                       # an int beyond float64's range
+        raise ParameterError(f"{what} must be finite, got an integer of "
+                             f"{len(str(abs(value)))} digits") from None
     if not math.isfinite(value):
         raise ParameterError(f"{what} must be finite, got {value}")
     return value
@@ -161,6 +173,15 @@ class Lidar:
         """(beams, columns): a range image's shape."""
         return self.beams, self.columns
 
+    def check_memory(self):
+        """KdrayError, before anything is allocated, when a scan of this lidar needs more
+        host memory than is available (SCAN_BYTES_PER_BEAM a beam; kdray.host). The
+        largest spec, MAX_BEAMS x MAX_COLUMNS, needs about 9 GB."""
+        beams, columns = self.shape
+        check_host_memory(beams * columns * SCAN_BYTES_PER_BEAM,
+                          f"a scan of {beams} x {columns} beams",
+                          "ask for fewer channels or columns")
+
     # -- the spec ------------------------------------------------------------------------
 
     @classmethod
@@ -198,17 +219,7 @@ class Lidar:
         """A Lidar from a JSON spec file; ParameterError naming the file for a missing or
         unreadable file, bad JSON or a bad spec."""
         source = f"lidar spec {path}"
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ParameterError(f"{source}: the file does not exist") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise ParameterError(f"{source}: cannot be read ({getattr(e, 'strerror', None) or e})") from None
-        try:
-            spec = json.loads(text, parse_constant=lambda c: float(c))
-        except ValueError as e:
-            raise ParameterError(f"{source}: not valid JSON ({e})") from None
-        return cls.from_dict(spec, source)
+        return cls.from_dict(read_json(path, source, ParameterError), source)
 
     def to_dict(self):
         """The spec in the list form (from_dict(to_dict()) == self, exactly)."""
@@ -234,6 +245,9 @@ class Lidar:
 
     @functools.cached_property
     def _directions(self):
+        # the first large array of a scan (Tracer.scan, both precisions): the memory of
+        # the whole scan is checked here
+        self.check_memory()
         el = np.deg2rad(self.elevations)[:, None]
         az = self.azimuths()[None, :] + np.deg2rad(self.azimuth_offsets)[:, None]
         d = np.empty((self.beams, self.columns, 3))

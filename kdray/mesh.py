@@ -20,7 +20,7 @@ def check_arrays(vertices, faces):
     try:
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces)
-    except (TypeError, ValueError) as e:
+    except (TypeError, ValueError, OverflowError) as e:     # OverflowError: an int beyond float64
         raise MeshError(f"vertices and faces must be numeric arrays ({e})") from None
     if v.ndim != 2 or v.shape[1] != 3:
         raise MeshError(f"vertices must be an (n, 3) array, got shape {v.shape}")

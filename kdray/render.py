@@ -17,6 +17,7 @@ import numpy as np
 from .errors import KdrayError
 from .layout import KERNEL_OUTPUTS, MISS, OUTPUT_WIDTH
 from .tree import object_ids
+from .validate import check_float32
 
 AOVS = ("depth", "distance", "normal", "bary", "id", "position", "object")
 """Every output `render` knows."""
@@ -138,6 +139,10 @@ def camera_constants(camera, origin, scale=1.0):
     if camera.model == "orthographic":
         M = M / scale
         eye = eye - c2w[:3, 2] / scale
+    # a camera far from a small scene (1e30 from a tree of scale 2^-100): the kernel's
+    # float32 cannot hold where it is
+    check_float32(M, "the camera's rays in the tree's units", KdrayError)
+    check_float32(eye, "the camera's eye relative to the tree (in its units)", KdrayError)
     return M.astype(np.float32), eye.astype(np.float32)
 
 

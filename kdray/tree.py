@@ -193,6 +193,8 @@ class KdTree:
                 data = head + f.read()
         except OSError as e:
             raise TreeFileError(f"{path}: cannot read ({e.strerror or e})") from None
+        except ValueError:                      # a NUL byte in the path
+            raise TreeFileError(f"{path!r}: cannot read (a path cannot hold a NUL byte)") from None
         return cls.from_bytes(data, name=path)
 
     # -- structure ---------------------------------------------------------------

@@ -181,9 +181,9 @@ def test_batch_goes_on_past_a_bad_scene(capsys, tmp_path, cache_dir):
     ('{"scene": "m.obj", "cameras": "c.json", "output": "o", "aovs": "depth,colour"}', "unknown AOV"),
     ('{"scene": "m.obj", "cameras": "c.json", "output": "o", "preview": "yes"}', "'preview' must be"),
     ('{"scene": "gone.obj", "cameras": "c.json", "output": "o"}', "gone.obj does not exist"),
-    ('{"scene": "m.obj", "cameras": "c.json", "output": "o", "build": {"K_T": NaN}}', "not JSON"),
+    ('{"scene": "m.obj", "cameras": "c.json", "output": "o", "build": {"K_T": NaN}}', "K_T must be a positive number"),
     ('["m.obj"]', "expected a JSON object"),
-    ("scene = m.obj", "not JSON"),
+    ("scene = m.obj", "not valid JSON"),
 ])
 def test_bad_jobs_files(capsys, tmp_path, line, message):
     (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")

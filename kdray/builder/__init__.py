@@ -20,6 +20,7 @@ cores). numba checks a cached function against its own file only: after editing 
 """
 import logging
 import math
+import numbers
 import os
 
 import numpy as np
@@ -40,14 +41,14 @@ log = logging.getLogger(__name__)
 
 def check_params(K_T=BuildParams.K_T, K_I=BuildParams.K_I, empty_bonus=BuildParams.empty_bonus,
                  max_depth=BuildParams.max_depth, leaf_size=BuildParams.leaf_size):
-    """BuildParams of these values, checked; ParameterError for one out of range."""
-    try:
-        params = BuildParams(K_T=float(K_T), K_I=float(K_I), empty_bonus=float(empty_bonus),
-                             max_depth=_whole(max_depth, "max_depth"),
-                             leaf_size=_whole(leaf_size, "leaf_size"))
-    except (TypeError, ValueError):
-        raise ParameterError(f"build parameters must be numbers, got K_T={K_T!r}, K_I={K_I!r}, "
-                             f"empty_bonus={empty_bonus!r}") from None
+    """BuildParams of these values, checked; ParameterError for one of the wrong type or
+    out of range. Types are kept, never converted: K_T, K_I and empty_bonus are real
+    numbers (int, float or numpy's; not bool, not a string such as "20"), max_depth and
+    leaf_size integers (not 3.0)."""
+    params = BuildParams(K_T=_real(K_T, "K_T"), K_I=_real(K_I, "K_I"),
+                         empty_bonus=_real(empty_bonus, "empty_bonus"),
+                         max_depth=_whole(max_depth, "max_depth"),
+                         leaf_size=_whole(leaf_size, "leaf_size"))
     if not (math.isfinite(params.K_T) and params.K_T >= 0):
         raise ParameterError(f"K_T must be a positive number (or 0: automatic), got {K_T}")
     if not (math.isfinite(params.K_I) and params.K_I > 0):
@@ -56,14 +57,25 @@ def check_params(K_T=BuildParams.K_T, K_I=BuildParams.K_I, empty_bonus=BuildPara
         raise ParameterError(f"empty_bonus must be in (0, 1], got {empty_bonus}")
     if params.max_depth < 0:
         raise ParameterError(f"max_depth must be >= 0 (0 = automatic), got {max_depth}")
-    if params.leaf_size < 0:
-        raise ParameterError(f"leaf_size must be >= 0, got {leaf_size}")
+    if not 0 <= params.leaf_size <= 0xFFFFFFFF:         # a count of triangles (uint32 ids)
+        raise ParameterError(f"leaf_size must be from 0 to 4294967295 (a triangle count), "
+                             f"got {leaf_size}")
     return params
 
 
+def _real(value, name):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ParameterError(f"{name} must be a number, got {value!r}")
+    try:
+        return float(value)
+    except OverflowError:                   # an int beyond float64's range
+        raise ParameterError(f"{name} must be finite, got an integer of "
+                             f"{len(str(abs(value)))} digits") from None
+
+
 def _whole(value, name):
-    if isinstance(value, bool) or int(value) != value:
-        raise ParameterError(f"{name} must be a whole number, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ParameterError(f"{name} must be a whole number (an integer), got {value!r}")
     return int(value)
 
 
