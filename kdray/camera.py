@@ -54,9 +54,9 @@ from pathlib import Path
 import numpy as np
 
 from . import lens
-from .errors import CameraError
+from .errors import CameraError, one_line
 from .files import atomic_write
-from .validate import check_float32, read_json
+from .validate import check_float32, read_json, read_npy, read_text
 
 ORTHONORMAL_TOL = 1e-6
 """Largest |R^T R - I| entry and |det R - 1| accepted for a pose's rotation."""
@@ -86,7 +86,10 @@ def _vector(value, name, n=3):
     """`value` as a finite (n,) float64 array within float32's range (positions and
     directions go to the kernels in float32), or CameraError naming it."""
     try:
-        array = np.array(value, dtype=np.float64)
+        array = np.array(value)
+        if array.dtype.kind not in "fiu":       # strings, bools, None: refused, not converted
+            raise TypeError(array.dtype)
+        array = array.astype(np.float64)
     except (TypeError, ValueError, OverflowError):
         raise CameraError(f"{name} must be {n} numbers, got {value!r}.") from None
     if array.shape != (n,):
@@ -108,7 +111,10 @@ def _size(value, name):
 
 def _matrix(value, shape, name):
     try:
-        array = np.array(value, dtype=np.float64)
+        array = np.array(value)
+        if array.dtype.kind not in "fiu":       # strings, bools, None: refused, not converted
+            raise TypeError(array.dtype)
+        array = array.astype(np.float64)
     except (TypeError, ValueError, OverflowError):
         raise CameraError(f"{name} must be a {shape[0]}x{shape[1]} matrix of numbers.") from None
     if array.shape != shape:
@@ -147,9 +153,10 @@ def _check_pose(cam_to_world, name="cam_to_world"):
     # the eye goes to the kernels (and to EXR headers) in float32
     check_float32(M[:3, 3], f"the translation of {name}", CameraError)
     R = M[:3, :3]
-    error = np.abs(R.T @ R - np.eye(3)).max()
-    det = np.linalg.det(R)
-    if error > ORTHONORMAL_TOL or abs(det - 1.0) > ORTHONORMAL_TOL:
+    with np.errstate(all="ignore"):             # entries of 1e308 overflow: refused below
+        error = np.abs(R.T @ R - np.eye(3)).max()
+        det = np.linalg.det(R)
+    if not (error <= ORTHONORMAL_TOL and abs(det - 1.0) <= ORTHONORMAL_TOL):
         raise CameraError(
             f"the rotation part of {name} must be orthonormal with determinant +1 "
             f"(tolerance {ORTHONORMAL_TOL:g}); got |R^T R - I| = {error:.3g}, det = {det:.9g}."
@@ -304,8 +311,12 @@ class Camera:
             raise CameraError(f"bounds_min {lo.tolist()} exceeds bounds_max {hi.tolist()}.")
         view = _vector(direction, "direction")
         if not np.linalg.norm(view) > 0:
-            raise CameraError("direction must not be the zero vector.")
+            raise CameraError("direction must not be the zero vector (nor so short that its "
+                              "length underflows).")
         up = _vector(up, "up")
+        if not np.linalg.norm(up) > 0:
+            raise CameraError("up must not be the zero vector (nor so short that its length "
+                              "underflows).")
         width, height = _size(width, "width"), _size(height, "height")
         K = _fov_intrinsics(fov_deg, width, height)
 
@@ -524,23 +535,17 @@ def pose_from_file(path):
     with '#' are comments. The rotation part must be orthonormal with det +1.
     """
     path = Path(path)
-    try:
-        if path.suffix.lower() == ".npy":
-            matrix = np.load(path, allow_pickle=False)
-        else:
-            lines = path.read_text(encoding="utf-8").splitlines()
-            text = " ".join(line for line in lines if not line.lstrip().startswith("#"))
-            tokens = text.replace(",", " ").split()
-            if len(tokens) != 16:
-                raise CameraError(f"pose file {path} must hold 16 numbers, found {len(tokens)}.")
-            try:
-                matrix = np.array([float(t) for t in tokens]).reshape(4, 4)
-            except ValueError as exc:
-                raise CameraError(f"pose file {path} holds a value that is not a number: {exc}.") from None
-    except FileNotFoundError:
-        raise CameraError(f"pose file {path} does not exist.") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise CameraError(f"pose file {path} cannot be read: {exc}.") from None
-    if not isinstance(matrix, np.ndarray) or matrix.dtype.kind not in "fiu":
-        raise CameraError(f"pose file {path} must hold a numeric array.")
+    if path.suffix.lower() == ".npy":
+        matrix = read_npy(path, f"pose file {path}", CameraError)
+    else:
+        lines = read_text(path, f"pose file {path}", CameraError).splitlines()
+        text = " ".join(line for line in lines if not line.lstrip().startswith("#"))
+        tokens = text.replace(",", " ").split()
+        if len(tokens) != 16:
+            raise CameraError(f"pose file {path} must hold 16 numbers, found {len(tokens)}.")
+        try:
+            matrix = np.array([float(t) for t in tokens]).reshape(4, 4)
+        except ValueError as exc:
+            raise CameraError(f"pose file {path} holds a value that is not a number: "
+                              f"{one_line(exc)}.") from None
     return _check_pose(matrix, name=f"the pose in {path}")

@@ -8,6 +8,7 @@ import logging
 import os
 import sys
 import time
+import warnings
 
 import click
 import numpy as np
@@ -469,13 +470,16 @@ def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
 
 def _read_points(path):
     """(N, 3) float64 points of a .npy file or a text file of three numbers a line."""
-    try:
-        if str(path).endswith(".npy"):
-            points = np.load(path, allow_pickle=False)
-        else:
-            points = np.loadtxt(path, dtype=np.float64, ndmin=2)
-    except (OSError, ValueError) as e:
-        raise KdrayError(f"{path}: cannot read points ({one_line(e)})") from None
+    from .validate import read_npy
+    if str(path).endswith(".npy"):
+        points = read_npy(path, f"points file {path}", KdrayError)
+    else:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")          # "input contained no data": refused
+                points = np.loadtxt(path, dtype=np.float64, ndmin=2)
+        except (OSError, ValueError, UserWarning) as e:
+            raise KdrayError(f"{path}: cannot read points ({one_line(e)})") from None
     if points.dtype.kind not in "fiu" or points.ndim != 2 or points.shape[1] != 3:
         raise KdrayError(f"{path}: points must be an (N, 3) array of numbers, got "
                          f"{points.dtype} {points.shape}")
@@ -562,7 +566,6 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
         tree_file, device, **kw):
     """Signed distances of SCENE (negative inside) on a grid, or at points sampled near
     its surface (docs/conventions.md, "Point queries")."""
-    import warnings
     from . import sdf as _sdf
     from .files import atomic_write
     from .points import OpenMeshWarning, open_edges

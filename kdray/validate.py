@@ -3,6 +3,7 @@ API refuse the same values with the same one-line messages.
 
     data = read_json(path, f"camera file {path}", CameraError)   # a JSON file, checked
     data = parse_json(text, f"{path}, line 3", DatasetError)      # the same, of a string
+    array = read_npy(path, f"pose file {path}", CameraError)     # a .npy file of numbers
     check_float32(values, "K", CameraError)                      # values the kernels hold
 
 Every JSON input of kdray (camera files and lists, lidar specs, jobs files, the JSON
@@ -14,6 +15,7 @@ Floats beyond float64's range (1e999) are read as inf, as NaN and Infinity are: 
 caller's checks then refuse them naming the field ("cx must be finite").
 """
 import json
+import warnings
 
 import numpy as np
 
@@ -109,3 +111,28 @@ def check_float32(values, name, error):
     if np.any(big):
         raise error(f"{name} holds {float(array[big].flat[0])!r}, beyond float32's range (at most "
                     f"{FLOAT32_MAX:.4g} in magnitude), which the kernels compute in.")
+
+
+def read_npy(path, source, error):
+    """The numeric array of a .npy file, read by np.load without pickles; `error`
+    "<source> does not exist" / "cannot be read: ..." / "must hold numbers" for a missing
+    file, a corrupt or cut one (whatever np.load raises on it: ValueError, EOFError,
+    SyntaxError from its header's parser, ...), or one of other values (strings, dates,
+    complex numbers). The header is checked against the file's size before anything is
+    allocated (np.load's memory map), so a header that claims 10^12 rows costs nothing."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            mapped = np.load(path, mmap_mode="r", allow_pickle=False)
+            if not isinstance(mapped, np.ndarray):
+                raise ValueError(f"not one array ({type(mapped).__name__})")
+            if mapped.dtype.kind not in "fiu":
+                raise error(f"{source} must hold numbers, got dtype {mapped.dtype}.")
+            return np.array(mapped)
+    except error:
+        raise
+    except FileNotFoundError:
+        raise error(f"{source} does not exist.") from None
+    except Exception as e:          # np.load on hostile bytes: any of a dozen classes
+        raise error(f"{source} cannot be read as a .npy file: "
+                    f"{getattr(e, 'strerror', None) or one_line(e) or type(e).__name__}.") from None
