@@ -65,10 +65,11 @@ def _address_space_room():
     return None
 
 
-def check_host_memory(nbytes, what, hint="ask for a smaller image or fewer AOVs"):
-    """KdrayError, before anything is allocated, when `what` needs more host memory
-    than is available (the message ends with `hint`)."""
+def check_host_memory(nbytes, what, hint="ask for a smaller image or fewer AOVs",
+                      error=KdrayError):
+    """`error` (KdrayError or a subclass), before anything is allocated, when `what`
+    needs more host memory than is available (the message ends with `hint`)."""
     have = available_memory()
     if have is not None and nbytes > have:
-        raise KdrayError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory, but "
+        raise error(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory, but "
                          f"{have / 2**30:.1f} GiB are available: {hint}")

@@ -30,10 +30,11 @@ import io
 import logging
 import os
 import re
+import warnings
 
 import numpy as np
 
-from .errors import MeshError
+from .errors import MeshError, one_line
 from .mesh import Mesh, check_objects
 
 log = logging.getLogger(__name__)
@@ -60,18 +61,22 @@ def load(path):
     if ext not in trimesh.available_formats():
         raise MeshError(f"{path}: unknown mesh format {'.' + ext if ext else '(no extension)'} "
                         f"(kdray reads OBJ, PLY, STL, OFF, GLB/glTF and what else trimesh loads)")
-    try:
-        if zipped:
-            with gzip.open(path, "rb") as f:
-                scene = trimesh.load(f, file_type=ext, force="scene", process=False,
-                                     skip_materials=True)
-        else:
-            scene = trimesh.load(path, force="scene", process=False, skip_materials=True)
-    except IndexError as e:
-        raise MeshError(f"{path}: a face refers to a vertex that does not exist ({e})") from None
-    except Exception as e:  # trimesh raises many kinds for a malformed file
-        raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: {e})") from None
-    vertices, faces, objects, object_names = _scene_arrays(scene, path)
+    # trimesh and numpy warn about what a malformed file holds (an index cast from
+    # 4294967295, a transform that overflows); Mesh.from_arrays refuses what is left of it
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        try:
+            if zipped:
+                with gzip.open(path, "rb") as f:
+                    scene = trimesh.load(f, file_type=ext, force="scene", process=False,
+                                         skip_materials=True)
+            else:
+                scene = trimesh.load(path, force="scene", process=False, skip_materials=True)
+        except IndexError as e:
+            raise MeshError(f"{path}: a face refers to a vertex that does not exist ({one_line(e)})") from None
+        except Exception as e:  # trimesh raises many kinds for a malformed file
+            raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: {one_line(e)})") from None
+        vertices, faces, objects, object_names = _scene_arrays(scene, path)
     if not faces:
         kinds = sorted({type(g).__name__ for g in scene.geometry.values()})
         what = f" (only {', '.join(kinds)})" if kinds else ""

@@ -10,7 +10,13 @@ import dataclasses
 
 import numpy as np
 
-from .errors import MeshError
+from .errors import MeshError, one_line
+from .host import check_host_memory
+
+
+MESH_ROW_BYTES = 64
+"""Host bytes a vertex or face row needs while a mesh is checked and copied (24 of
+float64 or int64, the rest temporaries): what `check_arrays` asks the host for."""
 
 
 def check_arrays(vertices, faces):
@@ -18,14 +24,28 @@ def check_arrays(vertices, faces):
     is a face, and that face indices are integers in range; raises MeshError.
     Vertex values are not checked here (see Mesh.from_arrays and the builder)."""
     try:
-        v = np.asarray(vertices, dtype=np.float64)
+        v = np.asarray(vertices)
         f = np.asarray(faces)
+    except (TypeError, ValueError, OverflowError) as e:     # ragged lists
+        raise MeshError(f"vertices and faces must be numeric arrays ({one_line(e)})") from None
+    # numbers only: no strings read as numbers, no complex numbers losing their
+    # imaginary part, no bools, no objects (types are kept, docs/interface.md)
+    for name, a, kinds in (("vertices", v, "fiu"), ("faces", f, "fiu")):
+        if a.dtype.kind not in kinds:
+            raise MeshError(f"{name} must be an array of numbers, got dtype {a.dtype}")
+    try:
+        v = v.astype(np.float64, copy=False)
     except (TypeError, ValueError, OverflowError) as e:     # OverflowError: an int beyond float64
-        raise MeshError(f"vertices and faces must be numeric arrays ({e})") from None
+        raise MeshError(f"vertices must be numbers ({one_line(e)})") from None
     if v.ndim != 2 or v.shape[1] != 3:
         raise MeshError(f"vertices must be an (n, 3) array, got shape {v.shape}")
     if f.ndim != 2 or f.shape[1] != 3:
         raise MeshError(f"faces must be an (m, 3) array of triangles, got shape {f.shape}")
+    # float64 and int64 copies and their checks' temporaries, before any is made (a
+    # broadcast array of 2^36 rows costs its caller nothing)
+    check_host_memory((len(v) + len(f)) * MESH_ROW_BYTES,
+                      f"a mesh of {len(v):,} vertices and {len(f):,} faces",
+                      "give fewer vertices and faces", MeshError)
     if len(f) == 0:
         raise MeshError("has no triangles")
     if not np.issubdtype(f.dtype, np.integer):

@@ -118,6 +118,10 @@ def compile_all():
     build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3))
 
 
+MAX_THREADS = 1024
+"""Most threads a build may be asked for (`threads`): each is a thread of the process."""
+
+
 def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
           empty_bonus=BuildParams.empty_bonus, max_depth=BuildParams.max_depth,
           leaf_size=BuildParams.leaf_size, origin=None, threads=None, scale=None,
@@ -149,8 +153,10 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
 
     if threads is None:
         threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    if int(threads) < 1:
-        raise ParameterError(f"threads must be >= 1 (or None), got {threads}")
+    if (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
+            or not 1 <= threads <= MAX_THREADS):
+        raise ParameterError(f"threads must be None or an integer from 1 to {MAX_THREADS}, "
+                             f"got {threads!r}")
 
     threads = int(threads)
     try:

@@ -214,13 +214,20 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
         if origin is None:
             raise MeshError("no triangles left after removing degenerate ones (no finite vertex)")
     else:
-        origin = np.asarray(origin, dtype=np.float64)
-        if origin.shape != (3,) or not np.isfinite(origin).all():
-            raise MeshError(f"origin must be 3 finite numbers, got {origin!r}")
+        given = origin
+        try:
+            origin = np.asarray(origin)
+        except ValueError:                          # a ragged list
+            origin = np.zeros(0)
+        if (origin.dtype.kind not in "fiu" or origin.shape != (3,)
+                or not np.isfinite(origin.astype(np.float64)).all()):
+            raise MeshError(f"origin must be 3 finite numbers, got {given!r}")
+        origin = origin.astype(np.float64)
 
     if scale is None:
         scale = mesh_scale(v, f, used_box)
-    elif not layout.is_scale(scale):
+    elif (isinstance(scale, bool) or not isinstance(scale, (int, float, np.integer, np.floating))
+          or not layout.is_scale(scale)):
         raise MeshError(f"scale must be a power of two from 2^-126 to 2^127, got {scale!r}")
     scale = float(scale)
 
