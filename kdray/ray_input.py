@@ -17,7 +17,7 @@ import os
 import numpy as np
 
 from .errors import KdrayError
-from .host import page_aligned_empty
+from .host import check_host_memory, page_aligned_empty
 
 CONVERT_CHUNK = 1 << 18
 """Rays per chunk when large ray arrays are converted to float32 on threads."""
@@ -29,16 +29,39 @@ C_TYPES = {np.dtype(np.float32): "float", np.dtype(np.float64): "double"}
 """The ray arrays trace_rays reads as they are (RAYS_WORLD): numpy dtype -> C type."""
 
 
+RAY_HOST_BYTES = 64
+"""Host bytes a ray needs at most while it is traced: its float32 origin and direction
+(24) and the nearest hit's outputs (t, prim, u, v, normal: 28), rounded up.
+`flat_rays` checks the host has them for every ray before anything is made."""
+
+
+def numbers(name, values):
+    """np.asarray(values), an array of numbers (integers or floats; bools, strings,
+    complex numbers and objects are refused, never converted): KdrayError naming
+    `name` otherwise, a ragged list too."""
+    try:
+        a = np.asarray(values)
+    except (ValueError, TypeError) as e:          # a ragged list
+        raise KdrayError(f"{name} must be an array of numbers ({str(e).splitlines()[0][:120]})") from None
+    if a.dtype.kind not in "fiu":
+        raise KdrayError(f"{name} must be an array of numbers, got dtype {a.dtype}")
+    return a
+
+
 def flat_rays(origins, directions):
     """(origins, directions, shape): directions (..., 3) as (N, 3) and origins, (3,) or
     of the directions' shape, as (N, 3) or (3,) (views where numpy can make them);
-    shape: the rays' shape, directions.shape[:-1]. KdrayError for other shapes."""
-    d = np.asarray(directions)
+    shape: the rays' shape, directions.shape[:-1]. KdrayError for other shapes, arrays
+    that are not numbers (`numbers`), and more rays than the host's memory holds
+    (RAY_HOST_BYTES a ray, checked before anything is made)."""
+    d = numbers("directions", directions)
     if d.ndim < 2 or d.shape[-1] != 3:
         raise KdrayError(f"directions must be an (N, 3) or (H, W, 3) array, got shape {d.shape}")
-    o = np.asarray(origins)
+    o = numbers("origins", origins)
     if o.shape != (3,) and o.shape != d.shape:
         raise KdrayError(f"origins {o.shape} must be (3,) or the directions' shape {d.shape}")
+    n = d.size // 3
+    check_host_memory(n * RAY_HOST_BYTES, f"tracing {n:,} rays", "trace fewer rays at a time")
     if d.ndim == 2:
         return o, d, d.shape[:1]
     return (o if o.shape == (3,) else o.reshape(-1, 3)), d.reshape(-1, 3), d.shape[:-1]
