@@ -529,7 +529,8 @@ def _colmap_view(fields, cameras, path, line_no, cameras_path):
                                  f"({' '.join(names)}), found {len(params)}.")
     sides = []
     for key, text in (("WIDTH", width), ("HEIGHT", height)):
-        if not (re.fullmatch(r"[0-9]+", text) and 1 <= int(text) <= MAX_SIDE):
+        # at most 9 digits: int() of thousands of digits is itself an error
+        if not (re.fullmatch(r"[0-9]{1,9}", text) and 1 <= int(text) <= MAX_SIDE):
             raise _fail(path, label, f"{camera}: {key} must be a whole number of pixels from "
                                      f"1 to {MAX_SIDE} (MAX_SIDE), got {_show(text)}.")
         sides.append(int(text))

@@ -35,12 +35,13 @@ import concurrent.futures
 import dataclasses
 import logging
 import math
+import numbers
 import os
 import sys
 import time
 from pathlib import Path
 
-from .errors import DatasetError, KdrayError, MeshError, OutputError
+from .errors import DatasetError, KdrayError, MeshError, OutputError, ParameterError
 from .render import DEFAULT_AOVS, parse_aovs
 from .tree import BuildParams
 from .validate import parse_json, read_text
@@ -198,7 +199,12 @@ def check_jobs(jobs, where=None):
     for i, job in enumerate(jobs):
         for what in ("scene", "cameras"):
             p = getattr(job, what)
-            if not p.exists():
+            try:
+                found = p.exists()
+            except OSError as e:                # a name too long, ...: exists() raises
+                raise DatasetError(f"{where[i]}: the {what} file {p} cannot be used "
+                                   f"({e.strerror or e})") from None
+            if not found:
                 raise DatasetError(f"{where[i]}: the {what} file {p} does not exist")
         key = os.path.normcase(os.path.realpath(job.output))   # symlinks resolved
         if key in seen:
@@ -216,11 +222,14 @@ def check_outputs(jobs):
     is created when any fails."""
     for job in jobs:
         out = job.output
-        if out.exists() and not out.is_dir():
-            raise OutputError(f"{out}: is a file, not a folder (the output of {job.scene.name})")
-        existing = out
-        while not existing.exists():
-            existing = existing.parent
+        try:                                    # exists() raises for a name too long
+            if out.exists() and not out.is_dir():
+                raise OutputError(f"{out}: is a file, not a folder (the output of {job.scene.name})")
+            existing = out
+            while not existing.exists():
+                existing = existing.parent
+        except OSError as e:
+            raise OutputError(f"{out}: cannot be used ({e.strerror or e})") from None
         if not existing.is_dir():
             raise OutputError(f"{out}: cannot be made, {existing} is a file")
         if not os.access(existing, os.W_OK | os.X_OK):
@@ -545,6 +554,27 @@ def _overwritten_input(job, views):
     return None
 
 
+WORKERS_PER_CPU = 4
+"""Most local Dask workers (`run(workers=)`, `--workers`) a CPU this process may run on:
+each worker's OpenCL runtime already uses every core (docs/datasets.md), so more
+workers only share the cores, at a process and a context each; 4,097 of them on 2 cores
+never finished starting."""
+
+
+def check_workers(workers):
+    """workers as `run` takes it: None or 0 (this process), or an integer from 1 to
+    WORKERS_PER_CPU times the CPUs this process may run on; ParameterError otherwise."""
+    if workers is None:
+        return None
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    most = WORKERS_PER_CPU * cpus
+    if (isinstance(workers, bool) or not isinstance(workers, numbers.Integral)
+            or not 0 <= workers <= most):
+        raise ParameterError(f"workers must be an integer from 1 to {most} ({WORKERS_PER_CPU} "
+                             f"a CPU of the {cpus} this process may run on), got {workers!r}")
+    return int(workers)
+
+
 def run(jobs, workers=None, scheduler=None, device=None, cache=None, overwrite=False,
         progress=None, chunk=None):
     """Render every job's missing views. Returns [JobReport], in the jobs' order.
@@ -558,8 +588,10 @@ def run(jobs, workers=None, scheduler=None, device=None, cache=None, overwrite=F
     chunk : views per Dask task (default: enough tasks for 4 per worker, at most 16
         views each)
     Raises OutputError (before anything is written) for output folders that cannot be
-    used; a failing scene, camera file or view is its report's error.
+    used, ParameterError for workers out of range (check_workers); a failing scene,
+    camera file or view is its report's error.
     """
+    workers = check_workers(workers)
     check_outputs(jobs)
     planned = plan(jobs, overwrite)
     total = sum(len(todo) for _, todo in planned)

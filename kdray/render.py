@@ -43,7 +43,10 @@ def parse_aovs(aovs):
     """
     if isinstance(aovs, str):
         aovs = aovs.split(",")
-    names = [str(a).strip().lower() for a in aovs]
+    if not (isinstance(aovs, (list, tuple)) and all(isinstance(a, str) for a in aovs)):
+        raise KdrayError(f"aovs must be names or one comma-separated string, got {aovs!r:.80}; "
+                         f"valid AOVs are {', '.join(AOVS)} (or 'all').")
+    names = [a.strip().lower() for a in aovs]
     names = [n for n in names if n]
     if names == ["all"]:
         return AOVS

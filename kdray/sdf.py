@@ -17,6 +17,7 @@ import numpy as np
 from . import points as _points
 from .errors import KdrayError
 from .host import check_host_memory
+from .validate import FLOAT32_MAX
 
 MAX_RESOLUTION = 4096
 """The most samples a grid's side takes (4096^3 float32 values are 256 GiB)."""
@@ -56,10 +57,9 @@ def check_grid(resolution, padding, occupancy=False):
         raise KdrayError(f"resolution must be an integer, got {resolution!r}")
     if not 2 <= resolution <= MAX_RESOLUTION:
         raise KdrayError(f"resolution must be from 2 to {MAX_RESOLUTION}, got {resolution}")
-    try:
-        padding = float(padding)
-    except (TypeError, ValueError):
-        raise KdrayError(f"padding must be a number, got {padding!r}") from None
+    if isinstance(padding, bool) or not isinstance(padding, (int, float, np.integer, np.floating)):
+        raise KdrayError(f"padding must be a number, got {padding!r}")
+    padding = float(padding)
     if not (np.isfinite(padding) and padding >= 0):
         raise KdrayError(f"padding must be a finite number >= 0, got {padding!r}")
     n = int(resolution)
@@ -74,11 +74,16 @@ def grid_frame(tracer, resolution, padding):
     by `padding` times its largest side on each side (`check_grid`'s checks first)."""
     resolution, padding = check_grid(resolution, padding, occupancy=True)
     lo, hi = tracer.tree.world_box()
-    side = float((hi - lo).max()) * (1.0 + 2.0 * padding)
+    with np.errstate(all="ignore"):         # a side beyond float32's range: refused below
+        side = float((hi - lo).max()) * (1.0 + 2.0 * padding)
+        origin = 0.5 * (lo + hi) - 0.5 * side
     if not side > 0:
         side = 1.0                          # a flat point of a scene: any cube holds it
+        origin = 0.5 * (lo + hi) - 0.5 * side
+    if not (side <= FLOAT32_MAX and np.all(np.abs(origin) <= FLOAT32_MAX)):
+        raise KdrayError(f"padding {padding!r} makes a grid {side:.3g} across, beyond float32's "
+                         f"range (the distances are float32)")
     spacing = side / (resolution - 1)
-    origin = 0.5 * (lo + hi) - 0.5 * side
     return origin, spacing
 
 
@@ -120,22 +125,24 @@ def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="windi
     the same samples."""
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
         raise KdrayError(f"the sample count must be an integer >= 1, got {count!r}")
-    try:
-        uniform = float(uniform)
-    except (TypeError, ValueError):
-        raise KdrayError(f"uniform must be a fraction from 0 to 1, got {uniform!r}") from None
+    if isinstance(uniform, bool) or not isinstance(uniform, (int, float, np.integer, np.floating)):
+        raise KdrayError(f"uniform must be a fraction from 0 to 1, got {uniform!r}")
+    uniform = float(uniform)
     if not 0.0 <= uniform <= 1.0:
         raise KdrayError(f"uniform must be a fraction from 0 to 1, got {uniform!r}")
     _points._check_sign(sign)
     lo, hi = tracer.tree.world_box()
     if sigma is None:
         sigma = float(np.linalg.norm(hi - lo)) / 200.0
-    try:
-        sigma = float(sigma)
-    except (TypeError, ValueError):
-        raise KdrayError(f"sigma must be a number, got {sigma!r}") from None
-    if not (np.isfinite(sigma) and sigma >= 0):
-        raise KdrayError(f"sigma must be a finite number >= 0, got {sigma!r}")
+    if isinstance(sigma, bool) or not isinstance(sigma, (int, float, np.integer, np.floating)):
+        raise KdrayError(f"sigma must be a number, got {sigma!r}")
+    sigma = float(sigma)
+    if not (np.isfinite(sigma) and 0 <= sigma <= FLOAT32_MAX):
+        raise KdrayError(f"sigma must be a number from 0 to {FLOAT32_MAX:.4g} (float32's "
+                         f"range), got {sigma!r}")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
+                             or seed < 0):
+        raise KdrayError(f"seed must be an integer >= 0 (or None), got {seed!r}")
     check_host_memory(int(count) * 96, f"{count} samples", "ask for fewer")
     rng = np.random.default_rng(seed)
     n_uniform = int(round(count * uniform))
