@@ -78,7 +78,7 @@ def need_double(tree):
 def wants_double(precision, tree):
     """True for precision "double" (KdrayError when `tree` has no float64 triangles),
     False for "single"; KdrayError for anything else."""
-    if precision not in ("single", "double"):
+    if not (isinstance(precision, str) and precision in ("single", "double")):
         raise KdrayError(f"precision must be 'single' or 'double', got {precision!r}")
     missing = need_double(tree) if precision == "double" else None
     if missing:

@@ -33,6 +33,7 @@ import concurrent.futures
 import functools
 import logging
 import math
+import numbers
 import os
 
 import numpy as np
@@ -96,7 +97,17 @@ def equirectangular_K(width, height, longitude=(-math.pi, math.pi),
                       latitude=(math.pi / 2, -math.pi / 2)):
     """K of an equirectangular camera whose image spans `longitude` (left edge, right
     edge) and `latitude` (top edge, bottom edge), radians: the full panorama by default."""
-    (lon0, lon1), (lat0, lat1) = longitude, latitude
+    pairs = []
+    for name, pair in (("longitude", longitude), ("latitude", latitude)):
+        try:
+            a, b = pair
+        except (TypeError, ValueError):
+            raise CameraError(f"{name} must be two numbers (radians), got {pair!r}.") from None
+        if not all(isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+                   for x in (a, b)):
+            raise CameraError(f"{name} must be two finite numbers (radians), got {pair!r}.")
+        pairs.append((float(a), float(b)))
+    (lon0, lon1), (lat0, lat1) = pairs
     if not (lon1 > lon0 and lat0 > lat1):
         raise CameraError(f"an equirectangular image needs longitudes increasing to the right and "
                           f"latitudes decreasing downwards, got {longitude}, {latitude}.")
