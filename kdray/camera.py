@@ -56,7 +56,7 @@ import numpy as np
 from . import lens
 from .errors import CameraError, one_line
 from .files import atomic_write
-from .validate import check_float32, read_json, read_npy, read_text
+from .validate import check_float32, check_numbers, read_json, read_npy, read_text
 
 ORTHONORMAL_TOL = 1e-6
 """Largest |R^T R - I| entry and |det R - 1| accepted for a pose's rotation."""
@@ -85,6 +85,7 @@ file, a file of views, the API) before any rendering starts."""
 def _vector(value, name, n=3):
     """`value` as a finite (n,) float64 array within float32's range (positions and
     directions go to the kernels in float32), or CameraError naming it."""
+    check_numbers(value, name, CameraError)
     try:
         array = np.array(value)
         if array.dtype.kind not in "fiu":       # strings, bools, None: refused, not converted
@@ -110,6 +111,7 @@ def _size(value, name):
 
 
 def _matrix(value, shape, name):
+    check_numbers(value, name, CameraError)
     try:
         array = np.array(value)
         if array.dtype.kind not in "fiu":       # strings, bools, None: refused, not converted

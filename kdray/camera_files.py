@@ -408,7 +408,8 @@ def _transform_matrix(frame, path, label):
     except CameraError as exc:
         if not np.array_equal(M[3], [0.0, 0.0, 0.0, 1.0]):
             raise _fail(path, label, str(exc)) from None
-        lengths = ", ".join(f"{n:.6g}" for n in np.linalg.norm(M[:3, :3], axis=0))
+        with np.errstate(all="ignore"):        # columns of 1e300: inf, said as such
+            lengths = ", ".join(f"{n:.6g}" for n in np.linalg.norm(M[:3, :3], axis=0))
         raise _fail(path, label, f"{exc} Its rotation's columns have lengths {lengths}: a "
                                  "scale folded into the pose (common in nerfstudio exports) or a "
                                  "singular matrix is not a camera; kdray needs a rigid "

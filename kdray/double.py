@@ -79,7 +79,8 @@ def wants_double(precision, tree):
     """True for precision "double" (KdrayError when `tree` has no float64 triangles),
     False for "single"; KdrayError for anything else."""
     if not (isinstance(precision, str) and precision in ("single", "double")):
-        raise KdrayError(f"precision must be 'single' or 'double', got {precision!r}")
+        shown = " ".join(repr(precision).split())      # one line, an array's repr too
+        raise KdrayError(f"precision must be 'single' or 'double', got {shown:.80}")
     missing = need_double(tree) if precision == "double" else None
     if missing:
         raise KdrayError(missing)

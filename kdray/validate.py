@@ -136,3 +136,17 @@ def read_npy(path, source, error):
     except Exception as e:          # np.load on hostile bytes: any of a dozen classes
         raise error(f"{source} cannot be read as a .npy file: "
                     f"{getattr(e, 'strerror', None) or one_line(e) or type(e).__name__}.") from None
+
+
+def check_numbers(value, name, error, depth=4):
+    """`error` naming `name` when a nested list or tuple `value` (up to `depth` levels:
+    a camera's matrix, a vector) holds a bool, a string or None, which numpy would
+    otherwise turn into a number ([[30, 0, True]] is float64). Arrays are left to their
+    dtype's check."""
+    stack = [(value, 0)]
+    while stack:
+        v, level = stack.pop()
+        if isinstance(v, (list, tuple)) and level < depth:
+            stack.extend((x, level + 1) for x in v)
+        elif isinstance(v, (bool, np.bool_, str, bytes)) or v is None:
+            raise error(f"{name} must hold numbers only, got {v!r:.40}.")
