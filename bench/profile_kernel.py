@@ -10,7 +10,8 @@ The script runs itself under `perf record -F 2000` (--child), warms the Tracer u
 calls `render` (depth only), `render-default` (the default AOVs), `trace` (the
 framing camera's (N, 3) float64 rays, t and prim) or `trace-miss` (the same rays
 turned to miss the tree's box, from origins five times farther out: what a trace
-pays to read its rays and write its hits, with no traversal) for --seconds, and
+pays to read its rays and write its hits, with no traversal) or `trace-uniform`
+(2^18 incoherent rays: origins uniform in the box, random directions) for --seconds, and
 copies every
 executable anonymous mapping of the process (where Intel's runtime puts compiled
 kernels: perf sees them only as "[JIT]" addresses) to --out. It then counts the
@@ -52,10 +53,14 @@ def child(args):
         centre = (lo + hi) / 2
         o = o + 5 * (o - centre)
         d = np.ascontiguousarray((o[0] - centre) + (d - d.mean(axis=0)))
+    if args.call == "trace-uniform":
+        lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
+        rng = np.random.default_rng(1)
+        o, d = lo + (hi - lo) * rng.random((1 << 18, 3)), rng.normal(size=(1 << 18, 3))
     trace = lambda: tracer.trace(o, d, outputs=())  # noqa: E731
     call = {"render": lambda: tracer.render(camera, aovs=("depth",)),
             "render-default": lambda: tracer.render(camera),
-            "trace": trace, "trace-miss": trace}[args.call]
+            "trace": trace, "trace-miss": trace, "trace-uniform": trace}[args.call]
     call()
     call()
     start, calls = time.perf_counter(), 0
@@ -126,7 +131,8 @@ def report(args, perf_data):
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--mesh", default="bunny")
-    p.add_argument("--call", default="render", choices=("render", "render-default", "trace", "trace-miss"))
+    p.add_argument("--call", default="render", choices=("render", "render-default", "trace", "trace-miss",
+                                                    "trace-uniform"))
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--out", default="/tmp/kdray-profile")

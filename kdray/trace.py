@@ -187,15 +187,17 @@ def default_work_sizes(device, packet=1):
     return local, 4 * local * packet, 16 * cu
 
 
-POCL_ITEM_BYTES = (2560, 32)
+POCL_ITEM_BYTES = (2560, 44)
 """PoCL keeps the private data of each work-item of a group on the stack of the thread
 that runs the group, and a packet kernel's is large (the lanes' vectors, the packet's
 stack): a group that does not fit overflows it, and a frame larger than the stack can
 step over the guard page into other memory instead of crashing. A bound on one
 work-item's bytes with packets of P rays and a packet stack of S entries:
-P (2560 + 32 S), about twice the frames of PoCL's compiled kernels (BENCHMARKS.md; 12.9
+P (2560 + 44 S): about twice the frames of PoCL's compiled kernels (BENCHMARKS.md; 12.9
 and 18.2 KiB a work-item with P = 8, 22.5 and 32.2 KiB with P = 16, at S = 16 and 64;
-tests/test_runtimes.py checks the compiled frames against it)."""
+tests/test_runtimes.py checks the compiled frames against it) before each lane had a
+stack of its own (lanes_trace.cl: 12 bytes an entry a lane, and its shear and hit),
+which PoCL 3.0 has not compiled since (it fails its probe on the AVX-512 CPUs here)."""
 
 POCL_STACK_RESERVE = 256 << 10
 """Bytes of a thread's stack not counted for work-items: glibc's static TLS (carved from
@@ -286,9 +288,15 @@ class Tracer:
         # the kernel's rule; tests set 0 (triangle by triangle) or inf (ray by ray)
         self._lane_ratio = None
         self._cull_lane_ratio = None
-        # packets whose origins lie far apart are traced ray by ray (packet.cl,
-        # kd_alone): None = by the kernel's rule; tests set -1 (always) or inf (never)
+        # packets whose origins lie far apart or whose directions diverge are traced
+        # each ray on its own path (packet.cl, kd_alone): None = by the kernel's rule;
+        # tests set the spread -1 (always), or the spread and the turn inf (never)
         self._alone_spread = None
+        self._alone_turn = None
+        # such rays go side by side in vector lanes while at least this many are left
+        # (lanes_trace.cl, KD_LANES_MIN), else one by one: None = the kernel's; tests
+        # set 1 (every lane in vectors) or 99 (never)
+        self._lanes_min = None
         # trace_rays: each work-item takes a run of its group's batch (render.cl,
         # item_runs) on CPUs, where a group's work-items run one after another; on
         # GPUs every local_size-th packet, for coalesced reads. Tests set both.
@@ -408,9 +416,12 @@ class Tracer:
             # the tests' overrides of the packet rules, as float literals
             for name, value in (("KD_LANE_RATIO", self._lane_ratio),
                                 ("KD_CULL_LANE_RATIO", self._cull_lane_ratio),
-                                ("KD_ALONE_SPREAD", self._alone_spread)):
+                                ("KD_ALONE_SPREAD", self._alone_spread),
+                                ("KD_ALONE_TURN", self._alone_turn)):
                 if value is not None:
                     defines[name] = f"{min(float(value), 1e30):.9e}f"
+            if self._lanes_min is not None:
+                defines["KD_LANES_MIN"] = f"{int(self._lanes_min)}u"
         for name in outputs:
             defines[f"OUT_{name}"] = None
         if stats:

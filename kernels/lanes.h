@@ -59,6 +59,26 @@ typedef double8 doubleP;
 #endif
 #endif
 
+/* p[i] of each lane's index i, as one vector of type T (a vector literal of plain
+ * loads: what the CPU runtimes compile best, PoCL's included) */
+#if KD_PACKET == 16
+#define KD_GATHER_AS(T, p, i)                                                            \
+    (T)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5],    \
+        (p)[(i).s6], (p)[(i).s7], (p)[(i).s8], (p)[(i).s9], (p)[(i).sa], (p)[(i).sb],    \
+        (p)[(i).sc], (p)[(i).sd], (p)[(i).se], (p)[(i).sf])
+typedef ulong16 ulongP;
+#define convert_uintP convert_uint16
+#define convert_longP convert_long16
+#else
+#define KD_GATHER_AS(T, p, i)                                                            \
+    (T)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5],    \
+        (p)[(i).s6], (p)[(i).s7])
+typedef ulong8 ulongP;
+#define convert_uintP convert_uint8
+#define convert_longP convert_long8
+#endif
+#define KD_GATHER(p, i) KD_GATHER_AS(uintP, p, i)
+
 KD_INLINE floatP kd_absP(floatP x) { return as_floatP(as_uintP(x) & (uintP)(0x7FFFFFFFu)); }
 /* lanes of b where mask m is set, else of a (select(a, b, m)), as OpenCL's vector
  * ternary: Oclgrind 21.10 gets the same select written with & and | wrong, in the
@@ -82,6 +102,24 @@ bool kd_anyP(intP m)
     int4 a = e.lo | e.hi;
     int2 b = a.lo | a.hi;
     return (b.x | b.y) != 0;
+}
+
+/* Lane bits of mask m: bit l set where lane l is. */
+KD_INLINE
+uint kd_bitsP(intP m)
+{
+#if KD_PACKET == 16
+    uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u, 4096u,
+                      8192u, 16384u, 32768u);
+    uintP b = as_uintP(m) & w;
+    uint8 e = b.lo | b.hi;
+#else
+    uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u);
+    uint8 e = as_uintP(m) & w;
+#endif
+    uint4 a = e.lo | e.hi;
+    uint2 c = a.lo | a.hi;
+    return c.x | c.y;
 }
 
 /* the number of lanes set in mask m */

@@ -485,23 +485,6 @@ void kd_cull_setup(KdPacket *r, intP on, uint first)
     kd_rangeP(kd_selectP((floatP)(Sy.s[first]), r->Sy, on), &r->Sy_lo, &r->Sy_hi);
 }
 
-/* Lane bits of mask m: bit l set where lane l is. */
-KD_INLINE
-uint kd_bitsP(intP m)
-{
-#if KD_PACKET == 16
-    uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u, 4096u,
-                      8192u, 16384u, 32768u);
-    uintP b = as_uintP(m) & w;
-    uint8 e = b.lo | b.hi;
-#else
-    uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u);
-    uint8 e = as_uintP(m) & w;
-#endif
-    uint4 a = e.lo | e.hi;
-    uint2 c = a.lo | a.hi;
-    return c.x | c.y;
-}
 #endif
 
 /* Leaf: every lane in `act` tests the leaf's triangles. Where few lanes reach a leaf
@@ -843,37 +826,70 @@ void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, flo
 #define KD_ALONE_SPREAD 0.25f
 #endif
 
-/* Whether the lanes in `on` (origins ox, oy, oz; r: their packet) are better traced
- * one by one, each ray alone (trace_ray, each leaf KD_PACKET triangles at a time:
- * kd_ray_leaf): their origins span more than KD_ALONE_SPREAD of the scene box's
- * longest side on some axis. Rays that far apart share few nodes below the top of the
- * tree, and the union of their paths, each node a vector step, costs more than their
- * paths one by one; rays from one point or a small patch (cameras, lidars, a
- * projector's pixels) share most nodes whichever way they point (BENCHMARKS.md,
- * "Incoherent rays"). Either way every lane's hit is the same. */
+/* The span of a packet's direction components on some axis, in units of their largest
+ * magnitude, above which its rays, even from one point, are traced each on its own
+ * path (kd_alone): random directions of one length span about 2, a camera's 4 x 4
+ * pixels or a lidar's neighbouring beams hundredths. */
+#ifndef KD_ALONE_TURN
+#define KD_ALONE_TURN 0.5f
+#endif
+
+/* Whether the lanes in `on` (origins ox, oy, oz, directions dx, dy, dz; r: their
+ * packet) are better traced each on its own path (kd_lanes_trace, or trace_ray when
+ * few; their leaves KD_PACKET triangles at a time: kd_ray_leaf) than as a packet: their
+ * origins span more than KD_ALONE_SPREAD of the scene box's longest side on some axis,
+ * or their directions more than KD_ALONE_TURN. Rays that far apart or that diverge
+ * share few nodes below the top of the tree, and the union of their paths, each node a
+ * vector step, costs more than their own paths; rays from one point or a small patch
+ * pointing alike (cameras, lidars, a projector's pixels) share most nodes
+ * (BENCHMARKS.md, "Incoherent rays"). Either way every lane's hit is the same. */
 KD_INLINE
-bool kd_alone(const KdPacket *r, intP on, floatP ox, floatP oy, floatP oz, float3 bmin,
-              float3 bmax)
+bool kd_alone(const KdPacket *r, intP on, bool camera, floatP ox, floatP oy, floatP oz,
+              floatP dx, floatP dy, floatP dz, float3 bmin, float3 bmax)
 {
-    if (r->shared_o)
-        return 0.0f > KD_ALONE_SPREAD;      /* tests set it below 0 to trace all alone */
-    /* lanes that are off take the first lane's origin */
-    floatP x = kd_selectP((floatP)(r->uo[0]), ox, on);
-    floatP y = kd_selectP((floatP)(r->uo[1]), oy, on);
-    floatP z = kd_selectP((floatP)(r->uo[2]), oz, on);
-    float span = kd_max(kd_spanP(x), kd_max(kd_spanP(y), kd_spanP(z)));
-    float3 side = bmax - bmin;
-    return span > KD_ALONE_SPREAD * kd_max(side.x, kd_max(side.y, side.z));
+    if (0.0f > KD_ALONE_SPREAD)
+        return true;                        /* tests set it below 0 to trace all alone */
+    /* lanes that are off take the first on lane's values (the first lane's when every
+     * lane is on: no lane is off but at the end of the rays) */
+    floatP x, y, z;
+    if (!r->shared_o) {
+        x = kd_selectP((floatP)(r->uo[0]), ox, on);
+        y = kd_selectP((floatP)(r->uo[1]), oy, on);
+        z = kd_selectP((floatP)(r->uo[2]), oz, on);
+        float span = kd_max(kd_spanP(x), kd_max(kd_spanP(y), kd_spanP(z)));
+        float3 side = bmax - bmin;
+        if (span > KD_ALONE_SPREAD * kd_max(side.x, kd_max(side.y, side.z)))
+            return true;
+    }
+    if (camera)
+        return false;                       /* a camera's pixels point alike */
+    /* lanes that are off take the first on lane's direction */
+    KdFP a, b, c;
+    a.v = dx; b.v = dy; c.v = dz;
+    uint l0 = 31u - clz(kd_bitsP(on) & (0u - kd_bitsP(on)));
+    x = kd_selectP((floatP)(a.s[l0]), dx, on);
+    y = kd_selectP((floatP)(b.s[l0]), dy, on);
+    z = kd_selectP((floatP)(c.s[l0]), dz, on);
+    float lo_x, hi_x, lo_y, hi_y, lo_z, hi_z;
+    kd_rangeP(x, &lo_x, &hi_x);
+    kd_rangeP(y, &lo_y, &hi_y);
+    kd_rangeP(z, &lo_z, &hi_z);
+    float big = kd_max(kd_max(kd_max(-lo_x, hi_x), kd_max(-lo_y, hi_y)), kd_max(-lo_z, hi_z));
+    float span = kd_max(hi_x - lo_x, kd_max(hi_y - lo_y, hi_z - lo_z));
+    return span > KD_ALONE_TURN * big;
 }
+
+#include "lanes_trace.cl"
 
 /* Nearest hits of the rays o + t d (per lane, relative to the tree's origin) with
  * t_min < t < t_max, as trace_ray gives them, for the lanes in `on`; bmin, bmax: the
- * scene box. Writes t (t_max on a miss), u, v (0 on a miss) and tri (KD_NO_HIT on a
- * miss) per lane, and with STATS per-lane counts. */
+ * scene box; camera: the rays are a camera's pixels (render_camera), which point
+ * alike (kd_alone). Writes t (t_max on a miss), u, v (0 on a miss) and tri (KD_NO_HIT
+ * on a miss) per lane, and with STATS per-lane counts. */
 KD_INLINE
 void trace_packet(__global const KdNode *nodes, uint n_nodes,
                   __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax, intP on,
-                  floatP ox, floatP oy, floatP oz, floatP dx, floatP dy, floatP dz,
+                  bool camera, floatP ox, floatP oy, floatP oz, floatP dx, floatP dy, floatP dz,
                   float t_min, float t_max,
                   floatP *t_out, floatP *u_out, floatP *v_out, uintP *tri_out
 #ifdef STATS
@@ -930,7 +946,7 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     ps.x = (uintP)(0u); ps.y = (uintP)(0u); ps.z = (uintP)(0u);
     KdPacketStats *pstats = &ps;
 #endif
-    if (kd_alone(&r, on, ox, oy, oz, bmin, bmax)) {
+    if (kd_alone(&r, on, camera, ox, oy, oz, dx, dy, dz, bmin, bmax)) {
         fallback.v = on;                 /* traced ray by ray below: no packet set up */
     } else {
         kd_packet_shear(&r, on, first, ox, oy, oz, dx, dy, dz, t_min, t_max);
@@ -946,6 +962,15 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     tri_l.v = h.tri;
 #ifdef STATS
     stat_x->v = ps.x; stat_y->v = ps.y; stat_z->v = ps.z; stat_w->v = (uintP)(0u);
+#endif
+#ifndef STATS
+    if (kd_countP(fallback.v) >= KD_LANES_ENTER) {
+        /* lanes the packet handed over, or all of a packet traced alone: side by side,
+         * each its own path, from the start; those it hands back go one by one */
+        fallback.v = kd_lanes_trace(nodes, 2u * n_nodes + 2u, tris, tri_ids, fallback.v,
+                                    ox, oy, oz, dx, dy, dz, t_min, t_max, t_enter, t_exit,
+                                    &t_l, &u_l, &v_l, &tri_l);
+    }
 #endif
     if (kd_anyP(fallback.v)) {
         /* lanes the packet handed over: the scalar kernel from the start */

@@ -228,17 +228,9 @@ void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP
 #define KD_ROWS(ROW, ...)                                                                \
     ROW(0, s0, s1, s2, s3, __VA_ARGS__) ROW(1, s4, s5, s6, s7, __VA_ARGS__)             \
     ROW(2, s8, s9, sa, sb, __VA_ARGS__) ROW(3, sc, sd, se, sf, __VA_ARGS__)
-/* p[i] of each lane's index i, as one vector */
-#define KD_GATHER(p, i)                                                                  \
-    (uint16)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5], \
-             (p)[(i).s6], (p)[(i).s7], (p)[(i).s8], (p)[(i).s9], (p)[(i).sa], (p)[(i).sb], \
-             (p)[(i).sc], (p)[(i).sd], (p)[(i).se], (p)[(i).sf])
 #else
 #define KD_ROWS(ROW, ...)                                                                \
     ROW(0, s0, s1, s2, s3, __VA_ARGS__) ROW(1, s4, s5, s6, s7, __VA_ARGS__)
-#define KD_GATHER(p, i)                                                                  \
-    (uint8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5], \
-            (p)[(i).s6], (p)[(i).s7])
 #endif
 /* row r of x at p + k0 + r stride */
 #define KD_ROW_1(r, a, b, c, d, x, p, k0, stride)                                        \
@@ -314,18 +306,19 @@ void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP
  * are a block (kd_store_block: idx[l] is idx[0] + (l / 4) row_stride + l % 4). */
 KD_INLINE
 void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP on,
-                            float t_min, float t_max, KD_TREE_PARAMS, KD_OUTPUT_ARGS,
+                            bool camera, float t_min, float t_max, KD_TREE_PARAMS,
+                            KD_OUTPUT_ARGS,
                             const uint *idx, uint row_stride KD_EXACT_PARAMS)
 {
     KdFP t_l, u_l, v_l;
     KdUP tri_l;
 #ifdef STATS
     KdUP sx, sy, sz, sw;
-    trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
+    trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, camera, ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
                  &sx, &sy, &sz, &sw);
 #else
-    trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, ox.v, oy.v, oz.v,
+    trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, camera, ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
 #endif
     KdIP found;
@@ -698,7 +691,7 @@ void trace_rays(KD_TREE_ARGS,
                     idx.s[l] = idx.s[0];          /* off lanes */
                 kd_gather_packet(count, o, d, &ox, &oy, &oz, &dx, &dy, &dz, &on);
             }
-            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, t_min, t_max, KD_TREE_PASS,
+            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, false, t_min, t_max, KD_TREE_PASS,
                                    KD_OUTPUT_PASS, idx.s, row_stride KD_TRACE_EXACT);
 #else
             float3 o = KD_RAY_ORIGIN(origins, (size_t)k0 * o_step);
@@ -815,7 +808,7 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             /* every lane on (a block inside the image, each pixel with a ray): its
              * outputs stored a row at a time */
             uint row_stride = kd_countP(on.v) == KD_PACKET ? width : 0u;
-            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, 0.0f, INFINITY, KD_TREE_PASS,
+            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, true, 0.0f, INFINITY, KD_TREE_PASS,
                                    KD_OUTPUT_PASS, idx, row_stride KD_NO_EXACT);
 #else
             uint col = tile_col + in_tile % TILE_W;

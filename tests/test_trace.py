@@ -277,6 +277,7 @@ def test_packets_equal_single_rays(packet, kind, leaf, tracers):
     packed._lane_ratio = {"by triangle": 0.0, "by ray": np.inf}.get(leaf)
     packed._cull_lane_ratio = packed._lane_ratio
     packed._alone_spread = {"never alone": np.inf, "all alone": -1.0}.get(leaf)
+    packed._alone_turn = {"never alone": np.inf}.get(leaf)
     for t_min, t_max in [(0.0, np.inf), (surface_t_min(tree), np.inf), (0.3, 2.5)]:
         a = single.trace(o, d, t_min=t_min, t_max=t_max)
         b = packed.trace(o, d, t_min=t_min, t_max=t_max)
@@ -289,6 +290,48 @@ def test_packets_equal_single_rays(packet, kind, leaf, tracers):
     rb = packed.render(camera, aovs="all")
     for name in ra:
         assert np.array_equal(ra[name], rb[name], equal_nan=True), name
+
+
+@pytest.mark.parametrize("kind", ["median", "sah", "soup"])
+@pytest.mark.parametrize("setting", ["rule", "every lane", "full packets", "stack of 2"])
+def test_rays_on_their_own_paths_equal_single_rays(kind, setting, tracers):
+    """Rays that share no path (each lane its own origin, or one origin and diverging
+    directions: kd_alone), and the lanes a packet hands over, are traced side by side
+    in vector lanes, each on its own path (kernels/lanes_trace.cl): bit for bit what
+    one ray a work-item gives, and the oracle's hits. Packets mix every kind of ray
+    (shuffled: split planes and vertices, which a lane hands back, beside random and
+    invalid rays) and a count that leaves lanes empty; rays from one point in random
+    directions. By the kernel's rule (the last few lanes one by one), with every lane
+    in vectors to the last, with vectors only while every lane is left (most of the
+    work one by one, carried on from the lanes' state), and with a packet stack of 2 (lanes hand themselves back
+    when theirs is full); in a deep tree, a mesh's and a soup's (triangles across many
+    leaves, where a hit past a leaf's exit must not end a ray)."""
+    tree = {"median": deep_tree, "sah": lambda: mesh_tree("teapot.obj", "sah"),
+            "soup": lambda: sah_tree(*soup(7, m=2000))}[kind]()
+    o, d = packet_rays(tree, camera_size=19)
+    order = np.random.default_rng(31).permutation(len(d))
+    o, d = o[order][:-5], d[order][:-5]
+    lo, hi = tree.origin + tree.bounds.astype(np.float64)
+    d_one = np.random.default_rng(32).normal(size=(2003, 3))
+    o_one = np.tile(lo + (hi - lo) * np.array([0.4, 0.55, 0.5]), (len(d_one), 1))
+    single = tracers(tree, packet=1)
+    packed = Tracer(tree)
+    if packed.packet == 1:
+        pytest.skip("no packets on this device")
+    packed._poison_outputs = True
+    if setting == "every lane":
+        packed._lanes_min = 1
+    if setting == "full packets":
+        packed._lanes_min = packed.packet      # the rest one by one from the first done
+    if setting == "stack of 2":
+        packed.packet_stack_size = 2
+    for rays in [(o, d), (o_one, d_one)]:
+        a = single.trace(*rays)
+        b = packed.trace(*rays)
+        for field in ("t", "prim", "u", "v", "normal"):
+            assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+    assert check_hits(b, tree, o_one, d_one) > len(d_one) // 2
+    assert 0.2 * len(d) < np.count_nonzero(a.hit) < 0.9 * len(d)
 
 
 def reversed_leaves(tree):

@@ -1,0 +1,257 @@
+/* kernels/lanes_trace.cl: rays that share no path through the tree, one a vector lane,
+ * each on its own path (the way ispc's program instances and a GPU's threads trace):
+ * packet programs' rays that are not traversed as a packet (kd_alone: origins far
+ * apart) or that leave it (packet.cl), when enough of them are left.
+ *
+ * Why: traced one after the other (trace_ray), a ray's node step waits on its own
+ * chain (the node's load, the plane's division, the compares, a branch the CPU
+ * predicts badly for such rays): about 30 cycles a node on a Zen 4, most of a ray's
+ * time. Here one vector step moves every lane one node down its own path, so KD_PACKET
+ * chains advance together and no branch depends on one ray's decision.
+ *
+ * Each lane makes exactly trace_ray's decisions (traverse.cl, kd_traverse_pass): the
+ * same t_split (a division), slack, near child, ranges and early exit, and tests its
+ * leaves with kd_ray_leaf, so its hit is trace_ray's bit for bit. Its stack is a plain
+ * one of PACKET_STACK_SIZE entries (the tree's depth + 1: never full on a valid tree);
+ * a lane hands itself back to trace_ray from its start when it would need what only
+ * trace_ray does: a ray lying in a split plane (t_split NaN: trace_ray's passes), a
+ * full stack, or more leaves than a correct traversal visits.
+ */
+#ifndef KDRAY_LANES_TRACE_CL
+#define KDRAY_LANES_TRACE_CL
+/* (programs that count the work, -D STATS, trace these rays one by one: trace_ray
+ * counts it) */
+#ifndef STATS
+
+#pragma OPENCL FP_CONTRACT OFF
+
+/* The fewest lanes a packet hands over that start a vector traversal (fewer go one by
+ * one: trace_ray), and the fewest it goes on with (the last go on one by one:
+ * kd_lane_finish). */
+#ifndef KD_LANES_MIN
+#define KD_LANES_MIN 4u
+#endif
+#ifndef KD_LANES_ENTER
+#define KD_LANES_ENTER (2u * KD_LANES_MIN < KD_PACKET ? 2u * KD_LANES_MIN : (uint)KD_PACKET)
+#endif
+
+/* The lanes whose bits are set in `bits` (lane l: bit l), as a mask. */
+KD_INLINE
+intP kd_maskP(uint bits)
+{
+    return -as_intP(((uintP)(bits) >> KD_LANE_INDEX_U) & (uintP)(1u));
+}
+
+/* One lane's traversal carried on alone from where the vector loop left it (node,
+ * range [t0, t1], its stack entries stack_*[k * KD_PACKET + l] for k < top, leaves
+ * visited): kd_lanes_trace's decisions with traverse.cl's scalar node step. Returns
+ * false where the lane must be handed back to trace_ray. */
+KD_INLINE
+bool kd_lane_finish(__global const KdNode *nodes, uint max_leaves, __global const float *tris,
+                    __global const uint *tri_ids, const RayShear *shear, float3 o, float3 d,
+                    float t_min, float t_max, uint node, float t0, float t1, uint *stack_node,
+                    float *stack_t0, float *stack_t1, uint l, uint top, uint leaves, Hit *hit)
+{
+    for (;;) {
+        KdNode n = nodes[node];
+        while (!kd_is_leaf(n)) {
+            uint first, second;
+            bool below_first;
+            float t_mid;
+            uint step = kd_node_step(n, node, o, d, t0, t1, &first, &second, &below_first,
+                                     &t_mid);
+            if (step == KD_STEP_IN_PLANE)
+                return false;
+            if (step == KD_STEP_BOTH) {
+                if (top == PACKET_STACK_SIZE)
+                    return false;
+                uint k = top * KD_PACKET + l;
+                stack_node[k] = second;
+                stack_t0[k] = t_mid;
+                stack_t1[k] = t1;
+                top++;
+                t1 = t_mid;
+            }
+            node = step == KD_STEP_SECOND ? second : first;
+            n = nodes[node];
+        }
+        if (++leaves > max_leaves)
+            return false;
+        kd_ray_leaf(n, tris, tri_ids, shear, o, t_min, t_max, hit);
+        if (kd_hit_final(hit->t, t1) || top == 0u)
+            return true;
+        top--;
+        uint k = top * KD_PACKET + l;
+        node = stack_node[k];
+        t0 = stack_t0[k];
+        t1 = stack_t1[k];
+    }
+}
+
+/* Nearest hits of the lanes in `on` (rays o + t d relative to the tree's origin, each
+ * finite, d not 0, inside the scene box over [t_enter, t_exit], as trace_packet's box
+ * clip leaves them), with t_min < t < t_max: lane l's t, u, v, tri as trace_ray's
+ * Hit, written to t_l, u_l, v_l, tri_l for the lanes it finishes. Returns the lanes it
+ * hands back (see above), which the caller traces with trace_ray.
+ *
+ * The lanes' state lives in vectors (node, t0, t1) and bit masks (act, handed), and a
+ * lane's own changes are merged in by selects: a lane written through memory and read
+ * back as a vector would wait for the store (no store-to-load forwarding). */
+KD_INLINE
+intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
+                    __global const float *tris, __global const uint *tri_ids, intP on,
+                    floatP ox, floatP oy, floatP oz, floatP dx, floatP dy, floatP dz,
+                    float t_min, float t_max, floatP t_enter, floatP t_exit,
+                    KdFP *t_l, KdFP *u_l, KdFP *v_l, KdUP *tri_l)
+{
+    KdFP oxl, oyl, ozl, dxl, dyl, dzl;
+    oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
+    RayShear shear[KD_PACKET];
+    Hit hit[KD_PACKET];
+    uint stack_node[PACKET_STACK_SIZE * KD_PACKET];    /* entry k of lane l: [k * P + l] */
+    float stack_t0[PACKET_STACK_SIZE * KD_PACKET];
+    float stack_t1[PACKET_STACK_SIZE * KD_PACKET];
+    uint top[KD_PACKET];
+    uint leaves[KD_PACKET];
+    uint act = kd_bitsP(on);
+    for (uint l = 0; l < KD_PACKET; l++) {
+        shear[l] = ray_shear((float3)(dxl.s[l], dyl.s[l], dzl.s[l]));
+        hit[l].t = t_max;
+        hit[l].u = 0.0f;
+        hit[l].v = 0.0f;
+        hit[l].tri = KD_NO_HIT;
+        top[l] = 0u;
+        leaves[l] = 0u;
+    }
+
+    uint handed = 0u;
+    uintP node = (uintP)(0u);
+    floatP t0 = t_enter, t1 = t_exit;
+    while (popcount(act) >= KD_LANES_MIN) {
+        /* every lane's node as one 8-byte word, flags in its low half (lanes that are
+         * done read their last node again: no branch per lane) */
+        ulongP word = KD_GATHER_AS(ulongP, (__global const ulong *)nodes, node);
+        uintP flags = convert_uintP(word & (ulongP)(0xFFFFFFFFul));
+        uintP data = convert_uintP(word >> 32);
+        intP leaf = as_intP((flags & (uintP)(3u)) == (uintP)(KD_LEAF));
+        intP active = kd_maskP(act);
+        uint inner = kd_bitsP(active & ~leaf);
+
+        if (inner) {
+            /* kd_node_step, a lane each */
+            intP axis = as_intP(flags & (uintP)(3u));
+            floatP split = as_floatP(data);
+            floatP o_k = kd_compP(ox, oy, oz, axis);
+            floatP d_k = kd_compP(dx, dy, dz, axis);
+            floatP t_split = (split - o_k) / d_k;
+            uintP below = node + (uintP)(1u);
+            uintP above = flags >> 2;
+            intP below_first = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
+            uintP first = kd_selectPu(above, below, below_first);
+            uintP second = kd_selectPu(below, above, below_first);
+            floatP t_lo = t0 * (1.0f - KD_T_SLACK);
+            floatP t_hi = t1 * (1.0f + KD_T_SLACK);
+            floatP t_mid = kd_clampP(t_split, t0, t1);
+            intP go_first = (t_split > t_hi) | (t_split <= 0.0f);
+            intP go_second = ~go_first & (t_split < t_lo);
+            uint in_plane = inner & kd_bitsP(t_split != t_split);
+            uint both = inner & ~in_plane & ~kd_bitsP(go_first | go_second);
+            /* both: push the second child over [t_mid, t1], go on in the first (lane
+             * by lane, plain stores: a scatter costs more on the CPUs measured) */
+            if (both) {
+                KdUP second_l;
+                KdFP mid_l, t1_l;
+                second_l.v = second;
+                mid_l.v = t_mid;
+                t1_l.v = t1;
+                uint push = both;
+                do {
+                    uint l = 31u - clz(push & (0u - push));
+                    push &= push - 1u;
+                    if (top[l] == PACKET_STACK_SIZE) {
+                        handed |= 1u << l;      /* full: trace_ray's ring and restart */
+                        continue;
+                    }
+                    uint k = top[l] * KD_PACKET + l;
+                    stack_node[k] = second_l.s[l];
+                    stack_t0[k] = mid_l.s[l];
+                    stack_t1[k] = t1_l.s[l];
+                    top[l]++;
+                } while (push);
+            }
+            handed |= in_plane;
+            act &= ~handed;
+            intP step = kd_maskP(inner & act);
+            node = kd_selectPu(node, kd_selectPu(first, second, go_second), step);
+            t1 = kd_selectP(t1, t_mid, step & kd_maskP(both));
+        }
+
+        /* leaves: each lane's triangles, KD_PACKET at a time (kd_ray_leaf); a hit
+         * before the leaf's exit is final, else the lane's next entry */
+        uint at_leaf = act & kd_bitsP(leaf);
+        if (at_leaf) {
+            KdUP flags_l, data_l;
+            KdFP t1_l;
+            flags_l.v = flags;
+            data_l.v = data;
+            t1_l.v = t1;
+            do {
+                uint l = 31u - clz(at_leaf & (0u - at_leaf));
+                at_leaf &= at_leaf - 1u;
+                if (++leaves[l] > max_leaves) {
+                    handed |= 1u << l;          /* a corrupt tree: trace_ray's bound */
+                    act &= ~(1u << l);
+                    continue;
+                }
+                KdNode n;
+                n.flags = flags_l.s[l];
+                n.data = data_l.s[l];
+                kd_ray_leaf(n, tris, tri_ids, &shear[l],
+                            (float3)(oxl.s[l], oyl.s[l], ozl.s[l]), t_min, t_max, &hit[l]);
+                if (kd_hit_final(hit[l].t, t1_l.s[l]) || top[l] == 0u) {
+                    act &= ~(1u << l);
+                } else {
+                    top[l]--;
+                    uint k = top[l] * KD_PACKET + l;
+                    intP m = KD_LANE_INDEX == (intP)((int)l);
+                    node = kd_selectPu(node, (uintP)(stack_node[k]), m);
+                    t0 = kd_selectP(t0, (floatP)(stack_t0[k]), m);
+                    t1 = kd_selectP(t1, (floatP)(stack_t1[k]), m);
+                }
+            } while (at_leaf);
+        }
+    }
+
+    /* the last few lanes one by one: a vector step costs more than their scalar steps */
+    if (act) {
+        KdUP node_l;
+        KdFP t0_l, t1_l;
+        node_l.v = node;
+        t0_l.v = t0;
+        t1_l.v = t1;
+        do {
+            uint l = 31u - clz(act & (0u - act));
+            act &= act - 1u;
+            if (!kd_lane_finish(nodes, max_leaves, tris, tri_ids, &shear[l],
+                                (float3)(oxl.s[l], oyl.s[l], ozl.s[l]),
+                                (float3)(dxl.s[l], dyl.s[l], dzl.s[l]), t_min, t_max,
+                                node_l.s[l], t0_l.s[l], t1_l.s[l], stack_node, stack_t0,
+                                stack_t1, l, top[l], leaves[l], &hit[l]))
+                handed |= 1u << l;
+        } while (act);
+    }
+
+    uint done = kd_bitsP(on) & ~handed;
+    while (done) {
+        uint l = 31u - clz(done & (0u - done));
+        done &= done - 1u;
+        t_l->s[l] = hit[l].t;
+        u_l->s[l] = hit[l].u;
+        v_l->s[l] = hit[l].v;
+        tri_l->s[l] = hit[l].tri;
+    }
+    return kd_maskP(handed);
+}
+
+#endif
+#endif
