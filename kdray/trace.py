@@ -53,6 +53,7 @@ from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device
 from .ray_grid import grid_width
 from .render import DEFAULT_AOVS
 from .tree import object_ids
+from .validate import check_float32
 
 log = logging.getLogger(__name__)
 
@@ -948,7 +949,10 @@ class Tracer:
             ("lidar", lidar.to_json()),
             lambda: (np.ascontiguousarray(lidar.directions(), dtype=np.float32), None))
         M = pose[:3, :3].astype(np.float32)
-        eye = ((pose[:3, 3] - self._origin) / self._scale).astype(np.float32)
+        eye = (pose[:3, 3] - self._origin) / self._scale
+        # a lidar far from a small scene: the kernel's float32 cannot hold where it is
+        check_float32(eye, "the lidar's position relative to the tree (in its units)", KdrayError)
+        eye = eye.astype(np.float32)
         camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]))
         n = rows * columns
         outputs = ("T", "ID")

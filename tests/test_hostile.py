@@ -375,3 +375,16 @@ def test_camera_far_from_a_tiny_scene_is_refused_by_the_render():
         warnings.simplefilter("error")
         with pytest.raises(KdrayError, match="eye relative to the tree"):
             tracer.render(camera)
+
+
+def test_lidar_far_from_a_tiny_scene_is_refused_by_the_scan():
+    """The same for a scan: the lidar's position relative to a tree of scale 2^-100 is
+    beyond float32 (a KdrayError, no numpy warning)."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64) * 1e-30
+    tracer = kdray.Tracer(kdray.build(v, [[0, 1, 2]]))
+    pose = np.eye(4)
+    pose[0, 3] = 1e30
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(KdrayError, match="lidar's position relative to the tree"):
+            tracer.scan(kdray.Lidar(np.array([10.0, 0.0, -10.0]), 8, 1e40), pose)
