@@ -3,7 +3,14 @@ into one-line messages."""
 
 
 class KdrayError(Exception):
-    """Base class of every error kdray raises on purpose."""
+    """Base class of every error kdray raises on purpose. Its message is one line: a
+    newline or carriage return it quotes (a file name may hold one) is written as
+    \\n or \\r."""
+
+    def __init__(self, *args):
+        if args and isinstance(args[0], str):
+            args = (args[0].replace("\r", "\\r").replace("\n", "\\n"), *args[1:])
+        super().__init__(*args)
 
 
 class MeshError(KdrayError):
