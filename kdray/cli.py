@@ -322,7 +322,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
            cull, precision, **kw):
     """Render SCENE's depth, normal, barycentric and id images to an EXR file (with
     --cameras: one EXR file per view, in the folder -o DIR)."""
-    from .images import write_exr, write_preview
+    from .images import check_camera_header, write_exr, write_preview
     from .render import kernel_outputs, parse_aovs
     from .trace import Tracer
     from .tree import KdTree
@@ -391,6 +391,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
                                                                      mesh.object_names)
             camera = _camera(lambda: _tree_box(tree), width, height, eye, target, up, fov,
                              intrinsics, pose, camera_file)
+    check_camera_header(camera, output)         # the EXR can hold it: asked before the work
     with step("setting up the device"):
         tracer = Tracer(tree, device=device)
     outputs = kernel_outputs(aovs)

@@ -51,7 +51,7 @@ import numpy as np
 from .camera import Camera
 from .errors import KdrayError, OutputError
 from .files import atomic_write
-from .validate import parse_json
+from .validate import FLOAT32_MAX, parse_json
 from .layout import MISS
 from .render import AOVS
 
@@ -228,6 +228,21 @@ def exr_camera_matrices(camera):
     return world_to_camera.T, world_to_ndc.T
 
 
+def check_camera_header(camera, path="the EXR file"):
+    """OutputError when a camera's EXR matrices (worldToCamera and worldToNDC, float32 in
+    the header: docs/exr.md) hold a value beyond float32's range; the command line asks
+    before it renders. A camera within float32 (kdray.camera's checks) may still have
+    one: a far eye's -R^T t, or a focal length of 1e30 times the eye's 1e10."""
+    with np.errstate(all="ignore"):             # overflows are inf: refused below
+        matrices = exr_camera_matrices(camera)
+    for name, matrix in zip(("worldToCamera", "worldToNDC"), matrices):
+        big = ~(np.abs(matrix) <= FLOAT32_MAX)
+        if big.any():
+            raise OutputError(f"cannot write {path}: the camera's {name} matrix holds "
+                              f"{float(matrix[big][0]):.4g}, beyond float32's range, in which "
+                              f"the EXR header holds it (docs/exr.md)")
+
+
 def _camera_header(camera, aovs):
     from . import __version__  # here: kdray's __init__ may one day import this module
 
@@ -291,6 +306,7 @@ def write_exr(path, images, camera=None, object_names=None, lidar=None, sensor_t
                 f"cannot write {path}: the camera is {camera.width}x{camera.height} pixels "
                 f"but the images are {width}x{height}."
             )
+        check_camera_header(camera, path)
         header.update(_camera_header(camera, images))
     if lidar is not None:
         header.update(_lidar_header(lidar, sensor_to_world, (height, width), images, path))

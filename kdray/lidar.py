@@ -324,7 +324,10 @@ def scan_images(lidar, origin, directions, t, prim, objects):
     from .tree import object_ids
     t = np.array(t)
     prim = np.array(prim, dtype=np.uint32)
-    far = ~(t < lidar.max_range)            # beyond max_range, a miss (inf), or NaN
+    # beyond max_range, a miss (inf), or NaN; numpy compares a float32 t with max_range
+    # rounded to float32, which a max_range of 1e308 overflows to inf: no limit, as meant
+    with np.errstate(over="ignore"):
+        far = ~(t < lidar.max_range)
     np.copyto(t, np.inf, where=far)         # (faster than t[far] = inf)
     np.copyto(prim, MISS, where=far)
     shape = lidar.shape
