@@ -896,6 +896,7 @@ class Generator:
             opt = pick(rng, sorted(base["values"]))
             kind = base["values"][opt]
             value, refuse = hostile_option(rng, kind)
+            value = value.replace("\x00", "")     # no command line can carry a NUL byte
             if kind == "out":                       # an existing file asked for: it may change
                 outputs += (value, value.rstrip("/") + "/")
             if opt in argv:

@@ -18,6 +18,15 @@ def test_fuzz_quick():
     assert report.ok, report.summary()
 
 
+def test_fuzz_spawned():
+    """A few cases through the `kdray` script itself (subprocess, preexec_fn's limits),
+    as the fork server's children stand for it."""
+    report = fuzz.fuzz({"argv": 8, "camera": 4, "points": 3}, seed=3,
+                       surfaces=("argv", "camera", "points"), spawn=True, cli_scale=5.0)
+    assert sum(c["cli"][0] for c in report.counts.values()) >= 12
+    assert report.ok, report.summary()
+
+
 @pytest.mark.slow
 def test_fuzz_long():
     report = fuzz.fuzz(fuzz.split_cases(10_000), seed=1)
