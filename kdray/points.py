@@ -27,16 +27,19 @@ The rules (docs/conventions.md, "Point queries"):
 """
 import dataclasses
 import functools
+import numbers
 import warnings
 
 import numpy as np
 
 from . import device as _device
+from . import ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import check_host_memory, page_aligned_empty
 from .layout import MISS, device_triangles, is_leaf, leaf_offset, n_prims
 from .tree import object_ids
+from .validate import FLOAT32_MAX
 
 RUN_CPU = 32
 """Consecutive points a work-item takes on a CPU device (one a work-item on a GPU)."""
@@ -88,21 +91,35 @@ class ClosestPoints:
         return object_ids(self.prim, self.object_table)
 
 
+POINT_HOST_BYTES = 96
+"""Host bytes a point needs at most while it is queried (its float64 copy, the order
+and the answers): `check_points` checks the host has them before any copy."""
+
+
 def check_points(points):
-    """(p (N, 3) float64, shape) for points given as (..., 3): KdrayError for non-numbers,
-    another last axis, or a point that is not finite (naming it)."""
-    p = np.asarray(points)
-    if p.dtype.kind not in "fiu":
-        raise KdrayError(f"points must be an array of numbers, got dtype {p.dtype}")
+    """(p (N, 3) float64, shape) for points given as (..., 3): KdrayError for non-numbers
+    (ray_input.numbers: strings, bools, ragged lists), another last axis, more points
+    than the host's memory holds (checked before any copy), or a point that is not
+    finite (naming it)."""
+    p = ray_input.numbers("points", points)
     if p.ndim < 1 or p.shape[-1] != 3:
         raise KdrayError(f"points must be an (N, 3) array, got shape {p.shape}")
     shape = p.shape[:-1]
+    n = p.size // 3
+    check_host_memory(n * POINT_HOST_BYTES, f"querying {n:,} points", "ask for fewer points at once")
     p = np.ascontiguousarray(p.reshape(-1, 3), dtype=np.float64)
     finite = np.isfinite(p).all(axis=1)
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise KdrayError(f"points must be finite, point {i} is {p[i].tolist()}")
     return p, shape
+
+
+def _real(value, name):
+    """float(value) for a real number (bools and strings refused, not converted)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise KdrayError(f"{name} must be a number, got {value!r:.80}")
+    return float(value)
 
 
 SORT_FROM = 4096
@@ -251,10 +268,7 @@ def _closest(tracer, points, max_distance, precision, outputs):
     _need_fp64(tracer)
     geometry64 = wants_double(precision, tracer.tree)
     p, shape = check_points(points)
-    try:
-        limit = float(max_distance)
-    except (TypeError, ValueError):
-        raise KdrayError(f"max_distance must be a number, got {max_distance!r}") from None
+    limit = _real(max_distance, "max_distance")
     if not limit >= 0:
         raise KdrayError(f"max_distance must be >= 0, got {max_distance!r}")
     n = len(p)
@@ -264,8 +278,8 @@ def _closest(tracer, points, max_distance, precision, outputs):
     rel, order = _ordered(tracer, _relative(tracer, p))
     entry = _program(tracer, geometry64, outputs)
     geometry = (_tris64(tracer),) if geometry64 else ()
-    with np.errstate(over="ignore"):
-        max_d2 = np.float64((limit / tracer._scale) ** 2)
+    with np.errstate(over="ignore"):                # 1e308 squared: inf, not OverflowError
+        max_d2 = np.float64(limit / tracer._scale) ** 2
     d = page_aligned_empty((n,), np.float64)
     q = page_aligned_empty((n, 3), np.float64) if "POINT" in outputs else None
     uv = page_aligned_empty((n, 2), np.float32) if "UV" in outputs else None
@@ -284,6 +298,12 @@ def _closest(tracer, points, max_distance, precision, outputs):
         q += tracer._origin
         q[prim == MISS] = 0.0
     dtype = np.float64 if geometry64 else np.float32
+    if not geometry64:
+        far = np.flatnonzero(np.isfinite(d) & (d > FLOAT32_MAX))
+        if far.size:
+            i = int(order[far[0]]) if order is not None else int(far[0])
+            raise KdrayError(f"the distance of point {i} to the surface, {float(d[far[0]]):.4g}, "
+                             f"is beyond float32's range (precision='double' holds it)")
     return (_unordered(d, order, dtype), _unordered(q, order), _unordered(uv, order),
             _unordered(prim, order), shape)
 
@@ -317,10 +337,7 @@ def winding_number(tracer, points, beta=WINDING_BETA):
     beyond beta times their radius (Barill et al. 2018); beta=inf sums every triangle.
     Within 1e-4 of the exact sum at the default beta."""
     _need_fp64(tracer)
-    try:
-        beta = float(beta)
-    except (TypeError, ValueError):
-        raise KdrayError(f"beta must be a number, got {beta!r}") from None
+    beta = _real(beta, "beta")
     if not beta >= 1.0:
         raise KdrayError(f"beta must be at least 1 (the expansion needs the point outside "
                          f"the group's sphere), got {beta!r}")
@@ -342,7 +359,7 @@ def winding_number(tracer, points, beta=WINDING_BETA):
 
 
 def _check_sign(sign):
-    if sign not in SIGNS:
+    if not (isinstance(sign, str) and sign in SIGNS):
         raise KdrayError(f"sign must be one of {', '.join(SIGNS)}, got {sign!r}")
 
 

@@ -102,12 +102,19 @@ class Intersections:
         return self.t[a:b], self.prim[a:b]
 
 
+def check_t(t, name):
+    """t_min or t_max as a float64 array (0-d for a number): a real number or an array
+    of numbers (strings and bools refused, not converted; ray_input.numbers)."""
+    if isinstance(t, (bool, str, bytes)) or t is None:
+        raise KdrayError(f"{name} must be a number or an array of one a ray, got {t!r:.80}")
+    return ray_input.numbers(name, t).astype(np.float64)
+
+
 def _ranges(t_min, t_max, n, scale):
     """(t_mins, t_maxs, t_step) as the kernels take them: float32 arrays in the tree's
     units, of n elements (t_step 1) or of one (t_step 0). KdrayError for NaN, t_min < 0,
     t_min > t_max or arrays of another length."""
-    lo = np.asarray(t_min, dtype=np.float64)
-    hi = np.asarray(t_max, dtype=np.float64)
+    lo, hi = (check_t(t, name) for t, name in ((t_min, "t_min"), (t_max, "t_max")))
     for name, a in (("t_min", lo), ("t_max", hi)):
         if a.ndim > 1 or (a.ndim == 1 and len(a) != n):
             raise KdrayError(f"{name} must be a number or an array of one value a ray "
@@ -136,10 +143,6 @@ class _Rays:
     origin in its units (kdray.ray_input.rays32), with their t ranges (`_ranges`)."""
 
     def __init__(self, tracer, origins, directions, t_min, t_max):
-        for name, a in (("origins", origins), ("directions", directions)):
-            if np.asarray(a).dtype.kind not in "fiu":
-                raise KdrayError(f"{name} must be an array of numbers, got dtype "
-                                 f"{np.asarray(a).dtype}")
         o, d, self.shape = ray_input.flat_rays(origins, directions)
         o, d, self.o_step = ray_input.origin_rows(o, d)
         self.n = len(d)
@@ -406,7 +409,8 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
     double = wants_double(precision, tracer.tree)
     if max_hits is not None:
         if isinstance(max_hits, bool) or not isinstance(max_hits, (int, np.integer)):
-            raise KdrayError(f"max_hits must be None or an integer >= 1, got {max_hits!r}")
+            raise KdrayError(f"max_hits must be None or an integer >= 1, got "
+                             f"{type(max_hits).__name__} {max_hits!r:.60}".replace("\n", " "))
         if max_hits < 1:
             raise KdrayError(f"max_hits must be at least 1, got {max_hits}")
     rays = _Rays(tracer, origins, directions, t_min, t_max)

@@ -138,6 +138,16 @@ of them shares its program (a program build takes seconds on some runtimes), for
 most twice the private memory a ray needs."""
 
 
+def _whole(value, name):
+    """None, or `value` as an int when it is one (>= 1; numpy's integers too);
+    KdrayError for anything else."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise KdrayError(f"{name} must be None or an integer >= 1, got {value!r:.60}")
+    return int(value)
+
+
 def default_stack_size(tree):
     """The smallest of STACK_SIZES that holds tree.depth + 1 entries (a ray never needs
     more): 8, 16, 32 or 64."""
@@ -259,13 +269,21 @@ class Tracer:
         cl = _device._cl()
         if stack_size is None:
             stack_size = default_stack_size(tree)
-        if not (isinstance(stack_size, (int, np.integer)) and 1 <= stack_size <= MAX_DEPTH_LIMIT):
+        if not (isinstance(stack_size, (int, np.integer)) and not isinstance(stack_size, bool)
+                and 1 <= stack_size <= MAX_DEPTH_LIMIT):
             raise KdrayError(f"stack_size must be an integer from 1 to {MAX_DEPTH_LIMIT}, "
                              f"got {stack_size!r}")
         self.tree = tree
         self.stack_size = int(stack_size)
         # packets keep a full stack (no restarts): the tree's depth + 1 entries
         self.packet_stack_size = default_stack_size(tree)
+        # work sizes: None (the device's default) or whole numbers, checked before a
+        # context is made (nan, "8", 1.5 and True refused, not converted)
+        packet, local_size, batch_size, groups = (
+            _whole(v, name) for v, name in ((packet, "packet"), (local_size, "local_size"),
+                                            (batch_size, "batch_size"), (groups, "groups")))
+        if device is not None and not isinstance(device, str):
+            raise KdrayError(f"device must be None or a --device string, got {device!r:.60}")
         self.context, self.device = _device.create_context(device)
         self.queue = cl.CommandQueue(self.context)
         self.packet = int(default_packet(self.device) if packet is None else packet)
@@ -614,6 +632,7 @@ class Tracer:
         if double:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
         origins, directions, shape = ray_input.flat_rays(origins, directions)
+        t_min, t_max = _rays.check_t(t_min, "t_min"), _rays.check_t(t_max, "t_max")
         if np.ndim(t_min) or np.ndim(t_max):
             # a t range a ray: the queries' walk, the same hits (kdray.rays.nearest)
             hits = _rays.nearest(self, origins, directions, t_min, t_max, kernel)
@@ -721,6 +740,8 @@ class Tracer:
         t_min, t_max = float(t_min), float(t_max)
         if not (t_min >= 0.0 and t_max >= t_min):
             raise KdrayError(f"need 0 <= t_min <= t_max, got t_min={t_min}, t_max={t_max}")
+        with np.errstate(over="ignore"):        # beyond float32: inf, the same range
+            t32 = np.float32(t_min / self._scale), np.float32(t_max / self._scale)
         o, d, o_step, rays_world = self._rays(origins, directions)
         n = len(d)
         out = {name: page_aligned_empty((n, width) if width > 1 else (n,), dtype)
@@ -750,7 +771,7 @@ class Tracer:
             self._launch("trace_rays", outputs, slots,
                          (o_buf, d_buf, np.uint32(o_offset), np.uint32(d_offset),
                           np.uint32(o_step), np.uint32(stop - start), np.uint32(image_w),
-                          np.float32(t_min / self._scale), np.float32(t_max / self._scale),
+                          *t32,
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
                          rays_world=rays_world, while_running=while_running)
