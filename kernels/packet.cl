@@ -964,9 +964,10 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     stat_x->v = ps.x; stat_y->v = ps.y; stat_z->v = ps.z; stat_w->v = (uintP)(0u);
 #endif
 #ifndef STATS
-    if (kd_countP(fallback.v) >= KD_LANES_ENTER) {
+    if (!camera && kd_countP(fallback.v) >= KD_LANES_ENTER) {
         /* lanes the packet handed over, or all of a packet traced alone: side by side,
-         * each its own path, from the start; those it hands back go one by one */
+         * each its own path, from the start; those it hands back go one by one (a
+         * camera's packets rarely leave 8 lanes: render_camera has no such code) */
         fallback.v = kd_lanes_trace(nodes, 2u * n_nodes + 2u, tris, tri_ids, fallback.v,
                                     ox, oy, oz, dx, dy, dz, t_min, t_max, t_enter, t_exit,
                                     &t_l, &u_l, &v_l, &tri_l);
