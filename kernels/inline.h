@@ -9,10 +9,16 @@
  * every local size from 16 up. tests/repros/intel_cpu_vec3_call.py shows it with a
  * 7-line kernel. Inlined, nothing is passed and the compiler is right. GPU compilers
  * inline everything anyway; PoCL gives the same answers either way.
+ *
+ * The one exception, KD_CALLED, is for a function that is measurably faster as a call
+ * and cannot meet the bug: it takes and returns no 3-element vector, and only packet
+ * programs (vec_type_hint: not run in SIMD lanes across work-items, so no SIMD
+ * variants) call it. tests/test_kernel_source.py checks its parameters.
  */
 #ifndef KDRAY_INLINE_H
 #define KDRAY_INLINE_H
 
 #define KD_INLINE __attribute__((always_inline))
+#define KD_CALLED __attribute__((noinline))
 
 #endif

@@ -97,10 +97,9 @@ bool kd_lane_finish(__global const KdNode *nodes, uint max_leaves, __global cons
  * The lanes' state lives in vectors (node, t0, t1) and bit masks (act, handed), and a
  * lane's own changes are merged in by selects: a lane written through memory and read
  * back as a vector would wait for the store (no store-to-load forwarding). */
-/* Not inlined (unlike every other function, inline.h): inlined into trace_packet it
- * cost camera traces 2-6 % and incoherent ones 4 % (bench/ab_trace.py); it takes no
- * float3 (the Intel compiler bug inline.h avoids is in float3 arguments). */
-__attribute__((noinline))
+/* A call, not inlined (KD_CALLED, inline.h): inlined into trace_packet it cost camera
+ * traces 2-6 % and incoherent ones 4 % (bench/ab_trace.py). */
+KD_CALLED
 intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
                     __global const float *tris, __global const uint *tri_ids, intP on,
                     floatP ox, floatP oy, floatP oz, floatP dx, floatP dy, floatP dz,
