@@ -1,7 +1,7 @@
 """Hostile inputs on every surface (issue 53): the fuzzing harness of tests/fuzz.py.
 
-`make test` runs a quick seeded subset (500 cases, every surface, about 30 s on 2
-cores); `make test-long` 10,000 cases (about 8 minutes). A failure's message lists each broken case
+`make test` runs a quick seeded subset (300 cases, every surface, about 25 s on 2
+cores, and 8 through the `kdray` script); `make test-long` 10,000 cases (about 8 minutes). A failure's message lists each broken case
 with its command or call; `python tests/fuzz.py --save DIR ...` writes their files."""
 import signal
 
@@ -11,19 +11,19 @@ import fuzz
 
 
 def test_fuzz_quick():
-    report = fuzz.fuzz(fuzz.split_cases(500), seed=7)
+    report = fuzz.fuzz(fuzz.split_cases(300), seed=7)
     for surface, c in report.counts.items():
         assert c["cli"][0] + c["api"][0] > 0, surface
-    assert sum(c["cli"][0] for c in report.counts.values()) >= 100    # the CLI, not only the API
+    assert sum(c["cli"][0] for c in report.counts.values()) >= 60     # the CLI, not only the API
     assert report.ok, report.summary()
 
 
 def test_fuzz_spawned():
     """A few cases through the `kdray` script itself (subprocess, preexec_fn's limits),
     as the fork server's children stand for it."""
-    report = fuzz.fuzz({"argv": 8, "camera": 4, "points": 3}, seed=3,
+    report = fuzz.fuzz({"argv": 4, "camera": 2, "points": 2}, seed=3,
                        surfaces=("argv", "camera", "points"), spawn=True, cli_scale=5.0)
-    assert sum(c["cli"][0] for c in report.counts.values()) >= 12
+    assert sum(c["cli"][0] for c in report.counts.values()) >= 6
     assert report.ok, report.summary()
 
 

@@ -292,8 +292,17 @@ def test_packets_equal_single_rays(packet, kind, leaf, tracers):
         assert np.array_equal(ra[name], rb[name], equal_nan=True), name
 
 
-@pytest.mark.parametrize("kind", ["median", "sah", "soup"])
-@pytest.mark.parametrize("setting", ["rule", "every lane", "full packets", "stack of 2"])
+OWN_PATHS_FAST = {("rule", "median"), ("rule", "soup"), ("every lane", "soup"),
+                  ("full packets", "soup"), ("stack of 2", "soup")}
+"""test_rays_on_their_own_paths_equal_single_rays's cases in `make test`: the rule on
+two trees, every setting on the soup (each setting and tree is a program of its own);
+the others in `make test-long`."""
+
+
+@pytest.mark.parametrize("setting,kind", [
+    pytest.param(setting, kind, marks=[] if (setting, kind) in OWN_PATHS_FAST else [pytest.mark.slow])
+    for setting in ["rule", "every lane", "full packets", "stack of 2"]
+    for kind in ["median", "sah", "soup"]])
 def test_rays_on_their_own_paths_equal_single_rays(kind, setting, tracers):
     """Rays that share no path (each lane its own origin, or one origin and diverging
     directions: kd_alone), and the lanes a packet hands over, are traced side by side
