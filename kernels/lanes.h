@@ -68,14 +68,12 @@ typedef double8 doubleP;
         (p)[(i).sc], (p)[(i).sd], (p)[(i).se], (p)[(i).sf])
 typedef ulong16 ulongP;
 #define convert_uintP convert_uint16
-#define convert_longP convert_long16
 #else
 #define KD_GATHER_AS(T, p, i)                                                            \
     (T)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], (p)[(i).s5],    \
         (p)[(i).s6], (p)[(i).s7])
 typedef ulong8 ulongP;
 #define convert_uintP convert_uint8
-#define convert_longP convert_long8
 #endif
 #define KD_GATHER(p, i) KD_GATHER_AS(uintP, p, i)
 
@@ -120,6 +118,15 @@ uint kd_bitsP(intP m)
     uint4 a = e.lo | e.hi;
     uint2 c = a.lo | a.hi;
     return c.x | c.y;
+}
+
+/* The lowest lane set in *bits (lane l: bit l, at least one set), cleared there. */
+KD_INLINE
+uint kd_take_lane(uint *bits)
+{
+    uint l = 31u - clz(*bits & (0u - *bits));
+    *bits &= *bits - 1u;
+    return l;
 }
 
 /* the number of lanes set in mask m */

@@ -42,15 +42,47 @@ intP kd_maskP(uint bits)
     return -as_intP(((uintP)(bits) >> KD_LANE_INDEX_U) & (uintP)(1u));
 }
 
+/* Every lane's own stack of PACKET_STACK_SIZE entries (node, range [t0, t1]); entry k
+ * of lane l at [k * KD_PACKET + l]. */
+typedef struct {
+    uint node[PACKET_STACK_SIZE * KD_PACKET];
+    float t0[PACKET_STACK_SIZE * KD_PACKET];
+    float t1[PACKET_STACK_SIZE * KD_PACKET];
+    uint top[KD_PACKET];
+} KdLaneStacks;
+
+/* Push (node, t0, t1) on lane l's stack; false when it is full. */
+KD_INLINE
+bool kd_lane_push(KdLaneStacks *s, uint l, uint node, float t0, float t1)
+{
+    if (s->top[l] == PACKET_STACK_SIZE)
+        return false;
+    uint k = s->top[l]++ * KD_PACKET + l;
+    s->node[k] = node;
+    s->t0[k] = t0;
+    s->t1[k] = t1;
+    return true;
+}
+
+/* Pop lane l's most recent entry (its stack not empty). */
+KD_INLINE
+void kd_lane_pop(KdLaneStacks *s, uint l, uint *node, float *t0, float *t1)
+{
+    uint k = --s->top[l] * KD_PACKET + l;
+    *node = s->node[k];
+    *t0 = s->t0[k];
+    *t1 = s->t1[k];
+}
+
 /* One lane's traversal carried on alone from where the vector loop left it (node,
- * range [t0, t1], its stack entries stack_*[k * KD_PACKET + l] for k < top, leaves
- * visited): kd_lanes_trace's decisions with traverse.cl's scalar node step. Returns
- * false where the lane must be handed back to trace_ray. */
+ * range [t0, t1], its stack, leaves visited): kd_lanes_trace's decisions with
+ * traverse.cl's scalar node step. Returns false where the lane must be handed back to
+ * trace_ray. */
 KD_INLINE
 bool kd_lane_finish(__global const KdNode *nodes, uint max_leaves, __global const float *tris,
                     __global const uint *tri_ids, const RayShear *shear, float3 o, float3 d,
-                    float t_min, float t_max, uint node, float t0, float t1, uint *stack_node,
-                    float *stack_t0, float *stack_t1, uint l, uint top, uint leaves, Hit *hit)
+                    float t_min, float t_max, uint node, float t0, float t1,
+                    KdLaneStacks *stacks, uint l, uint leaves, Hit *hit)
 {
     for (;;) {
         KdNode n = nodes[node];
@@ -63,13 +95,8 @@ bool kd_lane_finish(__global const KdNode *nodes, uint max_leaves, __global cons
             if (step == KD_STEP_IN_PLANE)
                 return false;
             if (step == KD_STEP_BOTH) {
-                if (top == PACKET_STACK_SIZE)
+                if (!kd_lane_push(stacks, l, second, t_mid, t1))
                     return false;
-                uint k = top * KD_PACKET + l;
-                stack_node[k] = second;
-                stack_t0[k] = t_mid;
-                stack_t1[k] = t1;
-                top++;
                 t1 = t_mid;
             }
             node = step == KD_STEP_SECOND ? second : first;
@@ -78,13 +105,9 @@ bool kd_lane_finish(__global const KdNode *nodes, uint max_leaves, __global cons
         if (++leaves > max_leaves)
             return false;
         kd_ray_leaf(n, tris, tri_ids, shear, o, t_min, t_max, hit);
-        if (kd_hit_final(hit->t, t1) || top == 0u)
+        if (kd_hit_final(hit->t, t1) || stacks->top[l] == 0u)
             return true;
-        top--;
-        uint k = top * KD_PACKET + l;
-        node = stack_node[k];
-        t0 = stack_t0[k];
-        t1 = stack_t1[k];
+        kd_lane_pop(stacks, l, &node, &t0, &t1);
     }
 }
 
@@ -110,10 +133,7 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
     oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
     RayShear shear[KD_PACKET];
     Hit hit[KD_PACKET];
-    uint stack_node[PACKET_STACK_SIZE * KD_PACKET];    /* entry k of lane l: [k * P + l] */
-    float stack_t0[PACKET_STACK_SIZE * KD_PACKET];
-    float stack_t1[PACKET_STACK_SIZE * KD_PACKET];
-    uint top[KD_PACKET];
+    KdLaneStacks stacks;
     uint leaves[KD_PACKET];
     uint act = kd_bitsP(on);
     for (uint l = 0; l < KD_PACKET; l++) {
@@ -122,7 +142,7 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
         hit[l].u = 0.0f;
         hit[l].v = 0.0f;
         hit[l].tri = KD_NO_HIT;
-        top[l] = 0u;
+        stacks.top[l] = 0u;
         leaves[l] = 0u;
     }
 
@@ -168,17 +188,9 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
                 t1_l.v = t1;
                 uint push = both;
                 do {
-                    uint l = 31u - clz(push & (0u - push));
-                    push &= push - 1u;
-                    if (top[l] == PACKET_STACK_SIZE) {
+                    uint l = kd_take_lane(&push);
+                    if (!kd_lane_push(&stacks, l, second_l.s[l], mid_l.s[l], t1_l.s[l]))
                         handed |= 1u << l;      /* full: trace_ray's ring and restart */
-                        continue;
-                    }
-                    uint k = top[l] * KD_PACKET + l;
-                    stack_node[k] = second_l.s[l];
-                    stack_t0[k] = mid_l.s[l];
-                    stack_t1[k] = t1_l.s[l];
-                    top[l]++;
                 } while (push);
             }
             handed |= in_plane;
@@ -198,8 +210,7 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
             data_l.v = data;
             t1_l.v = t1;
             do {
-                uint l = 31u - clz(at_leaf & (0u - at_leaf));
-                at_leaf &= at_leaf - 1u;
+                uint l = kd_take_lane(&at_leaf);
                 if (++leaves[l] > max_leaves) {
                     handed |= 1u << l;          /* a corrupt tree: trace_ray's bound */
                     act &= ~(1u << l);
@@ -210,15 +221,16 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
                 n.data = data_l.s[l];
                 kd_ray_leaf(n, tris, tri_ids, &shear[l],
                             (float3)(oxl.s[l], oyl.s[l], ozl.s[l]), t_min, t_max, &hit[l]);
-                if (kd_hit_final(hit[l].t, t1_l.s[l]) || top[l] == 0u) {
+                if (kd_hit_final(hit[l].t, t1_l.s[l]) || stacks.top[l] == 0u) {
                     act &= ~(1u << l);
                 } else {
-                    top[l]--;
-                    uint k = top[l] * KD_PACKET + l;
+                    uint next;
+                    float next_t0, next_t1;
+                    kd_lane_pop(&stacks, l, &next, &next_t0, &next_t1);
                     intP m = KD_LANE_INDEX == (intP)((int)l);
-                    node = kd_selectPu(node, (uintP)(stack_node[k]), m);
-                    t0 = kd_selectP(t0, (floatP)(stack_t0[k]), m);
-                    t1 = kd_selectP(t1, (floatP)(stack_t1[k]), m);
+                    node = kd_selectPu(node, (uintP)(next), m);
+                    t0 = kd_selectP(t0, (floatP)(next_t0), m);
+                    t1 = kd_selectP(t1, (floatP)(next_t1), m);
                 }
             } while (at_leaf);
         }
@@ -232,21 +244,19 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
         t0_l.v = t0;
         t1_l.v = t1;
         do {
-            uint l = 31u - clz(act & (0u - act));
-            act &= act - 1u;
+            uint l = kd_take_lane(&act);
             if (!kd_lane_finish(nodes, max_leaves, tris, tri_ids, &shear[l],
                                 (float3)(oxl.s[l], oyl.s[l], ozl.s[l]),
                                 (float3)(dxl.s[l], dyl.s[l], dzl.s[l]), t_min, t_max,
-                                node_l.s[l], t0_l.s[l], t1_l.s[l], stack_node, stack_t0,
-                                stack_t1, l, top[l], leaves[l], &hit[l]))
+                                node_l.s[l], t0_l.s[l], t1_l.s[l], &stacks, l, leaves[l],
+                                &hit[l]))
                 handed |= 1u << l;
         } while (act);
     }
 
     uint done = kd_bitsP(on) & ~handed;
     while (done) {
-        uint l = 31u - clz(done & (0u - done));
-        done &= done - 1u;
+        uint l = kd_take_lane(&done);
         t_l->s[l] = hit[l].t;
         u_l->s[l] = hit[l].u;
         v_l->s[l] = hit[l].v;

@@ -582,8 +582,7 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
 #endif
             uint keep = kd_bitsP((KD_LANE_INDEX < (intP)((int)m)) & ~kd_block_culls(r, q));
             while (keep != 0u) {
-                uint j = 31u - clz(keep & (0u - keep));
-                keep &= keep - 1u;
+                uint j = kd_take_lane(&keep);
                 uint tri = first + i0 + j;
                 kd_packet_intersect(r, kd_tri_base(tris, tri), tri, tri_ids, act, h);
             }
@@ -866,7 +865,8 @@ bool kd_alone(const KdPacket *r, intP on, bool camera, floatP ox, floatP oy, flo
     /* lanes that are off take the first on lane's direction */
     KdFP a, b, c;
     a.v = dx; b.v = dy; c.v = dz;
-    uint l0 = 31u - clz(kd_bitsP(on) & (0u - kd_bitsP(on)));
+    uint on_bits = kd_bitsP(on);
+    uint l0 = kd_take_lane(&on_bits);
     x = kd_selectP((floatP)(a.s[l0]), dx, on);
     y = kd_selectP((floatP)(b.s[l0]), dy, on);
     z = kd_selectP((floatP)(c.s[l0]), dz, on);
