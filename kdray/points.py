@@ -27,7 +27,6 @@ The rules (docs/conventions.md, "Point queries"):
 """
 import dataclasses
 import functools
-import numbers
 import warnings
 
 import numpy as np
@@ -39,7 +38,7 @@ from .errors import DeviceError, KdrayError
 from .host import check_host_memory, page_aligned_empty
 from .layout import MISS, device_triangles, is_leaf, leaf_offset, n_prims
 from .tree import object_ids
-from .validate import FLOAT32_MAX
+from .validate import FLOAT32_MAX, real_number
 
 RUN_CPU = 32
 """Consecutive points a work-item takes on a CPU device (one a work-item on a GPU)."""
@@ -113,13 +112,6 @@ def check_points(points):
         i = int(np.flatnonzero(~finite)[0])
         raise KdrayError(f"points must be finite, point {i} is {p[i].tolist()}")
     return p, shape
-
-
-def _real(value, name):
-    """float(value) for a real number (bools and strings refused, not converted)."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise KdrayError(f"{name} must be a number, got {value!r:.80}")
-    return float(value)
 
 
 SORT_FROM = 4096
@@ -268,7 +260,7 @@ def _closest(tracer, points, max_distance, precision, outputs):
     _need_fp64(tracer)
     geometry64 = wants_double(precision, tracer.tree)
     p, shape = check_points(points)
-    limit = _real(max_distance, "max_distance")
+    limit = real_number(max_distance, "max_distance", KdrayError)
     if not limit >= 0:
         raise KdrayError(f"max_distance must be >= 0, got {max_distance!r}")
     n = len(p)
@@ -337,7 +329,7 @@ def winding_number(tracer, points, beta=WINDING_BETA):
     beyond beta times their radius (Barill et al. 2018); beta=inf sums every triangle.
     Within 1e-4 of the exact sum at the default beta."""
     _need_fp64(tracer)
-    beta = _real(beta, "beta")
+    beta = real_number(beta, "beta", KdrayError)
     if not beta >= 1.0:
         raise KdrayError(f"beta must be at least 1 (the expansion needs the point outside "
                          f"the group's sphere), got {beta!r}")

@@ -53,7 +53,7 @@ from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device
 from .ray_grid import grid_width
 from .render import DEFAULT_AOVS
 from .tree import object_ids
-from .validate import check_float32
+from .validate import check_float32, whole_or_none
 
 log = logging.getLogger(__name__)
 
@@ -136,16 +136,6 @@ STACK_SIZES = (8, 16, 32, MAX_DEPTH_LIMIT)
 """The stack sizes a Tracer compiles by default: every tree whose depth + 1 fits in one
 of them shares its program (a program build takes seconds on some runtimes), for at
 most twice the private memory a ray needs."""
-
-
-def _whole(value, name):
-    """None, or `value` as an int when it is one (>= 1; numpy's integers too);
-    KdrayError for anything else."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise KdrayError(f"{name} must be None or an integer >= 1, got {value!r:.60}")
-    return int(value)
 
 
 def default_stack_size(tree):
@@ -280,8 +270,9 @@ class Tracer:
         # work sizes: None (the device's default) or whole numbers, checked before a
         # context is made (nan, "8", 1.5 and True refused, not converted)
         packet, local_size, batch_size, groups = (
-            _whole(v, name) for v, name in ((packet, "packet"), (local_size, "local_size"),
-                                            (batch_size, "batch_size"), (groups, "groups")))
+            whole_or_none(v, name, KdrayError)
+            for v, name in ((packet, "packet"), (local_size, "local_size"),
+                            (batch_size, "batch_size"), (groups, "groups")))
         if device is not None and not isinstance(device, str):
             raise KdrayError(f"device must be None or a --device string, got {device!r:.60}")
         self.context, self.device = _device.create_context(device)

@@ -15,6 +15,7 @@ Floats beyond float64's range (1e999) are read as inf, as NaN and Infinity are: 
 caller's checks then refuse them naming the field ("cx must be finite").
 """
 import json
+import numbers
 import warnings
 
 import numpy as np
@@ -111,6 +112,24 @@ def check_float32(values, name, error):
     if np.any(big):
         raise error(f"{name} holds {float(array[big].flat[0])!r}, beyond float32's range (at most "
                     f"{FLOAT32_MAX:.4g} in magnitude), which the kernels compute in.")
+
+
+def real_number(value, name, error):
+    """float(value) for a real number; `error` for bools, strings and anything else,
+    which are refused, not converted."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise error(f"{name} must be a number, got {value!r:.80}")
+    return float(value)
+
+
+def whole_or_none(value, name, error):
+    """None, or int(value) for an integer >= 1 (numpy's too); `error` for anything else
+    (nan, "8", 1.5, True)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise error(f"{name} must be None or an integer >= 1, got {value!r:.60}")
+    return int(value)
 
 
 def read_npy(path, source, error):
