@@ -36,8 +36,12 @@ render: $(STAMP)
 # compiler cache (~/.cache/pyopencl; a change to kernels/ compiles them again). Long
 # checks are `make test-long` (4 minutes): every work size and both scenes, packets of
 # the other width, more scales and leaf rules, the builder compiled from nothing.
+# One pytest process a core (at most 8), each test file in one process: a file's tests
+# share their kernel programs, which are compiled once a process (pytest-xdist).
+PARALLEL ?= -n auto --maxprocesses 8 --dist loadfile
+
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" $(PARALLEL)
 
 # The whole matrix: every kernel test on each working CPU or GPU implementation in turn
 # (PYOPENCL_CTX), and Oclgrind's small cases (tests/test_runtimes.py).
@@ -53,7 +57,7 @@ test-runtimes: $(STAMP)
 	@echo "== Oclgrind's cases"; KDRAY_TEST_RUNTIMES=oclgrind $(BIN)/python -m pytest -q tests/test_runtimes.py
 
 test-long: $(STAMP)
-	$(BIN)/python -m pytest -q -m slow
+	$(BIN)/python -m pytest -q -m slow $(PARALLEL)
 
 bench-build: $(STAMP)
 	$(BIN)/python bench/bench_build.py

@@ -48,8 +48,11 @@ def tracers():
 # NVIDIA-only device property.
 
 _OCLGRIND_LOG = Path(tempfile.mkdtemp(prefix="kdray-oclgrind-")) / "oclgrind.log"
-# read by Oclgrind when it starts, so before any test lists the OpenCL platforms
-os.environ.setdefault("OCLGRIND_LOG", str(_OCLGRIND_LOG))
+# read by Oclgrind when it starts, so before any test lists the OpenCL platforms; one log
+# a process, as pytest-xdist's workers (`make test`) inherit the controller's environment
+# and a report must fail the test that caused it, not a neighbour's
+if "OCLGRIND_LOG" not in os.environ or os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ["OCLGRIND_LOG"] = str(_OCLGRIND_LOG)
 os.environ.setdefault("OCLGRIND_DATA_RACES", "1")
 
 
@@ -69,7 +72,7 @@ class Runtime:
 
 
 _RUNTIMES = None
-_OUTCOMES = {}           # test id -> (Runtime, "passed" | "failed" | "skipped")
+_OUTCOMES = {}           # test id -> ((name, description), "passed" | "failed" | "skipped")
 
 
 def runtimes():
@@ -139,20 +142,30 @@ def runtime(request):
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
+    """Name the Runtime of every test that runs on one in its reports' user_properties,
+    which pytest-xdist carries from its workers to the controller that prints the
+    summary."""
+    rt = getattr(item, "callspec", None) and item.callspec.params.get("runtime")
+    tag = ("runtime", (rt.name, rt.description)) if isinstance(rt, Runtime) else None
+    if tag and tag not in item.user_properties:
+        item.user_properties.append(tag)
+    yield
+
+
+def pytest_runtest_logreport(report):
     """Record the outcome of every test that ran on a Runtime (a failure in any phase,
     such as Oclgrind's report at teardown, makes it failed)."""
-    outcome = yield
-    report = outcome.get_result()
-    rt = getattr(item, "callspec", None) and item.callspec.params.get("runtime")
-    if not isinstance(rt, Runtime):
+    rt = dict(report.user_properties).get("runtime")
+    if rt is None:
         return
-    previous = _OUTCOMES.get(item.nodeid, (rt, None))[1]
+    rt = tuple(rt)
+    previous = _OUTCOMES.get(report.nodeid, (rt, None))[1]
     if report.failed:
-        _OUTCOMES[item.nodeid] = (rt, "failed")
+        _OUTCOMES[report.nodeid] = (rt, "failed")
     elif report.skipped:
-        _OUTCOMES[item.nodeid] = (rt, "skipped")
+        _OUTCOMES[report.nodeid] = (rt, "skipped")
     elif report.when == "call" and previous is None:
-        _OUTCOMES[item.nodeid] = (rt, "passed")
+        _OUTCOMES[report.nodeid] = (rt, "passed")
 
 
 def pytest_terminal_summary(terminalreporter):
@@ -169,7 +182,7 @@ def pytest_terminal_summary(terminalreporter):
     for rt, statuses in by_runtime.items():
         counts = ", ".join(f"{statuses.count(s)} {s}" for s in ("passed", "failed", "skipped")
                            if statuses.count(s))
-        tr.write_line(f"{rt.name:<9} {counts}: {rt.description}")
+        tr.write_line(f"{rt[0]:<9} {counts}: {rt[1]}")
     try:
         tr.write_line(f"other kernel tests: the default device, "
                       f"{device.describe(device.choose_device(None))}")
