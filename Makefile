@@ -30,12 +30,12 @@ render: $(STAMP)
 
 # The test suite: tests/test_runtimes.py on every OpenCL implementation that works here,
 # the rest on the default device; the summary says which were covered. On 2 cores (a
-# Zen 4 where Intel's CPU runtime and Oclgrind work): about 6.5 minutes from a fresh
+# Zen 4 where Intel's CPU runtime and Oclgrind work): about 3.5 minutes from a fresh
 # clone, whose ~180 kernel programs compile first (Intel's runtime: about 1.8 s a
-# program with packets; most of the time), a few minutes less once they are in pyopencl's
-# compiler cache (~/.cache/pyopencl; a change to kernels/ compiles them again). Long
-# checks are `make test-long` (4 minutes): every work size and both scenes, packets of
-# the other width, more scales and leaf rules, the builder compiled from nothing.
+# program with packets; most of the time), less once they are in pyopencl's compiler
+# cache (~/.cache/pyopencl; a change to kernels/ compiles them again). Long checks are
+# `make test-long`: every work size and both scenes, packets of the other width, more
+# scales and leaf rules, the builder compiled from nothing, 10,000 fuzz cases.
 # One pytest process a core (at most 8), each test file in one process: a file's tests
 # share their kernel programs, which are compiled once a process (pytest-xdist).
 PARALLEL ?= -n auto --maxprocesses 8 --dist loadfile
