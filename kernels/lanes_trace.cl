@@ -42,6 +42,41 @@ intP kd_maskP(uint bits)
     return -as_intP(((uintP)(bits) >> KD_LANE_INDEX_U) & (uintP)(1u));
 }
 
+/* kd_node_step (traverse.cl) for every lane: from the lanes' node words (flags, data:
+ * split plane), node indices, rays and ranges [t0, t1], each lane's children in its
+ * order (first, second), t_mid and decision as masks: go_first, go_second, in_plane
+ * (t_split NaN: the ray lies in the plane), and both children where none holds. The
+ * same operations in the same order as kd_node_step, so the same decisions. */
+typedef struct {
+    uintP first, second;
+    floatP t_mid;
+    intP go_first, go_second, in_plane;
+} KdStepP;
+
+KD_INLINE
+KdStepP kd_node_stepP(uintP flags, uintP data, uintP node, floatP ox, floatP oy, floatP oz,
+                      floatP dx, floatP dy, floatP dz, floatP t0, floatP t1)
+{
+    KdStepP s;
+    intP axis = as_intP(flags & (uintP)(3u));
+    floatP split = as_floatP(data);
+    floatP o_k = kd_compP(ox, oy, oz, axis);
+    floatP d_k = kd_compP(dx, dy, dz, axis);
+    floatP t_split = (split - o_k) / d_k;
+    uintP below = node + (uintP)(1u);
+    uintP above = flags >> 2;
+    intP below_first = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
+    s.first = kd_selectPu(above, below, below_first);
+    s.second = kd_selectPu(below, above, below_first);
+    floatP t_lo = t0 * (1.0f - KD_T_SLACK);
+    floatP t_hi = t1 * (1.0f + KD_T_SLACK);
+    s.t_mid = kd_clampP(t_split, t0, t1);
+    s.in_plane = t_split != t_split;
+    s.go_first = (t_split > t_hi) | (t_split <= 0.0f);
+    s.go_second = ~s.go_first & (t_split < t_lo);
+    return s;
+}
+
 /* Every lane's own stack of PACKET_STACK_SIZE entries (node, range [t0, t1]); entry k
  * of lane l at [k * KD_PACKET + l]. */
 typedef struct {
@@ -160,31 +195,16 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
         uint inner = kd_bitsP(active & ~leaf);
 
         if (inner) {
-            /* kd_node_step, a lane each */
-            intP axis = as_intP(flags & (uintP)(3u));
-            floatP split = as_floatP(data);
-            floatP o_k = kd_compP(ox, oy, oz, axis);
-            floatP d_k = kd_compP(dx, dy, dz, axis);
-            floatP t_split = (split - o_k) / d_k;
-            uintP below = node + (uintP)(1u);
-            uintP above = flags >> 2;
-            intP below_first = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
-            uintP first = kd_selectPu(above, below, below_first);
-            uintP second = kd_selectPu(below, above, below_first);
-            floatP t_lo = t0 * (1.0f - KD_T_SLACK);
-            floatP t_hi = t1 * (1.0f + KD_T_SLACK);
-            floatP t_mid = kd_clampP(t_split, t0, t1);
-            intP go_first = (t_split > t_hi) | (t_split <= 0.0f);
-            intP go_second = ~go_first & (t_split < t_lo);
-            uint in_plane = inner & kd_bitsP(t_split != t_split);
-            uint both = inner & ~in_plane & ~kd_bitsP(go_first | go_second);
+            KdStepP st = kd_node_stepP(flags, data, node, ox, oy, oz, dx, dy, dz, t0, t1);
+            uint in_plane = inner & kd_bitsP(st.in_plane);
+            uint both = inner & ~in_plane & ~kd_bitsP(st.go_first | st.go_second);
             /* both: push the second child over [t_mid, t1], go on in the first (lane
              * by lane, plain stores: a scatter costs more on the CPUs measured) */
             if (both) {
                 KdUP second_l;
                 KdFP mid_l, t1_l;
-                second_l.v = second;
-                mid_l.v = t_mid;
+                second_l.v = st.second;
+                mid_l.v = st.t_mid;
                 t1_l.v = t1;
                 uint push = both;
                 do {
@@ -196,8 +216,8 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
             handed |= in_plane;
             act &= ~handed;
             intP step = kd_maskP(inner & act);
-            node = kd_selectPu(node, kd_selectPu(first, second, go_second), step);
-            t1 = kd_selectP(t1, t_mid, step & kd_maskP(both));
+            node = kd_selectPu(node, kd_selectPu(st.first, st.second, st.go_second), step);
+            t1 = kd_selectP(t1, st.t_mid, step & kd_maskP(both));
         }
 
         /* leaves: each lane's triangles, KD_PACKET at a time (kd_ray_leaf); a hit

@@ -10,7 +10,9 @@
  *
  * One walk (kd_walk) serves them all: it visits every leaf the ray's range reaches,
  * near child first, and hands each to kd_query_leaf, which does what the query does
- * with a hit and says when the walk may stop. Unlike the nearest hit's traversal
+ * with a hit and says when the walk may stop. Packet programs walk a packet's width of
+ * rays side by side, one a vector lane (kd_lanes_walk), each lane making kd_walk's
+ * decisions in kd_walk's order. Unlike the nearest hit's traversal
  * (traverse.cl), a walk needs every leaf (bar the any-hit's early stop), so it keeps a
  * full stack and never restarts, and a ray that lies in a split plane visits both
  * children over the same range in one walk (order does not matter here).
@@ -245,33 +247,18 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
     return false;
 }
 
-/* Walk every leaf of the ray o + t d's range [t_min, t_max] within the scene box
- * (bmin, bmax), near child first, each leaf once, handing each to kd_query_leaf. */
+/* The walk of one ray carried on from `node` over [t0, t1], with `count` entries on
+ * its stack (entry i: stack_node[i * stride], stack_t0[..], stack_t1[..]; room for
+ * STACK_SIZE) and `leaves` leaves visited: every leaf left, near child first, each
+ * handed to kd_query_leaf until it says stop. kd_walk starts it at the root; a lane of
+ * kd_lanes_walk ends on it. */
 KD_INLINE
-void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global const float *tris,
-             __global const uint *tri_ids, float3 bmin, float3 bmax, float3 o, float3 d,
-             float t_min, float t_max, KdQuery *q)
+void kd_walk_on(uint query, __global const KdNode *nodes, uint n_nodes,
+                __global const float *tris, __global const uint *tri_ids,
+                const RayShear *shear, float3 o, float3 d, float t_min, float t_max,
+                uint node, float t0, float t1, uint *stack_node, float *stack_t0,
+                float *stack_t1, uint stride, uint count, uint leaves, KdQuery *q)
 {
-    if (!(kd_finite3(o) && kd_finite3(d)) || (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f))
-        return;
-    float t_enter = t_min;
-    float t_exit = t_max;
-    if (!(kd_slab(o.x, d.x, bmin.x, bmax.x, &t_enter, &t_exit)
-          && kd_slab(o.y, d.y, bmin.y, bmax.y, &t_enter, &t_exit)
-          && kd_slab(o.z, d.z, bmin.z, bmax.z, &t_enter, &t_exit)))
-        return;
-    if (!(t_enter <= t_exit))
-        return;
-
-    RayShear shear = ray_shear(d);
-    uint stack_node[STACK_SIZE];
-    float stack_t_min[STACK_SIZE];
-    float stack_t_max[STACK_SIZE];
-    uint count = 0;
-    uint node = 0;
-    float t0 = t_enter;
-    float t1 = t_exit;
-    uint leaves = 0;
     for (;;) {
         KdNode n = nodes[node];
         while (!kd_is_leaf(n)) {
@@ -293,9 +280,9 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
                     t_mid = t1;
                     q->in_plane = true;
                 }
-                stack_node[count] = second;
-                stack_t_min[count] = step == KD_STEP_IN_PLANE ? t0 : t_mid;
-                stack_t_max[count] = t1;
+                stack_node[count * stride] = second;
+                stack_t0[count * stride] = step == KD_STEP_IN_PLANE ? t0 : t_mid;
+                stack_t1[count * stride] = t1;
                 count++;
                 node = first;
                 t1 = t_mid;
@@ -306,16 +293,180 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
             q->fault = true;
             return;
         }
-        if (kd_query_leaf(query, n, tris, tri_ids, &shear, o, t_min, t_max, t1, q))
+        if (kd_query_leaf(query, n, tris, tri_ids, shear, o, t_min, t_max, t1, q))
             return;
         if (count == 0u)
             return;
         count--;
-        node = stack_node[count];
-        t0 = stack_t_min[count];
-        t1 = stack_t_max[count];
+        node = stack_node[count * stride];
+        t0 = stack_t0[count * stride];
+        t1 = stack_t1[count * stride];
     }
 }
+
+/* The ray o + t d's range [t_min, t_max] clipped to the scene box (bmin, bmax) as
+ * [*t_enter, *t_exit]; false when the ray has nothing to walk (not finite, d 0, or
+ * missing the box). */
+KD_INLINE
+bool kd_walk_range(float3 bmin, float3 bmax, float3 o, float3 d, float t_min, float t_max,
+                   float *t_enter, float *t_exit)
+{
+    if (!(kd_finite3(o) && kd_finite3(d)) || (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f))
+        return false;
+    *t_enter = t_min;
+    *t_exit = t_max;
+    return kd_slab(o.x, d.x, bmin.x, bmax.x, t_enter, t_exit)
+           && kd_slab(o.y, d.y, bmin.y, bmax.y, t_enter, t_exit)
+           && kd_slab(o.z, d.z, bmin.z, bmax.z, t_enter, t_exit) && *t_enter <= *t_exit;
+}
+
+/* Walk every leaf of the ray o + t d's range [t_min, t_max] within the scene box
+ * (bmin, bmax), near child first, each leaf once, handing each to kd_query_leaf. */
+KD_INLINE
+void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global const float *tris,
+             __global const uint *tri_ids, float3 bmin, float3 bmax, float3 o, float3 d,
+             float t_min, float t_max, KdQuery *q)
+{
+    float t_enter, t_exit;
+    if (!kd_walk_range(bmin, bmax, o, d, t_min, t_max, &t_enter, &t_exit))
+        return;
+    RayShear shear = ray_shear(d);
+    uint stack_node[STACK_SIZE];
+    float stack_t0[STACK_SIZE];
+    float stack_t1[STACK_SIZE];
+    kd_walk_on(query, nodes, n_nodes, tris, tri_ids, &shear, o, d, t_min, t_max, 0u, t_enter,
+               t_exit, stack_node, stack_t0, stack_t1, 1u, 0u, 0u, q);
+}
+
+#ifdef PACKET
+/* The walks of up to KD_PACKET rays side by side, one a vector lane, as kd_lanes_trace
+ * (lanes_trace.cl) traces rays that share no path: one vector node step moves every
+ * lane one node down its own path. Lane l is ray (o_l[l], d_l[l]) over [t_min_l[l],
+ * t_max_l[l]] and walks into q[l] exactly as kd_walk would: the same node decisions
+ * (kd_node_stepP), the same leaves in the same order, the same stops and faults. When
+ * fewer than KD_LANES_MIN lanes are left, each goes on alone (kd_walk_on). `on`: the
+ * lanes that hold a ray. */
+KD_INLINE
+void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
+                   __global const float *tris, __global const uint *tri_ids, float3 bmin,
+                   float3 bmax, const KdFP *ox_l, const KdFP *oy_l, const KdFP *oz_l,
+                   const KdFP *dx_l, const KdFP *dy_l, const KdFP *dz_l,
+                   const float *t_min_l, const float *t_max_l, uint on, KdQuery *q)
+{
+    RayShear shear[KD_PACKET];
+    KdLaneStacks stacks;
+    uint leaves[KD_PACKET];
+    KdFP t0_l, t1_l;
+    uint act = 0u;
+    for (uint l = 0; l < KD_PACKET; l++) {
+        float3 o = (float3)(ox_l->s[l], oy_l->s[l], oz_l->s[l]);
+        float3 d = (float3)(dx_l->s[l], dy_l->s[l], dz_l->s[l]);
+        float t_enter = 0.0f, t_exit = 0.0f;
+        if ((on >> l) & 1u
+            && kd_walk_range(bmin, bmax, o, d, t_min_l[l], t_max_l[l], &t_enter, &t_exit)) {
+            act |= 1u << l;
+            shear[l] = ray_shear(d);
+        }
+        t0_l.s[l] = t_enter;
+        t1_l.s[l] = t_exit;
+        stacks.top[l] = 0u;
+        leaves[l] = 0u;
+    }
+    floatP ox = ox_l->v, oy = oy_l->v, oz = oz_l->v, dx = dx_l->v, dy = dy_l->v, dz = dz_l->v;
+    uintP node = (uintP)(0u);
+    floatP t0 = t0_l.v, t1 = t1_l.v;
+    while (popcount(act) >= KD_LANES_MIN) {
+        /* every lane's node as one 8-byte word (lanes that are done read their last
+         * node again) */
+        ulongP word = KD_GATHER_AS(ulongP, (__global const ulong *)nodes, node);
+        uintP flags = convert_uintP(word & (ulongP)(0xFFFFFFFFul));
+        uintP data = convert_uintP(word >> 32);
+        intP leaf = as_intP((flags & (uintP)(3u)) == (uintP)(KD_LEAF));
+        uint inner = act & ~kd_bitsP(leaf);
+
+        if (inner) {
+            KdStepP st = kd_node_stepP(flags, data, node, ox, oy, oz, dx, dy, dz, t0, t1);
+            uint in_plane = inner & kd_bitsP(st.in_plane);
+            uint both = inner & ~kd_bitsP(st.go_first | st.go_second);
+            /* both children, or a plane that holds the ray: push the second over
+             * [t_mid, t1] (in the plane: [t0, t1]), go on in the first over [t0, t_mid]
+             * (in the plane: t_mid is t1) */
+            floatP t_mid = kd_selectP(st.t_mid, t1, kd_maskP(in_plane));
+            if (both) {
+                KdUP second_l;
+                KdFP mid_l, from_l, to_l;
+                second_l.v = st.second;
+                mid_l.v = t_mid;
+                from_l.v = kd_selectP(t_mid, t0, kd_maskP(in_plane));
+                to_l.v = t1;
+                uint push = both;
+                do {
+                    uint l = kd_take_lane(&push);
+                    if ((in_plane >> l) & 1u)
+                        q[l].in_plane = true;
+                    if (!kd_lane_push(&stacks, l, second_l.s[l], from_l.s[l], to_l.s[l])) {
+                        q[l].fault = true;      /* deeper than the tree's depth: corrupt */
+                        act &= ~(1u << l);
+                    }
+                } while (push);
+            }
+            intP step = kd_maskP(inner & act);
+            node = kd_selectPu(node, kd_selectPu(st.first, st.second, st.go_second), step);
+            t1 = kd_selectP(t1, t_mid, step & kd_maskP(both));
+        }
+
+        /* leaves: each lane's to kd_query_leaf; then its next entry, or it is done */
+        uint at_leaf = act & kd_bitsP(leaf);
+        if (at_leaf) {
+            KdUP flags_n, data_n;
+            flags_n.v = flags;
+            data_n.v = data;
+            t1_l.v = t1;
+            do {
+                uint l = kd_take_lane(&at_leaf);
+                if (++leaves[l] > n_nodes) {    /* more leaves than nodes: corrupt */
+                    q[l].fault = true;
+                    act &= ~(1u << l);
+                    continue;
+                }
+                KdNode n;
+                n.flags = flags_n.s[l];
+                n.data = data_n.s[l];
+                if (kd_query_leaf(query, n, tris, tri_ids, &shear[l],
+                                  (float3)(ox_l->s[l], oy_l->s[l], oz_l->s[l]), t_min_l[l],
+                                  t_max_l[l], t1_l.s[l], &q[l])
+                    || stacks.top[l] == 0u) {
+                    act &= ~(1u << l);
+                } else {
+                    uint next;
+                    float next_t0, next_t1;
+                    kd_lane_pop(&stacks, l, &next, &next_t0, &next_t1);
+                    intP m = KD_LANE_INDEX == (intP)((int)l);
+                    node = kd_selectPu(node, (uintP)(next), m);
+                    t0 = kd_selectP(t0, (floatP)(next_t0), m);
+                    t1 = kd_selectP(t1, (floatP)(next_t1), m);
+                }
+            } while (at_leaf);
+        }
+    }
+
+    /* the last few lanes one by one */
+    if (act) {
+        KdUP node_n;
+        node_n.v = node;
+        t0_l.v = t0;
+        t1_l.v = t1;
+        do {
+            uint l = kd_take_lane(&act);
+            kd_walk_on(query, nodes, n_nodes, tris, tri_ids, &shear[l],
+                       (float3)(ox_l->s[l], oy_l->s[l], oz_l->s[l]),
+                       (float3)(dx_l->s[l], dy_l->s[l], dz_l->s[l]), t_min_l[l], t_max_l[l],
+                       node_n.s[l], t0_l.s[l], t1_l.s[l], stacks.node + l, stacks.t0 + l,
+                       stacks.t1 + l, KD_PACKET, stacks.top[l], leaves[l], &q[l]);
+        } while (act);
+    }
+}
+#endif
 
 /* A query's state before its walk: nothing found (a nearest hit of t_max), the
  * count's rule when `crossing`. */
@@ -333,32 +484,74 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
     q->hit.tri = KD_NO_HIT;
 }
 
-/* A work-item's rays: RUN consecutive ones from get_global_id(0) * RUN. */
-#define KD_FOR_ITEM_RAYS(k)                                                                \
-    uint first_ray = (uint)get_global_id(0) * RUN;                                         \
-    uint end_ray = min(first_ray + (uint)RUN, n_rays);                                     \
-    for (uint k = first_ray; k < end_ray; k++)
-
 #define KD_QUERY_ARGS                                                                      \
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
     __global const float *bounds, uint n_nodes, __global const float *origins,             \
     __global const float *directions, uint o_step, __global const float *t_mins,          \
     __global const float *t_maxs, uint t_step, uint n_rays
 
-#define KD_WALK_RAY(query, k, q)                                                           \
-    kd_walk(query, nodes, n_nodes, tris, tri_ids, vload3(0, bounds), vload3(1, bounds),   \
-            kd_load3(origins, (size_t)(k) * o_step), kd_load3(directions, k),             \
-            t_mins[(k) * t_step], t_maxs[(k) * t_step], q)
+/* Rays walked together: a packet program's lanes (kd_lanes_walk), else one. */
+#ifdef PACKET
+#define KD_WALK_LANES KD_PACKET
+#else
+#define KD_WALK_LANES 1
+#endif
+
+/* A work-item's rays, RUN consecutive ones from get_global_id(0) * RUN, in blocks of
+ * KD_WALK_LANES from ray k0 (the block's rays: kd_block_size). */
+#define KD_FOR_ITEM_BLOCKS(k0)                                                             \
+    uint first_ray = (uint)get_global_id(0) * RUN;                                         \
+    uint end_ray = min(first_ray + (uint)RUN, n_rays);                                     \
+    for (uint k0 = first_ray; k0 < end_ray; k0 += KD_WALK_LANES)
+
+#define kd_block_size(k0) min((uint)KD_WALK_LANES, end_ray - (k0))
+
+/* Walk rays k0 .. k0 + m - 1 into q[0 .. m - 1] (kd_walk, side by side in packet
+ * programs: kd_lanes_walk, which gives each ray kd_walk's walk). */
+KD_INLINE
+void kd_walk_block(uint query, KD_QUERY_ARGS, uint k0, uint m, KdQuery *q)
+{
+    float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
+#ifdef PACKET
+    if (m >= KD_LANES_MIN) {
+        KdFP ox, oy, oz, dx, dy, dz;
+        float t_min[KD_PACKET], t_max[KD_PACKET];
+        for (uint l = 0; l < KD_PACKET; l++) {
+            uint k = k0 + (l < m ? l : 0u);     /* lanes past m: a copy, not walked */
+            float3 o = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
+            ox.s[l] = o.x; oy.s[l] = o.y; oz.s[l] = o.z;
+            dx.s[l] = d.x; dy.s[l] = d.y; dz.s[l] = d.z;
+            t_min[l] = t_mins[k * t_step];
+            t_max[l] = t_maxs[k * t_step];
+        }
+        kd_lanes_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, &ox, &oy, &oz, &dx,
+                      &dy, &dz, t_min, t_max, (1u << m) - 1u, q);
+        return;
+    }
+#endif
+    for (uint l = 0; l < m; l++) {
+        uint k = k0 + l;
+        kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax,
+                kd_load3(origins, (size_t)k * o_step), kd_load3(directions, k),
+                t_mins[k * t_step], t_maxs[k * t_step], &q[l]);
+    }
+}
+
+#define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes, origins, directions, o_step,   \
+    t_mins, t_maxs, t_step, n_rays
 
 /* out[k]: 1 when ray k hits anything with t_min < t < t_max, else 0; 2 on a fault. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
 {
-    KD_FOR_ITEM_RAYS(k) {
-        KdQuery q;
-        kd_query_start(&q, false, t_maxs[k * t_step]);
-        KD_WALK_RAY(KD_ANY, k, &q);
-        out[k] = q.fault ? (uchar)2 : (uchar)q.n;
+    KD_FOR_ITEM_BLOCKS(k0) {
+        uint m = kd_block_size(k0);
+        KdQuery q[KD_WALK_LANES];
+        for (uint l = 0; l < m; l++)
+            kd_query_start(&q[l], false, t_maxs[(k0 + l) * t_step]);
+        kd_walk_block(KD_ANY, KD_WALK_ARGS, k0, m, q);
+        for (uint l = 0; l < m; l++)
+            out[k0 + l] = q[l].fault ? (uchar)2 : (uchar)q[l].n;
     }
 }
 
@@ -368,11 +561,15 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 {
-    KD_FOR_ITEM_RAYS(k) {
-        KdQuery q;
-        kd_query_start(&q, crossing != 0u, t_maxs[k * t_step]);
-        KD_WALK_RAY(KD_COUNT, k, &q);
-        out[k] = q.fault ? KD_WALK_FAULT : (q.n > KD_SEEN ? q.raw | KD_COUNT_RAW : q.n);
+    KD_FOR_ITEM_BLOCKS(k0) {
+        uint m = kd_block_size(k0);
+        KdQuery q[KD_WALK_LANES];
+        for (uint l = 0; l < m; l++)
+            kd_query_start(&q[l], crossing != 0u, t_maxs[(k0 + l) * t_step]);
+        kd_walk_block(KD_COUNT, KD_WALK_ARGS, k0, m, q);
+        for (uint l = 0; l < m; l++)
+            out[k0 + l] = q[l].fault ? KD_WALK_FAULT
+                                     : (q[l].n > KD_SEEN ? q[l].raw | KD_COUNT_RAW : q[l].n);
     }
 }
 
@@ -394,47 +591,56 @@ void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
                __global const uint *caps KD_EXACT_RAY_ARGS, __global float *hit_t,
                __global float *hit_uv, __global uint *hit_id, __global uint *out_n)
 {
-    KD_FOR_ITEM_RAYS(k) {
-        KdQuery q;
-        kd_query_start(&q, crossing != 0u, t_maxs[k * t_step]);
-        ulong at = offsets[k];
-        q.t = hit_t + at;
-        q.uv = hit_uv + 2u * at;
-        q.tri = hit_id + at;             /* copies while walking, input ids at the end */
-        q.cap = caps[k];
-        KD_WALK_RAY(KD_LIST, k, &q);
-        if (q.fault) {
-            out_n[k] = KD_WALK_FAULT;
-            continue;
+    KD_FOR_ITEM_BLOCKS(k0) {
+        uint m = kd_block_size(k0);
+        KdQuery qs[KD_WALK_LANES];
+        for (uint l = 0; l < m; l++) {
+            KdQuery *q = &qs[l];
+            uint k = k0 + l;
+            kd_query_start(q, crossing != 0u, t_maxs[k * t_step]);
+            ulong at = offsets[k];
+            q->t = hit_t + at;
+            q->uv = hit_uv + 2u * at;
+            q->tri = hit_id + at;            /* copies while walking, input ids at the end */
+            q->cap = caps[k];
         }
-#if defined(REFINE) && defined(cl_khr_fp64)
-        /* each hit's t, u, v from double (kd_refine_hit), then in order again: the
-         * refined t moves by its float rounding at most, so this is a few swaps */
-        double3 o = vload3((size_t)k * o_step, exact_o);
-        double3 d = vload3(k, exact_d);
-        float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
-        for (uint j = 0; j < q.n; j++) {
-            uint tri = q.tri[j];
-            float t = q.t[j], u = q.uv[2u * j], v = q.uv[2u * j + 1u];
-            kd_refine_hit(o, d, kd_vertex(tris, tri, 0),
-                          kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2), t_min, t_max,
-                          &t, &u, &v);
-            uint i = j;
-            for (; i > 0u && kd_before(t, tri, q.t[i - 1u], q.tri[i - 1u], tri_ids); i--) {
-                q.t[i] = q.t[i - 1u];
-                q.uv[2u * i] = q.uv[2u * i - 2u];
-                q.uv[2u * i + 1u] = q.uv[2u * i - 1u];
-                q.tri[i] = q.tri[i - 1u];
+        kd_walk_block(KD_LIST, KD_WALK_ARGS, k0, m, qs);
+        for (uint l = 0; l < m; l++) {
+            KdQuery *q = &qs[l];
+            uint k = k0 + l;
+            if (q->fault) {
+                out_n[k] = KD_WALK_FAULT;
+                continue;
             }
-            q.t[i] = t;
-            q.uv[2u * i] = u;
-            q.uv[2u * i + 1u] = v;
-            q.tri[i] = tri;
-        }
+#if defined(REFINE) && defined(cl_khr_fp64)
+            /* each hit's t, u, v from double (kd_refine_hit), then in order again: the
+             * refined t moves by its float rounding at most, so this is a few swaps */
+            double3 o = vload3((size_t)k * o_step, exact_o);
+            double3 d = vload3(k, exact_d);
+            float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
+            for (uint j = 0; j < q->n; j++) {
+                uint tri = q->tri[j];
+                float t = q->t[j], u = q->uv[2u * j], v = q->uv[2u * j + 1u];
+                kd_refine_hit(o, d, kd_vertex(tris, tri, 0),
+                              kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2), t_min, t_max,
+                              &t, &u, &v);
+                uint i = j;
+                for (; i > 0u && kd_before(t, tri, q->t[i - 1u], q->tri[i - 1u], tri_ids); i--) {
+                    q->t[i] = q->t[i - 1u];
+                    q->uv[2u * i] = q->uv[2u * i - 2u];
+                    q->uv[2u * i + 1u] = q->uv[2u * i - 1u];
+                    q->tri[i] = q->tri[i - 1u];
+                }
+                q->t[i] = t;
+                q->uv[2u * i] = u;
+                q->uv[2u * i + 1u] = v;
+                q->tri[i] = tri;
+            }
 #endif
-        for (uint j = 0; j < q.n; j++)
-            q.tri[j] = tri_ids[q.tri[j]];
-        out_n[k] = q.n;
+            for (uint j = 0; j < q->n; j++)
+                q->tri[j] = tri_ids[q->tri[j]];
+            out_n[k] = q->n;
+        }
     }
 }
 
@@ -448,34 +654,40 @@ __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
                   __global float *out_uv, __global float *out_normal, __global uint *out_id)
 {
-    KD_FOR_ITEM_RAYS(k) {
-        KdQuery q;
-        float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
-        kd_query_start(&q, false, t_max);
-        KD_WALK_RAY(KD_NEAREST, k, &q);
-        bool found = q.hit.tri != KD_NO_HIT && !q.fault;
-        float3 p0 = (float3)(0.0f), p1 = (float3)(0.0f), p2 = (float3)(0.0f);
-        if (found) {
-            p0 = kd_vertex(tris, q.hit.tri, 0);
-            p1 = kd_vertex(tris, q.hit.tri, 1);
-            p2 = kd_vertex(tris, q.hit.tri, 2);
+    KD_FOR_ITEM_BLOCKS(k0) {
+        uint m = kd_block_size(k0);
+        KdQuery qs[KD_WALK_LANES];
+        for (uint l = 0; l < m; l++)
+            kd_query_start(&qs[l], false, t_maxs[(k0 + l) * t_step]);
+        kd_walk_block(KD_NEAREST, KD_WALK_ARGS, k0, m, qs);
+        for (uint l = 0; l < m; l++) {
+            KdQuery *q = &qs[l];
+            uint k = k0 + l;
+            float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
+            bool found = q->hit.tri != KD_NO_HIT && !q->fault;
+            float3 p0 = (float3)(0.0f), p1 = (float3)(0.0f), p2 = (float3)(0.0f);
+            if (found) {
+                p0 = kd_vertex(tris, q->hit.tri, 0);
+                p1 = kd_vertex(tris, q->hit.tri, 1);
+                p2 = kd_vertex(tris, q->hit.tri, 2);
 #if defined(REFINE) && defined(cl_khr_fp64)
-            kd_refine_hit(vload3((size_t)k * o_step, exact_o), vload3(k, exact_d), p0, p1, p2,
-                          t_min, t_max, &q.hit.t, &q.hit.u, &q.hit.v);
+                kd_refine_hit(vload3((size_t)k * o_step, exact_o), vload3(k, exact_d), p0, p1, p2,
+                              t_min, t_max, &q->hit.t, &q->hit.u, &q->hit.v);
 #endif
+            }
+            out_t[k] = q->fault ? NAN : (found ? q->hit.t : INFINITY);
+            if (out_uv) {
+                out_uv[2 * (size_t)k] = found ? q->hit.u : 0.0f;
+                out_uv[2 * (size_t)k + 1] = found ? q->hit.v : 0.0f;
+            }
+            if (out_normal) {
+                float3 normal = found ? kd_normalize(kd_cross(p1 - p0, p2 - p0)) : (float3)(0.0f);
+                out_normal[3 * (size_t)k] = normal.x;
+                out_normal[3 * (size_t)k + 1] = normal.y;
+                out_normal[3 * (size_t)k + 2] = normal.z;
+            }
+            if (out_id)
+                out_id[k] = found ? tri_ids[q->hit.tri] : KD_NO_HIT;
         }
-        out_t[k] = q.fault ? NAN : (found ? q.hit.t : INFINITY);
-        if (out_uv) {
-            out_uv[2 * (size_t)k] = found ? q.hit.u : 0.0f;
-            out_uv[2 * (size_t)k + 1] = found ? q.hit.v : 0.0f;
-        }
-        if (out_normal) {
-            float3 normal = found ? kd_normalize(kd_cross(p1 - p0, p2 - p0)) : (float3)(0.0f);
-            out_normal[3 * (size_t)k] = normal.x;
-            out_normal[3 * (size_t)k + 1] = normal.y;
-            out_normal[3 * (size_t)k + 2] = normal.z;
-        }
-        if (out_id)
-            out_id[k] = found ? tri_ids[q.hit.tri] : KD_NO_HIT;
     }
 }

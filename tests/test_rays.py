@@ -206,17 +206,36 @@ def test_queries_do_not_depend_on_work_sizes_or_packets(runtime, teapot_tree, mo
                 listed.t, listed.u, near.t, near.prim, near.u, near.normal)
 
     want = answers(Tracer(tree, device=runtime.spec, packet=1))
-    monkeypatch.setattr(krays, "RUN_CPU", 3)
-    options = [dict(packet=1, local_size=1, batch_size=1), dict(packet=1, local_size=4, batch_size=4)]
+    # rays a work-item (RUN_CPU): 3 walks one by one in packet programs too; 21 walks a
+    # packet's width side by side (kd_lanes_walk), then a part of one
+    options = [dict(packet=1, local_size=1, batch_size=1, run=3),
+               dict(packet=1, local_size=4, batch_size=4, run=3)]
     if not runtime.simulator:
-        options += [dict(packet=p) for p in PACKETS]
-        options.append(dict(packet=PACKETS[0], plain_vector_ops=True))
+        options += [dict(packet=p, run=r) for p in PACKETS for r in (3, 21)]
+        options.append(dict(packet=PACKETS[0], plain_vector_ops=True, run=21))
     for opts in options:
+        monkeypatch.setattr(krays, "RUN_CPU", opts.pop("run"))
         plain = opts.pop("plain_vector_ops", False)
         other = Tracer(tree, device=runtime.spec, **opts)
         other._plain_vector_ops = plain or other._plain_vector_ops
         for a, b in zip(answers(other), want):
             assert np.array_equal(a, b), opts
+
+
+@pytest.mark.parametrize("packet", [1, None], ids=["one ray", "lanes"])
+def test_a_corrupt_tree_is_reported_not_walked_on(runtime, teapot_tree, packet):
+    """A walk that needs more stack than the tree's depth allows, or visits more leaves
+    than the tree has nodes (what a corrupt tree does), stops with an error from every
+    query, whether the rays are walked one by one or side by side in lanes."""
+    if packet is None and runtime.simulator:
+        pytest.skip("a simulator runs no packet programs")
+    o, d = random_rays(teapot_tree, runtime.small(300, 40), seed=13)
+    for corrupt in ("packet_stack_size", "_n_nodes"):
+        tracer = Tracer(teapot_tree, device=runtime.spec, packet=packet)
+        setattr(tracer, corrupt, 2)
+        for query in (tracer.occluded, tracer.count, tracer.intersections):
+            with pytest.raises(KdrayError, match="corrupt"):
+                query(o, d)
 
 
 def test_many_hits_a_ray_are_counted_exactly(tracers):
