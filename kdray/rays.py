@@ -49,8 +49,11 @@ COUNT_RAW = 0x80000000
 WALK_FAULT = 0x40000000
 """The kernels' mark of a walk that met a corrupt tree (never for a valid one)."""
 
-RUN_CPU = 32
-"""Consecutive rays a work-item takes on a CPU device (one per work-item on a GPU)."""
+RUN_CPU = 64
+"""Consecutive rays a work-item takes on a CPU device (one per work-item on a GPU). In
+packet programs its lanes walk them, a lane taking the next ray when its walk ends
+(kernels/queries.cl, kd_lanes_walk): more rays keep the lanes full for longer, each
+holding its query's state in private memory (about 200 bytes: 25 KB a work-item)."""
 
 HIT_BYTES = 16
 """Host bytes of one listed hit: t (4), u and v (8), prim (4); ray and object are

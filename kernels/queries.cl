@@ -339,45 +339,67 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
 }
 
 #ifdef PACKET
-/* The walks of up to KD_PACKET rays side by side, one a vector lane, as kd_lanes_trace
- * (lanes_trace.cl) traces rays that share no path: one vector node step moves every
- * lane one node down its own path. Lane l is ray (o_l[l], d_l[l]) over [t_min_l[l],
- * t_max_l[l]] and walks into q[l] exactly as kd_walk would: the same node decisions
- * (kd_node_stepP), the same leaves in the same order, the same stops and faults. When
- * fewer than KD_LANES_MIN lanes are left, each goes on alone (kd_walk_on). `on`: the
- * lanes that hold a ray. */
+/* The walks of rays k0 .. k0 + n - 1 into q[0 .. n - 1], side by side, one a vector lane,
+ * as kd_lanes_trace (lanes_trace.cl) traces rays that share no path: one vector node
+ * step moves every lane one node down its own path, and a lane whose walk ends takes
+ * the next ray, so that the lanes stay full while rays are left. Each ray is walked
+ * exactly as kd_walk walks it: the same node decisions (kd_node_stepP), the same
+ * leaves in the same order, the same stops and faults. When no ray is left and fewer
+ * than KD_LANES_MIN lanes are busy, each goes on alone (kd_walk_on). */
 KD_INLINE
 void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                    __global const float *tris, __global const uint *tri_ids, float3 bmin,
-                   float3 bmax, const KdFP *ox_l, const KdFP *oy_l, const KdFP *oz_l,
-                   const KdFP *dx_l, const KdFP *dy_l, const KdFP *dz_l,
-                   const float *t_min_l, const float *t_max_l, uint on, KdQuery *q)
+                   float3 bmax, __global const float *origins, __global const float *directions,
+                   uint o_step, __global const float *t_mins, __global const float *t_maxs,
+                   uint t_step, uint k0, uint n, KdQuery *q)
 {
     RayShear shear[KD_PACKET];
     KdLaneStacks stacks;
     uint leaves[KD_PACKET];
-    KdFP t0_l, t1_l;
-    uint act = 0u;
-    for (uint l = 0; l < KD_PACKET; l++) {
-        float3 o = (float3)(ox_l->s[l], oy_l->s[l], oz_l->s[l]);
-        float3 d = (float3)(dx_l->s[l], dy_l->s[l], dz_l->s[l]);
-        float t_enter = 0.0f, t_exit = 0.0f;
-        if ((on >> l) & 1u
-            && kd_walk_range(bmin, bmax, o, d, t_min_l[l], t_max_l[l], &t_enter, &t_exit)) {
-            act |= 1u << l;
-            shear[l] = ray_shear(d);
-        }
-        t0_l.s[l] = t_enter;
-        t1_l.s[l] = t_exit;
-        stacks.top[l] = 0u;
-        leaves[l] = 0u;
-    }
-    floatP ox = ox_l->v, oy = oy_l->v, oz = oz_l->v, dx = dx_l->v, dy = dy_l->v, dz = dz_l->v;
+    uint ray[KD_PACKET];                 /* the ray in each lane: q[ray[l]] */
+    float t_min_l[KD_PACKET], t_max_l[KD_PACKET];
+    KdFP ox_l, oy_l, oz_l, dx_l, dy_l, dz_l, t1_l;   /* lane by lane reads */
+    floatP ox = (floatP)(0.0f), oy = ox, oz = ox, dx = ox, dy = ox, dz = ox;
     uintP node = (uintP)(0u);
-    floatP t0 = t0_l.v, t1 = t1_l.v;
-    while (popcount(act) >= KD_LANES_MIN) {
-        /* every lane's node as one 8-byte word (lanes that are done read their last
-         * node again) */
+    floatP t0 = ox, t1 = ox;
+    uint act = 0u;
+    uint next = 0u;                      /* the next ray to take */
+    for (;;) {
+        /* free lanes take the next rays that have a range to walk (kd_walk_range) */
+        uint free = ~act & (uint)((1ul << KD_PACKET) - 1ul);
+        while (free && next < n) {
+            uint k = k0 + next;
+            float3 o = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
+            float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
+            float t_enter, t_exit;
+            next++;
+            if (!kd_walk_range(bmin, bmax, o, d, t_min, t_max, &t_enter, &t_exit))
+                continue;
+            uint l = kd_take_lane(&free);
+            act |= 1u << l;
+            ray[l] = next - 1u;
+            shear[l] = ray_shear(d);
+            stacks.top[l] = 0u;
+            leaves[l] = 0u;
+            t_min_l[l] = t_min;
+            t_max_l[l] = t_max;
+            ox_l.s[l] = o.x; oy_l.s[l] = o.y; oz_l.s[l] = o.z;
+            dx_l.s[l] = d.x; dy_l.s[l] = d.y; dz_l.s[l] = d.z;
+            intP m = KD_LANE_INDEX == (intP)((int)l);
+            ox = kd_selectP(ox, (floatP)(o.x), m);
+            oy = kd_selectP(oy, (floatP)(o.y), m);
+            oz = kd_selectP(oz, (floatP)(o.z), m);
+            dx = kd_selectP(dx, (floatP)(d.x), m);
+            dy = kd_selectP(dy, (floatP)(d.y), m);
+            dz = kd_selectP(dz, (floatP)(d.z), m);
+            node = kd_selectPu(node, (uintP)(0u), m);
+            t0 = kd_selectP(t0, (floatP)(t_enter), m);
+            t1 = kd_selectP(t1, (floatP)(t_exit), m);
+        }
+        if (popcount(act) < KD_LANES_MIN)
+            break;
+
+        /* every lane's node as one 8-byte word (free lanes read a node again) */
         ulongP word = KD_GATHER_AS(ulongP, (__global const ulong *)nodes, node);
         uintP flags = convert_uintP(word & (ulongP)(0xFFFFFFFFul));
         uintP data = convert_uintP(word >> 32);
@@ -403,9 +425,9 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 do {
                     uint l = kd_take_lane(&push);
                     if ((in_plane >> l) & 1u)
-                        q[l].in_plane = true;
+                        q[ray[l]].in_plane = true;
                     if (!kd_lane_push(&stacks, l, second_l.s[l], from_l.s[l], to_l.s[l])) {
-                        q[l].fault = true;      /* deeper than the tree's depth: corrupt */
+                        q[ray[l]].fault = true;  /* deeper than the tree's depth: corrupt */
                         act &= ~(1u << l);
                     }
                 } while (push);
@@ -424,45 +446,47 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
             t1_l.v = t1;
             do {
                 uint l = kd_take_lane(&at_leaf);
+                KdQuery *ql = &q[ray[l]];
                 if (++leaves[l] > n_nodes) {    /* more leaves than nodes: corrupt */
-                    q[l].fault = true;
+                    ql->fault = true;
                     act &= ~(1u << l);
                     continue;
                 }
-                KdNode n;
-                n.flags = flags_n.s[l];
-                n.data = data_n.s[l];
-                if (kd_query_leaf(query, n, tris, tri_ids, &shear[l],
-                                  (float3)(ox_l->s[l], oy_l->s[l], oz_l->s[l]), t_min_l[l],
-                                  t_max_l[l], t1_l.s[l], &q[l])
+                KdNode nd;
+                nd.flags = flags_n.s[l];
+                nd.data = data_n.s[l];
+                if (kd_query_leaf(query, nd, tris, tri_ids, &shear[l],
+                                  (float3)(ox_l.s[l], oy_l.s[l], oz_l.s[l]), t_min_l[l],
+                                  t_max_l[l], t1_l.s[l], ql)
                     || stacks.top[l] == 0u) {
                     act &= ~(1u << l);
                 } else {
-                    uint next;
-                    float next_t0, next_t1;
-                    kd_lane_pop(&stacks, l, &next, &next_t0, &next_t1);
+                    uint up;
+                    float up_t0, up_t1;
+                    kd_lane_pop(&stacks, l, &up, &up_t0, &up_t1);
                     intP m = KD_LANE_INDEX == (intP)((int)l);
-                    node = kd_selectPu(node, (uintP)(next), m);
-                    t0 = kd_selectP(t0, (floatP)(next_t0), m);
-                    t1 = kd_selectP(t1, (floatP)(next_t1), m);
+                    node = kd_selectPu(node, (uintP)(up), m);
+                    t0 = kd_selectP(t0, (floatP)(up_t0), m);
+                    t1 = kd_selectP(t1, (floatP)(up_t1), m);
                 }
             } while (at_leaf);
         }
     }
 
-    /* the last few lanes one by one */
+    /* no ray left: the last few lanes one by one */
     if (act) {
         KdUP node_n;
+        KdFP t0_l;
         node_n.v = node;
         t0_l.v = t0;
         t1_l.v = t1;
         do {
             uint l = kd_take_lane(&act);
             kd_walk_on(query, nodes, n_nodes, tris, tri_ids, &shear[l],
-                       (float3)(ox_l->s[l], oy_l->s[l], oz_l->s[l]),
-                       (float3)(dx_l->s[l], dy_l->s[l], dz_l->s[l]), t_min_l[l], t_max_l[l],
+                       (float3)(ox_l.s[l], oy_l.s[l], oz_l.s[l]),
+                       (float3)(dx_l.s[l], dy_l.s[l], dz_l.s[l]), t_min_l[l], t_max_l[l],
                        node_n.s[l], t0_l.s[l], t1_l.s[l], stacks.node + l, stacks.t0 + l,
-                       stacks.t1 + l, KD_PACKET, stacks.top[l], leaves[l], &q[l]);
+                       stacks.t1 + l, KD_PACKET, stacks.top[l], leaves[l], &q[ray[l]]);
         } while (act);
     }
 }
@@ -490,46 +514,36 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
     __global const float *directions, uint o_step, __global const float *t_mins,          \
     __global const float *t_maxs, uint t_step, uint n_rays
 
-/* Rays walked together: a packet program's lanes (kd_lanes_walk), else one. */
+/* Rays walked together: a packet program's work-item's RUN (kd_lanes_walk), else one. */
 #ifdef PACKET
-#define KD_WALK_LANES KD_PACKET
+#define KD_WALK_BLOCK RUN
 #else
-#define KD_WALK_LANES 1
+#define KD_WALK_BLOCK 1
 #endif
 
 /* A work-item's rays, RUN consecutive ones from get_global_id(0) * RUN, in blocks of
- * KD_WALK_LANES from ray k0 (the block's rays: kd_block_size). */
+ * KD_WALK_BLOCK from ray k0 (the block's rays: kd_block_size). */
 #define KD_FOR_ITEM_BLOCKS(k0)                                                             \
     uint first_ray = (uint)get_global_id(0) * RUN;                                         \
     uint end_ray = min(first_ray + (uint)RUN, n_rays);                                     \
-    for (uint k0 = first_ray; k0 < end_ray; k0 += KD_WALK_LANES)
+    for (uint k0 = first_ray; k0 < end_ray; k0 += KD_WALK_BLOCK)
 
-#define kd_block_size(k0) min((uint)KD_WALK_LANES, end_ray - (k0))
+#define kd_block_size(k0) min((uint)KD_WALK_BLOCK, end_ray - (k0))
 
-/* Walk rays k0 .. k0 + m - 1 into q[0 .. m - 1] (kd_walk, side by side in packet
+/* Walk rays k0 .. k0 + n - 1 into q[0 .. n - 1] (kd_walk, side by side in packet
  * programs: kd_lanes_walk, which gives each ray kd_walk's walk). */
 KD_INLINE
-void kd_walk_block(uint query, KD_QUERY_ARGS, uint k0, uint m, KdQuery *q)
+void kd_walk_block(uint query, KD_QUERY_ARGS, uint k0, uint n, KdQuery *q)
 {
     float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
 #ifdef PACKET
-    if (m >= KD_LANES_MIN) {
-        KdFP ox, oy, oz, dx, dy, dz;
-        float t_min[KD_PACKET], t_max[KD_PACKET];
-        for (uint l = 0; l < KD_PACKET; l++) {
-            uint k = k0 + (l < m ? l : 0u);     /* lanes past m: a copy, not walked */
-            float3 o = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
-            ox.s[l] = o.x; oy.s[l] = o.y; oz.s[l] = o.z;
-            dx.s[l] = d.x; dy.s[l] = d.y; dz.s[l] = d.z;
-            t_min[l] = t_mins[k * t_step];
-            t_max[l] = t_maxs[k * t_step];
-        }
-        kd_lanes_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, &ox, &oy, &oz, &dx,
-                      &dy, &dz, t_min, t_max, (1u << m) - 1u, q);
+    if (n >= KD_LANES_MIN) {
+        kd_lanes_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, origins, directions,
+                      o_step, t_mins, t_maxs, t_step, k0, n, q);
         return;
     }
 #endif
-    for (uint l = 0; l < m; l++) {
+    for (uint l = 0; l < n; l++) {
         uint k = k0 + l;
         kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax,
                 kd_load3(origins, (size_t)k * o_step), kd_load3(directions, k),
@@ -546,7 +560,7 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
 {
     KD_FOR_ITEM_BLOCKS(k0) {
         uint m = kd_block_size(k0);
-        KdQuery q[KD_WALK_LANES];
+        KdQuery q[KD_WALK_BLOCK];
         for (uint l = 0; l < m; l++)
             kd_query_start(&q[l], false, t_maxs[(k0 + l) * t_step]);
         kd_walk_block(KD_ANY, KD_WALK_ARGS, k0, m, q);
@@ -563,7 +577,7 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 {
     KD_FOR_ITEM_BLOCKS(k0) {
         uint m = kd_block_size(k0);
-        KdQuery q[KD_WALK_LANES];
+        KdQuery q[KD_WALK_BLOCK];
         for (uint l = 0; l < m; l++)
             kd_query_start(&q[l], crossing != 0u, t_maxs[(k0 + l) * t_step]);
         kd_walk_block(KD_COUNT, KD_WALK_ARGS, k0, m, q);
@@ -593,7 +607,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
 {
     KD_FOR_ITEM_BLOCKS(k0) {
         uint m = kd_block_size(k0);
-        KdQuery qs[KD_WALK_LANES];
+        KdQuery qs[KD_WALK_BLOCK];
         for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = k0 + l;
@@ -656,7 +670,7 @@ void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
 {
     KD_FOR_ITEM_BLOCKS(k0) {
         uint m = kd_block_size(k0);
-        KdQuery qs[KD_WALK_LANES];
+        KdQuery qs[KD_WALK_BLOCK];
         for (uint l = 0; l < m; l++)
             kd_query_start(&qs[l], false, t_maxs[(k0 + l) * t_step]);
         kd_walk_block(KD_NEAREST, KD_WALK_ARGS, k0, m, qs);
