@@ -107,9 +107,8 @@ def check_points(points):
     n = p.size // 3
     check_host_memory(n * POINT_HOST_BYTES, f"querying {n:,} points", "ask for fewer points at once")
     p = np.ascontiguousarray(p.reshape(-1, 3), dtype=np.float64)
-    finite = np.isfinite(p).all(axis=1)
-    if not finite.all():
-        i = int(np.flatnonzero(~finite)[0])
+    if not np.isfinite(p).all():         # the whole array first: a row's test is slower
+        i = int(np.flatnonzero(~np.isfinite(p).all(axis=1))[0])
         raise KdrayError(f"points must be finite, point {i} is {p[i].tolist()}")
     return p, shape
 
@@ -119,13 +118,9 @@ SORT_FROM = 4096
 than it saves)."""
 
 
-def _spread(x):
-    """(n,) uint32: the 10 low bits of x spread to every third bit (0, 3, 6, ...)."""
-    x = x.astype(np.uint32)
-    x = (x | (x << 16)) & 0x030000FF
-    x = (x | (x << 8)) & 0x0300F00F
-    x = (x | (x << 4)) & 0x030C30C3
-    return (x | (x << 2)) & 0x09249249
+_SPREAD = np.array([sum(((i >> b) & 1) << (3 * b) for b in range(5)) for i in range(32)],
+                   dtype=np.uint16)
+"""_SPREAD[i]: the 5 bits of i (0..31) spread to every third bit (0, 3, 6, 9, 12)."""
 
 
 def spatial_order(points, lo, hi):
@@ -137,8 +132,15 @@ def spatial_order(points, lo, hi):
     scale = 32.0 / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
     with np.errstate(invalid="ignore", over="ignore"):
         q = np.clip((points - lo) * scale, 0, 31).astype(np.uint32)
-    code = (_spread(q[:, 0]) | (_spread(q[:, 1]) << 1) | (_spread(q[:, 2]) << 2)).astype(np.uint16)
+    code = _SPREAD[q[:, 0]] | (_SPREAD[q[:, 1]] << 1) | (_SPREAD[q[:, 2]] << 2)
     return np.argsort(code, kind="stable")
+
+
+def take_rows(a, index):
+    """a[index] for an (N, ...) array a and an (M,) int index: np.take along the first
+    axis, which gathers the rows of an (N, 3) float64 array 3x as fast as a[index]
+    (numpy 2.4: 16 against 52 ms for 2^20 rows)."""
+    return np.take(a, index, axis=0)
 
 
 def _ordered(tracer, rel):
@@ -148,7 +150,7 @@ def _ordered(tracer, rel):
         return rel, None
     lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.bounds)
     order = spatial_order(rel, lo, hi)
-    return rel[order], order
+    return take_rows(rel, order), order
 
 
 def _unordered(a, order, dtype=None):
@@ -158,9 +160,15 @@ def _unordered(a, order, dtype=None):
         return None
     if order is None:
         return a if dtype is None else a.astype(dtype)
-    out = np.empty(a.shape, dtype=dtype or a.dtype)
-    out[order] = a
-    return out
+    if a.ndim == 1:
+        out = np.empty(a.shape, dtype=dtype or a.dtype)
+        out[order] = a                   # a scatter: as fast as a gather in one dimension
+        return out
+    # rows: gathered by the inverse permutation (a scatter of rows is twice as slow)
+    inverse = np.empty_like(order)
+    inverse[order] = np.arange(len(order), dtype=order.dtype)
+    out = take_rows(a, inverse)
+    return out if dtype is None else out.astype(dtype, copy=False)
 
 
 def _relative(tracer, p):

@@ -35,7 +35,7 @@ from . import ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
-from .points import SORT_FROM, check_points, spatial_order
+from .points import SORT_FROM, check_points, spatial_order, take_rows
 from .tree import object_ids
 
 
@@ -339,7 +339,7 @@ def contains(tracer, points):
     order = None
     if len(p) >= SORT_FROM:
         order = spatial_order(p, *tracer.tree.world_box())
-        p = p[order]
+        p = take_rows(p, order)
     d = np.broadcast_to(CONTAINS_DIRECTION, p.shape)
     rays = _Rays(tracer, p, d, 0.0, np.inf)
     inside = _counts(tracer, rays, True) % 2 == 1
