@@ -256,10 +256,53 @@ def _check_fault(faulty, what):
                           f"leaves than nodes; the tree is corrupt (kdray info --check)")
 
 
+ALONE_SPREAD, ALONE_TURN = 0.25, 0.5
+"""kernels/packet.cl's KD_ALONE_SPREAD and KD_ALONE_TURN: a packet whose origins span
+more than ALONE_SPREAD of the scene box's longest side, or whose directions span more
+than ALONE_TURN of their largest component, has rays that share no path."""
+
+ALONE_SAMPLE = 64
+"""Packets `_share_paths` looks at."""
+
+
+def _share_paths(tracer, o, d, shape):
+    """Whether the rays (ray_input.flat_rays: o (3,) or (N, 3), d (N, 3), shape) mostly
+    share their paths in packets: image-shaped rays, or most of ALONE_SAMPLE packets
+    spread over the rays not alone by packet.cl's rule (kd_alone). Such rays are
+    traversed faster as packets (trace_rays), the others by the queries' walk, whose
+    lanes take a new ray as each walk ends. The answers are the same either way."""
+    if tracer.packet == 1 or len(shape) >= 2:
+        return True
+    p = tracer.packet
+    packets = len(d) // p
+    if packets == 0:
+        return True
+    starts = np.unique(np.linspace(0, packets - 1, min(packets, ALONE_SAMPLE)).astype(np.int64))
+    rows = (starts * p)[:, None] + np.arange(p)
+    with np.errstate(invalid="ignore"):
+        dd = d[rows]
+        turn = (dd.max(axis=1) - dd.min(axis=1)).max(axis=1)
+        alone = turn > ALONE_TURN * np.abs(dd).max(axis=(1, 2))
+        if o.ndim == 2 and len(o) == len(d):
+            oo = o[rows]
+            lo, hi = tracer.tree.world_box()
+            spread = (oo.max(axis=1) - oo.min(axis=1)).max(axis=1)
+            alone |= spread > ALONE_SPREAD * float(np.max(np.subtract(hi, lo)))
+    return alone.mean() < 0.5
+
+
 def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     """(N,) bool (the rays' shape): whether each ray hits anything with t_min < t <
-    t_max. An any-hit walk that stops at the first hit found; the same answers as
-    `trace(...).hit`."""
+    t_max, the same answers as `trace(...).hit`. A traversal that stops at the first
+    hit it finds: for rays that share their paths (`_share_paths`) with one t range
+    for all, `trace`'s in packets (render.cl, trace_rays with ANY_HIT); else the
+    queries' walk, its lanes refilled as walks end."""
+    t_min, t_max = check_t(t_min, "t_min"), check_t(t_max, "t_max")
+    if np.ndim(t_min) == 0 and np.ndim(t_max) == 0:
+        o, d, shape = ray_input.flat_rays(origins, directions)
+        if _share_paths(tracer, o, d, shape):
+            hits = tracer._trace_rays(o, d, shape, t_min, t_max, (), any_hit=True)
+            return hits.hit.reshape(shape)
     rays = _Rays(tracer, origins, directions, t_min, t_max)
     out = page_aligned_empty((rays.n,), np.uint8)
     for start, stop in _launches(tracer, rays, [1]):

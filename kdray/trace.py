@@ -394,14 +394,16 @@ class Tracer:
         self._origin = np.asarray(tree.origin, dtype=np.float64)
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
 
-    def program(self, outputs, stats=False, rays_world=None, rays="pinhole"):
+    def program(self, outputs, stats=False, rays_world=None, rays="pinhole", any_hit=False):
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
         with its kernels: {"program": Program, "trace_rays": Kernel, ...} (and the
         argument types `_launch` gave each kernel, under ("arg_types", name)). rays_world:
         None, or trace_rays takes rays in world coordinates, (origin type, direction
         type), each "float" or "double" (render.cl, RAYS_WORLD).
         rays: how render_camera makes its rays: "pinhole", "map" (a camera model's ray
-        map, RAY_MAP) or "orthographic" (ORTHOGRAPHIC); render.cl says how."""
+        map, RAY_MAP) or "orthographic" (ORTHOGRAPHIC); render.cl says how.
+        any_hit: trace_rays stops at any hit (ANY_HIT, for `occluded`; with no
+        refinement: it changes no hit into a miss)."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
                    "BATCH_SIZE": self.batch_size, "TILE_W": _render.RENDER_TILE[0],
                    "TILE_H": _render.RENDER_TILE[1]}
@@ -412,7 +414,9 @@ class Tracer:
             defines["RAY_MAP"] = None
         elif rays == "orthographic":
             defines["ORTHOGRAPHIC"] = None
-        if self.refine:
+        if any_hit:
+            defines["ANY_HIT"] = None
+        elif self.refine:
             defines["REFINE"] = None
         if self._scale != 1.0:
             # exact: a power of two as a hexadecimal literal
@@ -494,16 +498,16 @@ class Tracer:
     # -- launching ---------------------------------------------------------------------
 
     def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_world=None,
-                rays="pinhole", while_running=None):
+                rays="pinhole", while_running=None, any_hit=False):
         """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
         slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
         args: the kernel's arguments between the tree and the counter; while_running:
         None or a function to call once the kernel has been submitted, before waiting
-        for it."""
+        for it; any_hit: see `program`."""
         cl = _device._cl()
         if n == 0:
             return
-        entry = self.program(outputs, stats, rays_world, rays)
+        entry = self.program(outputs, stats, rays_world, rays, any_hit)
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
@@ -628,21 +632,28 @@ class Tracer:
             # a t range a ray: the queries' walk, the same hits (kdray.rays.nearest)
             hits = _rays.nearest(self, origins, directions, t_min, t_max, kernel)
         else:
-            if len(shape) >= 2:
-                image_w, search = shape[-1], None
-            elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
-                # (N, 3) rays that are an image in rows, as cameras give them, are
-                # traced in blocks too; the packets do not change a hit, only the time
-                image_w, search = self._image_width(origins, directions)
-            else:
-                image_w, search = 0, None
-            hits, _ = self._trace(origins, directions, t_min, t_max, outputs=kernel,
-                                  image_w=image_w, while_running=search)
+            hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
         if double:
             hits = self._double_hits(hits, origins, directions)
             if "uv" not in outputs:
                 hits = dataclasses.replace(hits, u=None, v=None)
         return hits if len(shape) == 1 else hits._reshaped(shape)
+
+    def _trace_rays(self, origins, directions, shape, t_min, t_max, outputs, any_hit=False):
+        """Hits of flat rays (ray_input.flat_rays: their shape `shape`) with one t range
+        for all, by trace_rays: image-shaped rays, given so or found so, in blocks of
+        pixels on a CPU; any_hit: the first hit each ray's traversal finds (`program`)."""
+        if len(shape) >= 2:
+            image_w, search = shape[-1], None
+        elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
+            # (N, 3) rays that are an image in rows, as cameras give them, are traced in
+            # blocks too; the packets do not change a hit, only the time
+            image_w, search = self._image_width(origins, directions)
+        else:
+            image_w, search = 0, None
+        hits, _ = self._trace(origins, directions, t_min, t_max, outputs=outputs,
+                              image_w=image_w, while_running=search, any_hit=any_hit)
+        return hits
 
     # -- ray queries beyond the nearest hit (kdray.rays) ---------------------------------
 
@@ -721,12 +732,13 @@ class Tracer:
                     object_table=hits.object_table)
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False,
-               outputs=KERNEL_OUTPUTS, image_w=0, while_running=None):
+               outputs=KERNEL_OUTPUTS, image_w=0, while_running=None, any_hit=False):
         """(Hits, STATS or None) of the rays; outputs: the kernel outputs computed and
         stored (KERNEL_OUTPUTS order; T and ID always), the others None in Hits.
         image_w: 0, or the rays are rows of an image that wide (N a multiple of it),
         traced in packets of blocks of pixels (render.cl, trace_rays).
-        while_running: None or a function called once while the first launch runs."""
+        while_running: None or a function called once while the first launch runs.
+        any_hit: each ray's first hit found, not its nearest (`program`)."""
         outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | {"T", "ID"})
         t_min, t_max = float(t_min), float(t_max)
         if not (t_min >= 0.0 and t_max >= t_min):
@@ -765,7 +777,8 @@ class Tracer:
                           *t32,
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
-                         rays_world=rays_world, while_running=while_running)
+                         rays_world=rays_world, while_running=while_running,
+                         any_hit=any_hit)
             while_running = None
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
         uv = out.get("UV")

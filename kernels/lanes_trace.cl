@@ -140,7 +140,7 @@ bool kd_lane_finish(__global const KdNode *nodes, uint max_leaves, __global cons
         if (++leaves > max_leaves)
             return false;
         kd_ray_leaf(n, tris, tri_ids, shear, o, t_min, t_max, hit);
-        if (kd_hit_final(hit->t, t1) || stacks->top[l] == 0u)
+        if (kd_hit_done(hit->t, hit->tri, t1) || stacks->top[l] == 0u)
             return true;
         kd_lane_pop(stacks, l, &node, &t0, &t1);
     }
@@ -241,7 +241,7 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
                 n.data = data_l.s[l];
                 kd_ray_leaf(n, tris, tri_ids, &shear[l],
                             (float3)(oxl.s[l], oyl.s[l], ozl.s[l]), t_min, t_max, &hit[l]);
-                if (kd_hit_final(hit[l].t, t1_l.s[l]) || stacks.top[l] == 0u) {
+                if (kd_hit_done(hit[l].t, hit[l].tri, t1_l.s[l]) || stacks.top[l] == 0u) {
                     act &= ~(1u << l);
                 } else {
                     uint next;

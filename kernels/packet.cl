@@ -723,8 +723,12 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
                 return;
             KD_PSTAT(y, act);
             kd_packet_leaf(n, tris, tri_ids, r, act, h KD_PSTATS_ARG);
-            /* lanes whose hit is final are done (traverse.cl, kd_hit_final) */
+            /* lanes whose hit is final are done (traverse.cl, kd_hit_done) */
+#ifdef ANY_HIT
+            live &= ~(act & (h->tri != (uintP)(KD_NO_HIT)));
+#else
             live &= ~(act & (h->t < t_max_cur * (1.0f - KD_T_SLACK)));
+#endif
         }
 
         /* Pop the next entry with a live lane */

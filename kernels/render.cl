@@ -24,6 +24,8 @@
  * trace_rays reads rays in world coordinates, origins of type ORIGIN_T and directions
  * of DIRECTION_T (float or double), and takes the tree's origin.
  * REFINE: t, u, v of each hit recomputed in double (triangle.cl, kd_refine_hit).
+ * ANY_HIT: a ray's traversal ends at the first hit it finds (traverse.cl, kd_hit_done),
+ * which trace_rays stores: whether there is any hit (rays.py, occluded), not the nearest.
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"

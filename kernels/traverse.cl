@@ -161,6 +161,19 @@ bool kd_hit_final(float t_hit, float t_exit)
     return t_hit < t_exit * (1.0f - KD_T_SLACK);
 }
 
+/* Whether a traversal may end at a leaf whose exit is t_exit with the hit (t_hit, tri)
+ * found so far: for the nearest hit when it is final; with ANY_HIT (occluded: is there
+ * any hit, rays.py), at any hit. */
+KD_INLINE
+bool kd_hit_done(float t_hit, uint tri, float t_exit)
+{
+#ifdef ANY_HIT
+    return tri != KD_NO_HIT;
+#else
+    return kd_hit_final(t_hit, t_exit);
+#endif
+}
+
 /* One front-to-back traversal of [t_enter, t_exit]. `side` picks the child of an
  * in-plane node (bit axis: 0 below, 1 above); the axes met in-plane are or-ed into
  * *in_plane. Returns when the nearest hit is certain or every leaf has been visited.
@@ -255,7 +268,7 @@ void kd_traverse_pass(__global const KdNode *nodes, uint max_leaves,
             KD_STAT(y);
             KD_RAY_LEAF(n, tris, tri_ids, shear, o, t_min, t_max, hit KD_STATS_ARG);
             last_leaf = node;
-            if (kd_hit_final(hit->t, t_max_cur))
+            if (kd_hit_done(hit->t, hit->tri, t_max_cur))
                 break;
         }
 
@@ -325,6 +338,10 @@ bool trace_ray(__global const KdNode *nodes, uint n_nodes,
         }
         if (side == 0u)
             break;
+#ifdef ANY_HIT
+        if (hit->tri != KD_NO_HIT)
+            break;                       /* any hit will do: no other side's pass */
+#endif
         done |= 1u << side;
     }
     return hit->tri != KD_NO_HIT;

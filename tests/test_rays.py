@@ -54,6 +54,40 @@ def test_occluded_is_traces_hit(runtime, teapot_tree):
     assert tracer.occluded(o[:60].reshape(6, 10, 3), d[:60].reshape(6, 10, 3)).shape == (6, 10)
 
 
+def test_occluded_stops_at_any_hit_in_packets_and_lanes(runtime, teapot_tree):
+    """occluded with one t range for all is trace's traversal stopping at the first hit
+    it finds (ANY_HIT): rays from one origin as an image, given (H, W, 3) and flat, rays
+    in split planes and random rays, in packets of each width, answer trace's hit."""
+    tree = teapot_tree
+    lo, hi = tree.world_box()
+    side = runtime.small(96, 8)
+    g = np.linspace(0.05, 0.95, side)
+    target = lo + (hi - lo) * np.stack(np.meshgrid(g, g, [0.5], indexing="ij"), -1)[:, :, 0]
+    eye = lo + (hi - lo) * np.array([0.5, 0.5, -1.5])
+    image = target - eye
+    flat = image.reshape(-1, 3)
+    o_r, d_r = random_rays(tree, runtime.small(2001, 61), seed=14)
+    o_s, d_s = split_plane_rays(tree, runtime.small(500, 30), seed=15)
+    packets = [1] if runtime.simulator else [1, *PACKETS]
+    for packet in packets:
+        tracer = Tracer(tree, device=runtime.spec, packet=packet)
+        tracer._poison_outputs = True
+        for t_min, t_max in ((0.0, np.inf), (0.5, 1.2)):
+            for o, d in ((eye, image), (eye, flat), (o_r, d_r), (o_s, d_s)):
+                want = tracer.trace(o, d, t_min, t_max).hit
+                assert np.array_equal(tracer.occluded(o, d, t_min, t_max), want), packet
+        # (the image looks at the teapot: some of its rays hit)
+        assert tracer.occluded(eye, image).any()
+    # which traversal: an image's rays share their paths, random rays do not
+    tracer = Tracer(tree, device=runtime.spec)
+    if tracer.packet > 1:
+        assert krays._share_paths(tracer, eye, flat, flat.shape[:1])
+        o_u = lo + (hi - lo) * np.random.default_rng(16).random((4096, 3))
+        d_u = np.random.default_rng(17).normal(size=(4096, 3))
+        assert not krays._share_paths(tracer, o_u, d_u, (4096,))
+        assert not krays._share_paths(tracer, eye, d_u, (4096,))
+
+
 def test_intersections_match_brute_force(runtime, teapot_tree):
     tree = teapot_tree
     n = runtime.small(2003, 41)
@@ -230,12 +264,13 @@ def test_a_corrupt_tree_is_reported_not_walked_on(runtime, teapot_tree, packet):
     if packet is None and runtime.simulator:
         pytest.skip("a simulator runs no packet programs")
     o, d = random_rays(teapot_tree, runtime.small(300, 40), seed=13)
+    t_max = np.full(len(o), np.inf)      # a range a ray: occluded's walk too
     for corrupt in ("packet_stack_size", "_n_nodes"):
         tracer = Tracer(teapot_tree, device=runtime.spec, packet=packet)
         setattr(tracer, corrupt, 2)
         for query in (tracer.occluded, tracer.count, tracer.intersections):
             with pytest.raises(KdrayError, match="corrupt"):
-                query(o, d)
+                query(o, d, t_max=t_max)
 
 
 def test_many_hits_a_ray_are_counted_exactly(tracers):
