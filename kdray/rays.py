@@ -48,6 +48,13 @@ COUNT_RAW = 0x80000000
 """count_rays marks a count of every hit found, copies included (kernels/queries.cl)."""
 WALK_FAULT = 0x40000000
 """The kernels' mark of a walk that met a corrupt tree (never for a valid one)."""
+LIST_MORE = 0x20000000
+"""list_rays marks the count of a ray that had more hits than slots (kernels/queries.cl)."""
+
+GUESS_HITS = 4
+"""Slots a ray gets in `intersections`' first pass, which lists every hit of the rays
+that have no more (most rays: 0.4-0.7 hits a ray for a camera's or random rays); only
+the others are counted, then listed again with their own number of slots."""
 
 RUN_CPU = 64
 """Consecutive rays a work-item takes on a CPU device (one per work-item on a GPU). In
@@ -351,7 +358,7 @@ def _counts(tracer, rays, crossing):
         # more distinct hits than the kernel keeps ids of: listed, which deduplicates
         sub = rays.subset(raw)
         caps = (out[raw] & ~np.uint32(COUNT_RAW)).astype(np.int64)
-        listed = _list(tracer, sub, caps, crossing)
+        listed, _ = _list(tracer, sub, caps, crossing)
         counts[raw] = np.diff(listed.offsets)
     return counts
 
@@ -392,9 +399,10 @@ def contains(tracer, points):
 
 
 def _list(tracer, rays, caps, crossing=False):
-    """Intersections of `rays` (their float32 t, u, v) with at most caps[i] hits of ray
-    i ((N,) int64, at least its distinct hits for every hit): the kernel fills each
-    ray's slots, then the slots left empty are dropped."""
+    """(Intersections, more) of `rays` (their float32 t, u, v) with at most caps[i]
+    hits of ray i ((N,) int64; at least its distinct hits for every hit), its nearest
+    in (t, input id) order: the kernel fills each ray's slots, then the slots left
+    empty are dropped. more: (N,) bool, the rays that had more hits than caps[i]."""
     caps = np.asarray(caps, dtype=np.int64)
     total = int(caps.sum())
     check_host_memory(total * (HIT_BYTES + 4) + rays.n * 12,
@@ -432,24 +440,56 @@ def _list(tracer, rays, caps, crossing=False):
                  "found": found[start:stop]})
         start = stop
     _check_fault(found == WALK_FAULT, "intersections")
-    n_found = found.astype(np.int64)
+    more = (found & LIST_MORE) != 0
+    n_found = (found & ~np.uint32(LIST_MORE)).astype(np.int64)
     if (n_found == caps).all():
         return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1],
-                             object_table=tracer.tree.objects)
+                             object_table=tracer.tree.objects), more
     keep = np.arange(total) - np.repeat(offsets[:-1], caps) < np.repeat(n_found, caps)
     new_offsets = np.zeros(rays.n + 1, dtype=np.int64)
     np.cumsum(n_found, out=new_offsets[1:])
     uv = uv[keep]
     return Intersections(new_offsets, t[keep], prim[keep], uv[:, 0], uv[:, 1],
-                         object_table=tracer.tree.objects)
+                         object_table=tracer.tree.objects), more
+
+
+def _replace_rows(hits, rows, other):
+    """`hits` (an Intersections of N rays) with the hits of rays `rows` ((k,) int64,
+    ascending) replaced by those of `other` (an Intersections of the k rays, in that
+    order)."""
+    counts = np.diff(hits.offsets)
+    other_counts = np.diff(other.offsets)
+    kept = np.ones(len(counts), dtype=bool)
+    kept[rows] = False
+    new_counts = counts.copy()
+    new_counts[rows] = other_counts
+    offsets = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(new_counts, out=offsets[1:])
+    # each hit's place: its ray's new first slot plus its rank in the ray
+    ray = hits.ray
+    mine = kept[ray]
+    ray = ray[mine]
+    at_mine = offsets[ray] + np.flatnonzero(mine) - hits.offsets[ray]
+    other_ray = np.repeat(rows, other_counts)
+    at_other = (offsets[other_ray] + np.arange(len(other.t))
+                - np.repeat(other.offsets[:-1], other_counts))
+    out = {}
+    for name in ("t", "prim", "u", "v"):
+        a, b = getattr(hits, name), getattr(other, name)
+        merged = np.empty(offsets[-1], dtype=a.dtype)
+        merged[at_mine] = a[mine]
+        merged[at_other] = b
+        out[name] = merged
+    return Intersections(offsets, object_table=hits.object_table, **out)
 
 
 def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits=None,
                   precision="single"):
     """Every hit of each ray with t_min < t < t_max, sorted by t (ties by input id),
     each triangle once: an `Intersections`. max_hits=k keeps each ray's k nearest (the
-    first k of the whole list). A count pass sizes each ray's slots, then a fill pass
-    fills them: no hit is dropped for want of room (KdrayError when they do not fit in
+    first k of the whole list). A first pass lists each ray's GUESS_HITS nearest and
+    marks the rays that had more; those are counted, then listed again with as many
+    slots: no hit is dropped for want of room (KdrayError when they do not fit in
     memory). precision="double": t, u, v in float64 from the tree's float64 triangles
     and the rays as given (kdray.double), sorted by that t."""
     double = wants_double(precision, tracer.tree)
@@ -460,10 +500,17 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
         if max_hits < 1:
             raise KdrayError(f"max_hits must be at least 1, got {max_hits}")
     rays = _Rays(tracer, origins, directions, t_min, t_max)
-    caps = _counts(tracer, rays, False)
-    if max_hits is not None:
-        np.minimum(caps, int(max_hits), out=caps)
-    hits = _list(tracer, rays, caps)
+    # every ray's GUESS_HITS nearest (its max_hits when fewer), then the rays that had
+    # more: counted, and listed again in full
+    guess = GUESS_HITS if max_hits is None else min(GUESS_HITS, int(max_hits))
+    hits, more = _list(tracer, rays, np.full(rays.n, guess, dtype=np.int64))
+    redo = np.flatnonzero(more) if max_hits is None or max_hits > guess else ()
+    if len(redo):
+        sub = rays.subset(redo)
+        caps = _counts(tracer, sub, False)
+        if max_hits is not None:
+            np.minimum(caps, int(max_hits), out=caps)
+        hits = _replace_rows(hits, redo, _list(tracer, sub, caps)[0])
     hits.t *= np.float32(tracer._scale)      # a power of two: exact
     if double:
         hits = _double(tracer, hits, origins, directions)

@@ -58,6 +58,7 @@
 #define KD_SEEN 32u                     /* input ids count_rays keeps, per ray */
 #define KD_COUNT_RAW 0x80000000u         /* count_rays: the count is every hit found */
 #define KD_WALK_FAULT 0x40000000u        /* the walk met a corrupt tree (never otherwise) */
+#define KD_LIST_MORE 0x20000000u         /* list_rays: the ray has more hits than its slots */
 
 #define KD_ANY 0u
 #define KD_COUNT 1u
@@ -71,7 +72,8 @@ typedef struct {
     bool in_plane;                       /* nearest: a node's plane held the ray */
     Hit hit;                             /* nearest: the best hit so far */
     uint n;                              /* distinct hits (any: 1 once hit) */
-    uint raw;                            /* count: hits found, copies included */
+    uint raw;                            /* count: hits found, copies included; list:
+                                          * 1 when a hit found no slot */
     uint seen[KD_SEEN];                  /* count: the input ids counted */
     /* list: the ray's slots, cap of them, n used, sorted by (t, input id) */
     __global float *t;
@@ -108,6 +110,7 @@ void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const
             return;
     uint j = q->n;
     if (j == q->cap) {
+        q->raw = 1u;                     /* a triangle beyond the cap: more hits than slots */
         if (j == 0u || !kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids))
             return;
         j--;
@@ -590,7 +593,8 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 /* Ray k's hits into slots offsets[k] .. offsets[k] + caps[k] - 1 (hit_t, hit_uv two
  * floats a slot, hit_id the input id), its count into out_n[k] (KD_WALK_FAULT on a
  * fault): with caps[k] at least its distinct hits, every hit, else the caps[k] first
- * in (t, input id) order. Sorted by (t, input id), as refined with REFINE. */
+ * in (t, input id) order, the count then marked KD_LIST_MORE. Sorted by (t, input id),
+ * as refined with REFINE. */
 #if defined(REFINE) && defined(cl_khr_fp64)
 /* the caller's rays in double, relative to the tree's origin in its units (origins
  * o_step apart, as `origins`), which the hits are refined from, as trace_rays refines
@@ -653,7 +657,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
 #endif
             for (uint j = 0; j < q->n; j++)
                 q->tri[j] = tri_ids[q->tri[j]];
-            out_n[k] = q->n;
+            out_n[k] = q->n | (q->raw ? KD_LIST_MORE : 0u);
         }
     }
 }

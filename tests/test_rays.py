@@ -88,7 +88,7 @@ def test_occluded_stops_at_any_hit_in_packets_and_lanes(runtime, teapot_tree):
         assert not krays._share_paths(tracer, eye, d_u, (4096,))
 
 
-def test_intersections_match_brute_force(runtime, teapot_tree):
+def test_intersections_match_brute_force(runtime, teapot_tree, monkeypatch):
     tree = teapot_tree
     n = runtime.small(2003, 41)
     o, d, tracer = poisoned_case(runtime, tree, n, seed=5)
@@ -134,6 +134,18 @@ def test_intersections_match_brute_force(runtime, teapot_tree):
     assert (first.counts == nearest.hit).all()
     assert (first.prim == nearest.prim[nearest.hit]).all()
     assert (first.t == nearest.t[nearest.hit]).all()
+
+    # the first pass's slots a ray (the rays with more listed again) change nothing
+    assert (hits.counts > 1).any()
+    for guess in (1, 2):
+        monkeypatch.setattr(krays, "GUESS_HITS", guess)
+        again = tracer.intersections(o, d)
+        for name in ("offsets", "t", "prim", "u", "v"):
+            assert np.array_equal(getattr(again, name), getattr(hits, name)), (guess, name)
+        few = tracer.intersections(o, d, max_hits=3)
+        counts = np.minimum(hits.counts, 3)
+        keep = np.arange(len(hits.t)) - np.repeat(hits.offsets[:-1], hits.counts) < np.repeat(counts, hits.counts)
+        assert (few.counts == counts).all() and (few.prim == hits.prim[keep]).all()
 
 
 def test_counts_are_exact_through_vertices_and_edges(runtime):
