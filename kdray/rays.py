@@ -40,9 +40,21 @@ from .tree import object_ids
 
 
 CONTAINS_DIRECTION = np.array([0.5377513, 0.6153846, 0.5763888], dtype=np.float32)
-"""The direction `contains` casts every point's ray along: fixed, so that an answer is
-the same every run, and not in any axis plane or along a diagonal, where meshes built
-on grids have their edges (a ray through an edge or vertex is still counted exactly)."""
+"""The direction `contains` casts a point's ray along, its components' signs those of
+the point's offset from the box's centre (`contains_directions`): fixed, so that an
+answer is the same every run, and not in any axis plane or along a diagonal, where
+meshes built on grids have their edges (a ray through an edge or vertex is still
+counted exactly)."""
+
+
+def contains_directions(tracer, points):
+    """(N, 3) float32: the direction of each point's ray in `contains` (points (N, 3)
+    float64, world coordinates): CONTAINS_DIRECTION with each component's sign that of
+    the point's offset from the centre of the tree's box (+ at the centre), away from
+    the centre towards the nearest corner, so that the ray leaves the box soon: half
+    the walk, on average, of one direction for all (random points in a box)."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
+    return np.where(points >= 0.5 * (lo + hi), CONTAINS_DIRECTION, -CONTAINS_DIRECTION)
 
 COUNT_RAW = 0x80000000
 """count_rays marks a count of every hit found, copies included (kernels/queries.cl)."""
@@ -373,13 +385,14 @@ def count(tracer, origins, directions, t_min=0.0, t_max=np.inf):
 
 def contains(tracer, points):
     """(N,) bool (the points' shape (..., 3) less its last axis): whether each point is
-    inside the mesh, by the parity of `count` along one fixed direction
-    (CONTAINS_DIRECTION) from the point: exact for a closed, consistently oriented mesh,
-    with no jitter, vote or second ray, and the same every run.
+    inside the mesh, by the parity of `count` along a fixed direction from the point
+    (`contains_directions`: CONTAINS_DIRECTION, away from the box's centre): exact for
+    a closed, consistently oriented mesh, with no jitter, vote or second ray, and the
+    same every run.
 
     A point on the surface (within the rounding of a hit's t, kernels/triangle.cl) is
-    answered as if moved an infinitesimal step along CONTAINS_DIRECTION: inside where
-    that direction points into the mesh. For a mesh that is not closed, parity has no
+    answered as if moved an infinitesimal step along its direction: inside where that
+    direction points into the mesh. For a mesh that is not closed, parity has no
     meaning (a ray may leave through a hole): the answer is that of the one ray.
     KdrayError for points that are not finite or not (..., 3)."""
     p, shape = check_points(points)
@@ -390,8 +403,7 @@ def contains(tracer, points):
     if len(p) >= SORT_FROM:
         order = spatial_order(p, *tracer.tree.world_box())
         p = take_rows(p, order)
-    d = np.broadcast_to(CONTAINS_DIRECTION, p.shape)
-    rays = _Rays(tracer, p, d, 0.0, np.inf)
+    rays = _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf)
     inside = _counts(tracer, rays, True) % 2 == 1
     if order is not None:
         inside[order] = inside.copy()

@@ -61,7 +61,7 @@ from trimesh.ray import ray_triangle, ray_util
 from helpers import edge_distance, graze_tolerance
 from kdray.errors import KdrayError
 from kdray.integrations.trimesh import RayMeshIntersector
-from kdray.rays import CONTAINS_DIRECTION
+from kdray.rays import contains_directions
 from kdray.reference import all_hits
 
 DATA = Path(__file__).resolve().parent / "data" / "trimesh"
@@ -238,9 +238,9 @@ def test_contains():
     way_out = rng.random((30, 3)) * 100 + 1.0 + mesh.bounds[1]
     assert not mesh.ray.contains_points(way_out).any()
     assert mesh.ray.contains_points([mesh.center_mass]).all()
-    # on the surface: as if moved a step along CONTAINS_DIRECTION, the same every run
+    # on the surface: as if moved a step along its direction, the same every run
     on = mesh.ray.contains_points(mesh.vertices)
-    moved = mesh.vertices + 1e-6 * CONTAINS_DIRECTION
+    moved = mesh.vertices + 1e-6 * contains_directions(mesh.ray.tracer, mesh.vertices)
     assert (on == (np.abs(moved) < 0.5).all(axis=1)).all()
     assert (mesh.ray.contains_points(mesh.vertices) == on).all()
 
@@ -461,8 +461,8 @@ def test_through_icosphere_vertices_and_edges():
 def test_contains_on_grids_through_icosphere_vertices():
     """contains_points exact against the convex half-space test: on a regular grid, on
     rays through every vertex and edge midpoint from the centre, and along
-    CONTAINS_DIRECTION through them (the one ray a point casts passes through a vertex
-    or an edge)."""
+    each point's own direction through them (contains_directions: the one ray a point
+    casts passes through a vertex or an edge)."""
     mesh = ours(trimesh.creation.icosphere(subdivisions=2))
     v = mesh.vertices
     mid = 0.5 * (v[mesh.edges_unique[:, 0]] + v[mesh.edges_unique[:, 1]])
@@ -470,9 +470,14 @@ def test_contains_on_grids_through_icosphere_vertices():
     g = np.arange(-1.2, 1.21, 0.1)
     grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
     radial = (targets[:, None, :] * np.array([0.0, 0.5, 0.9, 0.999, 1.001, 1.5])[None, :, None])
-    along = targets[:, None, :] - np.array([-1.0, -0.01, 0.01, 0.3, 1.0, 2.5])[None, :, None] \
-        * CONTAINS_DIRECTION
-    points = np.concatenate([grid, radial.reshape(-1, 3), along.reshape(-1, 3)])
+    tracer = mesh.ray.tracer
+    s = np.array([-1.0, -0.01, 0.01, 0.3, 1.0, 2.5])[None, :, None]
+    along = (targets[:, None, :] - s * contains_directions(tracer, targets)[:, None, :]).reshape(-1, 3)
+    # the points whose own ray is the one through the vertex or edge midpoint
+    through = (contains_directions(tracer, along).reshape(-1, len(s[0]), 3)
+               == contains_directions(tracer, targets)[:, None, :]).all(axis=2).ravel()
+    assert through.mean() > 0.5
+    points = np.concatenate([grid, radial.reshape(-1, 3), along[through]])
     side = halfspace(mesh, points)
     clear = (np.abs(side).min(axis=1) > 1e-9) | (side.max(axis=1) < 0)
     expected = (side < 0).all(axis=1)

@@ -211,13 +211,16 @@ def test_count_parity_on_fandisk(runtime):
 def test_contains_on_grids_through_vertices(runtime):
     """Points on a grid through every vertex of the grid cube and of a sphere, against
     the exact half-space test of a convex mesh; points on the cube's surface answer as
-    if moved along CONTAINS_DIRECTION."""
+    if moved along their direction (contains_directions)."""
     v, f = grid_cube(2)
     tracer = Tracer(build(v, f), device=runtime.spec)
     step = 1.0 if runtime.simulator else 0.5
     g = np.arange(-3, 3 + step, step)
     p = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    moved = p + 1e-6 * krays.CONTAINS_DIRECTION
+    direction = krays.contains_directions(tracer, p)
+    assert (np.abs(direction) == krays.CONTAINS_DIRECTION).all()
+    assert (np.sign(direction) == np.where(p >= 0, 1, -1)).all()   # the box's centre: 0
+    moved = p + 1e-6 * direction
     assert (tracer.contains(p) == (np.abs(moved) < 2).all(axis=1)).all()
     # the scene's sphere: convex, so inside = behind every face's plane
     mesh = load(SCENES / "sphere.obj")

@@ -61,7 +61,7 @@ Which hits, and the differences from embree's intersector on purpose:
   plane at less than 1e-5 of a right angle (planes_lines' `valid`); kdray keeps every
   hit its test finds.
 - `contains_points` is Tracer.contains: the parity of one ray's exact crossing count
-  along a fixed direction (kdray.rays.CONTAINS_DIRECTION), exact at edges and
+  along a fixed direction (kdray.rays.contains_directions), exact at edges and
   vertices on a closed, consistently oriented mesh, the same every run. trimesh's
   casts two rays a point and, where they disagree, again in a random direction. A
   point on the surface answers as if moved an infinitesimal step along that
