@@ -142,6 +142,7 @@ typedef struct {
     double u, v;
     double3 q;                           /* the nearest point */
     uint id;                             /* input id, KD_NO_HIT */
+    uint tri;                            /* its device copy (layout.h) */
 } KdNearest;
 
 /* Triangle `tri` (device copy) tested exactly against the best so far. */
@@ -161,6 +162,7 @@ void kd_nearest_triangle(__global const float *tris, __global const uint *tri_id
         best->v = v;
         best->q = p - e;
         best->id = id;
+        best->tri = tri;
         double r = sqrt(d2) + SLACK;
         best->bound2 = r * r;
     }
@@ -352,6 +354,11 @@ void closest_points(__global const KdNode *nodes, __global const float *tris,
                     uint n_points, __global double *out_d, __global double *out_point,
                     __global float *out_uv, __global uint *out_id)
 {
+    /* Points come in spatial order (points.py): the work-item's previous point's
+     * nearest triangle is near this one too, and tested first it bounds the walk from
+     * the start, which then skips most regions at once. The answer does not depend on
+     * the order triangles are tested in (ties: the lowest input id). */
+    uint prev_tri = KD_NO_HIT;
     KD_FOR_ITEM_POINTS(k) {
         double3 p = vload3(k, points);
         KdNearest best;
@@ -361,8 +368,11 @@ void closest_points(__global const KdNode *nodes, __global const float *tris,
         best.v = 0.0;
         best.q = (double3)(0.0);
         best.id = KD_NO_HIT;
+        best.tri = KD_NO_HIT;
         uint walk = KD_WALK_DONE;
         if (isfinite(p.x) && isfinite(p.y) && isfinite(p.z)) {
+            if (prev_tri != KD_NO_HIT)
+                kd_nearest_triangle(tris, tri_ids KD_PASS_GEOMETRY, prev_tri, p, &best);
             walk = kd_nearest_walk(nodes, n_nodes, tris, tri_ids KD_PASS_GEOMETRY,
                                    vload3(0, bounds), vload3(1, bounds), p, false, &best);
             if (walk == KD_WALK_FULL)
@@ -371,6 +381,7 @@ void closest_points(__global const KdNode *nodes, __global const float *tris,
         }
         bool ok = walk == KD_WALK_DONE;
         bool found = ok && best.id != KD_NO_HIT;
+        prev_tri = found ? best.tri : KD_NO_HIT;
         out_d[k] = !ok ? NAN : (found ? sqrt(best.d2) : INFINITY);
 #ifdef OUT_POINT
         vstore3(found ? best.q : (double3)(0.0), k, out_point);
