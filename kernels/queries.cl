@@ -97,6 +97,24 @@ void kd_count_hit(KdQuery *q, uint id)
     q->n++;                              /* KD_SEEN + 1: overflowed */
 }
 
+/* list: the hit (t, u, v) of copy `tri` into slot j of the ray's or before it, the
+ * slots before j that come after it in (t, input id) order moved up one. */
+KD_INLINE
+void kd_slot_insert(KdQuery *q, uint j, float t, float u, float v, uint tri,
+                    __global const uint *tri_ids)
+{
+    for (; j > 0u && kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids); j--) {
+        q->t[j] = q->t[j - 1u];
+        q->uv[2u * j] = q->uv[2u * j - 2u];
+        q->uv[2u * j + 1u] = q->uv[2u * j - 1u];
+        q->tri[j] = q->tri[j - 1u];
+    }
+    q->t[j] = t;
+    q->uv[2u * j] = u;
+    q->uv[2u * j + 1u] = v;
+    q->tri[j] = tri;
+}
+
 /* list: the hit (t, u, v) of copy `tri` into the ray's slots, kept sorted by (t, input
  * id), unless its triangle is there already; with every slot taken (max_hits) it
  * replaces the last one if it comes before it. A copy dropped so is never taken
@@ -117,16 +135,7 @@ void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const
     } else {
         q->n++;
     }
-    for (; j > 0u && kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids); j--) {
-        q->t[j] = q->t[j - 1u];
-        q->uv[2u * j] = q->uv[2u * j - 2u];
-        q->uv[2u * j + 1u] = q->uv[2u * j - 1u];
-        q->tri[j] = q->tri[j - 1u];
-    }
-    q->t[j] = t;
-    q->uv[2u * j] = u;
-    q->uv[2u * j + 1u] = v;
-    q->tri[j] = tri;
+    kd_slot_insert(q, j, t, u, v, tri, tri_ids);
 }
 
 #ifdef PACKET
@@ -642,17 +651,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
                 kd_refine_hit(o, d, kd_vertex(tris, tri, 0),
                               kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2), t_min, t_max,
                               &t, &u, &v);
-                uint i = j;
-                for (; i > 0u && kd_before(t, tri, q->t[i - 1u], q->tri[i - 1u], tri_ids); i--) {
-                    q->t[i] = q->t[i - 1u];
-                    q->uv[2u * i] = q->uv[2u * i - 2u];
-                    q->uv[2u * i + 1u] = q->uv[2u * i - 1u];
-                    q->tri[i] = q->tri[i - 1u];
-                }
-                q->t[i] = t;
-                q->uv[2u * i] = u;
-                q->uv[2u * i + 1u] = v;
-                q->tri[i] = tri;
+                kd_slot_insert(q, j, t, u, v, tri, tri_ids);
             }
 #endif
             for (uint j = 0; j < q->n; j++)
