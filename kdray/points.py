@@ -54,6 +54,12 @@ SIGN_BETA = 2.0
 about 30 times faster than WINDING_BETA and within about 4e-3 of the exact sum, far
 inside the 1/2 the sign is decided by."""
 
+NEAR_SURFACE = 1e-5
+"""Points nearer the surface than this share of the scene box's largest side take the
+generalized winding number's sign even on closed meshes (`inside`): a crossing so near
+a ray's origin may be lost to the rounding of its t (kernels/triangle.cl) or of the
+float32 copy of the mesh (within 6e-8 of the box's size)."""
+
 SIGNS = ("winding", "parity")
 
 
@@ -375,11 +381,32 @@ def occupancy(tracer, points, sign="winding"):
 
 
 def inside(tracer, points, sign):
-    """`occupancy` without its warning (for callers that warned once already)."""
-    if sign == "winding":
+    """`occupancy` without its warning (for callers that warned once already). With
+    sign="winding" on a closed, consistently oriented mesh (`closed_cycle`) the winding
+    number is the exact integer of one ray's crossings (kdray.rays.crossing_windings),
+    as cheap as `contains`, and inside where it is 1 or more: the sign of the
+    generalized winding number wherever that is within 1/2 of the integer; the
+    generalized winding number for rays with more crossings than the kernel keeps."""
+    from .rays import contains, crossing_windings, WINDING_RAW
+    if sign == "parity":
+        return contains(tracer, points)
+    state = _state(tracer)
+    if "closed_cycle" not in state:
+        state["closed_cycle"] = closed_cycle(tracer.tree)
+    if not state["closed_cycle"]:
         return winding_number(tracer, points, SIGN_BETA) > 0.5
-    from .rays import contains
-    return contains(tracer, points)
+    p, shape = check_points(points)
+    w = crossing_windings(tracer, p)
+    result = w >= 1
+    # the generalized winding number where the crossings cannot tell: rays with more
+    # crossings than the kernel keeps, and points so near the surface that a crossing
+    # may be lost to the rounding of its t or of the float32 copy of the mesh
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
+    near = np.isfinite(distance(tracer, p, NEAR_SURFACE * float(np.max(hi - lo))))
+    redo = np.flatnonzero(near | (w == WINDING_RAW))
+    if redo.size:
+        result[redo] = winding_number(tracer, p[redo], SIGN_BETA) > 0.5
+    return result.reshape(shape)
 
 
 def signed_distance(tracer, points, sign="winding", max_distance=np.inf, precision="single"):
@@ -398,16 +425,34 @@ def signed(tracer, points, sign, max_distance=np.inf, precision="single"):
     return np.where(inside(tracer, points, sign), -d, d)
 
 
+def closed_cycle(tree):
+    """Whether the tree's triangles form a closed, consistently oriented surface: each
+    directed edge (vertices welded where their float32 coordinates are equal) appears
+    as often as its reverse, so that every ray's crossings, summed with their facings,
+    give the winding number of its origin."""
+    f = _welded(tree)
+    a = f.reshape(-1)
+    b = f[:, [1, 2, 0]].reshape(-1)
+    n = int(f.max()) + 1 if f.size else 1
+    return bool(np.array_equal(np.sort(a * n + b), np.sort(b * n + a)))
+
+
+def _welded(tree):
+    """(m, 3) int64: the tree's triangles by vertex, vertices welded where their float32
+    coordinates are equal."""
+    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3)
+    _, vid = np.unique(tris.view(np.dtype((np.void, 12))).ravel(), return_inverse=True)
+    return vid.reshape(-1, 3).astype(np.int64)
+
+
 def open_edges(tree):
     """The number of edges of the tree's triangles not shared by exactly two triangles
     in opposite directions (vertices welded where their float32 coordinates are equal):
     0 for a closed, consistently oriented mesh."""
-    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3)
-    _, vid = np.unique(tris.view(np.dtype((np.void, 12))).ravel(), return_inverse=True)
-    f = vid.reshape(-1, 3).astype(np.int64)
+    f = _welded(tree)
     a = f.reshape(-1)
     b = f[:, [1, 2, 0]].reshape(-1)
-    n = int(vid.max()) + 1 if vid.size else 1
+    n = int(f.max()) + 1 if f.size else 1
     directed = np.unique(a * n + b)
     reverse = np.isin(b * n + a, directed)
     # an edge is closed when its reverse is there too; count each open undirected edge once

@@ -383,6 +383,34 @@ def count(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     return _counts(tracer, rays, True).astype(np.int32).reshape(rays.shape)
 
 
+WINDING_RAW = 0x7FFFFFFF
+"""count_rays' mark of a ray with more crossings than it keeps ids of (KD_SEEN) in its
+winding mode (kernels/queries.cl, KD_WINDING)."""
+
+
+def crossing_windings(tracer, points):
+    """(N,) int64 (points (N, 3) float64, world coordinates, finite): each point's ray
+    of `contains` (contains_directions) with its crossings' facings summed, +1 where
+    the ray leaves through a triangle's front and -1 where it enters (kernels/queries.cl,
+    kd_facing): on a closed, consistently oriented mesh the exact winding number of the
+    point (points.closed_cycle). WINDING_RAW for a ray with more than 32 crossings."""
+    order = None
+    p = points
+    if len(p) >= SORT_FROM:
+        order = spatial_order(p, *tracer.tree.world_box())
+        p = take_rows(p, order)
+    rays = _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf)
+    out = page_aligned_empty((rays.n,), np.uint32)
+    for start, stop in _launches(tracer, rays, [4]):
+        _launch(tracer, "count_rays", rays, start, stop, (np.uint32(2),),
+                {"out": out[start:stop]})
+    _check_fault(out == WALK_FAULT, "winding")
+    w = np.where(out == WINDING_RAW, WINDING_RAW, out.view(np.int32)).astype(np.int64)
+    if order is not None:
+        w[order] = w.copy()
+    return w
+
+
 def contains(tracer, points):
     """(N,) bool (the points' shape (..., 3) less its last axis): whether each point is
     inside the mesh, by the parity of `count` along a fixed direction from the point

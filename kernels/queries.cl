@@ -59,6 +59,8 @@
 #define KD_COUNT_RAW 0x80000000u         /* count_rays: the count is every hit found */
 #define KD_WALK_FAULT 0x40000000u        /* the walk met a corrupt tree (never otherwise) */
 #define KD_LIST_MORE 0x20000000u         /* list_rays: the ray has more hits than its slots */
+#define KD_WINDING 2u                    /* count_rays' crossing argument for windings */
+#define KD_WINDING_RAW 0x7FFFFFFFu       /* count_rays: too many crossings for a winding */
 
 #define KD_ANY 0u
 #define KD_COUNT 1u
@@ -74,6 +76,7 @@ typedef struct {
     uint n;                              /* distinct hits (any: 1 once hit) */
     uint raw;                            /* count: hits found, copies included; list:
                                           * 1 when a hit found no slot */
+    int winding;                         /* count: the crossings' facings summed */
     uint seen[KD_SEEN];                  /* count: the input ids counted */
     /* list: the ray's slots, cap of them, n used, sorted by (t, input id) */
     __global float *t;
@@ -82,9 +85,10 @@ typedef struct {
     uint cap;
 } KdQuery;
 
-/* count: one more hit of input id `id`, counted unless counted already. */
+/* count: one more hit of input id `id` (facing: kd_facing's, for crossings), counted
+ * unless counted already. */
 KD_INLINE
-void kd_count_hit(KdQuery *q, uint id)
+void kd_count_hit(KdQuery *q, uint id, int facing)
 {
     q->raw++;
     if (q->n > KD_SEEN)                  /* past the slots: every hit counts (raw) */
@@ -95,6 +99,38 @@ void kd_count_hit(KdQuery *q, uint id)
     if (q->n < KD_SEEN)
         q->seen[q->n] = id;
     q->n++;                              /* KD_SEEN + 1: overflowed */
+    q->winding += facing;
+}
+
+/* The side triangle (p0, p1, p2) turns to the ray where intersect_triangle's crossing
+ * rule says the ray crosses it: +1 where the ray leaves through its front (its
+ * counter-clockwise side: outward on an outward-oriented mesh), -1 where it enters.
+ * The crossing's edge functions, computed as intersect_triangle computes them (the
+ * same float shear, then exact products in double: exact signs), are all of one sign
+ * or 0, so the first that is not 0 gives it. Summed over a ray's crossings on a closed,
+ * consistently oriented mesh: the winding number of the ray's origin. */
+KD_INLINE
+int kd_facing(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2)
+{
+    float3 A = p0 - o;
+    float3 B = p1 - o;
+    float3 C = p2 - o;
+    float Az = kd_comp(A, s->kz), Bz = kd_comp(B, s->kz), Cz = kd_comp(C, s->kz);
+    float Ax = kd_comp(A, s->kx) - s->Sx * Az;
+    float Ay = kd_comp(A, s->ky) - s->Sy * Az;
+    float Bx = kd_comp(B, s->kx) - s->Sx * Bz;
+    float By = kd_comp(B, s->ky) - s->Sy * Bz;
+    float Cx = kd_comp(C, s->kx) - s->Sx * Cz;
+    float Cy = kd_comp(C, s->ky) - s->Sy * Cz;
+#ifdef cl_khr_fp64
+    double U = (double)Cx * (double)By - (double)Cy * (double)Bx;
+    double V = (double)Ax * (double)Cy - (double)Ay * (double)Cx;
+    double W = (double)Bx * (double)Ay - (double)By * (double)Ax;
+#else
+    float U = Cx * By - Cy * Bx, V = Ax * Cy - Ay * Cx, W = Bx * Ay - By * Ax;
+#endif
+    bool positive = U != 0 ? U > 0 : (V != 0 ? V > 0 : W > 0);
+    return positive ? -1 : 1;
 }
 
 /* list: the hit (t, u, v) of copy `tri` into slot j of the ray's or before it, the
@@ -211,7 +247,7 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                     continue;
                 uint tri = first + i0 + j;
                 if (query == KD_COUNT)
-                    kd_count_hit(q, tri_ids[tri]);
+                    kd_count_hit(q, tri_ids[tri], 0);
                 else
                     kd_list_hit(q, tri, t.s[j], V.s[j] / det.s[j], W.s[j] / det.s[j], tri_ids);
             }
@@ -235,7 +271,9 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                                              kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2),
                                              tri, t_min, t_max, t_max, KD_NO_HIT, tri_ids, true,
                                              &t, &u, &v))
-                kd_count_hit(q, tri_ids[tri]);
+                kd_count_hit(q, tri_ids[tri],
+                             kd_facing(shear, o, kd_vertex(tris, tri, 0),
+                                       kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2)));
         }
     }
     return false;
@@ -252,7 +290,10 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
             return true;
         }
         if (query == KD_COUNT)
-            kd_count_hit(q, tri_ids[tri]);
+            kd_count_hit(q, tri_ids[tri],
+                         q->crossing ? kd_facing(shear, o, kd_vertex(tris, tri, 0),
+                                                 kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2))
+                                     : 0);
         else
             kd_list_hit(q, tri, t, u, v, tri_ids);
     }
@@ -514,6 +555,7 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
     q->in_plane = false;
     q->n = 0u;
     q->raw = 0u;
+    q->winding = 0;
     q->hit.t = t_max;
     q->hit.u = 0.0f;
     q->hit.v = 0.0f;
@@ -581,9 +623,10 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
     }
 }
 
-/* out[k]: the number of distinct triangles ray k hits (crossing: under the count's
+/* out[k]: the number of distinct triangles ray k hits (crossing 1: under the count's
  * rule), or every hit found | KD_COUNT_RAW when they were more than KD_SEEN, or
- * KD_WALK_FAULT. */
+ * KD_WALK_FAULT. crossing 2 (KD_WINDING): the crossings' facings summed (kd_facing), an
+ * int, or KD_WINDING_RAW when they were more than KD_SEEN, or KD_WALK_FAULT. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 {
@@ -595,7 +638,9 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
         kd_walk_block(KD_COUNT, KD_WALK_ARGS, k0, m, q);
         for (uint l = 0; l < m; l++)
             out[k0 + l] = q[l].fault ? KD_WALK_FAULT
-                                     : (q[l].n > KD_SEEN ? q[l].raw | KD_COUNT_RAW : q[l].n);
+                        : crossing == KD_WINDING ? (q[l].n > KD_SEEN ? KD_WINDING_RAW
+                                                                     : as_uint(q[l].winding))
+                        : (q[l].n > KD_SEEN ? q[l].raw | KD_COUNT_RAW : q[l].n);
     }
 }
 

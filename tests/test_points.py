@@ -203,6 +203,48 @@ def test_signs_on_closed_meshes(tracers):
         assert ((s < 0) == inside)[off].all() and (np.abs(s) == d).all()
 
 
+def test_winding_sign_on_closed_meshes_is_the_crossings_integer(runtime, spot):
+    """On a closed, consistently oriented mesh the winding sign comes from one ray's
+    crossings summed with their facings (kdray.rays.crossing_windings): the exact
+    integer, so the generalized winding number's sign wherever that is near an integer;
+    overlapping and inside-out components count as the winding number counts them;
+    rays with more crossings than the kernel keeps fall back to the generalized one."""
+    from kdray import rays as krays
+    v, f, tree = spot
+    tracer = Tracer(tree, device=runtime.spec)
+    assert kpoints.closed_cycle(tree)
+    assert not kpoints.closed_cycle(build(*real_mesh_arrays("teapot.obj")))
+    p = sample_points(v, f, runtime.small(3000, 40), seed=9)[:2 * runtime.small(3000, 40)]
+    gwn = tracer.winding_number(p)
+    clear = np.abs(gwn - np.round(gwn)) < 0.1
+    assert clear.mean() > 0.95
+    w = krays.crossing_windings(tracer, p)
+    assert (w[clear] == np.round(gwn[clear])).all()
+    assert (tracer.occupancy(p)[clear] == (gwn > 0.5)[clear]).all()
+
+    # two overlapping spheres (winding 2 where they overlap: inside, though parity says
+    # outside) and an inside-out one (-1: outside), each closed
+    a, fa = icosphere(2)
+    two = build(np.concatenate([a, a + [0.8, 0, 0], a * 0.5 + [5, 0, 0]]),
+                np.concatenate([fa, fa + len(a), fa[:, ::-1] + 2 * len(a)]))
+    tracer = Tracer(two, device=runtime.spec)
+    assert kpoints.closed_cycle(two)
+    q = np.array([[0.4, 0.05, 0.02], [-0.6, 0.1, 0.0], [1.5, 0.0, 0.1], [5.0, 0.01, 0.0],
+                  [3.0, 0.0, 0.0]])
+    assert krays.crossing_windings(tracer, q).tolist() == [2, 1, 1, -1, 0]
+    assert tracer.occupancy(q).tolist() == [True, True, True, False, False]
+    assert tracer.occupancy(q, sign="parity")[0] == False   # noqa: E712 (even crossings)
+
+    # 34 nested spheres: the centre's ray crosses them all, more than the kernel keeps
+    b, fb = icosphere(0)
+    shells = build(np.concatenate([b * (1 + 0.1 * k) for k in range(34)]),
+                   np.concatenate([fb + k * len(b) for k in range(34)]))
+    tracer = Tracer(shells, device=runtime.spec)
+    centre = np.array([[0.01, 0.02, 0.03]])
+    assert krays.crossing_windings(tracer, centre)[0] == krays.WINDING_RAW
+    assert tracer.occupancy(centre)[0] and abs(tracer.winding_number(centre)[0] - 34) < 1e-3
+
+
 def test_parity_on_an_open_mesh_warns(tracers):
     v, f = grid_cube(1)
     assert kpoints.open_edges(build(v, f)) == 0
