@@ -112,16 +112,7 @@ void kd_count_hit(KdQuery *q, uint id, int facing)
 KD_INLINE
 int kd_facing(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2)
 {
-    float3 A = p0 - o;
-    float3 B = p1 - o;
-    float3 C = p2 - o;
-    float Az = kd_comp(A, s->kz), Bz = kd_comp(B, s->kz), Cz = kd_comp(C, s->kz);
-    float Ax = kd_comp(A, s->kx) - s->Sx * Az;
-    float Ay = kd_comp(A, s->ky) - s->Sy * Az;
-    float Bx = kd_comp(B, s->kx) - s->Sx * Bz;
-    float By = kd_comp(B, s->ky) - s->Sy * Bz;
-    float Cx = kd_comp(C, s->kx) - s->Sx * Cz;
-    float Cy = kd_comp(C, s->ky) - s->Sy * Cz;
+    KD_SHEAR_VERTICES(s, o, p0, p1, p2)
 #ifdef cl_khr_fp64
     double U = (double)Cx * (double)By - (double)Cy * (double)Bx;
     double V = (double)Ax * (double)Cy - (double)Ay * (double)Cx;

@@ -247,25 +247,29 @@ float kd_tie(float e, float qy_py, float px_qx)
  * point of an edge or a vertex shared by consistently oriented triangles is hit in
  * exactly one of them; else a point on an edge is hit in every triangle that has it
  * (the nearest hit's rule: no ray leaks between triangles). */
+/* The triangle (p0, p1, p2) in the ray's sheared frame (ray_shear, o its origin):
+ * declares Az, Bz, Cz (unscaled z: scaled later, only for candidate hits) and Ax, Ay,
+ * Bx, By, Cx, Cy (sheared), floats, written once for intersect_triangle and those that
+ * must see the triangle exactly as it does (queries.cl, kd_facing). */
+#define KD_SHEAR_VERTICES(s, o, p0, p1, p2)                                                \
+    float3 A = (p0) - (o);                                                                 \
+    float3 B = (p1) - (o);                                                                 \
+    float3 C = (p2) - (o);                                                                 \
+    float Az = kd_comp(A, (s)->kz), Bz = kd_comp(B, (s)->kz), Cz = kd_comp(C, (s)->kz);    \
+    float Ax = kd_comp(A, (s)->kx) - (s)->Sx * Az;                                         \
+    float Ay = kd_comp(A, (s)->ky) - (s)->Sy * Az;                                         \
+    float Bx = kd_comp(B, (s)->kx) - (s)->Sx * Bz;                                         \
+    float By = kd_comp(B, (s)->ky) - (s)->Sy * Bz;                                         \
+    float Cx = kd_comp(C, (s)->kx) - (s)->Sx * Cz;                                         \
+    float Cy = kd_comp(C, (s)->ky) - (s)->Sy * Cz;
+
 KD_INLINE
 bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2, uint tri,
                         float t_min, float t_max, float t_best, uint tri_best,
                         __global const uint *tri_ids, bool crossing, float *t_out,
                         float *u_out, float *v_out)
 {
-    /* Vertices relative to the ray origin */
-    float3 A = p0 - o;
-    float3 B = p1 - o;
-    float3 C = p2 - o;
-
-    /* Shear and scale the vertices (z is scaled later, only for candidate hits) */
-    float Az = kd_comp(A, s->kz), Bz = kd_comp(B, s->kz), Cz = kd_comp(C, s->kz);
-    float Ax = kd_comp(A, s->kx) - s->Sx * Az;
-    float Ay = kd_comp(A, s->ky) - s->Sy * Az;
-    float Bx = kd_comp(B, s->kx) - s->Sx * Bz;
-    float By = kd_comp(B, s->ky) - s->Sy * Bz;
-    float Cx = kd_comp(C, s->kx) - s->Sx * Cz;
-    float Cy = kd_comp(C, s->ky) - s->Sy * Cz;
+    KD_SHEAR_VERTICES(s, o, p0, p1, p2)
 
     /* Scaled barycentric coordinates (edge functions) */
     float U = Cx * By - Cy * Bx;
