@@ -383,9 +383,31 @@ def count(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     return _counts(tracer, rays, True).astype(np.int32).reshape(rays.shape)
 
 
+WINDING = 2
+"""count_rays' `crossing` argument for crossings summed with their facings (KD_WINDING;
+0: every triangle hit, 1: crossings)."""
 WINDING_RAW = 0x7FFFFFFF
 """count_rays' mark of a ray with more crossings than it keeps ids of (KD_SEEN) in its
 winding mode (kernels/queries.cl, KD_WINDING)."""
+
+
+def _contains_rays(tracer, p):
+    """(rays, order): the rays of `contains` from points p ((N, 3) float64, world
+    coordinates, finite), in spatial order from SORT_FROM points on (kdray.points.
+    spatial_order: near points one after another; order None below), which changes no
+    answer."""
+    order = None
+    if len(p) >= SORT_FROM:
+        order = spatial_order(p, *tracer.tree.world_box())
+        p = take_rows(p, order)
+    return _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf), order
+
+
+def _unsorted(a, order):
+    """a ((N,), in the order of `_contains_rays`' rays) in the points' order."""
+    if order is not None:
+        a[order] = a.copy()
+    return a
 
 
 def crossing_windings(tracer, points):
@@ -394,21 +416,14 @@ def crossing_windings(tracer, points):
     the ray leaves through a triangle's front and -1 where it enters (kernels/queries.cl,
     kd_facing): on a closed, consistently oriented mesh the exact winding number of the
     point (points.closed_cycle). WINDING_RAW for a ray with more than 32 crossings."""
-    order = None
-    p = points
-    if len(p) >= SORT_FROM:
-        order = spatial_order(p, *tracer.tree.world_box())
-        p = take_rows(p, order)
-    rays = _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf)
+    rays, order = _contains_rays(tracer, points)
     out = page_aligned_empty((rays.n,), np.uint32)
     for start, stop in _launches(tracer, rays, [4]):
-        _launch(tracer, "count_rays", rays, start, stop, (np.uint32(2),),
+        _launch(tracer, "count_rays", rays, start, stop, (np.uint32(WINDING),),
                 {"out": out[start:stop]})
     _check_fault(out == WALK_FAULT, "winding")
     w = np.where(out == WINDING_RAW, WINDING_RAW, out.view(np.int32)).astype(np.int64)
-    if order is not None:
-        w[order] = w.copy()
-    return w
+    return _unsorted(w, order)
 
 
 def contains(tracer, points):
@@ -426,16 +441,8 @@ def contains(tracer, points):
     p, shape = check_points(points)
     if len(p) == 0:
         return np.zeros(shape, dtype=bool)
-    # near points one after another (kdray.points.spatial_order): the same answers
-    order = None
-    if len(p) >= SORT_FROM:
-        order = spatial_order(p, *tracer.tree.world_box())
-        p = take_rows(p, order)
-    rays = _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf)
-    inside = _counts(tracer, rays, True) % 2 == 1
-    if order is not None:
-        inside[order] = inside.copy()
-    return inside.reshape(shape)
+    rays, order = _contains_rays(tracer, p)
+    return _unsorted(_counts(tracer, rays, True) % 2 == 1, order).reshape(shape)
 
 
 def _list(tracer, rays, caps, crossing=False):
