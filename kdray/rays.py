@@ -68,6 +68,10 @@ GUESS_HITS = 4
 that have no more (most rays: 0.4-0.7 hits a ray for a camera's or random rays); only
 the others are counted, then listed again with their own number of slots."""
 
+GUESS_CHUNK = 1 << 20
+"""Rays `intersections` takes through its first pass at once: their slots (GUESS_HITS
+a ray, 80 bytes) take at most 80 MB beside the hits listed."""
+
 RUN_CPU = 64
 """Consecutive rays a work-item takes on a CPU device (one per work-item on a GPU). In
 packet programs its lanes walk them, a lane taking the next ray when its walk ends
@@ -547,8 +551,23 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
         if max_hits < 1:
             raise KdrayError(f"max_hits must be at least 1, got {max_hits}")
     rays = _Rays(tracer, origins, directions, t_min, t_max)
-    # every ray's GUESS_HITS nearest (its max_hits when fewer), then the rays that had
-    # more: counted, and listed again in full
+    if rays.n <= GUESS_CHUNK:
+        hits = _listed(tracer, rays, max_hits)
+    else:
+        hits = _concatenated([_listed(tracer, rays.subset(np.arange(a, min(a + GUESS_CHUNK, rays.n))),
+                                      max_hits)
+                              for a in range(0, rays.n, GUESS_CHUNK)])
+    hits.t *= np.float32(tracer._scale)      # a power of two: exact
+    if double:
+        hits = _double(tracer, hits, origins, directions)
+    hits.shape = None if len(rays.shape) == 1 else rays.shape
+    return hits
+
+
+def _listed(tracer, rays, max_hits):
+    """`intersections`' hits of `rays` (float32, in the tree's units): every ray's
+    GUESS_HITS nearest (its max_hits when fewer), then the rays that had more counted
+    and listed again in full."""
     guess = GUESS_HITS if max_hits is None else min(GUESS_HITS, int(max_hits))
     hits, more = _list(tracer, rays, np.full(rays.n, guess, dtype=np.int64))
     redo = np.flatnonzero(more) if max_hits is None or max_hits > guess else ()
@@ -558,11 +577,18 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
         if max_hits is not None:
             np.minimum(caps, int(max_hits), out=caps)
         hits = _replace_rows(hits, redo, _list(tracer, sub, caps)[0])
-    hits.t *= np.float32(tracer._scale)      # a power of two: exact
-    if double:
-        hits = _double(tracer, hits, origins, directions)
-    hits.shape = None if len(rays.shape) == 1 else rays.shape
     return hits
+
+
+def _concatenated(parts):
+    """One Intersections of the rays of `parts` (Intersections of consecutive rays)."""
+    offsets = [parts[0].offsets]
+    for part in parts[1:]:
+        offsets.append(part.offsets[1:] + offsets[-1][-1])
+    return Intersections(np.concatenate(offsets),
+                         *(np.concatenate([getattr(q, name) for q in parts])
+                           for name in ("t", "prim", "u", "v")),
+                         object_table=parts[0].object_table)
 
 
 def _double(tracer, hits, origins, directions):

@@ -135,10 +135,12 @@ def test_intersections_match_brute_force(runtime, teapot_tree, monkeypatch):
     assert (first.prim == nearest.prim[nearest.hit]).all()
     assert (first.t == nearest.t[nearest.hit]).all()
 
-    # the first pass's slots a ray (the rays with more listed again) change nothing
+    # the first pass's slots a ray (the rays with more listed again) and the rays it
+    # takes at once change nothing
     assert (hits.counts > 1).any()
-    for guess in (1, 2):
+    for guess, chunk in ((1, 1 << 20), (2, 97)):
         monkeypatch.setattr(krays, "GUESS_HITS", guess)
+        monkeypatch.setattr(krays, "GUESS_CHUNK", chunk)       # in parts of 97 rays
         again = tracer.intersections(o, d)
         for name in ("offsets", "t", "prim", "u", "v"):
             assert np.array_equal(getattr(again, name), getattr(hits, name)), (guess, name)
