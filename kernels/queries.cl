@@ -575,11 +575,14 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
 
 #define kd_block_size(k0) min((uint)KD_WALK_BLOCK, end_ray - (k0))
 
-/* Walk rays k0 .. k0 + n - 1 into q[0 .. n - 1] (kd_walk, side by side in packet
- * programs: kd_lanes_walk, which gives each ray kd_walk's walk). */
+/* Walk rays k0 .. k0 + n - 1 into q[0 .. n - 1], each started first (kd_query_start,
+ * the count's rule when `crossing`; a list's slots, set before, are kept): kd_walk,
+ * side by side in packet programs (kd_lanes_walk, which gives each ray kd_walk's walk). */
 KD_INLINE
-void kd_walk_block(uint query, KD_QUERY_ARGS, uint k0, uint n, KdQuery *q)
+void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, uint k0, uint n, KdQuery *q)
 {
+    for (uint l = 0; l < n; l++)
+        kd_query_start(&q[l], crossing, t_maxs[(k0 + l) * t_step]);
     float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
 #ifdef PACKET
     if (n >= KD_LANES_MIN) {
@@ -606,9 +609,7 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
     KD_FOR_ITEM_BLOCKS(k0) {
         uint m = kd_block_size(k0);
         KdQuery q[KD_WALK_BLOCK];
-        for (uint l = 0; l < m; l++)
-            kd_query_start(&q[l], false, t_maxs[(k0 + l) * t_step]);
-        kd_walk_block(KD_ANY, KD_WALK_ARGS, k0, m, q);
+        kd_walk_block(KD_ANY, false, KD_WALK_ARGS, k0, m, q);
         for (uint l = 0; l < m; l++)
             out[k0 + l] = q[l].fault ? (uchar)2 : (uchar)q[l].n;
     }
@@ -624,9 +625,7 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
     KD_FOR_ITEM_BLOCKS(k0) {
         uint m = kd_block_size(k0);
         KdQuery q[KD_WALK_BLOCK];
-        for (uint l = 0; l < m; l++)
-            kd_query_start(&q[l], crossing != 0u, t_maxs[(k0 + l) * t_step]);
-        kd_walk_block(KD_COUNT, KD_WALK_ARGS, k0, m, q);
+        kd_walk_block(KD_COUNT, crossing != 0u, KD_WALK_ARGS, k0, m, q);
         for (uint l = 0; l < m; l++)
             out[k0 + l] = q[l].fault ? KD_WALK_FAULT
                         : crossing == KD_WINDING ? (q[l].n > KD_SEEN ? KD_WINDING_RAW
@@ -660,14 +659,13 @@ void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
         for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = k0 + l;
-            kd_query_start(q, crossing != 0u, t_maxs[k * t_step]);
             ulong at = offsets[k];
             q->t = hit_t + at;
             q->uv = hit_uv + 2u * at;
             q->tri = hit_id + at;            /* copies while walking, input ids at the end */
             q->cap = caps[k];
         }
-        kd_walk_block(KD_LIST, KD_WALK_ARGS, k0, m, qs);
+        kd_walk_block(KD_LIST, crossing != 0u, KD_WALK_ARGS, k0, m, qs);
         for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = k0 + l;
@@ -710,9 +708,7 @@ void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
     KD_FOR_ITEM_BLOCKS(k0) {
         uint m = kd_block_size(k0);
         KdQuery qs[KD_WALK_BLOCK];
-        for (uint l = 0; l < m; l++)
-            kd_query_start(&qs[l], false, t_maxs[(k0 + l) * t_step]);
-        kd_walk_block(KD_NEAREST, KD_WALK_ARGS, k0, m, qs);
+        kd_walk_block(KD_NEAREST, false, KD_WALK_ARGS, k0, m, qs);
         for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = k0 + l;
