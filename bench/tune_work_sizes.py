@@ -1,6 +1,6 @@
 """Work sizes and devices: packets or single rays, local size, batch and group count,
 on one OpenCL device or several, timed side by side (round robin), for the defaults of
-`kdray.trace.default_work_sizes` and the orders of `kdray.device.CPU_RUNTIME_ORDER`.
+`kdray.work_sizes.default_work_sizes` and the orders of `kdray.device.CPU_RUNTIME_ORDER`.
 
 usage: python bench/tune_work_sizes.py [--device intel] [--meshes bunny,bunny-1.6M]
                                        [--size 1024] [--repeat 7] [--configs ...]

@@ -58,7 +58,7 @@ typedef struct { uintP x, y, z; } KdPacketStats;
 
 /* A leaf's triangles culled for a whole packet of one origin before its lanes test
  * them (kd_block_culls): with double precision, which keeps the edge functions' signs
- * exact; not on PoCL, where neither its speed nor its frames' size (kdray/trace.py,
+ * exact; not on PoCL, where neither its speed nor its frames' size (kdray/work_sizes.py,
  * POCL_ITEM_BYTES) have been measured with it (PoCL 3.0 does not run on the AVX-512
  * CPUs it was written on). */
 #if defined(cl_khr_fp64) && !defined(KD_PLAIN_VECTOR_OPS)

@@ -647,7 +647,7 @@ void trace_rays(KD_TREE_ARGS,
              * block at the image's edge (lane l is ray (col0 + l % 4, row0 + l / 4), the
              * lanes inside the image first), or the last rays. One call traces either:
              * PoCL keeps each inlined copy's private data apart, for every work-item of
-             * a group, on one thread's stack (kdray/trace.py, POCL_ITEM_BYTES). */
+             * a group, on one thread's stack (kdray/work_sizes.py, POCL_ITEM_BYTES). */
             KdFP ox, oy, oz, dx, dy, dz;
             KdIP on;
             KdUP idx;

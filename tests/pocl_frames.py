@@ -6,7 +6,7 @@ tree's packet stack and at the deepest, into a fresh POCL_CACHE_DIR, and prints 
 
 PoCL reports 1 KB of private memory for these kernels, so the frame is read from the
 compiled work-group function: its largest `sub $imm32, %rsp` (48 81 ec imm32). PoCL runs
-a group on one thread, whose stack must hold it (kdray/trace.py, POCL_ITEM_BYTES);
+a group on one thread, whose stack must hold it (kdray/work_sizes.py, POCL_ITEM_BYTES);
 tests/test_runtimes.py checks these frames against that bound."""
 import dataclasses
 import json
