@@ -109,6 +109,20 @@ void kd_lane_pop(KdLaneStacks *s, uint l, uint *node, float *t0, float *t1)
     *t1 = s->t1[k];
 }
 
+/* Lane l goes on from its stack's most recent entry: its node and range in the lanes'
+ * vectors (node, t0, t1), merged by selects. */
+KD_INLINE
+void kd_lane_resume(KdLaneStacks *s, uint l, uintP *node, floatP *t0, floatP *t1)
+{
+    uint next;
+    float next_t0, next_t1;
+    kd_lane_pop(s, l, &next, &next_t0, &next_t1);
+    intP m = KD_LANE_INDEX == (intP)((int)l);
+    *node = kd_selectPu(*node, (uintP)(next), m);
+    *t0 = kd_selectP(*t0, (floatP)(next_t0), m);
+    *t1 = kd_selectP(*t1, (floatP)(next_t1), m);
+}
+
 /* One lane's traversal carried on alone from where the vector loop left it (node,
  * range [t0, t1], its stack, leaves visited): kd_lanes_trace's decisions with
  * traverse.cl's scalar node step. Returns false where the lane must be handed back to
@@ -244,13 +258,7 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
                 if (kd_hit_done(hit[l].t, hit[l].tri, t1_l.s[l]) || stacks.top[l] == 0u) {
                     act &= ~(1u << l);
                 } else {
-                    uint next;
-                    float next_t0, next_t1;
-                    kd_lane_pop(&stacks, l, &next, &next_t0, &next_t1);
-                    intP m = KD_LANE_INDEX == (intP)((int)l);
-                    node = kd_selectPu(node, (uintP)(next), m);
-                    t0 = kd_selectP(t0, (floatP)(next_t0), m);
-                    t1 = kd_selectP(t1, (floatP)(next_t1), m);
+                    kd_lane_resume(&stacks, l, &node, &t0, &t1);
                 }
             } while (at_leaf);
         }

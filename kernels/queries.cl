@@ -505,13 +505,7 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                     || stacks.top[l] == 0u) {
                     act &= ~(1u << l);
                 } else {
-                    uint up;
-                    float up_t0, up_t1;
-                    kd_lane_pop(&stacks, l, &up, &up_t0, &up_t1);
-                    intP m = KD_LANE_INDEX == (intP)((int)l);
-                    node = kd_selectPu(node, (uintP)(up), m);
-                    t0 = kd_selectP(t0, (floatP)(up_t0), m);
-                    t1 = kd_selectP(t1, (floatP)(up_t1), m);
+                    kd_lane_resume(&stacks, l, &node, &t0, &t1);
                 }
             } while (at_leaf);
         }
