@@ -273,6 +273,30 @@ floatP kd_pickP(float3 p, intP k)
     return kd_selectP(kd_selectP((floatP)(p.x), (floatP)(p.y), k == 1), (floatP)(p.z), k == 2);
 }
 
+/* The vertices of one triangle (its numbers from p = kd_tri_base(tris, tri)) along
+ * each lane's shear axes: P[3 i + c] is vertex i's coordinate kx, ky, kz (c = 0, 1, 2). */
+KD_INLINE
+void kd_lane_vertices(const KdPacket *r, __global const float *p, floatP *P)
+{
+    if (r->uniform) {
+        /* the packet's axes index the vertices' coordinates: loaded, not selected */
+        __global const float *px = p + KD_TRI_BLOCK * r->ukx, *py = p + KD_TRI_BLOCK * r->uky,
+                             *pz = p + KD_TRI_BLOCK * r->ukz;
+        for (uint i = 0; i < 3u; i++) {
+            P[3u * i] = (floatP)(px[3u * i * KD_TRI_BLOCK]);
+            P[3u * i + 1u] = (floatP)(py[3u * i * KD_TRI_BLOCK]);
+            P[3u * i + 2u] = (floatP)(pz[3u * i * KD_TRI_BLOCK]);
+        }
+    } else {
+        for (uint i = 0; i < 3u; i++) {
+            float3 v = kd_base_vertex(p, i);
+            P[3u * i] = kd_pickP(v, r->kx);
+            P[3u * i + 1u] = kd_pickP(v, r->ky);
+            P[3u * i + 2u] = kd_pickP(v, r->kz);
+        }
+    }
+}
+
 /* Every lane in `act` against triangle `tri` (its numbers from p = kd_tri_base(tris,
  * tri): v0 x y z, v1 x y z, v2 x y z, KD_TRI_BLOCK apart); lanes where it hits before
  * their best hit take it. */
@@ -280,22 +304,10 @@ KD_INLINE
 void kd_packet_intersect(const KdPacket *r, __global const float *p, uint tri,
                          __global const uint *tri_ids, intP act, KdPacketHit *h)
 {
-    floatP P0x, P0y, P0z, P1x, P1y, P1z, P2x, P2y, P2z;
-    if (r->uniform) {
-        /* the packet's axes index the vertices' coordinates: loaded, not selected */
-        __global const float *px = p + KD_TRI_BLOCK * r->ukx, *py = p + KD_TRI_BLOCK * r->uky,
-                             *pz = p + KD_TRI_BLOCK * r->ukz;
-        P0x = (floatP)(px[0]); P0y = (floatP)(py[0]); P0z = (floatP)(pz[0]);
-        P1x = (floatP)(px[3u * KD_TRI_BLOCK]); P1y = (floatP)(py[3u * KD_TRI_BLOCK]);
-        P1z = (floatP)(pz[3u * KD_TRI_BLOCK]);
-        P2x = (floatP)(px[6u * KD_TRI_BLOCK]); P2y = (floatP)(py[6u * KD_TRI_BLOCK]);
-        P2z = (floatP)(pz[6u * KD_TRI_BLOCK]);
-    } else {
-        float3 p0 = kd_base_vertex(p, 0), p1 = kd_base_vertex(p, 1), p2 = kd_base_vertex(p, 2);
-        P0x = kd_pickP(p0, r->kx); P0y = kd_pickP(p0, r->ky); P0z = kd_pickP(p0, r->kz);
-        P1x = kd_pickP(p1, r->kx); P1y = kd_pickP(p1, r->ky); P1z = kd_pickP(p1, r->kz);
-        P2x = kd_pickP(p2, r->kx); P2y = kd_pickP(p2, r->ky); P2z = kd_pickP(p2, r->kz);
-    }
+    floatP P[9];
+    kd_lane_vertices(r, p, P);
+    floatP P0x = P[0], P0y = P[1], P0z = P[2], P1x = P[3], P1y = P[4], P1z = P[5];
+    floatP P2x = P[6], P2y = P[7], P2z = P[8];
     KdPairs src;
     src.r = r; src.p = p;
     uintP triP = (uintP)(tri);
@@ -597,6 +609,61 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
     }
 }
 
+/* One inner node's step for the packet's lanes in `act` (its plane: axis, split; the
+ * slack bounds of the lanes' ranges: t_lo, t_hi): the children each lane needs, by
+ * traverse.cl's rules, in the packet's one order. `leave`: the lanes that cannot
+ * follow the packet here (a ray in the plane, t_split NaN, or one needing both
+ * children in the other order), in neither need. */
+typedef struct {
+    floatP t_split;
+    intP need_first, need_second;        /* first: the near child in the packet's order */
+    intP leave;
+    bool below_first;                    /* the packet's order */
+} KdPacketStep;
+
+KD_INLINE
+KdPacketStep kd_packet_step(const KdPacket *r, uint axis, float split, intP act, floatP t_lo,
+                            floatP t_hi)
+{
+    KdPacketStep s;
+    floatP o_k = r->o[axis];
+    floatP d_k = r->d[axis];
+    floatP t_split = r->by_inverse ? (split - o_k) * r->d_inv[axis] : (split - o_k) / d_k;
+    s.t_split = t_split;
+
+    /* The children each lane needs (traverse.cl) */
+    intP near_only = (t_split > t_hi) | (t_split <= 0.0f);
+    intP far_only = ~near_only & (t_split < t_lo);
+    if (r->shared_o && r->uo[axis] != split) {
+        /* One origin off the plane: every lane's near child is the same, and
+         * t_split is never NaN (split - o is not zero, d finite). The general
+         * case below then makes exactly these decisions, with no lane leaving. */
+        s.below_first = r->uo[axis] < split;
+        s.leave = (intP)(0);
+        s.need_first = act & ~far_only;
+        s.need_second = act & ~near_only;
+        return s;
+    }
+    /* Each lane's own near child */
+    intP below_first_l = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
+    intP both = act & ~near_only & ~far_only;
+    /* The packet's order is that of the lanes needing both children; a lane
+     * in the plane (t_split NaN), or needing both in the other order, leaves */
+    intP leave = act & (t_split != t_split);
+    s.below_first = kd_anyP(both & ~leave & below_first_l)
+                    || !kd_anyP(both & ~leave) && kd_anyP(act & ~leave & below_first_l);
+    leave |= both & (s.below_first ? ~below_first_l : below_first_l);
+    s.leave = leave;
+    act &= ~leave;
+    /* A lane with the packet's order needs first (its near child) unless
+     * far_only and second unless near_only; one with the other order needs
+     * a single child: first if that is its far one */
+    intP same = s.below_first ? below_first_l : ~below_first_l;
+    s.need_first = act & kd_selectPi(far_only, ~far_only, same);
+    s.need_second = act & kd_selectPi(near_only, ~near_only, same);
+    return s;
+}
+
 /* Front-to-back traversal of the packet's lanes in `act` over [t_enter, t_exit] per
  * lane. Lanes that must be traced by the scalar kernel instead are or-ed into
  * *fallback (and their hit is left as it is). */
@@ -634,46 +701,17 @@ void kd_packet_traverse(__global const KdNode *nodes, uint max_leaves,
              * then at hand, and an empty first child can be passed by (below) */
             KdNode n_below = nodes[below];
             KdNode n_above = nodes[above];
-            floatP o_k = r->o[axis];
-            floatP d_k = r->d[axis];
-            floatP t_split = r->by_inverse ? (split - o_k) * r->d_inv[axis] : (split - o_k) / d_k;
-
-            /* The children each lane needs (traverse.cl) */
-            intP near_only = (t_split > t_hi) | (t_split <= 0.0f);
-            intP far_only = ~near_only & (t_split < t_lo);
-            bool below_first;
-            intP need_first, need_second;
-            if (r->shared_o && r->uo[axis] != split) {
-                /* One origin off the plane: every lane's near child is the same, and
-                 * t_split is never NaN (split - o is not zero, d finite). The general
-                 * case below then makes exactly these decisions, with no lane leaving. */
-                below_first = r->uo[axis] < split;
-                need_first = act & ~far_only;
-                need_second = act & ~near_only;
-            } else {
-                /* Each lane's own near child */
-                intP below_first_l = (o_k < split) | ((o_k == split) & (d_k <= 0.0f));
-                intP both = act & ~near_only & ~far_only;
-                /* The packet's order is that of the lanes needing both children; a lane
-                 * in the plane (t_split NaN), or needing both in the other order, leaves */
-                intP leave = act & (t_split != t_split);
-                below_first = kd_anyP(both & ~leave & below_first_l)
-                              || !kd_anyP(both & ~leave) && kd_anyP(act & ~leave & below_first_l);
-                leave |= both & (below_first ? ~below_first_l : below_first_l);
-                if (kd_anyP(leave)) {
-                    *fallback |= leave;
-                    live &= ~leave;
-                    act &= ~leave;
-                    if (!kd_anyP(act))
-                        break;
-                }
-                /* A lane with the packet's order needs first (its near child) unless
-                 * far_only and second unless near_only; one with the other order needs
-                 * a single child: first if that is its far one */
-                intP same = below_first ? below_first_l : ~below_first_l;
-                need_first = act & kd_selectPi(far_only, ~far_only, same);
-                need_second = act & kd_selectPi(near_only, ~near_only, same);
+            KdPacketStep st = kd_packet_step(r, axis, split, act, t_lo, t_hi);
+            if (kd_anyP(st.leave)) {
+                *fallback |= st.leave;
+                live &= ~st.leave;
+                act &= ~st.leave;
+                if (!kd_anyP(act))
+                    break;
             }
+            bool below_first = st.below_first;
+            intP need_first = st.need_first, need_second = st.need_second;
+            floatP t_split = st.t_split;
             /* the lanes needing both (need_first & need_second: only lanes of the
              * packet's order can need both) */
             intP both = need_first & need_second;

@@ -10,9 +10,11 @@
  *
  * One walk (kd_walk) serves them all: it visits every leaf the ray's range reaches,
  * near child first, and hands each to kd_query_leaf, which does what the query does
- * with a hit and says when the walk may stop. Packet programs walk a packet's width of
- * rays side by side, one a vector lane (kd_lanes_walk), each lane making kd_walk's
- * decisions in kd_walk's order. Unlike the nearest hit's traversal
+ * with a hit and says when the walk may stop. Packet programs walk a packet of rays
+ * that share their paths as one (kd_packet_walk: a node step for all its lanes, a
+ * leaf's triangles against all of them), and other rays a packet's width side by
+ * side, one a vector lane (kd_lanes_walk), each lane making kd_walk's decisions in
+ * kd_walk's order. Unlike the nearest hit's traversal
  * (traverse.cl), a walk needs every leaf (bar the any-hit's early stop), so it keeps a
  * full stack and never restarts, and a ray that lies in a split plane visits both
  * children over the same range in one walk (order does not matter here).
@@ -166,23 +168,23 @@ void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const
 }
 
 #ifdef PACKET
-/* The count's crossing rule a run of KD_PACKET triangles at a time: the lanes whose
- * triangle the ray may cross. intersect_triangle's sheared edge functions U, V, W,
+/* The count's crossing rule on KD_PACKET (ray, triangle) pairs, one a lane: the lanes
+ * in `valid` whose triangle the ray may cross. P: the triangles' vertices along each
+ * lane's shear axes (kd_lane_vertices' order), okx, oky, okz the ray's origin along
+ * them, Sx, Sy its shear. intersect_triangle's sheared edge functions U, V, W,
  * computed alike lane by lane (the same operations in the same order), have the sign
  * of their exact values wherever KD_EDGE_SURE holds; a triangle with one surely
  * positive and one surely negative is crossed under no rule, and every other lane
  * (NaN included) is left to intersect_triangle, which decides it exactly. So the
  * lanes kept hold every crossing, and the count is the scalar loop's. */
 KD_INLINE
-intP kd_crossing_lanes(const RayShear *s, float3 o, const KdFP *q, intP valid)
+intP kd_crossing_pairs(const floatP *P, floatP okx, floatP oky, floatP okz, floatP Sx,
+                       floatP Sy, intP valid)
 {
-    uint kx = s->kx, ky = s->ky, kz = s->kz;
-    float ox = kd_comp(o, kx), oy = kd_comp(o, ky), oz = kd_comp(o, kz);
-    floatP Sx = (floatP)(s->Sx), Sy = (floatP)(s->Sy);
-    floatP Az = q[kz].v - oz, Bz = q[3 + kz].v - oz, Cz = q[6 + kz].v - oz;
-    floatP Ax = (q[kx].v - ox) - Sx * Az, Ay = (q[ky].v - oy) - Sy * Az;
-    floatP Bx = (q[3 + kx].v - ox) - Sx * Bz, By = (q[3 + ky].v - oy) - Sy * Bz;
-    floatP Cx = (q[6 + kx].v - ox) - Sx * Cz, Cy = (q[6 + ky].v - oy) - Sy * Cz;
+    floatP Az = P[2] - okz, Bz = P[5] - okz, Cz = P[8] - okz;
+    floatP Ax = (P[0] - okx) - Sx * Az, Ay = (P[1] - oky) - Sy * Az;
+    floatP Bx = (P[3] - okx) - Sx * Bz, By = (P[4] - oky) - Sy * Bz;
+    floatP Cx = (P[6] - okx) - Sx * Cz, Cy = (P[7] - oky) - Sy * Cz;
     floatP u1 = Cx * By, u2 = Cy * Bx, v1 = Ax * Cy, v2 = Ay * Cx, w1 = Bx * Ay, w2 = By * Ax;
     floatP U = u1 - u2, V = v1 - v2, W = w1 - w2;
     floatP tiny = (floatP)(0x1p-126f);
@@ -193,6 +195,22 @@ intP kd_crossing_lanes(const RayShear *s, float3 o, const KdFP *q, intP valid)
     intP pos = (sure_u & (U > zero)) | (sure_v & (V > zero)) | (sure_w & (W > zero));
     intP neg = (sure_u & (U < zero)) | (sure_v & (V < zero)) | (sure_w & (W < zero));
     return valid & ~(pos & neg);
+}
+
+/* kd_crossing_pairs for one ray (shear s, origin o) and a run of KD_PACKET triangles
+ * (q: kd_gather_tris' 9 vectors). */
+KD_INLINE
+intP kd_crossing_lanes(const RayShear *s, float3 o, const KdFP *q, intP valid)
+{
+    uint kx = s->kx, ky = s->ky, kz = s->kz;
+    floatP P[9];
+    for (uint i = 0; i < 3u; i++) {
+        P[3u * i] = q[3u * i + kx].v;
+        P[3u * i + 1u] = q[3u * i + ky].v;
+        P[3u * i + 2u] = q[3u * i + kz].v;
+    }
+    return kd_crossing_pairs(P, (floatP)(kd_comp(o, kx)), (floatP)(kd_comp(o, ky)),
+                             (floatP)(kd_comp(o, kz)), (floatP)(s->Sx), (floatP)(s->Sy), valid);
 }
 #endif
 
@@ -383,7 +401,7 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
 }
 
 #ifdef PACKET
-/* The walks of rays k0 .. k0 + n - 1 into q[0 .. n - 1], side by side, one a vector lane,
+/* The walks of rays k0 + rays[i] into q[rays[i]] (i < n), side by side, one a vector lane,
  * as kd_lanes_trace (lanes_trace.cl) traces rays that share no path: one vector node
  * step moves every lane one node down its own path, and a lane whose walk ends takes
  * the next ray, so that the lanes stay full while rays are left. Each ray is walked
@@ -395,7 +413,7 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                    __global const float *tris, __global const uint *tri_ids, float3 bmin,
                    float3 bmax, __global const float *origins, __global const float *directions,
                    uint o_step, __global const float *t_mins, __global const float *t_maxs,
-                   uint t_step, uint k0, uint n, KdQuery *q)
+                   uint t_step, uint k0, const uchar *rays, uint n, KdQuery *q)
 {
     RayShear shear[KD_PACKET];
     KdLaneStacks stacks;
@@ -412,7 +430,7 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
         /* free lanes take the next rays that have a range to walk (kd_walk_range) */
         uint free = ~act & (uint)((1ul << KD_PACKET) - 1ul);
         while (free && next < n) {
-            uint k = k0 + next;
+            uint k = k0 + rays[next];
             float3 o = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
             float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
             float t_enter, t_exit;
@@ -421,7 +439,7 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 continue;
             uint l = kd_take_lane(&free);
             act |= 1u << l;
-            ray[l] = next - 1u;
+            ray[l] = rays[next - 1u];
             shear[l] = ray_shear(d);
             stacks.top[l] = 0u;
             leaves[l] = 0u;
@@ -528,6 +546,298 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
         } while (act);
     }
 }
+
+#ifdef KD_CULL
+/* A packet's lanes' origins along their shared axes (o[0..2]: kx, ky, kz) and shear
+ * constants, least and greatest over its lanes that are on: what kd_walk_culls takes. */
+typedef struct {
+    float o_lo[3], o_hi[3];
+    float Sx_lo, Sx_hi, Sy_lo, Sy_hi;
+} KdLaneBounds;
+
+KD_INLINE
+void kd_lane_bounds(const KdPacket *r, intP on, uint first, KdLaneBounds *b)
+{
+    floatP x[5] = {r->okx, r->oky, r->okz, r->Sx, r->Sy};
+    float lo[5], hi[5];
+    for (uint c = 0; c < 5u; c++) {
+        KdFP v;
+        v.v = x[c];
+        /* the lanes that are off take the first lane's value */
+        kd_rangeP(kd_selectP((floatP)(v.s[first]), v.v, on), &lo[c], &hi[c]);
+    }
+    for (uint c = 0; c < 3u; c++) {
+        b->o_lo[c] = lo[c];
+        b->o_hi[c] = hi[c];
+    }
+    b->Sx_lo = lo[3]; b->Sx_hi = hi[3]; b->Sy_lo = lo[4]; b->Sy_hi = hi[4];
+}
+
+/* The greatest and least of a * c over a in [a_lo, a_hi] and c in [c_lo, c_hi], as
+ * float products: at the corners, rounding being monotone in each factor. */
+KD_INLINE
+void kd_product_range(float a_lo, float a_hi, floatP c_lo, floatP c_hi, floatP *lo, floatP *hi)
+{
+    floatP p = a_lo * c_lo, q = a_lo * c_hi, r = a_hi * c_lo, s = a_hi * c_hi;
+    *lo = kd_minP(kd_minP(p, q), kd_minP(r, s));
+    *hi = kd_maxP(kd_maxP(p, q), kd_maxP(r, s));
+}
+
+/* Which of the KD_PACKET triangles in q (kd_gather_tris' 9 vectors) no lane of packet
+ * r (r->uniform: one set of shear axes; b: its lanes' bounds) can hit or cross:
+ * kd_block_culls' four tests (packet.cl, where the reasoning is) with each lane's
+ * origin and shear anywhere in their ranges, so packets of rays from many origins
+ * cull too (a query's packets: parallel rays of `contains`, a camera's). A lane's
+ * sheared x of a vertex, (P.x - o.x) - S (P.z - o.z) in float, is at least (P.x -
+ * o_hi.x) - the greatest of S (P.z - o.z) over the bounds (kd_product_range; a
+ * difference's rounding is monotone in each operand), and at most the other way
+ * round. A triangle strictly on one side of a line through a lane's ray is crossed
+ * under no rule either: the crossing rule moves the ray by an infinitesimal step. */
+KD_INLINE
+intP kd_walk_culls(const KdPacket *r, const KdLaneBounds *b, const KdFP *q)
+{
+    intP x_above = (intP)(-1), x_below = (intP)(-1), y_above = (intP)(-1), y_below = (intP)(-1);
+#pragma unroll
+    for (uint v = 0; v < 3; v++) {
+        floatP px = q[3 * v + r->ukx].v, py = q[3 * v + r->uky].v, pz = q[3 * v + r->ukz].v;
+        floatP az_lo = pz - b->o_hi[2], az_hi = pz - b->o_lo[2];
+        floatP sx_lo, sx_hi, sy_lo, sy_hi;
+        kd_product_range(b->Sx_lo, b->Sx_hi, az_lo, az_hi, &sx_lo, &sx_hi);
+        kd_product_range(b->Sy_lo, b->Sy_hi, az_lo, az_hi, &sy_lo, &sy_hi);
+        x_above &= (px - b->o_hi[0]) - sx_hi > 0.0f;
+        x_below &= (px - b->o_lo[0]) - sx_lo < 0.0f;
+        y_above &= (py - b->o_hi[1]) - sy_hi > 0.0f;
+        y_below &= (py - b->o_lo[1]) - sy_lo < 0.0f;
+    }
+    return x_above | x_below | y_above | y_below;
+}
+#endif
+
+/* Triangle `tri`'s hits for count and list, the packet's lanes in `act` at once
+ * (kd_packet_leaf's pairs): the crossing rule's candidates (kd_crossing_pairs) each
+ * decided by intersect_triangle with its lane's shear, or the nearest hit's rule
+ * (kd_test_pairs with no best hit yet), then kd_count_hit or kd_list_hit lane by lane,
+ * as kd_query_leaf does with the same pairs. r: the packet; shear, o: each lane's
+ * (kd_walk's); t_min, t_max: each lane's range; q[l]: lane l's query. */
+KD_INLINE
+void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const float *tris,
+                         __global const uint *tri_ids, const KdPacket *r, intP act,
+                         const RayShear *shear, const KdFP *o, const KdFP *t_min,
+                         const KdFP *t_max, KdQuery *q)
+{
+    __global const float *p = kd_tri_base(tris, tri);
+    floatP P[9];
+    kd_lane_vertices(r, p, P);
+    KdIP c;
+    KdFP t, V, W, det;
+    if (query == KD_COUNT && crossing) {
+        c.v = kd_crossing_pairs(P, r->okx, r->oky, r->okz, r->Sx, r->Sy, act);
+    } else {
+        KdPairs src;
+        src.r = r; src.p = p;
+        c.v = kd_test_pairs(P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7], P[8],
+                            r->okx, r->oky, r->okz, r->Sx, r->Sy, r->Sz, t_min->v,
+                            t_max->v, t_max->v, (uintP)(KD_NO_HIT), (uintP)(tri), tri_ids,
+                            act, &src, &t.v, &V.v, &W.v, &det.v);
+    }
+    uint lanes = kd_bitsP(c.v);
+    if (lanes == 0u)
+        return;
+    uint id = tri_ids[tri];
+    float3 p0 = kd_base_vertex(p, 0), p1 = kd_base_vertex(p, 1), p2 = kd_base_vertex(p, 2);
+    do {
+        uint l = kd_take_lane(&lanes);
+        if (query == KD_LIST) {
+            kd_list_hit(&q[l], tri, t.s[l], V.s[l] / det.s[l], W.s[l] / det.s[l], tri_ids);
+        } else if (!crossing) {
+            kd_count_hit(&q[l], id, 0);
+        } else {
+            float3 ol = (float3)(o[0].s[l], o[1].s[l], o[2].s[l]);
+            float th, u, v;
+            if (intersect_triangle(&shear[l], ol, p0, p1, p2, tri, t_min->s[l], t_max->s[l],
+                                   t_max->s[l], KD_NO_HIT, tri_ids, true, &th, &u, &v))
+                kd_count_hit(&q[l], id, kd_facing(&shear[l], ol, p0, p1, p2));
+        }
+    } while (lanes);
+}
+
+/* A leaf's hits for count and list, for the packet's lanes in `act`: its triangles one
+ * by one (kd_packet_query_tri), those no lane can hit left out KD_PACKET at a time
+ * where the packet's lanes share their axes (kd_walk_culls, b not 0). */
+KD_INLINE
+void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const float *tris,
+                          __global const uint *tri_ids, const KdPacket *r, const void *b,
+                          intP act, const RayShear *shear, const KdFP *o, const KdFP *t_min,
+                          const KdFP *t_max, KdQuery *q)
+{
+    uint count = kd_n_prims(leaf);
+    uint first = kd_leaf_offset(leaf);
+#ifdef KD_CULL
+    if (b) {
+        for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
+            uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
+            KdFP qv[9];
+            kd_gather_tris(tris, first + i0, qv);
+            uint keep = kd_bitsP((KD_LANE_INDEX < (intP)((int)m))
+                                 & ~kd_walk_culls(r, (const KdLaneBounds *)b, qv));
+            while (keep != 0u)
+                kd_packet_query_tri(query, crossing, first + i0 + kd_take_lane(&keep), tris,
+                                    tri_ids, r, act, shear, o, t_min, t_max, q);
+        }
+        return;
+    }
+#endif
+    for (uint i = 0; i < count; i++)
+        kd_packet_query_tri(query, crossing, first + i, tris, tri_ids, r, act, shear, o, t_min,
+                            t_max, q);
+}
+
+/* The walks of the packet of rays k0 .. k0 + m - 1 (m <= KD_PACKET) into q[0 .. m - 1]
+ * on one path, as trace_packet traverses rays that share their paths (packet.cl): one
+ * node step for all the lanes, each taking the children it needs (kd_packet_step:
+ * traverse.cl's rules and slack), and every leaf a lane's range reaches handed to
+ * kd_query_leaf for that lane, until it says stop. Returns the lanes to be walked on
+ * their own from their start: every lane of rays that share no path (kd_alone), else
+ * those that cannot follow the packet (a ray in a node's plane, or needing both
+ * children in the other order), and on a stack or leaf bound exceeded (a corrupt
+ * tree: kd_walk reports it) every lane not done. A lane's range is kd_walk's
+ * (kd_walk_range), every leaf with a hit in it is visited (the slack) and a leaf's
+ * hits depend on the ray and the triangles only: each ray's answer is its kd_walk's. */
+KD_INLINE
+intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
+                    __global const float *tris, __global const uint *tri_ids, float3 bmin,
+                    float3 bmax, __global const float *origins, __global const float *directions,
+                    uint o_step, __global const float *t_mins, __global const float *t_maxs,
+                    uint t_step, uint k0, uint m, bool crossing, KdQuery *q)
+{
+    KdFP o[3], dx, dy, dz, enter, exit, lo, hi;
+    uint on_bits = 0u;
+    for (uint l = 0; l < KD_PACKET; l++) {
+        /* lanes past m repeat ray k0 (off): kd_alone and the shear see real rays */
+        uint k = k0 + (l < m ? l : 0u);
+        float3 p = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
+        o[0].s[l] = p.x; o[1].s[l] = p.y; o[2].s[l] = p.z;
+        dx.s[l] = d.x; dy.s[l] = d.y; dz.s[l] = d.z;
+        lo.s[l] = t_mins[k * t_step];
+        hi.s[l] = t_maxs[k * t_step];
+        if (l < m && kd_walk_range(bmin, bmax, p, d, lo.s[l], hi.s[l], &enter.s[l],
+                                   &exit.s[l]))
+            on_bits |= 1u << l;
+        else
+            enter.s[l] = exit.s[l] = 0.0f;
+    }
+    if (on_bits == 0u)
+        return (intP)(0);                /* no lane has a range to walk: nothing found */
+    intP on = kd_maskP(on_bits);
+    uint first = kd_take_lane(&on_bits);
+    KdPacket r;
+    r.uo[0] = o[0].s[first]; r.uo[1] = o[1].s[first]; r.uo[2] = o[2].s[first];
+    r.shared_o = !kd_anyP(on & ((o[0].v != (floatP)(r.uo[0])) | (o[1].v != (floatP)(r.uo[1]))
+                                | (o[2].v != (floatP)(r.uo[2]))));
+    if (kd_alone(&r, on, false, o[0].v, o[1].v, o[2].v, dx.v, dy.v, dz.v, bmin, bmax))
+        return on;
+    kd_packet_shear(&r, on, first, o[0].v, o[1].v, o[2].v, dx.v, dy.v, dz.v, 0.0f, INFINITY);
+
+    const void *bounds = 0;              /* kd_walk_culls' bounds, where it applies */
+#ifdef KD_CULL
+    KdLaneBounds lane_bounds;
+    if (r.uniform) {
+        kd_lane_bounds(&r, on, first, &lane_bounds);
+        bounds = &lane_bounds;
+    }
+#endif
+    RayShear shear[KD_PACKET];           /* each lane's, as kd_walk makes it */
+    for (uint l = 0; l < KD_PACKET; l++)
+        shear[l] = ray_shear((float3)(dx.s[l], dy.s[l], dz.s[l]));
+
+    uint stack_node[PACKET_STACK_SIZE];
+    floatP stack_t_min[PACKET_STACK_SIZE];
+    floatP stack_t_max[PACKET_STACK_SIZE];
+    intP stack_act[PACKET_STACK_SIZE];
+    uint count = 0u;
+    uint leaves = 0u;
+    intP act = on;
+    intP live = on;                      /* lanes whose walk goes on */
+    intP fallback = (intP)(0);
+    uint node = 0u;
+    floatP t_min_cur = enter.v, t_max_cur = exit.v;
+    floatP t_lo = t_min_cur * (1.0f - KD_T_SLACK);
+    floatP t_hi = t_max_cur * (1.0f + KD_T_SLACK);
+    for (;;) {
+        KdNode n = nodes[node];
+        while (!kd_is_leaf(n)) {
+            KdPacketStep st = kd_packet_step(&r, kd_split_axis(n), kd_split(n), act, t_lo, t_hi);
+            if (kd_anyP(st.leave)) {
+                fallback |= st.leave;
+                live &= ~st.leave;
+                act &= ~st.leave;
+                if (!kd_anyP(act))
+                    break;
+            }
+            uint below = node + 1u, above = kd_above_child(n);
+            uint first_child = st.below_first ? below : above;
+            uint second_child = st.below_first ? above : below;
+            intP both = st.need_first & st.need_second;
+            floatP t_mid = kd_clampP(st.t_split, t_min_cur, t_max_cur);
+            if (!kd_anyP(st.need_second)) {
+                node = first_child;
+            } else if (!kd_anyP(st.need_first)) {
+                node = second_child;
+            } else {
+                if (count == PACKET_STACK_SIZE)
+                    return fallback | live;  /* deeper than a valid tree: kd_walk reports it */
+                stack_node[count] = second_child;
+                stack_t_min[count] = kd_selectP(t_min_cur, t_mid, both);
+                stack_t_max[count] = t_max_cur;
+                stack_act[count] = st.need_second;
+                count++;
+                node = first_child;
+                t_max_cur = kd_selectP(t_max_cur, t_mid, both);
+                t_hi = t_max_cur * (1.0f + KD_T_SLACK);
+                act = st.need_first;
+            }
+            n = nodes[node];
+        }
+
+        if (kd_anyP(act)) {
+            if (++leaves > 2u * n_nodes + 2u)
+                return fallback | live;      /* more leaves than a valid tree has */
+            uint at_leaf = kd_bitsP(act);
+            uint tests = kd_n_prims(n);
+            if ((query == KD_COUNT || query == KD_LIST)
+                && (float)(popcount(at_leaf) * ((tests + KD_PACKET - 1) / KD_PACKET))
+                   >= KD_LANE_RATIO * (float)tests) {
+                /* many lanes: a triangle against all of them at a time */
+                kd_packet_query_leaf(query, crossing, n, tris, tri_ids, &r, bounds, act,
+                                     shear, o, &lo, &hi, q);
+                at_leaf = 0u;
+            }
+            KdFP t_exit_l;
+            t_exit_l.v = t_max_cur;
+            while (at_leaf) {
+                uint l = kd_take_lane(&at_leaf);
+                if (kd_query_leaf(query, n, tris, tri_ids, &shear[l],
+                                  (float3)(o[0].s[l], o[1].s[l], o[2].s[l]), lo.s[l], hi.s[l],
+                                  t_exit_l.s[l], &q[l]))
+                    live &= ~kd_maskP(1u << l);
+            }
+        }
+
+        /* the next entry with a lane whose walk goes on */
+        act = (intP)(0);
+        while (count > 0u && !kd_anyP(act)) {
+            count--;
+            node = stack_node[count];
+            t_min_cur = stack_t_min[count];
+            t_max_cur = stack_t_max[count];
+            act = stack_act[count] & live;
+        }
+        if (!kd_anyP(act))
+            return fallback;
+        t_lo = t_min_cur * (1.0f - KD_T_SLACK);
+        t_hi = t_max_cur * (1.0f + KD_T_SLACK);
+    }
+}
 #endif
 
 /* A query's state before its walk: nothing found (a nearest hit of t_max), the
@@ -580,8 +890,34 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, uint k0, uint n, Kd
     float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
 #ifdef PACKET
     if (n >= KD_LANES_MIN) {
-        kd_lanes_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, origins, directions,
-                      o_step, t_mins, t_maxs, t_step, k0, n, q);
+        /* packets of rays that share their paths walk as packets, the others (and
+         * the lanes that leave a packet, started again) side by side */
+        uchar alone[KD_WALK_BLOCK];
+        uint n_alone = 0u;
+        for (uint p0 = 0u; p0 < n; p0 += KD_PACKET) {
+            uint m = min((uint)KD_PACKET, n - p0);
+            KdIP leave;
+            leave.v = kd_packet_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, origins,
+                                     directions, o_step, t_mins, t_maxs, t_step, k0 + p0, m,
+                                     crossing, q + p0);
+            for (uint l = 0u; l < m; l++) {
+                if (!leave.s[l])
+                    continue;
+                kd_query_start(&q[p0 + l], crossing, t_maxs[(k0 + p0 + l) * t_step]);
+                alone[n_alone++] = (uchar)(p0 + l);
+            }
+        }
+        if (n_alone >= KD_LANES_MIN) {
+            kd_lanes_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, origins, directions,
+                          o_step, t_mins, t_maxs, t_step, k0, alone, n_alone, q);
+            return;
+        }
+        for (uint i = 0u; i < n_alone; i++) {
+            uint k = k0 + alone[i];
+            kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax,
+                    kd_load3(origins, (size_t)k * o_step), kd_load3(directions, k),
+                    t_mins[k * t_step], t_maxs[k * t_step], &q[alone[i]]);
+        }
         return;
     }
 #endif

@@ -6,12 +6,14 @@ it passes through)."""
 import numpy as np
 import pytest
 
-from helpers import (RTOL_T, SCENES, edge_distance, edge_midpoints, graze_tolerance,
-                     grid_cube, icosphere, random_rays, real_mesh_arrays, split_plane_rays)
+from helpers import (RTOL_T, SCENES, camera_for, edge_distance, edge_midpoints,
+                     graze_tolerance, grid_cube, icosphere, random_rays, real_mesh_arrays,
+                     split_plane_rays)
 from kdray import rays as krays
 from kdray.builder import build
 from kdray.errors import KdrayError
 from kdray.load import load
+from kdray.points import spatial_order
 from kdray.reference import all_hits
 from kdray.trace import PACKETS, Tracer
 
@@ -271,6 +273,69 @@ def test_queries_do_not_depend_on_work_sizes_or_packets(runtime, teapot_tree, mo
         other._plain_vector_ops = plain or other._plain_vector_ops
         for a, b in zip(answers(other), want):
             assert np.array_equal(a, b), opts
+
+
+def far_corner(v, f):
+    """(v, f) with a small triangle added far out at (40, 40, 40), so that the scene's box
+    is 20 times the mesh's: its rays' packets then share paths (kd_alone's spread)."""
+    tip = np.array([[40.0, 40.0, 40.0], [40.5, 40.0, 40.0], [40.0, 40.5, 40.0]])
+    return np.concatenate([v, tip]), np.concatenate([f, len(v) + np.arange(3)[None]])
+
+
+def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree):
+    """Rays that share their paths walk as packets (queries.cl, kd_packet_walk: one node
+    step for a packet's lanes, a leaf's triangles against all of them, those no lane can
+    hit culled): a camera's rays with per-ray ranges, and the parallel rays of
+    `contains`, answer count, intersections, occluded and trace as one-ray programs do,
+    bit for bit; and rays through every vertex and edge midpoint of closed meshes, in
+    packets, cross exactly twice."""
+    if runtime.simulator:
+        pytest.skip("a simulator runs no packet programs")
+    tree = teapot_tree
+    camera_o, camera_d = Tracer(tree, device=runtime.spec).camera_rays(camera_for(tree, 64, 48))
+    camera_d = camera_d.reshape(-1, 3)
+    lo, hi = tree.world_box()
+    rng = np.random.default_rng(12)
+    # parallel rays from points on a small patch each, the patches spread over the box
+    patch = np.repeat(lo + (hi - lo) * rng.random((97, 3)), 16, axis=0)
+    parallel_o = patch + 0.01 * (hi - lo) * rng.random(patch.shape)
+    parallel_d = np.broadcast_to(krays.CONTAINS_DIRECTION.astype(np.float64), parallel_o.shape)
+    for o, d in ((camera_o, camera_d), (parallel_o, parallel_d)):
+        assert krays._share_paths(Tracer(tree, device=runtime.spec), np.asarray(o), d, (len(d),))
+        t_lo, t_hi = ranges(np.random.default_rng(13), len(d), 2.0)
+
+        def answers(tracer):
+            listed = tracer.intersections(o, d)
+            crossed = tracer.intersections(o, d, max_hits=2)
+            near = tracer.trace(o, d, t_lo, t_hi)
+            return (tracer.count(o, d), tracer.count(o, d, t_lo, t_hi),
+                    tracer.occluded(o, d, t_lo, t_hi), listed.offsets, listed.prim, listed.t,
+                    listed.u, crossed.offsets, crossed.prim, near.t, near.prim, near.u)
+
+        want = answers(Tracer(tree, device=runtime.spec, packet=1))
+        assert want[0].sum() > 100
+        for packet in PACKETS:
+            for spread in (None, -1.0):          # as packets; every packet alone
+                tracer = Tracer(tree, device=runtime.spec, packet=packet)
+                tracer._alone_spread = spread
+                for a, b in zip(answers(tracer), want):
+                    assert np.array_equal(a, b), (packet, spread)
+
+    for v, f in (icosphere(3), grid_cube(6)):
+        targets = np.concatenate([v, edge_midpoints(v, f)])
+        targets = targets[spatial_order(targets, v.min(axis=0), v.max(axis=0))]  # near together
+        tracer = Tracer(build(*far_corner(v, f)), device=runtime.spec)
+        o, d = 3 * targets, -targets
+        assert krays._share_paths(tracer, o, d, (len(d),))
+        # from outside through the target and the centre, stopping before the far tip
+        assert (tracer.count(o, d, t_max=4.5) == 2).all()
+        # along one direction through each target: 0 or 2, the float64 rule's parity
+        direction = np.array([0.31, 0.52, 0.79])
+        o, d = targets - 30 * direction, np.broadcast_to(direction, targets.shape)
+        c = tracer.count(o, d, t_max=60.0)
+        ref_ray, *_ = all_hits(v[f], o, d, t_max=60.0, crossing=True)
+        assert ((c == 0) | (c == 2)).all()
+        assert (np.bincount(ref_ray, minlength=len(c)) % 2 == c % 2).all()
 
 
 @pytest.mark.parametrize("packet", [1, None], ids=["one ray", "lanes"])
