@@ -397,14 +397,20 @@ winding mode (kernels/queries.cl, KD_WINDING)."""
 
 def _contains_rays(tracer, p):
     """(rays, order): the rays of `contains` from points p ((N, 3) float64, world
-    coordinates, finite), in spatial order from SORT_FROM points on (kdray.points.
-    spatial_order: near points one after another; order None below), which changes no
-    answer."""
-    order = None
-    if len(p) >= SORT_FROM:
-        order = spatial_order(p, *tracer.tree.world_box())
-        p = take_rows(p, order)
-    return _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf), order
+    coordinates, finite), in spatial order (kdray.points.spatial_order: near points
+    one after another, the points of each octant of the box one run, so that the
+    directions are 8 repeated rows) from SORT_FROM points on (order None below and the
+    directions `contains_directions`), which changes no answer."""
+    if len(p) < SORT_FROM:
+        return _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf), None
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
+    side = p >= 0.5 * (lo + hi)                  # contains_directions' signs
+    sides = (side[:, 0] | (side[:, 1] << 1) | (side[:, 2] << 2)).astype(np.uint8)
+    order = spatial_order(p, lo, hi, sides)
+    octants = np.arange(8)[:, None] >> np.arange(3) & 1
+    d = np.repeat(np.where(octants == 1, CONTAINS_DIRECTION, -CONTAINS_DIRECTION),
+                  np.bincount(sides, minlength=8), axis=0)
+    return _Rays(tracer, take_rows(p, order), d, 0.0, np.inf), order
 
 
 def _unsorted(a, order):

@@ -218,14 +218,19 @@ def test_contains_on_grids_through_vertices(runtime):
     if moved along their direction (contains_directions)."""
     v, f = grid_cube(2)
     tracer = Tracer(build(v, f), device=runtime.spec)
-    step = 1.0 if runtime.simulator else 0.5
-    g = np.arange(-3, 3 + step, step)
-    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    direction = krays.contains_directions(tracer, p)
-    assert (np.abs(direction) == krays.CONTAINS_DIRECTION).all()
-    assert (np.sign(direction) == np.where(p >= 0, 1, -1)).all()   # the box's centre: 0
-    moved = p + 1e-6 * direction
-    assert (tracer.contains(p) == (np.abs(moved) < 2).all(axis=1)).all()
+    # points taken as they come, and (from SORT_FROM on) in spatial order, each octant
+    # of the box one run of one direction
+    for step in (1.0,) if runtime.simulator else (0.5, 0.25):
+        g = np.arange(-3, 3 + step, step)
+        p = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+        direction = krays.contains_directions(tracer, p)
+        assert (np.abs(direction) == krays.CONTAINS_DIRECTION).all()
+        assert (np.sign(direction) == np.where(p >= 0, 1, -1)).all()   # the box's centre: 0
+        rays, order = krays._contains_rays(tracer, p)
+        assert (order is None) == (len(p) < krays.SORT_FROM)
+        assert np.array_equal(rays.d, direction if order is None else direction[order])
+        moved = p + 1e-6 * direction
+        assert (tracer.contains(p) == (np.abs(moved) < 2).all(axis=1)).all()
     # the scene's sphere: convex, so inside = behind every face's plane
     mesh = load(SCENES / "sphere.obj")
     tracer = Tracer(build(mesh.vertices, mesh.faces), device=runtime.spec)
