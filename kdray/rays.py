@@ -181,9 +181,16 @@ class _Rays:
         tree's origin in its units: what list_rays and nearest_rays refine hits from
         with REFINE (made once, at the first call)."""
         if not hasattr(self, "_exact"):
+            # on pages of their own, which the device reads in place (_launch copies
+            # arrays that are not: 25 MB a million rays)
             o, d, origin, scale = self._given
-            self._exact = ((np.asarray(o, dtype=np.float64) - origin) / scale,
-                           np.ascontiguousarray(d, dtype=np.float64))
+            o = np.asarray(o, dtype=np.float64)
+            exact_o = page_aligned_empty(o.shape, np.float64)
+            np.subtract(o, origin, out=exact_o)
+            exact_o /= scale
+            exact_d = page_aligned_empty(np.shape(d), np.float64)
+            np.copyto(exact_d, d)
+            self._exact = exact_o, exact_d
         o, d = self._exact
         return (o[start:stop] if self.o_step else o), d[start:stop]
 
@@ -242,8 +249,8 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
     keep = []                                    # the host arrays the buffers use
 
     def inp(array):
-        if isinstance(array, np.generic):
-            return array
+        if array is None or isinstance(array, np.generic):
+            return array                         # None: NULL
         array = np.ascontiguousarray(array)
         keep.append(array)
         if tracer._page_inputs and array.ctypes.data % PAGE:
@@ -457,10 +464,12 @@ def contains(tracer, points):
 
 def _list(tracer, rays, caps, crossing=False):
     """(Intersections, more) of `rays` (their float32 t, u, v) with at most caps[i]
-    hits of ray i ((N,) int64; at least its distinct hits for every hit), its nearest
-    in (t, input id) order: the kernel fills each ray's slots, then the slots left
-    empty are dropped. more: (N,) bool, the rays that had more hits than caps[i]."""
-    caps = np.asarray(caps, dtype=np.int64)
+    hits of ray i ((N,) int64; at least its distinct hits for every hit; or an int,
+    the same for all), its nearest in (t, input id) order: the kernel fills each ray's
+    slots, then the slots left empty are dropped. more: (N,) bool, the rays that had
+    more hits than caps[i]."""
+    cap = int(caps) if np.ndim(caps) == 0 else None      # the same for every ray
+    caps = np.broadcast_to(np.asarray(caps, dtype=np.int64), (rays.n,))
     total = int(caps.sum())
     check_host_memory(total * (HIT_BYTES + 4) + rays.n * 12,
                       f"the {total} hits of {rays.n} rays")
@@ -485,9 +494,12 @@ def _list(tracer, rays, caps, crossing=False):
         if b - a > limit:
             raise DeviceError(f"ray {start}'s {b - a} hits do not fit in one buffer on "
                               f"{tracer.device.name.strip()}: ask for fewer (max_hits)")
-        local_offsets = offsets[start:stop] - a
-        extra = (np.uint32(crossing), local_offsets.astype(np.uint64),
-                 caps[start:stop].astype(np.uint32))
+        if cap is None:
+            extra = (np.uint32(crossing), np.uint32(0),
+                     (offsets[start:stop] - a).astype(np.uint64),
+                     caps[start:stop].astype(np.uint32))
+        else:
+            extra = (np.uint32(crossing), np.uint32(cap), None, None)
         if tracer.refine:
             extra += rays.exact(start, stop)
         _launch(tracer, "list_rays", rays, start, stop, extra,
@@ -502,12 +514,16 @@ def _list(tracer, rays, caps, crossing=False):
     if (n_found == caps).all():
         return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1],
                              object_table=tracer.tree.objects), more
-    keep = np.arange(total) - np.repeat(offsets[:-1], caps) < np.repeat(n_found, caps)
+    if cap is None:
+        keep = np.arange(total) - np.repeat(offsets[:-1], caps) < np.repeat(n_found, caps)
+    else:
+        keep = (np.arange(cap) < n_found[:, None]).ravel()
+    keep = np.flatnonzero(keep)              # one index for the three gathers
     new_offsets = np.zeros(rays.n + 1, dtype=np.int64)
     np.cumsum(n_found, out=new_offsets[1:])
-    uv = uv[keep]
-    return Intersections(new_offsets, t[keep], prim[keep], uv[:, 0], uv[:, 1],
-                         object_table=tracer.tree.objects), more
+    uv = take_rows(uv, keep)
+    return Intersections(new_offsets, np.take(t, keep), np.take(prim, keep), uv[:, 0],
+                         uv[:, 1], object_table=tracer.tree.objects), more
 
 
 def _replace_rows(hits, rows, other):
@@ -575,7 +591,7 @@ def _listed(tracer, rays, max_hits):
     GUESS_HITS nearest (its max_hits when fewer), then the rays that had more counted
     and listed again in full."""
     guess = GUESS_HITS if max_hits is None else min(GUESS_HITS, int(max_hits))
-    hits, more = _list(tracer, rays, np.full(rays.n, guess, dtype=np.int64))
+    hits, more = _list(tracer, rays, guess)
     redo = np.flatnonzero(more) if max_hits is None or max_hits > guess else ()
     if len(redo):
         sub = rays.subset(redo)

@@ -968,7 +968,8 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
  * floats a slot, hit_id the input id), its count into out_n[k] (KD_WALK_FAULT on a
  * fault): with caps[k] at least its distinct hits, every hit, else the caps[k] first
  * in (t, input id) order, the count then marked KD_LIST_MORE. Sorted by (t, input id),
- * as refined with REFINE. */
+ * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
+ * k * cap (a first pass's guess: no arrays to make and copy). */
 #if defined(REFINE) && defined(cl_khr_fp64)
 /* the caller's rays in double, relative to the tree's origin in its units (origins
  * o_step apart, as `origins`), which the hits are refined from, as trace_rays refines
@@ -979,7 +980,7 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 #endif
 
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
-void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
+void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, __global const ulong *offsets,
                __global const uint *caps KD_EXACT_RAY_ARGS, __global float *hit_t,
                __global float *hit_uv, __global uint *hit_id, __global uint *out_n)
 {
@@ -989,11 +990,11 @@ void list_rays(KD_QUERY_ARGS, uint crossing, __global const ulong *offsets,
         for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = k0 + l;
-            ulong at = offsets[k];
+            ulong at = offsets ? offsets[k] : (ulong)k * cap;
             q->t = hit_t + at;
             q->uv = hit_uv + 2u * at;
             q->tri = hit_id + at;            /* copies while walking, input ids at the end */
-            q->cap = caps[k];
+            q->cap = caps ? caps[k] : cap;
         }
         kd_walk_block(KD_LIST, crossing != 0u, KD_WALK_ARGS, k0, m, qs);
         for (uint l = 0; l < m; l++) {
