@@ -177,20 +177,14 @@ class _Rays:
         self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
 
     def exact(self, start, stop):
-        """(o64, d64) float64 of rays start .. stop - 1 as given, origins relative to the
-        tree's origin in its units: what list_rays and nearest_rays refine hits from
-        with REFINE (made once, at the first call)."""
+        """(o64, d64): the float64 rays start .. stop - 1 as given, in world
+        coordinates, which list_rays and nearest_rays refine hits from with REFINE
+        (`_launch`'s exact arguments): the caller's arrays themselves where they are
+        float64 and contiguous, which the device reads in place."""
         if not hasattr(self, "_exact"):
-            # on pages of their own, which the device reads in place (_launch copies
-            # arrays that are not: 25 MB a million rays)
-            o, d, origin, scale = self._given
-            o = np.asarray(o, dtype=np.float64)
-            exact_o = page_aligned_empty(o.shape, np.float64)
-            np.subtract(o, origin, out=exact_o)
-            exact_o /= scale
-            exact_d = page_aligned_empty(np.shape(d), np.float64)
-            np.copyto(exact_d, d)
-            self._exact = exact_o, exact_d
+            o, d, _, _ = self._given
+            self._exact = (np.ascontiguousarray(o, dtype=np.float64),
+                           np.ascontiguousarray(d, dtype=np.float64))
         o, d = self._exact
         return (o[start:stop] if self.o_step else o), d[start:stop]
 
@@ -236,10 +230,12 @@ def _program(tracer):
     return entry
 
 
-def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
+def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False):
     """Run `kernel_name` on rays start .. stop - 1: extra (the kernel's arguments after
-    the rays: numpy scalars, or host arrays it reads) and outputs (dict name -> host
-    array it writes, in argument order)."""
+    the rays: numpy scalars, or host arrays it reads, or None for NULL), then with
+    `exact` the float64 rays as given (KD_EXACT_RAY_ARGS: `_Rays.exact`, the tree's
+    origin and scale), and outputs (dict name -> host array it writes, in argument
+    order)."""
     cl = _device._cl()
     n = stop - start
     if n == 0:
@@ -262,10 +258,18 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs):
     device_out = {name: None if a is None else
                   tracer._output_buffer(a, read=kernel_name == "list_rays")
                   for name, a in outputs.items()}
+    exact_args = ()
+    if exact:
+        # read in place from their page's start, at an offset (list_rays, nearest_rays)
+        (o64, o_at), (d64, d_at) = (tracer._input_buffer(a) for a in rays.exact(start, stop))
+        keep.extend(rays.exact(start, stop))
+        exact_args = (o64, d64, np.uint32(o_at), np.uint32(d_at),
+                      *np.asarray(tracer._origin, dtype=np.float64),
+                      np.float64(1.0 / tracer._scale))
     args = (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
             np.uint32(tracer._n_nodes), inp(o), inp(d), np.uint32(rays.o_step), inp(t_mins),
             inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), *map(inp, extra),
-            *device_out.values())
+            *exact_args, *device_out.values())
     items = -(-n // entry["run"])
     local = entry["local"]
     tracer._enqueue(entry, kernel_name, -(-items // local) * local, local, args)
@@ -356,11 +360,11 @@ def nearest(tracer, origins, directions, t_min, t_max, outputs=("UV", "NORMAL"))
     if tracer.refine:
         widths += [24 * rays.o_step, 24]
     for start, stop in _launches(tracer, rays, widths):
-        extra = rays.exact(start, stop) if tracer.refine else ()
         part = slice(start, stop)
-        _launch(tracer, "nearest_rays", rays, start, stop, extra,
+        _launch(tracer, "nearest_rays", rays, start, stop, (),
                 {"t": t[part], "uv": None if uv is None else uv[part],
-                 "normal": None if normal is None else normal[part], "prim": prim[part]})
+                 "normal": None if normal is None else normal[part], "prim": prim[part]},
+                exact=tracer.refine)
     _check_fault(np.isnan(t), "trace")
     t *= np.float32(tracer._scale)           # a power of two: exact
     return Hits(t=t, prim=prim, u=None if uv is None else uv[:, 0],
@@ -500,13 +504,11 @@ def _list(tracer, rays, caps, crossing=False):
                      caps[start:stop].astype(np.uint32))
         else:
             extra = (np.uint32(crossing), np.uint32(cap), None, None)
-        if tracer.refine:
-            extra += rays.exact(start, stop)
         _launch(tracer, "list_rays", rays, start, stop, extra,
                 {"t": t[a:b] if b > a else np.empty(1, np.float32),
                  "uv": uv[a:b] if b > a else np.empty((1, 2), np.float32),
                  "prim": prim[a:b] if b > a else np.empty(1, np.uint32),
-                 "found": found[start:stop]})
+                 "found": found[start:stop]}, exact=tracer.refine)
         start = stop
     _check_fault(found == WALK_FAULT, "intersections")
     more = (found & LIST_MORE) != 0

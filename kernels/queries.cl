@@ -971,10 +971,22 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
  * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
  * k * cap (a first pass's guess: no arrays to make and copy). */
 #if defined(REFINE) && defined(cl_khr_fp64)
-/* the caller's rays in double, relative to the tree's origin in its units (origins
- * o_step apart, as `origins`), which the hits are refined from, as trace_rays refines
- * its hit from them (render.cl, kd_exact_ray) */
-#define KD_EXACT_RAY_ARGS , __global const double *exact_o, __global const double *exact_d
+/* the caller's rays in double as given, in world coordinates (origins o_step apart, as
+ * `origins`), from element exact_o_offset and exact_d_offset on (the host's arrays,
+ * read in place from the start of their page), which the hits are refined from, made
+ * relative to the tree's origin in its units here (kd_exact_origin), as trace_rays
+ * refines its hit from them (render.cl, kd_exact_ray) */
+#define KD_EXACT_RAY_ARGS , __global const double *exact_o, __global const double *exact_d,  \
+    uint exact_o_offset, uint exact_d_offset, double exact_origin_x, double exact_origin_y, \
+    double exact_origin_z, double exact_scale_inv
+
+/* Ray k's origin as the caller gave it, relative to the tree's origin in its units:
+ * (o - origin) / scale, the scale a power of two (its inverse exact), as the host's
+ * float64 arithmetic makes it. */
+#define kd_exact_origin(k)                                                                 \
+    ((vload3((size_t)(k) * o_step, exact_o + exact_o_offset)                              \
+      - (double3)(exact_origin_x, exact_origin_y, exact_origin_z)) * exact_scale_inv)
+#define kd_exact_direction(k) vload3((k), exact_d + exact_d_offset)
 #else
 #define KD_EXACT_RAY_ARGS
 #endif
@@ -1007,8 +1019,8 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, __global const ulong *off
 #if defined(REFINE) && defined(cl_khr_fp64)
             /* each hit's t, u, v from double (kd_refine_hit), then in order again: the
              * refined t moves by its float rounding at most, so this is a few swaps */
-            double3 o = vload3((size_t)k * o_step, exact_o);
-            double3 d = vload3(k, exact_d);
+            double3 o = kd_exact_origin(k);
+            double3 d = kd_exact_direction(k);
             float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
             for (uint j = 0; j < q->n; j++) {
                 uint tri = q->tri[j];
@@ -1051,7 +1063,7 @@ void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
                 p1 = kd_vertex(tris, q->hit.tri, 1);
                 p2 = kd_vertex(tris, q->hit.tri, 2);
 #if defined(REFINE) && defined(cl_khr_fp64)
-                kd_refine_hit(vload3((size_t)k * o_step, exact_o), vload3(k, exact_d), p0, p1, p2,
+                kd_refine_hit(kd_exact_origin(k), kd_exact_direction(k), p0, p1, p2,
                               t_min, t_max, &q->hit.t, &q->hit.u, &q->hit.v);
 #endif
             }
