@@ -166,12 +166,14 @@ def _ranges(t_min, t_max, n, scale):
 
 class _Rays:
     """The rays of one query as queries.cl reads them: float32, relative to the tree's
-    origin in its units (kdray.ray_input.rays32), with their t ranges (`_ranges`)."""
+    origin in its units (kdray.ray_input.rays32), with their t ranges (`_ranges`), and
+    image_w: the width of the row-major image they are (0: none known; `_image`)."""
 
     def __init__(self, tracer, origins, directions, t_min, t_max):
         o, d, self.shape = ray_input.flat_rays(origins, directions)
         o, d, self.o_step = ray_input.origin_rows(o, d)
         self.n = len(d)
+        self.image_w = 0
         self.o, self.d = ray_input.rays32(o, d, self.o_step, tracer._origin, tracer._scale)
         self._given = (o, d, tracer._origin, tracer._scale)
         self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
@@ -197,7 +199,7 @@ class _Rays:
     def subset(self, index):
         """A _Rays of the rays `index` ((k,) int array) only."""
         other = object.__new__(_Rays)
-        other.shape, other.n = (len(index),), len(index)
+        other.shape, other.n, other.image_w = (len(index),), len(index), 0
         other.o_step, other.t_step = self.o_step, self.t_step
         other.o = self.o[index] if self.o_step else self.o
         other.d = self.d[index]
@@ -206,6 +208,25 @@ class _Rays:
         o, d, origin, scale = self._given
         other._given = (o[index] if self.o_step else o, d[index], origin, scale)
         return other
+
+
+def _image(tracer, rays, origins, directions):
+    """`rays` with image_w set where they are an image (image-shaped, or (N, 3) rays
+    found to be one as `Tracer.trace` finds them: kdray.ray_grid) and packet programs
+    walk them in blocks of 4 x packet / 4 pixels (kernels/queries.cl, kd_block_rays),
+    which share more of the tree than a row's; the answers are the same."""
+    from .trace import IMAGE_SEARCH_MIN_RAYS
+    if tracer.packet == 1 or _program(tracer)["run"] % tracer.packet:
+        return rays
+    if len(rays.shape) >= 2:
+        rays.image_w = rays.shape[-1]
+    elif rays.n >= IMAGE_SEARCH_MIN_RAYS:
+        o, d, _ = ray_input.flat_rays(origins, directions)
+        rays.image_w, search = tracer._image_width(o, d)
+        if search is not None:
+            search()                             # keeps the width for the next call
+            rays.image_w = tracer._image_width(o, d)[0]
+    return rays
 
 
 def _program(tracer):
@@ -266,11 +287,17 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False)
         exact_args = (o64, d64, np.uint32(o_at), np.uint32(d_at),
                       *np.asarray(tracer._origin, dtype=np.float64),
                       np.float64(1.0 / tracer._scale))
+    # an image's blocks only where the launch takes all its rays
+    image_w = rays.image_w if (start, stop) == (0, rays.n) else 0
     args = (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
             np.uint32(tracer._n_nodes), inp(o), inp(d), np.uint32(rays.o_step), inp(t_mins),
-            inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), *map(inp, extra),
-            *exact_args, *device_out.values())
+            inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), np.uint32(image_w),
+            *map(inp, extra), *exact_args, *device_out.values())
     items = -(-n // entry["run"])
+    if image_w:
+        # kd_block_rays: a work-item's band of 4 * run / packet columns, packet / 4 rows
+        band_w, rows = 4 * (entry["run"] // tracer.packet), tracer.packet // 4
+        items = -(-image_w // band_w) * -(-(n // image_w) // rows)
     local = entry["local"]
     tracer._enqueue(entry, kernel_name, -(-items // local) * local, local, args)
     tracer._read_outputs({k: v for k, v in device_out.items() if v is not None}, outputs)
@@ -337,7 +364,8 @@ def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
         if _share_paths(tracer, o, d, shape):
             hits = tracer._trace_rays(o, d, shape, t_min, t_max, (), any_hit=True)
             return hits.hit.reshape(shape)
-    rays = _Rays(tracer, origins, directions, t_min, t_max)
+    rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
+                  directions)
     out = page_aligned_empty((rays.n,), np.uint8)
     for start, stop in _launches(tracer, rays, [1]):
         _launch(tracer, "occluded_rays", rays, start, stop, (), {"out": out[start:stop]})
@@ -351,7 +379,8 @@ def nearest(tracer, origins, directions, t_min, t_max, outputs=("UV", "NORMAL"))
     finds, refined alike; outputs: which of "UV", "NORMAL" to compute besides t and
     prim. Hits of the rays' flattened shape."""
     from .trace import Hits
-    rays = _Rays(tracer, origins, directions, t_min, t_max)
+    rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
+                  directions)
     t = page_aligned_empty((rays.n,), np.float32)
     prim = page_aligned_empty((rays.n,), np.uint32)
     uv = page_aligned_empty((rays.n, 2), np.float32) if "UV" in outputs else None
@@ -394,7 +423,8 @@ def count(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     """(N,) int32 (the rays' shape): how many times each ray crosses the surface with
     t_min < t < t_max, under the crossing rule (module docstring): a ray through an edge
     or a vertex shared by consistently oriented triangles crosses there once."""
-    rays = _Rays(tracer, origins, directions, t_min, t_max)
+    rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
+                  directions)
     return _counts(tracer, rays, True).astype(np.int32).reshape(rays.shape)
 
 
@@ -574,7 +604,8 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
                              f"{type(max_hits).__name__} {max_hits!r:.60}".replace("\n", " "))
         if max_hits < 1:
             raise KdrayError(f"max_hits must be at least 1, got {max_hits}")
-    rays = _Rays(tracer, origins, directions, t_min, t_max)
+    rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
+                  directions)
     if rays.n <= GUESS_CHUNK:
         hits = _listed(tracer, rays, max_hits)
     else:

@@ -28,10 +28,11 @@
  * slack), so it visits every leaf the nearest hit's traversal may.
  *
  * Options (-D): STACK_SIZE (at least the tree's depth + 1), LOCAL_SIZE, RUN (rays a
- * work-item takes, consecutive), REFINE (list_rays' t, u, v recomputed in double,
- * triangle.cl, kd_refine_hit, from the caller's rays in double). Rays are float32, relative to the tree's origin in its
- * units; t_min, t_max per ray (t_step 1) or one pair for all (t_step 0), in the same
- * units. Outputs are in those units too: the host scales t.
+ * work-item takes: consecutive, or a band of an image's pixels, kd_block_rays), REFINE
+ * (list_rays' and nearest_rays' t, u, v recomputed in double, triangle.cl,
+ * kd_refine_hit, from the caller's rays in double). Rays are float32, relative to the
+ * tree's origin in its units; t_min, t_max per ray (t_step 1) or one pair for all
+ * (t_step 0), in the same units. Outputs are in those units too: the host scales t.
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"
@@ -401,7 +402,7 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
 }
 
 #ifdef PACKET
-/* The walks of rays k0 + rays[i] into q[rays[i]] (i < n), side by side, one a vector lane,
+/* The walks of rays ids[rays[i]] into q[rays[i]] (i < n), side by side, one a vector lane,
  * as kd_lanes_trace (lanes_trace.cl) traces rays that share no path: one vector node
  * step moves every lane one node down its own path, and a lane whose walk ends takes
  * the next ray, so that the lanes stay full while rays are left. Each ray is walked
@@ -413,7 +414,7 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                    __global const float *tris, __global const uint *tri_ids, float3 bmin,
                    float3 bmax, __global const float *origins, __global const float *directions,
                    uint o_step, __global const float *t_mins, __global const float *t_maxs,
-                   uint t_step, uint k0, const uchar *rays, uint n, KdQuery *q)
+                   uint t_step, const uint *ids, const uchar *rays, uint n, KdQuery *q)
 {
     RayShear shear[KD_PACKET];
     KdLaneStacks stacks;
@@ -430,7 +431,7 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
         /* free lanes take the next rays that have a range to walk (kd_walk_range) */
         uint free = ~act & (uint)((1ul << KD_PACKET) - 1ul);
         while (free && next < n) {
-            uint k = k0 + rays[next];
+            uint k = ids[rays[next]];
             float3 o = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
             float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
             float t_enter, t_exit;
@@ -692,7 +693,7 @@ void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const
                             t_max, q);
 }
 
-/* The walks of the packet of rays k0 .. k0 + m - 1 (m <= KD_PACKET) into q[0 .. m - 1]
+/* The walks of the packet of rays ids[0 .. m - 1] (m <= KD_PACKET) into q[0 .. m - 1]
  * on one path, as trace_packet traverses rays that share their paths (packet.cl): one
  * node step for all the lanes, each taking the children it needs (kd_packet_step:
  * traverse.cl's rules and slack), and every leaf a lane's range reaches handed to
@@ -708,13 +709,13 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                     __global const float *tris, __global const uint *tri_ids, float3 bmin,
                     float3 bmax, __global const float *origins, __global const float *directions,
                     uint o_step, __global const float *t_mins, __global const float *t_maxs,
-                    uint t_step, uint k0, uint m, bool crossing, KdQuery *q)
+                    uint t_step, const uint *ids, uint m, bool crossing, KdQuery *q)
 {
     KdFP o[3], dx, dy, dz, enter, exit, lo, hi;
     uint on_bits = 0u;
     for (uint l = 0; l < KD_PACKET; l++) {
-        /* lanes past m repeat ray k0 (off): kd_alone and the shear see real rays */
-        uint k = k0 + (l < m ? l : 0u);
+        /* lanes past m repeat the first ray (off): kd_alone and the shear see real rays */
+        uint k = ids[l < m ? l : 0u];
         float3 p = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
         o[0].s[l] = p.x; o[1].s[l] = p.y; o[2].s[l] = p.z;
         dx.s[l] = d.x; dy.s[l] = d.y; dz.s[l] = d.z;
@@ -861,7 +862,7 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
     __global const float *bounds, uint n_nodes, __global const float *origins,             \
     __global const float *directions, uint o_step, __global const float *t_mins,          \
-    __global const float *t_maxs, uint t_step, uint n_rays
+    __global const float *t_maxs, uint t_step, uint n_rays, uint image_w
 
 /* Rays walked together: a packet program's work-item's RUN (kd_lanes_walk), else one. */
 #ifdef PACKET
@@ -870,23 +871,80 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
 #define KD_WALK_BLOCK 1
 #endif
 
-/* A work-item's rays, RUN consecutive ones from get_global_id(0) * RUN, in blocks of
- * KD_WALK_BLOCK from ray k0 (the block's rays: kd_block_size). */
-#define KD_FOR_ITEM_BLOCKS(k0)                                                             \
-    uint first_ray = (uint)get_global_id(0) * RUN;                                         \
-    uint end_ray = min(first_ray + (uint)RUN, n_rays);                                     \
-    for (uint k0 = first_ray; k0 < end_ray; k0 += KD_WALK_BLOCK)
+/* Packet programs whose work-item takes whole packets can walk an image's rays in
+ * blocks of 4 x KD_PACKET / 4 pixels, as render and trace_rays trace them: their
+ * footprints are squarer than a row's, so a packet shares more nodes and culls more. */
+#if defined(PACKET) && RUN % KD_PACKET == 0
+#define KD_IMAGE_BLOCKS
+#define KD_BAND_W (4u * (RUN / KD_PACKET))       /* a work-item's columns */
+#endif
 
-#define kd_block_size(k0) min((uint)KD_WALK_BLOCK, end_ray - (k0))
-
-/* Walk rays k0 .. k0 + n - 1 into q[0 .. n - 1], each started first (kd_query_start,
- * the count's rule when `crossing`; a list's slots, set before, are kept): kd_walk,
- * side by side in packet programs (kd_lanes_walk, which gives each ray kd_walk's walk). */
+/* The rays of block b0 / KD_WALK_BLOCK of this work-item into ids[0 .. m - 1]; returns
+ * m (0: none left). Rays in rows (image_w 0): RUN consecutive rays from
+ * get_global_id(0) * RUN, KD_WALK_BLOCK at a time. An image of image_w columns
+ * (n_rays / image_w rows; KD_IMAGE_BLOCKS): a work-item's RUN rays are its band of
+ * KD_BAND_W columns by KD_PACKET / 4 rows, packet p (KD_PACKET rays in ids) its
+ * columns 4p .. 4p + 3 (lane l: column + l % 4, row + l / 4), the pixels outside the
+ * image left out. */
 KD_INLINE
-void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, uint k0, uint n, KdQuery *q)
+uint kd_block_rays(uint b0, uint n_rays, uint image_w, uint *ids)
+{
+#ifdef KD_IMAGE_BLOCKS
+    if (image_w) {
+        uint bands_x = (image_w + KD_BAND_W - 1u) / KD_BAND_W;
+        uint item = (uint)get_global_id(0);
+        uint col0 = (item % bands_x) * KD_BAND_W;
+        uint row0 = (item / bands_x) * (KD_PACKET / 4u);
+        uint n_rows = n_rays / image_w;
+        uint m = 0u;
+        for (uint j = 0u; j < RUN; j++) {
+            uint col = col0 + 4u * (j / KD_PACKET) + j % 4u;
+            uint row = row0 + (j % KD_PACKET) / 4u;
+            if (col < image_w && row < n_rows)
+                ids[m++] = row * image_w + col;
+        }
+        return b0 == 0u ? m : 0u;
+    }
+#endif
+    uint first = (uint)get_global_id(0) * RUN + b0;
+    if (b0 >= RUN || first >= n_rays)
+        return 0u;
+    uint m = min((uint)KD_WALK_BLOCK, min(n_rays - first, (uint)RUN - b0));
+    for (uint l = 0u; l < m; l++)
+        ids[l] = first + l;
+    return m;
+}
+
+/* A work-item's rays, a block of KD_WALK_BLOCK at a time: its m rays' indices ids[0 ..
+ * m - 1] (kd_block_rays). */
+/* The rays l of a block of m: with one ray a block (no packets), a loop of one trip
+ * that compilers unroll, so that no store to an output in it is moved out of a loop as
+ * a load and a store (Oclgrind's LLVM did so for out[ids[l]], reading a write-only
+ * buffer). */
+#ifdef PACKET
+#define KD_FOR_BLOCK_RAYS(l, m) for (uint l = 0u; l < (m); l++)
+#else
+#define KD_FOR_BLOCK_RAYS(l, m) for (uint l = 0u; l < 1u; l++)
+#endif
+
+#define KD_FOR_ITEM_BLOCKS(ids, m)                                                         \
+    uint ids[KD_WALK_BLOCK];                                                               \
+    uint m;                                                                                \
+    for (uint b0 = 0u; b0 < RUN; b0 += KD_WALK_BLOCK)                                      \
+        if ((m = kd_block_rays(b0, n_rays, image_w, ids)) == 0u)                           \
+            break;                                                                         \
+        else
+
+/* Walk rays ids[0 .. n - 1] into q[0 .. n - 1], each started first (kd_query_start,
+ * the count's rule when `crossing`; a list's slots, set before, are kept): kd_walk; in
+ * packet programs as packets (kd_packet_walk) or side by side (kd_lanes_walk), which
+ * give each ray kd_walk's answer. */
+KD_INLINE
+void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, uint n,
+                   KdQuery *q)
 {
     for (uint l = 0; l < n; l++)
-        kd_query_start(&q[l], crossing, t_maxs[(k0 + l) * t_step]);
+        kd_query_start(&q[l], crossing, t_maxs[ids[l] * t_step]);
     float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
 #ifdef PACKET
     if (n >= KD_LANES_MIN) {
@@ -898,22 +956,22 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, uint k0, uint n, Kd
             uint m = min((uint)KD_PACKET, n - p0);
             KdIP leave;
             leave.v = kd_packet_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, origins,
-                                     directions, o_step, t_mins, t_maxs, t_step, k0 + p0, m,
+                                     directions, o_step, t_mins, t_maxs, t_step, ids + p0, m,
                                      crossing, q + p0);
             for (uint l = 0u; l < m; l++) {
                 if (!leave.s[l])
                     continue;
-                kd_query_start(&q[p0 + l], crossing, t_maxs[(k0 + p0 + l) * t_step]);
+                kd_query_start(&q[p0 + l], crossing, t_maxs[ids[p0 + l] * t_step]);
                 alone[n_alone++] = (uchar)(p0 + l);
             }
         }
         if (n_alone >= KD_LANES_MIN) {
             kd_lanes_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, origins, directions,
-                          o_step, t_mins, t_maxs, t_step, k0, alone, n_alone, q);
+                          o_step, t_mins, t_maxs, t_step, ids, alone, n_alone, q);
             return;
         }
         for (uint i = 0u; i < n_alone; i++) {
-            uint k = k0 + alone[i];
+            uint k = ids[alone[i]];
             kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax,
                     kd_load3(origins, (size_t)k * o_step), kd_load3(directions, k),
                     t_mins[k * t_step], t_maxs[k * t_step], &q[alone[i]]);
@@ -922,7 +980,7 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, uint k0, uint n, Kd
     }
 #endif
     for (uint l = 0; l < n; l++) {
-        uint k = k0 + l;
+        uint k = ids[l];
         kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax,
                 kd_load3(origins, (size_t)k * o_step), kd_load3(directions, k),
                 t_mins[k * t_step], t_maxs[k * t_step], &q[l]);
@@ -930,18 +988,17 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, uint k0, uint n, Kd
 }
 
 #define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes, origins, directions, o_step,   \
-    t_mins, t_maxs, t_step, n_rays
+    t_mins, t_maxs, t_step, n_rays, image_w
 
 /* out[k]: 1 when ray k hits anything with t_min < t < t_max, else 0; 2 on a fault. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
 {
-    KD_FOR_ITEM_BLOCKS(k0) {
-        uint m = kd_block_size(k0);
+    KD_FOR_ITEM_BLOCKS(ids, m) {
         KdQuery q[KD_WALK_BLOCK];
-        kd_walk_block(KD_ANY, false, KD_WALK_ARGS, k0, m, q);
-        for (uint l = 0; l < m; l++)
-            out[k0 + l] = q[l].fault ? (uchar)2 : (uchar)q[l].n;
+        kd_walk_block(KD_ANY, false, KD_WALK_ARGS, ids, m, q);
+        KD_FOR_BLOCK_RAYS(l, m)
+            out[ids[l]] = q[l].fault ? (uchar)2 : (uchar)q[l].n;
     }
 }
 
@@ -952,12 +1009,11 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 {
-    KD_FOR_ITEM_BLOCKS(k0) {
-        uint m = kd_block_size(k0);
+    KD_FOR_ITEM_BLOCKS(ids, m) {
         KdQuery q[KD_WALK_BLOCK];
-        kd_walk_block(KD_COUNT, crossing != 0u, KD_WALK_ARGS, k0, m, q);
-        for (uint l = 0; l < m; l++)
-            out[k0 + l] = q[l].fault ? KD_WALK_FAULT
+        kd_walk_block(KD_COUNT, crossing != 0u, KD_WALK_ARGS, ids, m, q);
+        KD_FOR_BLOCK_RAYS(l, m)
+            out[ids[l]] = q[l].fault ? KD_WALK_FAULT
                         : crossing == KD_WINDING ? (q[l].n > KD_SEEN ? KD_WINDING_RAW
                                                                      : as_uint(q[l].winding))
                         : (q[l].n > KD_SEEN ? q[l].raw | KD_COUNT_RAW : q[l].n);
@@ -996,22 +1052,21 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, __global const ulong *off
                __global const uint *caps KD_EXACT_RAY_ARGS, __global float *hit_t,
                __global float *hit_uv, __global uint *hit_id, __global uint *out_n)
 {
-    KD_FOR_ITEM_BLOCKS(k0) {
-        uint m = kd_block_size(k0);
+    KD_FOR_ITEM_BLOCKS(ids, m) {
         KdQuery qs[KD_WALK_BLOCK];
-        for (uint l = 0; l < m; l++) {
+        KD_FOR_BLOCK_RAYS(l, m) {
             KdQuery *q = &qs[l];
-            uint k = k0 + l;
+            uint k = ids[l];
             ulong at = offsets ? offsets[k] : (ulong)k * cap;
             q->t = hit_t + at;
             q->uv = hit_uv + 2u * at;
             q->tri = hit_id + at;            /* copies while walking, input ids at the end */
             q->cap = caps ? caps[k] : cap;
         }
-        kd_walk_block(KD_LIST, crossing != 0u, KD_WALK_ARGS, k0, m, qs);
-        for (uint l = 0; l < m; l++) {
+        kd_walk_block(KD_LIST, crossing != 0u, KD_WALK_ARGS, ids, m, qs);
+        KD_FOR_BLOCK_RAYS(l, m) {
             KdQuery *q = &qs[l];
-            uint k = k0 + l;
+            uint k = ids[l];
             if (q->fault) {
                 out_n[k] = KD_WALK_FAULT;
                 continue;
@@ -1048,13 +1103,12 @@ __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
                   __global float *out_uv, __global float *out_normal, __global uint *out_id)
 {
-    KD_FOR_ITEM_BLOCKS(k0) {
-        uint m = kd_block_size(k0);
+    KD_FOR_ITEM_BLOCKS(ids, m) {
         KdQuery qs[KD_WALK_BLOCK];
-        kd_walk_block(KD_NEAREST, false, KD_WALK_ARGS, k0, m, qs);
-        for (uint l = 0; l < m; l++) {
+        kd_walk_block(KD_NEAREST, false, KD_WALK_ARGS, ids, m, qs);
+        KD_FOR_BLOCK_RAYS(l, m) {
             KdQuery *q = &qs[l];
-            uint k = k0 + l;
+            uint k = ids[l];
             float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
             bool found = q->hit.tri != KD_NO_HIT && !q->fault;
             float3 p0 = (float3)(0.0f), p1 = (float3)(0.0f), p2 = (float3)(0.0f);

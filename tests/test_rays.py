@@ -297,7 +297,8 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
     if runtime.simulator:
         pytest.skip("a simulator runs no packet programs")
     tree = teapot_tree
-    camera_o, camera_d = Tracer(tree, device=runtime.spec).camera_rays(camera_for(tree, 64, 48))
+    # an image whose sides are no multiple of a packet's block (kd_block_rays' edges)
+    camera_o, camera_d = Tracer(tree, device=runtime.spec).camera_rays(camera_for(tree, 61, 37))
     camera_d = camera_d.reshape(-1, 3)
     lo, hi = tree.world_box()
     rng = np.random.default_rng(12)
@@ -309,22 +310,33 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
         assert krays._share_paths(Tracer(tree, device=runtime.spec), np.asarray(o), d, (len(d),))
         t_lo, t_hi = ranges(np.random.default_rng(13), len(d), 2.0)
 
-        def answers(tracer):
+        def answers(tracer, o, d):
             listed = tracer.intersections(o, d)
             crossed = tracer.intersections(o, d, max_hits=2)
             near = tracer.trace(o, d, t_lo, t_hi)
-            return (tracer.count(o, d), tracer.count(o, d, t_lo, t_hi),
-                    tracer.occluded(o, d, t_lo, t_hi), listed.offsets, listed.prim, listed.t,
-                    listed.u, crossed.offsets, crossed.prim, near.t, near.prim, near.u)
+            return [np.asarray(a).reshape(-1) for a in (
+                tracer.count(o, d), tracer.count(o, d, t_lo, t_hi),
+                tracer.occluded(o, d, t_lo, t_hi), listed.offsets, listed.prim, listed.t,
+                listed.u, crossed.offsets, crossed.prim, near.t, near.prim, near.u)]
 
-        want = answers(Tracer(tree, device=runtime.spec, packet=1))
+        want = answers(Tracer(tree, device=runtime.spec, packet=1), o, d)
         assert want[0].sum() > 100
+        # the camera's rays also as the image they are: walked in blocks of pixels
+        shaped = [(o, d)] + ([(o[0], d.reshape(37, 61, 3))] if o is camera_o else [])
         for packet in PACKETS:
             for spread in (None, -1.0):          # as packets; every packet alone
                 tracer = Tracer(tree, device=runtime.spec, packet=packet)
                 tracer._alone_spread = spread
-                for a, b in zip(answers(tracer), want):
-                    assert np.array_equal(a, b), (packet, spread)
+                for oo, dd in shaped:
+                    for a, b in zip(answers(tracer, oo, dd), want):
+                        assert np.array_equal(a, b), (packet, spread, dd.shape)
+
+    # (N, 3) rays that are an image, from IMAGE_SEARCH_MIN_RAYS on, are found to be one
+    tracer = Tracer(tree, device=runtime.spec)
+    o, d = tracer.camera_rays(camera_for(tree, 512, 256))
+    assert krays._image(tracer, krays._Rays(tracer, o, d, 0.0, np.inf), o, d).image_w == 512
+    one = Tracer(tree, device=runtime.spec, packet=1)
+    assert np.array_equal(tracer.count(o, d), one.count(o, d))
 
     for v, f in (icosphere(3), grid_cube(6)):
         targets = np.concatenate([v, edge_midpoints(v, f)])
