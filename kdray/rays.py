@@ -53,8 +53,23 @@ def contains_directions(tracer, points):
     the point's offset from the centre of the tree's box (+ at the centre), away from
     the centre towards the nearest corner, so that the ray leaves the box soon: half
     the walk, on average, of one direction for all (random points in a box)."""
+    return np.take(_OCTANT_DIRECTIONS, _sides(tracer, points), axis=0)
+
+
+def _sides(tracer, points):
+    """(N,) uint8: bit k set where the point (points (N, 3) float64, world coordinates)
+    is at or above the middle of the tree's box on axis k: its octant of the box."""
     lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
-    return np.where(points >= 0.5 * (lo + hi), CONTAINS_DIRECTION, -CONTAINS_DIRECTION)
+    side = (points >= 0.5 * (lo + hi)).view(np.uint8)     # in uint8: no wider temporaries
+    sides = side[:, 1] << 1
+    sides |= side[:, 0]
+    sides |= side[:, 2] << 2
+    return sides
+
+
+_OCTANT_DIRECTIONS = np.where((np.arange(8)[:, None] >> np.arange(3)) & 1 == 1,
+                              CONTAINS_DIRECTION, -CONTAINS_DIRECTION)
+"""(8, 3) float32: the direction of `contains_directions` for each octant (`_sides`)."""
 
 COUNT_RAW = 0x80000000
 """count_rays marks a count of every hit found, copies included (kernels/queries.cl)."""
@@ -444,13 +459,9 @@ def _contains_rays(tracer, p):
     directions `contains_directions`), which changes no answer."""
     if len(p) < SORT_FROM:
         return _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf), None
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
-    side = p >= 0.5 * (lo + hi)                  # contains_directions' signs
-    sides = (side[:, 0] | (side[:, 1] << 1) | (side[:, 2] << 2)).astype(np.uint8)
-    order = spatial_order(p, lo, hi, sides)
-    octants = np.arange(8)[:, None] >> np.arange(3) & 1
-    d = np.repeat(np.where(octants == 1, CONTAINS_DIRECTION, -CONTAINS_DIRECTION),
-                  np.bincount(sides, minlength=8), axis=0)
+    sides = _sides(tracer, p)
+    order = spatial_order(p, *tracer.tree.world_box(), sides)
+    d = np.repeat(_OCTANT_DIRECTIONS, np.bincount(sides, minlength=8), axis=0)
     return _Rays(tracer, take_rows(p, order), d, 0.0, np.inf), order
 
 
