@@ -784,6 +784,16 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 node = first_child;
             } else if (!kd_anyP(st.need_first)) {
                 node = second_child;
+            } else if (kd_is_empty_leaf(nodes[first_child])) {
+                /* An empty first child holds no hit: its lanes go on in the second
+                 * child (over [t_mid, t_max] where they need both), with no push; a
+                 * lane that needs the first only is done here (its stack goes on). */
+                if (++leaves > 2u * n_nodes + 2u)
+                    return fallback | live;  /* more leaves than a valid tree has */
+                node = second_child;
+                t_min_cur = kd_selectP(t_min_cur, t_mid, both);
+                t_lo = t_min_cur * (1.0f - KD_T_SLACK);
+                act = st.need_second;
             } else {
                 if (count == PACKET_STACK_SIZE)
                     return fallback | live;  /* deeper than a valid tree: kd_walk reports it */
