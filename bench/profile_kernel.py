@@ -11,7 +11,8 @@ calls `render` (depth only), `render-default` (the default AOVs), `trace` (the
 framing camera's (N, 3) float64 rays, t and prim) or `trace-miss` (the same rays
 turned to miss the tree's box, from origins five times farther out: what a trace
 pays to read its rays and write its hits, with no traversal) or `trace-uniform`
-(2^18 incoherent rays: origins uniform in the box, random directions) for --seconds, and
+(2^18 incoherent rays: origins uniform in the box, random directions) or `count` (the
+camera's rays' crossing counts, kdray.rays) for --seconds, and
 copies every
 executable anonymous mapping of the process (where Intel's runtime puts compiled
 kernels: perf sees them only as "[JIT]" addresses) to --out. It then counts the
@@ -60,7 +61,8 @@ def child(args):
     trace = lambda: tracer.trace(o, d, outputs=())  # noqa: E731
     call = {"render": lambda: tracer.render(camera, aovs=("depth",)),
             "render-default": lambda: tracer.render(camera),
-            "trace": trace, "trace-miss": trace, "trace-uniform": trace}[args.call]
+            "trace": trace, "trace-miss": trace, "trace-uniform": trace,
+            "count": lambda: tracer.count(o, d)}[args.call]
     call()
     call()
     start, calls = time.perf_counter(), 0
@@ -132,7 +134,7 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--mesh", default="bunny")
     p.add_argument("--call", default="render", choices=("render", "render-default", "trace", "trace-miss",
-                                                    "trace-uniform"))
+                                                    "trace-uniform", "count"))
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--out", default="/tmp/kdray-profile")
