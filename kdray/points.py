@@ -142,14 +142,15 @@ def spatial_order(points, lo, hi, sides=None):
     lo = np.asarray(lo, dtype=np.float64)
     scale = (32.0 / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny))
     # float32: half the memory traffic of float64, and fine enough for 32 cells a side
+    x = points.astype(np.float32)
+    code = np.zeros(len(x), dtype=np.uint16)
     with np.errstate(invalid="ignore", over="ignore"):
-        x = points.astype(np.float32)
-        x -= lo.astype(np.float32)           # in place: no temporaries to page in
-        x *= scale.astype(np.float32)
-        q = np.clip(x, 0, 31, out=x).astype(np.uint8)
-    code = np.take(_SPREAD, q[:, 0])
-    code |= np.take(_SPREAD, q[:, 1]) << 1
-    code |= np.take(_SPREAD, q[:, 2]) << 2
+        for k in range(3):
+            # column by column, in place: numpy is slow on rows of three
+            col = x[:, k]
+            col -= np.float32(lo[k])
+            col *= np.float32(scale[k])
+            code |= np.take(_SPREAD, np.clip(col, 0, 31, out=col).astype(np.uint8)) << k
     if sides is not None:
         # the cells' top bits (bit 4 of each axis's cell) are the code's bits 12, 13, 14
         code &= np.uint16(0x0FFF)
