@@ -102,25 +102,22 @@ bool kd_anyP(intP m)
     return (b.x | b.y) != 0;
 }
 
-/* Lane bits of mask m (each lane -1 or 0): bit l set where lane l is. The lanes
- * narrowed to bytes (0xFF or 0) and read as 64-bit words, 8 lanes a word: byte l keeps
- * its bit l (bit 9 l of the word), and the multiply adds shifted copies of the word so
- * that bit 9 l lands on bit 56 + l (9 l + 8 k are distinct for l, k < 8: no carries). A
- * horizontal OR of the lanes (8 dependent steps) was a sixth of some kernels' time. */
-#define KD_BYTE_BITS 0x8040201008040201ul
-#define KD_BYTE_SUM 0x0101010101010101ul
+/* Lane bits of mask m: bit l set where lane l is. */
 KD_INLINE
 uint kd_bitsP(intP m)
 {
 #if KD_PACKET == 16
-    ulong2 w = as_ulong2(convert_uchar16(m));
-    ulong lo = ((w.x & KD_BYTE_BITS) * KD_BYTE_SUM) >> 56;
-    ulong hi = ((w.y & KD_BYTE_BITS) * KD_BYTE_SUM) >> 56;
-    return (uint)(lo | (hi << 8));
+    uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u, 4096u,
+                      8192u, 16384u, 32768u);
+    uintP b = as_uintP(m) & w;
+    uint8 e = b.lo | b.hi;
 #else
-    ulong w = as_ulong(convert_uchar8(m));
-    return (uint)(((w & KD_BYTE_BITS) * KD_BYTE_SUM) >> 56);
+    uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u);
+    uint8 e = as_uintP(m) & w;
 #endif
+    uint4 a = e.lo | e.hi;
+    uint2 c = a.lo | a.hi;
+    return c.x | c.y;
 }
 
 /* The lowest lane set in *bits (lane l: bit l, at least one set), cleared there. */
