@@ -290,10 +290,12 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False)
             return tracer._buffer(array)         # queries.cl takes no offsets: a copy
         return tracer._input_buffer(array)[0]
 
-    # list_rays keeps its slots sorted in place: it reads what it wrote. An output
-    # given as None is not written (NULL).
-    device_out = {name: None if a is None else
-                  tracer._output_buffer(a, read=kernel_name == "list_rays")
+    # Read-write: list_rays keeps its slots sorted in place (it reads what it wrote),
+    # and compilers may turn a kernel's store in a loop into a load before it and a
+    # store after it (Oclgrind's LLVM does, for out[ids[l]] in packet programs), which
+    # reads a write-only buffer. On a CPU the buffers are the host's arrays either way,
+    # elsewhere nothing is copied in. An output given as None is not written (NULL).
+    device_out = {name: None if a is None else tracer._output_buffer(a, read=True)
                   for name, a in outputs.items()}
     exact_args = ()
     if exact:

@@ -927,16 +927,6 @@ uint kd_block_rays(uint b0, uint n_rays, uint image_w, uint *ids)
 
 /* A work-item's rays, a block of KD_WALK_BLOCK at a time: its m rays' indices ids[0 ..
  * m - 1] (kd_block_rays). */
-/* The rays l of a block of m: with one ray a block (no packets), a loop of one trip
- * that compilers unroll, so that no store to an output in it is moved out of a loop as
- * a load and a store (Oclgrind's LLVM did so for out[ids[l]], reading a write-only
- * buffer). */
-#ifdef PACKET
-#define KD_FOR_BLOCK_RAYS(l, m) for (uint l = 0u; l < (m); l++)
-#else
-#define KD_FOR_BLOCK_RAYS(l, m) for (uint l = 0u; l < 1u; l++)
-#endif
-
 #define KD_FOR_ITEM_BLOCKS(ids, m)                                                         \
     uint ids[KD_WALK_BLOCK];                                                               \
     uint m;                                                                                \
@@ -1007,7 +997,7 @@ void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
     KD_FOR_ITEM_BLOCKS(ids, m) {
         KdQuery q[KD_WALK_BLOCK];
         kd_walk_block(KD_ANY, false, KD_WALK_ARGS, ids, m, q);
-        KD_FOR_BLOCK_RAYS(l, m)
+        for (uint l = 0; l < m; l++)
             out[ids[l]] = q[l].fault ? (uchar)2 : (uchar)q[l].n;
     }
 }
@@ -1022,7 +1012,7 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
     KD_FOR_ITEM_BLOCKS(ids, m) {
         KdQuery q[KD_WALK_BLOCK];
         kd_walk_block(KD_COUNT, crossing != 0u, KD_WALK_ARGS, ids, m, q);
-        KD_FOR_BLOCK_RAYS(l, m)
+        for (uint l = 0; l < m; l++)
             out[ids[l]] = q[l].fault ? KD_WALK_FAULT
                         : crossing == KD_WINDING ? (q[l].n > KD_SEEN ? KD_WINDING_RAW
                                                                      : as_uint(q[l].winding))
@@ -1064,7 +1054,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, __global const ulong *off
 {
     KD_FOR_ITEM_BLOCKS(ids, m) {
         KdQuery qs[KD_WALK_BLOCK];
-        KD_FOR_BLOCK_RAYS(l, m) {
+        for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = ids[l];
             ulong at = offsets ? offsets[k] : (ulong)k * cap;
@@ -1074,7 +1064,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, __global const ulong *off
             q->cap = caps ? caps[k] : cap;
         }
         kd_walk_block(KD_LIST, crossing != 0u, KD_WALK_ARGS, ids, m, qs);
-        KD_FOR_BLOCK_RAYS(l, m) {
+        for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = ids[l];
             if (q->fault) {
@@ -1116,7 +1106,7 @@ void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
     KD_FOR_ITEM_BLOCKS(ids, m) {
         KdQuery qs[KD_WALK_BLOCK];
         kd_walk_block(KD_NEAREST, false, KD_WALK_ARGS, ids, m, qs);
-        KD_FOR_BLOCK_RAYS(l, m) {
+        for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = ids[l];
             float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];

@@ -355,6 +355,29 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
         assert (np.bincount(ref_ray, minlength=len(c)) % 2 == c % 2).all()
 
 
+def test_packet_walks_on_every_runtime(runtime):
+    """The queries' packet walks (kd_packet_walk, an image's blocks, the cull) at
+    packets of 8 on every runtime, a simulator's included (a small image of the
+    sphere): the answers of one ray at a time, bit for bit."""
+    mesh = load(SCENES / "sphere.obj")
+    tree = build(mesh.vertices, mesh.faces)
+    one = Tracer(tree, device=runtime.spec, packet=1)
+    o, d = one.camera_rays(camera_for(tree, 16, 12))
+    d = d.reshape(12, 16, 3)
+    lo, hi = ranges(np.random.default_rng(14), d.size // 3, 3.0)
+
+    def answers(tracer):
+        listed = tracer.intersections(o[0], d)
+        near = tracer.trace(o[0], d, lo, hi)
+        return (tracer.count(o[0], d), tracer.occluded(o[0], d, lo, hi), listed.offsets,
+                listed.prim, listed.t, near.t, near.prim)
+
+    want = answers(one)
+    assert want[0].sum() > 50
+    for a, b in zip(answers(Tracer(tree, device=runtime.spec, packet=8)), want):
+        assert np.array_equal(a, b)
+
+
 @pytest.mark.parametrize("packet", [1, None], ids=["one ray", "lanes"])
 def test_a_corrupt_tree_is_reported_not_walked_on(runtime, teapot_tree, packet):
     """A walk that needs more stack than the tree's depth allows, or visits more leaves
