@@ -191,7 +191,7 @@ class _Rays:
         self.n = len(d)
         self.image_w = 0
         self.o, self.d = ray_input.rays32(o, d, self.o_step, tracer._origin, tracer._scale)
-        self._given = (o, d, tracer._origin, tracer._scale)
+        self._given = (o, d)                     # as the caller gave them (`exact`)
         self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
 
     def exact(self, start, stop):
@@ -200,7 +200,7 @@ class _Rays:
         (`_launch`'s exact arguments): the caller's arrays themselves where they are
         float64 and contiguous, which the device reads in place."""
         if not hasattr(self, "_exact"):
-            o, d, _, _ = self._given
+            o, d = self._given
             self._exact = (np.ascontiguousarray(o, dtype=np.float64),
                            np.ascontiguousarray(d, dtype=np.float64))
         o, d = self._exact
@@ -213,16 +213,18 @@ class _Rays:
         return o, self.d[start:stop], self.t_mins[t], self.t_maxs[t]
 
     def subset(self, index):
-        """A _Rays of the rays `index` ((k,) int array) only."""
+        """A _Rays of the rays `index` ((k,) int array, or a slice: views, no copies)
+        only."""
         other = object.__new__(_Rays)
-        other.shape, other.n, other.image_w = (len(index),), len(index), 0
+        other.n = len(self.d[index])
+        other.shape, other.image_w = (other.n,), 0
         other.o_step, other.t_step = self.o_step, self.t_step
         other.o = self.o[index] if self.o_step else self.o
         other.d = self.d[index]
         other.t_mins = self.t_mins[index] if self.t_step else self.t_mins
         other.t_maxs = self.t_maxs[index] if self.t_step else self.t_maxs
-        o, d, origin, scale = self._given
-        other._given = (o[index] if self.o_step else o, d[index], origin, scale)
+        o, d = self._given
+        other._given = (o[index] if self.o_step else o, d[index])
         return other
 
 
@@ -300,8 +302,9 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False)
     exact_args = ()
     if exact:
         # read in place from their page's start, at an offset (list_rays, nearest_rays)
-        (o64, o_at), (d64, d_at) = (tracer._input_buffer(a) for a in rays.exact(start, stop))
-        keep.extend(rays.exact(start, stop))
+        given = rays.exact(start, stop)
+        keep.extend(given)
+        (o64, o_at), (d64, d_at) = map(tracer._input_buffer, given)
         exact_args = (o64, d64, np.uint32(o_at), np.uint32(d_at),
                       *np.asarray(tracer._origin, dtype=np.float64),
                       np.float64(1.0 / tracer._scale))
@@ -623,8 +626,7 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
     if rays.n <= GUESS_CHUNK:
         hits = _listed(tracer, rays, max_hits)
     else:
-        hits = _concatenated([_listed(tracer, rays.subset(np.arange(a, min(a + GUESS_CHUNK, rays.n))),
-                                      max_hits)
+        hits = _concatenated([_listed(tracer, rays.subset(slice(a, a + GUESS_CHUNK)), max_hits)
                               for a in range(0, rays.n, GUESS_CHUNK)])
     hits.t *= np.float32(tracer._scale)      # a power of two: exact
     if double:
