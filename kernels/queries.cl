@@ -548,7 +548,6 @@ void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
     }
 }
 
-#ifdef KD_CULL
 /* A packet's lanes' origins along their shared axes (o[0..2]: kx, ky, kz) and shear
  * constants, least and greatest over its lanes that are on: what kd_walk_culls takes. */
 typedef struct {
@@ -556,6 +555,7 @@ typedef struct {
     float Sx_lo, Sx_hi, Sy_lo, Sy_hi;
 } KdLaneBounds;
 
+#ifdef KD_CULL
 KD_INLINE
 void kd_lane_bounds(const KdPacket *r, intP on, uint first, KdLaneBounds *b)
 {
@@ -664,12 +664,12 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
 
 /* A leaf's hits for count and list, for the packet's lanes in `act`: its triangles one
  * by one (kd_packet_query_tri), those no lane can hit left out KD_PACKET at a time
- * where the packet's lanes share their axes (kd_walk_culls, b not 0). */
+ * where the packet's lanes share their axes (kd_walk_culls, b not NULL). */
 KD_INLINE
 void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const float *tris,
-                          __global const uint *tri_ids, const KdPacket *r, const void *b,
-                          intP act, const RayShear *shear, const KdFP *o, const KdFP *t_min,
-                          const KdFP *t_max, KdQuery *q)
+                          __global const uint *tri_ids, const KdPacket *r,
+                          const KdLaneBounds *b, intP act, const RayShear *shear,
+                          const KdFP *o, const KdFP *t_min, const KdFP *t_max, KdQuery *q)
 {
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
@@ -680,7 +680,7 @@ void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const
             KdFP qv[9];
             kd_gather_tris(tris, first + i0, qv);
             uint keep = kd_bitsP((KD_LANE_INDEX < (intP)((int)m))
-                                 & ~kd_walk_culls(r, (const KdLaneBounds *)b, qv));
+                                 & ~kd_walk_culls(r, b, qv));
             while (keep != 0u)
                 kd_packet_query_tri(query, crossing, first + i0 + kd_take_lane(&keep), tris,
                                     tri_ids, r, act, shear, o, t_min, t_max, q);
@@ -739,7 +739,7 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
         return on;
     kd_packet_shear(&r, on, first, o[0].v, o[1].v, o[2].v, dx.v, dy.v, dz.v, 0.0f, INFINITY);
 
-    const void *bounds = 0;              /* kd_walk_culls' bounds, where it applies */
+    const KdLaneBounds *bounds = 0;      /* kd_walk_culls' bounds, where it applies */
 #ifdef KD_CULL
     KdLaneBounds lane_bounds;
     if (r.uniform) {
