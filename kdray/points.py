@@ -137,8 +137,8 @@ def spatial_order(points, lo, hi, sides=None):
     axis k, which then replaces the top bit of its cell on that axis (the middle's
     cell is computed in float32 and may round the other way): the points of each
     octant, in that order, are one run (`kdray.rays.contains`). Bunny, 2^19 points,
-    Intel's CPU runtime: contains 1.5-1.6x, distance 1.2-1.3x, for 0.04 s of sorting
-    (16-bit keys: numpy's radix sort). Answers do not depend on it."""
+    Intel's CPU runtime: contains 1.5-1.6x, distance 1.2-1.3x, for less sorting time
+    than it saves (16-bit keys: numpy's radix sort). Answers do not depend on it."""
     lo = np.asarray(lo, dtype=np.float64)
     scale = (32.0 / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny))
     # float32: half the memory traffic of float64, and fine enough for 32 cells a side
@@ -443,32 +443,28 @@ def signed(tracer, points, sign, max_distance=np.inf, precision="single"):
 
 def closed_cycle(tree):
     """Whether the tree's triangles form a closed, consistently oriented surface: each
-    directed edge (vertices welded where their float32 coordinates are equal) appears
-    as often as its reverse, so that every ray's crossings, summed with their facings,
-    give the winding number of its origin."""
-    f = _welded(tree)
-    a = f.reshape(-1)
-    b = f[:, [1, 2, 0]].reshape(-1)
-    n = int(f.max()) + 1 if f.size else 1
+    directed edge (`_directed_edges`) appears as often as its reverse, so that every
+    ray's crossings, summed with their facings, give the winding number of its origin."""
+    a, b, n = _directed_edges(tree)
     return bool(np.array_equal(np.sort(a * n + b), np.sort(b * n + a)))
 
 
-def _welded(tree):
-    """(m, 3) int64: the tree's triangles by vertex, vertices welded where their float32
-    coordinates are equal."""
+def _directed_edges(tree):
+    """(a, b, n): the tree's triangles' directed edges a[i] -> b[i] ((3m,) int64 vertex
+    ids, three a triangle, vertices welded where their float32 coordinates are equal)
+    and n, above every id, so that a * n + b is an edge's key."""
     tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3)
     _, vid = np.unique(tris.view(np.dtype((np.void, 12))).ravel(), return_inverse=True)
-    return vid.reshape(-1, 3).astype(np.int64)
+    f = vid.reshape(-1, 3).astype(np.int64)
+    n = int(f.max()) + 1 if f.size else 1
+    return f.reshape(-1), f[:, [1, 2, 0]].reshape(-1), n
 
 
 def open_edges(tree):
     """The number of edges of the tree's triangles not shared by exactly two triangles
     in opposite directions (vertices welded where their float32 coordinates are equal):
     0 for a closed, consistently oriented mesh."""
-    f = _welded(tree)
-    a = f.reshape(-1)
-    b = f[:, [1, 2, 0]].reshape(-1)
-    n = int(f.max()) + 1 if f.size else 1
+    a, b, n = _directed_edges(tree)
     directed = np.unique(a * n + b)
     reverse = np.isin(b * n + a, directed)
     # an edge is closed when its reverse is there too; count each open undirected edge once
