@@ -239,14 +239,6 @@ float kd_tie(float e, float qy_py, float px_qx)
 #define KD_EDGE_SURE(e, p, q) \
     (kd_abs(e) > 0x1p-22f * (kd_abs(p) + kd_abs(q)) + 0x1p-126f)
 
-/* Intersect the ray (o, shear) with triangle `tri` (p0, p1, p2), all relative to the
- * tree's origin. On a hit with t_min < t < t_max that comes before (t_best,
- * tri_best), write t, u, v and return true.
- * crossing: the count's rule (queries.cl): the edge functions' signs are exact (from
- * double where the device has it) and one that is exactly 0 takes kd_tie's sign, so a
- * point of an edge or a vertex shared by consistently oriented triangles is hit in
- * exactly one of them; else a point on an edge is hit in every triangle that has it
- * (the nearest hit's rule: no ray leaks between triangles). */
 /* The triangle (p0, p1, p2) in the ray's sheared frame (ray_shear, o its origin):
  * declares Az, Bz, Cz (unscaled z: scaled later, only for candidate hits) and Ax, Ay,
  * Bx, By, Cx, Cy (sheared), floats, written once for intersect_triangle and those that
@@ -263,6 +255,14 @@ float kd_tie(float e, float qy_py, float px_qx)
     float Cx = kd_comp(C, (s)->kx) - (s)->Sx * Cz;                                         \
     float Cy = kd_comp(C, (s)->ky) - (s)->Sy * Cz;
 
+/* Intersect the ray (o, shear) with triangle `tri` (p0, p1, p2), all relative to the
+ * tree's origin. On a hit with t_min < t < t_max that comes before (t_best,
+ * tri_best), write t, u, v and return true.
+ * crossing: the count's rule (queries.cl): the edge functions' signs are exact (from
+ * double where the device has it) and one that is exactly 0 takes kd_tie's sign, so a
+ * point of an edge or a vertex shared by consistently oriented triangles is hit in
+ * exactly one of them; else a point on an edge is hit in every triangle that has it
+ * (the nearest hit's rule: no ray leaks between triangles). */
 KD_INLINE
 bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2, uint tri,
                         float t_min, float t_max, float t_best, uint tri_best,
