@@ -36,6 +36,7 @@ from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
 from .points import SORT_FROM, check_points, spatial_order, take_rows
+from .ray_order import ray_order
 from .tree import object_ids
 
 
@@ -308,11 +309,14 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False)
         exact_args = (o64, d64, np.uint32(o_at), np.uint32(d_at),
                       *np.asarray(tracer._origin, dtype=np.float64),
                       np.float64(1.0 / tracer._scale))
-    # an image's blocks only where the launch takes all its rays
+    # an image's blocks only where the launch takes all its rays; other rays in no
+    # order of their own taken in one (kdray.ray_order)
     image_w = rays.image_w if (start, stop) == (0, rays.n) else 0
+    order = None if image_w else ray_order(o, d, *tracer.tree.bounds, rays.o_step,
+                                           tracer.device_bytes)
     args = (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
             np.uint32(tracer._n_nodes), inp(o), inp(d), np.uint32(rays.o_step), inp(t_mins),
-            inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), np.uint32(image_w),
+            inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), np.uint32(image_w), inp(order),
             *map(inp, extra), *exact_args, *device_out.values())
     items = -(-n // entry["run"])
     if image_w:

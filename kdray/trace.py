@@ -51,6 +51,7 @@ from .host import PAGE, check_host_memory, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_sizes,
                      device_triangles, triangle_blocks)
 from .ray_grid import grid_width
+from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import object_ids
 from .validate import check_float32, whole_or_none
@@ -663,13 +664,19 @@ class Tracer:
             per_launch -= per_launch % (image_w * band_rows)
         else:
             image_w = 0
+        box = self.tree.world_box() if rays_world else self.tree.bounds
         for start in range(0, n, per_launch):
             stop = min(n, start + per_launch)
             slots = stop - start
             if image_w:
                 rows = slots // image_w
                 slots = -(-image_w // 4) * -(-rows // band_rows) * self.packet
-            o_buf, o_offset = self._input_buffer(o[start:stop] if o_step else o)
+            o_part = o[start:stop] if o_step else o
+            # rays in no order of their own are taken in one (kdray.ray_order)
+            order = None if image_w else ray_order(o_part, d[start:stop], *box, o_step,
+                                                  self.device_bytes)
+            order_buf = None if order is None else self._input_buffer(order)[0]
+            o_buf, o_offset = self._input_buffer(o_part)
             d_buf, d_offset = self._input_buffer(d[start:stop])
             # with world rays the kernel takes the tree's origin and shifts them itself
             origin = tuple(np.float64(x) for x in self._origin) if rays_world else ()
@@ -677,7 +684,7 @@ class Tracer:
             self._launch("trace_rays", outputs, slots,
                          (o_buf, d_buf, np.uint32(o_offset), np.uint32(d_offset),
                           np.uint32(o_step), np.uint32(stop - start), np.uint32(image_w),
-                          *t32,
+                          order_buf, *t32,
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
                          rays_world=rays_world, while_running=while_running,

@@ -872,7 +872,8 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
     __global const float *bounds, uint n_nodes, __global const float *origins,             \
     __global const float *directions, uint o_step, __global const float *t_mins,          \
-    __global const float *t_maxs, uint t_step, uint n_rays, uint image_w
+    __global const float *t_maxs, uint t_step, uint n_rays, uint image_w,                 \
+    __global const uint *order
 
 /* Rays walked together: a packet program's work-item's RUN (kd_lanes_walk), else one. */
 #ifdef PACKET
@@ -890,14 +891,15 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
 #endif
 
 /* The rays of block b0 / KD_WALK_BLOCK of this work-item into ids[0 .. m - 1]; returns
- * m (0: none left). Rays in rows (image_w 0): RUN consecutive rays from
- * get_global_id(0) * RUN, KD_WALK_BLOCK at a time. An image of image_w columns
+ * m (0: none left). Rays in rows (image_w 0): RUN consecutive slots from
+ * get_global_id(0) * RUN, KD_WALK_BLOCK at a time, slot j holding ray j, or ray
+ * order[j] where an order is given (NULL: none; kdray/ray_order.py). An image of image_w columns
  * (n_rays / image_w rows; KD_IMAGE_BLOCKS): a work-item's RUN rays are its band of
  * KD_BAND_W columns by KD_PACKET / 4 rows, packet p (KD_PACKET rays in ids) its
  * columns 4p .. 4p + 3 (lane l: column + l % 4, row + l / 4), the pixels outside the
  * image left out. */
 KD_INLINE
-uint kd_block_rays(uint b0, uint n_rays, uint image_w, uint *ids)
+uint kd_block_rays(uint b0, uint n_rays, uint image_w, __global const uint *order, uint *ids)
 {
 #ifdef KD_IMAGE_BLOCKS
     if (image_w) {
@@ -921,7 +923,7 @@ uint kd_block_rays(uint b0, uint n_rays, uint image_w, uint *ids)
         return 0u;
     uint m = min((uint)KD_WALK_BLOCK, min(n_rays - first, (uint)RUN - b0));
     for (uint l = 0u; l < m; l++)
-        ids[l] = first + l;
+        ids[l] = order ? order[first + l] : first + l;
     return m;
 }
 
@@ -931,7 +933,7 @@ uint kd_block_rays(uint b0, uint n_rays, uint image_w, uint *ids)
     uint ids[KD_WALK_BLOCK];                                                               \
     uint m;                                                                                \
     for (uint b0 = 0u; b0 < RUN; b0 += KD_WALK_BLOCK)                                      \
-        if ((m = kd_block_rays(b0, n_rays, image_w, ids)) == 0u)                           \
+        if ((m = kd_block_rays(b0, n_rays, image_w, order, ids)) == 0u)                    \
             break;                                                                         \
         else
 
@@ -988,7 +990,7 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
 }
 
 #define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes, origins, directions, o_step,   \
-    t_mins, t_maxs, t_step, n_rays, image_w
+    t_mins, t_maxs, t_step, n_rays, image_w, order
 
 /* out[k]: 1 when ray k hits anything with t_min < t < t_max, else 0; 2 on a fault. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES

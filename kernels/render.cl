@@ -590,6 +590,8 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
  * multiple of it) and, with PACKET, a packet is a block of 4 x KD_PACKET / 4 of them,
  * as render_camera's (closer together than a row of KD_PACKET); its lanes past the
  * image's right or bottom edge are left out. Without PACKET it changes nothing.
+ * order: NULL, or slot k takes ray order[k] (a permutation of the n_rays rays, image_w
+ * 0: kdray/ray_order.py), its outputs written at its own index k.
  *
  * The slots of a batch a work-item takes: with item_runs (CPU devices) one run of
  * BATCH_SIZE / LOCAL_SIZE in a row, so that a group, whose work-items PoCL runs one
@@ -602,7 +604,8 @@ __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_VEC_HINT
 void trace_rays(KD_TREE_ARGS,
                 __global const KD_ORIGIN_T *origins, __global const KD_DIRECTION_T *directions,
                 uint o_offset, uint d_offset,
-                uint o_step, uint n_rays, uint image_w, float t_min, float t_max,
+                uint o_step, uint n_rays, uint image_w, __global const uint *order,
+                float t_min, float t_max,
                 uint item_runs KD_ORIGIN_PARAMS, __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
     origins += o_offset;
@@ -660,7 +663,7 @@ void trace_rays(KD_TREE_ARGS,
                     first_ray = row0 * image_w + col0;
                     row_stride = image_w;
                 }
-            } else if (n_rays - k0 >= KD_PACKET) {
+            } else if (n_rays - k0 >= KD_PACKET && !order) {
                 row_stride = 4u;
             }
             if (row_stride) {
@@ -683,6 +686,8 @@ void trace_rays(KD_TREE_ARGS,
                         k = row * image_w + col;
                         inside = col < image_w && row < n_rows;
                     }
+                    if (inside && order)
+                        k = order[k];
                     if (inside) {
                         o[count] = KD_RAY_ORIGIN(origins, (size_t)k * o_step);
                         d[count] = kd_ray_direction(directions, k);
@@ -696,9 +701,10 @@ void trace_rays(KD_TREE_ARGS,
             trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, false, t_min, t_max, KD_TREE_PASS,
                                    KD_OUTPUT_PASS, idx.s, row_stride KD_TRACE_EXACT);
 #else
-            float3 o = KD_RAY_ORIGIN(origins, (size_t)k0 * o_step);
-            float3 d = kd_ray_direction(directions, k0);
-            trace_and_store(o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, k0
+            uint k = order ? order[k0] : k0;
+            float3 o = KD_RAY_ORIGIN(origins, (size_t)k * o_step);
+            float3 d = kd_ray_direction(directions, k);
+            trace_and_store(o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, k
                             KD_TRACE_EXACT);
 #endif
         }

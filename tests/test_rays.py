@@ -252,7 +252,8 @@ def test_contains_on_grids_through_vertices(runtime):
 def test_queries_do_not_depend_on_work_sizes_or_packets(runtime, teapot_tree, monkeypatch):
     """Work sizes, rays a work-item, and packet programs (a leaf tested a packet's
     width of triangles at a time, PoCL's plain vector operations too) give the same
-    answers bit for bit, per-ray trace included."""
+    answers bit for bit, per-ray trace included, and so do the rays taken in an order
+    (kdray.ray_order)."""
     tree = teapot_tree
     o, d = random_rays(tree, runtime.small(777, 33), seed=9)
     lo, hi = ranges(np.random.default_rng(10), len(o), 0.5)
@@ -278,6 +279,18 @@ def test_queries_do_not_depend_on_work_sizes_or_packets(runtime, teapot_tree, mo
         other._plain_vector_ops = plain or other._plain_vector_ops
         for a, b in zip(answers(other), want):
             assert np.array_equal(a, b), opts
+    # rays in no order of their own taken in one (kdray.ray_order, forced here for a
+    # small tree): each ray's answers read and written through it
+    import kdray.ray_order as ray_order
+    monkeypatch.setattr(ray_order, "ORDER_FROM", 1)
+    monkeypatch.setattr(ray_order, "ORDER_TREE_BYTES", 0)
+    monkeypatch.setattr(krays, "RUN_CPU", 21)
+    assert ray_order.ray_order(o, d, *teapot_tree.world_box()) is not None
+    for packet in [1] + ([] if runtime.simulator else list(PACKETS)):
+        other = Tracer(tree, device=runtime.spec, packet=packet)
+        other._poison_outputs = True
+        for a, b in zip(answers(other), want):
+            assert np.array_equal(a, b), ("ordered", packet)
 
 
 def far_corner(v, f):

@@ -496,3 +496,32 @@ def test_packet_kernels_say_they_are_vectorized_by_hand(runtime, packet, tmp_pat
         declared = attributes.replace(" ", "")
         assert (f"vec_type_hint(float{packet})" in declared
                 or "vec_type_hint(floatP)" in declared), attributes
+
+
+@pytest.mark.parametrize("packet", [1, *PACKETS])
+def test_rays_taken_in_an_order_give_the_same_hits(runtime, monkeypatch, packet):
+    """Rays in no order of their own, traced in an order (kdray.ray_order: trace_rays
+    reads each ray and writes its outputs through it), give bit for bit the hits of
+    the same rays taken as they come, in packets and one a work-item, at a count that
+    leaves a packet short; and the order is taken."""
+    import kdray.ray_order as ray_order
+    import kdray.trace as trace
+    tree = scene_tree("soup")
+    o, d = rays(runtime, tree, 4001, 307, seed=23)
+    order = np.random.default_rng(24).permutation(len(o))
+    o, d = o[order], d[order]                    # the split-plane rays among the others
+    tr = Tracer(tree, device=runtime.spec, packet=packet)
+    tr._poison_outputs = True
+    base = tr.trace(o, d)
+    taken = []
+
+    def spy(*args):
+        taken.append(ray_order.ray_order(*args))
+        return taken[-1]
+
+    monkeypatch.setattr(ray_order, "ORDER_FROM", 1)
+    monkeypatch.setattr(ray_order, "ORDER_TREE_BYTES", 0)
+    monkeypatch.setattr(trace, "ray_order", spy)
+    same_hits(tr.trace(o, d), base)
+    assert len(taken) == 1 and taken[0] is not None
+    assert np.array_equal(np.sort(taken[0]), np.arange(len(o)))

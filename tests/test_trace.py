@@ -343,6 +343,90 @@ def test_rays_on_their_own_paths_equal_single_rays(kind, setting, tracers):
     assert 0.2 * len(d) < np.count_nonzero(a.hit) < 0.9 * len(d)
 
 
+@pytest.mark.parametrize("packet", [1, *PACKETS])
+def test_rays_in_no_order_are_taken_in_one_with_the_same_hits(monkeypatch, packet, tracers):
+    """Rays in no order of their own through a tree (kdray.ray_order, forced here for a
+    small tree) are traced in the order of their octant and origin's cell, each ray's
+    outputs written at its own index: bit for bit the hits taken as they come, with
+    every output (each hit refined from the caller's rays, read through the order),
+    within a t range, from one origin, from float32 arrays; every kind of ray mixed in
+    (shuffled) and a count that leaves a packet short."""
+    import kdray.ray_order as ray_order
+    tree = mesh_tree("teapot.obj", "sah")
+    o, d = packet_rays(tree, camera_size=19)
+    shuffle = np.random.default_rng(33).permutation(len(d))
+    o, d = o[shuffle][:-3], d[shuffle][:-3]
+    tr = tracers(tree, packet=packet)
+    if packet > 1 and tr.packet != packet:
+        pytest.skip("no such packets on this device")
+    one = o[0] if np.isfinite(o[0]).all() else tree.world_box()[0] - 1.0
+    span = float(np.linalg.norm(np.subtract(*tree.world_box())))
+    cases = [(o, d, 0.0, np.inf), (o, d, 0.2 * span, 0.7 * span), (one, d, 0.0, np.inf),
+             (o.astype(np.float32), d.astype(np.float32), 0.0, np.inf)]
+    outputs = ("t", "prim", "u", "v", "normal")
+    plain = [tr.trace(a, b, t0, t1, outputs=("uv", "normal")) for a, b, t0, t1 in cases]
+    taken = []
+
+    def spy(*args):
+        taken.append(ray_order.ray_order(*args))
+        return taken[-1]
+
+    monkeypatch.setattr(ray_order, "ORDER_FROM", 1)
+    monkeypatch.setattr(ray_order, "ORDER_TREE_BYTES", 0)
+    monkeypatch.setattr(ktrace, "ray_order", spy)
+    tr._poison_outputs = True
+    try:
+        for (a, b, t0, t1), want in zip(cases, plain):
+            got = tr.trace(a, b, t0, t1, outputs=("uv", "normal"))
+            for field in outputs:
+                assert np.array_equal(getattr(got, field), getattr(want, field),
+                                      equal_nan=True), (field, t0)
+    finally:
+        tr._poison_outputs = False
+    assert len(taken) == len(cases) and all(t is not None for t in taken)
+    assert 0.2 * len(d) < np.count_nonzero(plain[0].hit) < 0.9 * len(d)
+
+
+def test_which_rays_are_put_in_order():
+    """kdray.ray_order: random rays and ambient-occlusion-like rays (points in turn,
+    random directions) are in no order of their own and are sorted by octant, then by
+    the Morton code of the origin's cell; a camera's rows, a lidar's sweep from one
+    point and rays in order of octant are left as they come, as are too few rays and
+    small trees; the order is a permutation, stable within a key."""
+    import kdray.ray_order as ro
+    from kdray import Camera
+    rng = np.random.default_rng(41)
+    lo, hi = np.zeros(3), np.array([2.0, 1.0, 4.0])
+    n = ro.ORDER_FROM + 77
+    o = lo + (hi - lo) * rng.random((n, 3))
+    d = rng.normal(size=(n, 3))
+    order = ro.ray_order(o, d, lo, hi, 1, tree_bytes=ro.ORDER_TREE_BYTES)
+    assert order is not None and order.dtype == np.uint32
+    assert np.array_equal(np.sort(order), np.arange(n))
+    key = ro.ray_keys(o, d, lo, hi)
+    assert np.all(np.diff(key[order].astype(np.int64)) >= 0)
+    same = key[order][1:] == key[order][:-1]
+    assert np.all(np.diff(order.astype(np.int64))[same] > 0)       # stable
+    octant = (d[:, 0] < 0) + 2 * (d[:, 1] < 0) + 4 * (d[:, 2] < 0)
+    assert np.array_equal(key >> 12, octant)
+    cell = np.clip(((o - lo) / (hi - lo) * 16).astype(int), 0, 15)
+    for k in range(3):                          # bit b of axis k's cell at bit 3 b + k
+        for b in range(4):
+            assert np.array_equal((key >> (3 * b + k)) & 1, (cell[:, k] >> b) & 1)
+    # points in turn (a mesh's triangles in order), random directions
+    walk = np.repeat(lo + (hi - lo) * rng.random((n // 8 + 1, 3)), 8, axis=0)[:n]
+    assert ro.ray_order(walk, d, lo, hi) is not None
+    assert ro.ray_order(o, d, lo, hi, 1, tree_bytes=ro.ORDER_TREE_BYTES - 1) is None
+    assert ro.ray_order(o[:ro.ORDER_FROM - 1], d[:ro.ORDER_FROM - 1], lo, hi) is None
+    # a camera's rows, a sweep from one point, rays already in order: as they come
+    co, cd = Camera.frame(lo, hi, 160, 120).rays()
+    assert ro.ray_order(co, cd, lo, hi) is None
+    angle = np.linspace(0, 2 * np.pi, n)
+    sweep = np.stack([np.cos(angle), np.sin(angle), 0.1 * np.ones(n)], axis=1)
+    assert ro.ray_order(np.array([[1.0, 0.5, 2.0]]), sweep, lo, hi, 0) is None
+    assert ro.ray_order(o[order], d[order], lo, hi) is None
+
+
 def reversed_leaves(tree):
     """The same tree with every leaf's triangle list reversed (a valid tree, the same
     hits): the device's copies of each leaf then come in the other order."""
