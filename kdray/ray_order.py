@@ -1,38 +1,39 @@
-"""The order in which trace_rays takes rays that share no path through the tree.
+"""The order in which trace_rays and the ray queries take rays that share no path
+through the tree.
 
 Rays that come in no order (origins anywhere, directions anywhere: inside tests, ambient
 occlusion, a user's own rays) are traced each on its own path (kernels/lanes_trace.cl),
 and a work-item's rays then meet nodes and triangles that the rays before them left in
 no cache. Taken grouped by their direction's octant and, within it, in Morton order of
-their origin's cell in a 16^3 grid over the scene's box, neighbouring rays start close
-together and head the same way: their walks share nodes and triangles in the caches,
-and more packets are traced as packets (one origin or close origins, one octant).
+the cell of a 16^3 grid over the scene's box where they enter it (kernels/ray_order.cl),
+neighbouring rays enter close together and head the same way: their walks share nodes
+and triangles in the caches, and more packets are traced as packets.
 
 `ray_order` decides from a sample whether the rays are in no such order already (a
 camera's rows, a lidar's sweep, rays from one point in turn are), and gives the order
-or None. trace_rays reads the rays through the order and writes each ray's outputs at
-its own index: no ray's hit depends on it, only the time (tests/test_trace.py).
+or None. The kernels read slot j's ray through order[j] and write its outputs at its
+own index: no ray's answer depends on it, only the time (tests/test_trace.py).
 """
 import numpy as np
 
 from .host import page_aligned_empty
-from .points import morton_code
 
 ORDER_FROM = 1 << 14
 """Rays from which a trace considers ordering them (below, a few milliseconds' trace
 has little cache to lose)."""
 
 ORIGIN_BITS = 4
-"""A side of the origins' grid: 2^ORIGIN_BITS cells, so the key (octant and cell) fits
-in 15 bits, which numpy sorts by radix."""
+"""A side of the entry points' grid: 2^ORIGIN_BITS cells (kernels/ray_order.cl has 16),
+so the key (octant and cell) fits in 15 bits, which numpy sorts by radix."""
 
-ORDER_TREE_BYTES = 32 << 20
+ORDER_TREE_BYTES = 16 << 20
 """Trees on the device from which rays in no order are ordered (nodes, triangles and
-their ids: `Tracer.device_bytes`). The order costs the host about 18 ms a million
-rays, and the kernel as much again to read the rays and write their hits out of
-memory order, which a tree that the caches mostly hold does not win back (Zen 4 VM,
-2026-12-05, 2^20 rays, trace's time ordered / not: bunny, 4 MB, 1.13 for uniform
-rays; bunny-1.6M, 90 MB: uniform 0.94, ambient-occlusion rays 0.65)."""
+their ids: `Tracer.device_bytes`). The order costs its keys and their sort, and the
+kernel more time to read the rays and write their hits out of memory order, which a
+tree that the caches mostly hold does not win back: 2^20 rays on the Zen 4 VM (32 MB
+of L3) trace in 0.99-1.16 of their time as they come through the bunny's 4.7 MB,
+0.83-0.87 through bunny-x4's 19 MB (BENCHMARKS.md, "Incoherent rays")."""
+
 
 SAMPLE_RUNS, SAMPLE_RUN = 32, 16
 """The sample `ray_order` decides on: SAMPLE_RUNS runs of SAMPLE_RUN consecutive rays,
@@ -45,18 +46,33 @@ in a camera's rows or a lidar's sweep, none in rays already in order."""
 
 
 def ray_keys(origins, directions, lo, hi, o_step=1):
-    """(N,) uint16: each ray's octant (bit k: direction's component k is negative) in
-    bits 12-14 over the Morton code of its origin's cell (`morton_code`, 2^ORIGIN_BITS
-    cells a side over the box lo .. hi) in bits 0-11. origins (M, 3), directions
-    (N, 3): any float type, in the box's coordinates; o_step 0: one origin for all
-    (M = 1, cell 0)."""
-    d = directions
-    key = (d[:, 0] < 0).view(np.uint8).astype(np.uint16) << 12
-    key |= (d[:, 1] < 0).view(np.uint8).astype(np.uint16) << 13
-    key |= (d[:, 2] < 0).view(np.uint8).astype(np.uint16) << 14
-    if o_step:
-        key |= morton_code(origins, lo, hi, ORIGIN_BITS)
+    """(N,) uint16, in numpy (float64): kernels/ray_order.cl's keys (`device_keys`) of
+    rays origins (M, 3), directions (N, 3) (o_step 0: one origin for all, M = 1) over
+    the box lo .. hi, in one frame: each ray's octant (bit 12 + k: its direction's
+    component k is negative) over the Morton code of the cell of a 16^3 grid over the
+    box where the ray enters it (the origin, for a ray that starts inside). The kernel
+    computes in float: a key may differ where the entry lies within rounding of a
+    cell's side."""
+    lo = np.asarray(lo, dtype=np.float64)
+    size = np.asarray(hi, dtype=np.float64) - lo
+    d = np.asarray(directions, dtype=np.float64)
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)[:len(d) if o_step else 1] - lo
+    side = float(1 << ORIGIN_BITS)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        near = (np.where(d < 0, size, 0.0) - o) / d
+        t = np.fmax(np.fmax.reduce(near, axis=1), 0.0)        # fmax drops NaN
+        cells = (o + t[:, None] * d) * (side / size)
+    cell = np.where(cells >= side - 1, side - 1, np.where(cells > 0, cells, 0)).astype(np.uint16)
+    key = np.zeros(len(d), dtype=np.uint16)
+    for k in range(3):
+        key |= _SPREAD4[cell[:, k]] << np.uint16(k)
+        key |= (d[:, k] < 0).astype(np.uint16) << np.uint16(12 + k)
     return key
+
+
+_SPREAD4 = np.array([sum(((i >> b) & 1) << (3 * b) for b in range(ORIGIN_BITS))
+                     for i in range(1 << ORIGIN_BITS)], dtype=np.uint16)
+"""_SPREAD4[i]: the bits of a cell's index i spread to every third bit."""
 
 
 def unordered(origins, directions, lo, hi, o_step=1):
@@ -72,13 +88,46 @@ def unordered(origins, directions, lo, hi, o_step=1):
     return float(np.mean(keys[:, 1:] < keys[:, :-1])) > UNORDERED_SHARE
 
 
-def ray_order(origins, directions, lo, hi, o_step=1, tree_bytes=ORDER_TREE_BYTES):
-    """None, or the (N,) uint32 order in which to trace rays that are in no order of
-    their own (`unordered`) through a tree of tree_bytes on the device (at least
-    ORDER_TREE_BYTES): by `ray_keys`, stable (numpy's radix sort of 16-bit keys)."""
-    if tree_bytes < ORDER_TREE_BYTES or not unordered(origins, directions, lo, hi, o_step):
+def device_keys(tracer, origins, directions, lo, hi, o_step=1):
+    """(N,) uint16: `ray_keys` of the rays, computed on the tracer's device
+    (kernels/ray_order.cl): origins (M, 3) and directions (N, 3), float32 or float64
+    arrays as the kernels read them, read in place on a CPU."""
+    n = len(directions)
+    types = {"ORIGIN_T": _C_TYPE[np.dtype(origins.dtype)],
+             "DIRECTION_T": _C_TYPE[np.dtype(directions.dtype)]}
+    entry = tracer._built("ray_order.cl", types, ("ray_keys",))
+    keys = page_aligned_empty((n,), np.uint16)
+    o_buf, o_at = tracer._input_buffer(np.ascontiguousarray(origins))
+    d_buf, d_at = tracer._input_buffer(np.ascontiguousarray(directions))
+    out = {"keys": tracer._output_buffer(keys)}
+    lo = np.asarray(lo, dtype=np.float64)
+    size = np.asarray(hi, dtype=np.float64) - lo
+    local = min(KEYS_LOCAL, int(tracer.device.max_work_group_size))
+    items = -(-n // local) * local
+    tracer._enqueue(entry, "ray_keys", items, local,
+                    (o_buf, d_buf, np.uint32(o_at), np.uint32(d_at), np.uint32(o_step),
+                     np.uint32(n), *lo.astype(np.float32), *size.astype(np.float32),
+                     out["keys"]))
+    tracer._read_outputs(out, {"keys": keys})
+    return keys
+
+
+_C_TYPE = {np.dtype(np.float32): "float", np.dtype(np.float64): "double"}
+
+KEYS_LOCAL = 64
+"""ray_keys' work-group size (one ray a work-item)."""
+
+
+def ray_order(tracer, origins, directions, lo, hi, o_step=1):
+    """None, or the (N,) uint32 order in which to trace rays (origins (M, 3),
+    directions (N, 3), as the kernels read them, in the frame of the box lo .. hi)
+    that are in no order of their own (`unordered`) through the tracer's tree, when
+    it takes ORDER_TREE_BYTES or more on the device (`Tracer.device_bytes`): by their
+    keys (`device_keys`), stable (numpy's radix sort of 16-bit keys)."""
+    if tracer.device_bytes < ORDER_TREE_BYTES or not unordered(origins, directions, lo, hi,
+                                                               o_step):
         return None
-    key = ray_keys(origins, directions, lo, hi, o_step)
+    key = device_keys(tracer, origins, directions, lo, hi, o_step)
     order = page_aligned_empty((len(key),), np.uint32)    # read in place (trace.py)
     order[:] = np.argsort(key, kind="stable")
     return order

@@ -673,8 +673,7 @@ class Tracer:
                 slots = -(-image_w // 4) * -(-rows // band_rows) * self.packet
             o_part = o[start:stop] if o_step else o
             # rays in no order of their own are taken in one (kdray.ray_order)
-            order = None if image_w else ray_order(o_part, d[start:stop], *box, o_step,
-                                                  self.device_bytes)
+            order = None if image_w else ray_order(self, o_part, d[start:stop], *box, o_step)
             order_buf = None if order is None else self._input_buffer(order)[0]
             o_buf, o_offset = self._input_buffer(o_part)
             d_buf, d_offset = self._input_buffer(d[start:stop])

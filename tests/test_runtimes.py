@@ -503,7 +503,7 @@ def test_rays_taken_in_an_order_give_the_same_hits(runtime, monkeypatch, packet)
     """Rays in no order of their own, traced in an order (kdray.ray_order: trace_rays
     reads each ray and writes its outputs through it), give bit for bit the hits of
     the same rays taken as they come, in packets and one a work-item, at a count that
-    leaves a packet short; and the order is taken."""
+    leaves a packet short; and the order is taken, by the keys numpy computes."""
     import kdray.ray_order as ray_order
     import kdray.trace as trace
     tree = scene_tree("soup")
@@ -525,3 +525,7 @@ def test_rays_taken_in_an_order_give_the_same_hits(runtime, monkeypatch, packet)
     same_hits(tr.trace(o, d), base)
     assert len(taken) == 1 and taken[0] is not None
     assert np.array_equal(np.sort(taken[0]), np.arange(len(o)))
+    # its keys (kernels/ray_order.cl) are numpy's but where float rounds otherwise
+    lo, hi = tree.world_box()
+    keys = ray_order.device_keys(tr, o, d, lo, hi)
+    assert np.mean(keys == ray_order.ray_keys(o, d, lo, hi)) > 0.99

@@ -387,44 +387,78 @@ def test_rays_in_no_order_are_taken_in_one_with_the_same_hits(monkeypatch, packe
     assert 0.2 * len(d) < np.count_nonzero(plain[0].hit) < 0.9 * len(d)
 
 
-def test_which_rays_are_put_in_order():
-    """kdray.ray_order: random rays and ambient-occlusion-like rays (points in turn,
-    random directions) are in no order of their own and are sorted by octant, then by
-    the Morton code of the origin's cell; a camera's rows, a lidar's sweep from one
-    point and rays in order of octant are left as they come, as are too few rays and
-    small trees; the order is a permutation, stable within a key."""
+def test_which_rays_are_put_in_order(tracers):
+    """kdray.ray_order: random rays, rays from outside the box and ambient-occlusion-like
+    rays (points in turn, random directions) are in no order of their own and are
+    sorted by octant, then by the Morton code of the cell where they enter the box (the
+    origin's, inside it); a camera's rows, a lidar's sweep from one point and rays
+    already in order are left as they come, as are too few rays and small trees. The
+    order is a permutation, stable within a key; the device's keys are numpy's but
+    where an entry lies within float rounding of a cell's side."""
     import kdray.ray_order as ro
     from kdray import Camera
+    tree = mesh_tree("teapot.obj", "sah")
+    tr = tracers(tree)
     rng = np.random.default_rng(41)
-    lo, hi = np.zeros(3), np.array([2.0, 1.0, 4.0])
+    lo, hi = tree.world_box()
     n = ro.ORDER_FROM + 77
     o = lo + (hi - lo) * rng.random((n, 3))
     d = rng.normal(size=(n, 3))
-    order = ro.ray_order(o, d, lo, hi, 1, tree_bytes=ro.ORDER_TREE_BYTES)
-    assert order is not None and order.dtype == np.uint32
-    assert np.array_equal(np.sort(order), np.arange(n))
+    o[::4] = 0.5 * (lo + hi) + 4 * (hi - lo) * rng.normal(size=(len(o[::4]), 3))
+    d[::4] = lo + (hi - lo) * rng.random((len(o[::4]), 3)) - o[::4]    # into the box
+    d[5], d[6], o[7] = [0.0, 1.0, 0.0], [0.0, 0.0, 0.0], np.nan      # axis, zero, NaN
     key = ro.ray_keys(o, d, lo, hi)
-    assert np.all(np.diff(key[order].astype(np.int64)) >= 0)
-    same = key[order][1:] == key[order][:-1]
-    assert np.all(np.diff(order.astype(np.int64))[same] > 0)       # stable
     octant = (d[:, 0] < 0) + 2 * (d[:, 1] < 0) + 4 * (d[:, 2] < 0)
     assert np.array_equal(key >> 12, octant)
-    cell = np.clip(((o - lo) / (hi - lo) * 16).astype(int), 0, 15)
+    with np.errstate(all="ignore"):
+        t = np.max(np.where(d < 0, hi - o, lo - o) / d, axis=1, initial=0.0)
+        entry = o + np.where(np.isfinite(t), t, 0.0)[:, None] * d
+        cell = np.clip(((entry - lo) / (hi - lo) * 16), 0, 15)
+    inside = np.all((o >= lo) & (o <= hi), axis=1)
+    cell = np.where(np.isfinite(cell), cell, 0).astype(int)
     for k in range(3):                          # bit b of axis k's cell at bit 3 b + k
         for b in range(4):
-            assert np.array_equal((key >> (3 * b + k)) & 1, (cell[:, k] >> b) & 1)
-    # points in turn (a mesh's triangles in order), random directions
-    walk = np.repeat(lo + (hi - lo) * rng.random((n // 8 + 1, 3)), 8, axis=0)[:n]
-    assert ro.ray_order(walk, d, lo, hi) is not None
-    assert ro.ray_order(o, d, lo, hi, 1, tree_bytes=ro.ORDER_TREE_BYTES - 1) is None
-    assert ro.ray_order(o[:ro.ORDER_FROM - 1], d[:ro.ORDER_FROM - 1], lo, hi) is None
-    # a camera's rows, a sweep from one point, rays already in order: as they come
-    co, cd = Camera.frame(lo, hi, 160, 120).rays()
-    assert ro.ray_order(co, cd, lo, hi) is None
-    angle = np.linspace(0, 2 * np.pi, n)
-    sweep = np.stack([np.cos(angle), np.sin(angle), 0.1 * np.ones(n)], axis=1)
-    assert ro.ray_order(np.array([[1.0, 0.5, 2.0]]), sweep, lo, hi, 0) is None
-    assert ro.ray_order(o[order], d[order], lo, hi) is None
+            assert np.array_equal(((key >> (3 * b + k)) & 1)[inside], ((cell[:, k] >> b) & 1)[inside])
+    with np.errstate(all="ignore"):
+        x = (entry - lo) / (hi - lo) * 16         # off an inner side of a cell by > 1e-3
+        near = np.rint(x)
+        clear = np.all((np.abs(x - near) > 1e-3) | (near <= 0) | (near >= 16), axis=1)
+        enters = np.all((x > -1e-6) & (x < 16 + 1e-6), axis=1)
+    outside = ~inside & clear & enters
+    assert outside.sum() > n // 10                # rays from outside that enter the box
+    assert np.array_equal(key[outside] & 0xFFF, ro.ray_keys(entry[outside], d[outside], lo, hi) & 0xFFF)
+    # on the device, from float64 and float32 arrays and one origin
+    for a, b, step in ((o, d, 1), (o.astype(np.float32), d.astype(np.float32), 1),
+                       (o[:1], d, 0)):
+        want = ro.ray_keys(a, b, lo, hi, step)
+        got = ro.device_keys(tr, a, b, lo, hi, step)
+        assert got.dtype == np.uint16 and np.mean(got == want) > 0.999
+        assert np.array_equal(got >> 12, want >> 12)
+    assert tr.device_bytes < ro.ORDER_TREE_BYTES
+    assert ro.ray_order(tr, o, d, lo, hi) is None         # the teapot's tree is small
+    keep = ro.ORDER_TREE_BYTES
+    try:
+        ro.ORDER_TREE_BYTES = 0
+        order = ro.ray_order(tr, o, d, lo, hi)
+        assert order is not None and order.dtype == np.uint32
+        assert np.array_equal(np.sort(order), np.arange(n))
+        got = ro.device_keys(tr, o, d, lo, hi)
+        assert np.all(np.diff(got[order].astype(np.int64)) >= 0)
+        same = got[order][1:] == got[order][:-1]
+        assert np.all(np.diff(order.astype(np.int64))[same] > 0)       # stable
+        # points in turn (a mesh's triangles in order), random directions
+        walk = np.repeat(lo + (hi - lo) * rng.random((n // 8 + 1, 3)), 8, axis=0)[:n]
+        assert ro.ray_order(tr, walk, d, lo, hi) is not None
+        assert ro.ray_order(tr, o[:ro.ORDER_FROM - 1], d[:ro.ORDER_FROM - 1], lo, hi) is None
+        # a camera's rows, a sweep from one point, rays already in order: as they come
+        co, cd = Camera.frame(lo, hi, 160, 120).rays()
+        assert ro.ray_order(tr, co, cd, lo, hi) is None
+        angle = np.linspace(0, 2 * np.pi, n)
+        sweep = np.stack([np.cos(angle), np.sin(angle), 0.1 * np.ones(n)], axis=1)
+        assert ro.ray_order(tr, 0.5 * (lo + hi)[None], sweep, lo, hi, 0) is None
+        assert ro.ray_order(tr, o[order], d[order], lo, hi) is None
+    finally:
+        ro.ORDER_TREE_BYTES = keep
 
 
 def reversed_leaves(tree):

@@ -1,0 +1,76 @@
+/* kernels/ray_order.cl: the key kdray/ray_order.py sorts rays in no order of their own
+ * by, so that neighbouring rays enter the scene close together and head the same way.
+ *
+ *   ray_keys  each ray's 15-bit key: the octant of its direction (bit 12 + k: component
+ *             k negative) over the Morton code of the cell of a 16^3 grid over the
+ *             scene's box where the ray enters it (bit 3 b + k: bit b of the cell's
+ *             index on axis k)
+ *
+ * The entry point is o + t d at the largest of 0 and the three near slab planes' t:
+ * the origin itself for a ray that starts in the box, else where a ray from outside
+ * comes in (rays from around a scene, a sensor's far off). A ray that misses the box,
+ * or has an infinite or NaN entry, gets clamped cells: any key is a right one, since
+ * no hit depends on the order, only the time.
+ *
+ * Options (-D): ORIGIN_T, DIRECTION_T (float or double): the rays' types, as the
+ * kernels that then trace them read them. The box and the rays are in one frame (world
+ * coordinates, or the tree's: the caller's choice); an origin is taken relative to
+ * the box's low corner in its own type, then in float.
+ */
+#pragma OPENCL FP_CONTRACT OFF
+#include "inline.h"
+
+#if defined(cl_khr_fp64)
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
+
+/* bits 0..3 of c spread to bits 0, 3, 6, 9 */
+KD_INLINE
+uint kd_spread4(uint c)
+{
+    return (c & 1u) | ((c & 2u) << 2) | ((c & 4u) << 4) | ((c & 8u) << 6);
+}
+
+/* The cell (0..15) of offset x along an axis whose 16 cells are 1 / cells_per apart:
+ * NaN and anything beyond the box go to the nearest end. */
+KD_INLINE
+uint kd_cell16(float x, float cells_per)
+{
+    float c = x * cells_per;
+    return c >= 15.0f ? 15u : (c > 0.0f ? (uint)c : 0u);
+}
+
+/* keys[k] for rays k = 0 .. n - 1: origin k * o_step (o_step 0: one origin for all) and
+ * direction k, from element o_offset and d_offset of their buffers (kdray/trace.py,
+ * _input_buffer). lo: the box's low corner; size: its extent along each axis. One
+ * ray a work-item (a loop over rays in each took 2.5x as long on Intel's runtime). */
+__kernel void ray_keys(__global const ORIGIN_T *origins, __global const DIRECTION_T *directions,
+                       uint o_offset, uint d_offset, uint o_step, uint n,
+                       float lo_x, float lo_y, float lo_z, float size_x, float size_y,
+                       float size_z, __global ushort *keys)
+{
+    origins += o_offset;
+    directions += d_offset;
+    float size[3] = {size_x, size_y, size_z};
+    float cells_per[3] = {16.0f / size_x, 16.0f / size_y, 16.0f / size_z};
+    uint k = (uint)get_global_id(0);
+    if (k < n) {
+        size_t at = 3 * (size_t)k * o_step;
+        float o[3] = {(float)(origins[at] - (ORIGIN_T)lo_x),
+                      (float)(origins[at + 1] - (ORIGIN_T)lo_y),
+                      (float)(origins[at + 2] - (ORIGIN_T)lo_z)};
+        float d[3] = {(float)directions[3 * (size_t)k], (float)directions[3 * (size_t)k + 1],
+                      (float)directions[3 * (size_t)k + 2]};
+        /* the entry: t past every near slab plane (the low one where d >= 0, else
+         * the high one); fmax drops a NaN (d 0 on that axis) */
+        float t = 0.0f;
+        for (uint a = 0; a < 3u; a++)
+            t = fmax(t, ((d[a] < 0.0f ? size[a] : 0.0f) - o[a]) / d[a]);
+        uint key = 0u;
+        for (uint a = 0; a < 3u; a++) {
+            key |= kd_spread4(kd_cell16(o[a] + t * d[a], cells_per[a])) << a;
+            key |= (d[a] < 0.0f ? 1u : 0u) << (12u + a);
+        }
+        keys[k] = (ushort)key;
+    }
+}
