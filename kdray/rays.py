@@ -566,13 +566,11 @@ def _list(tracer, rays, caps, crossing=False):
     if (n_found == caps).all():
         return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1],
                              object_table=tracer.tree.objects), more
-    if cap is None:
-        keep = np.arange(total) - np.repeat(offsets[:-1], caps) < np.repeat(n_found, caps)
-    else:
-        keep = (np.arange(cap) < n_found[:, None]).ravel()
-    keep = np.flatnonzero(keep)              # one index for the three gathers
     new_offsets = np.zeros(rays.n + 1, dtype=np.int64)
     np.cumsum(n_found, out=new_offsets[1:])
+    # each hit's slot: its ray's first slot plus its rank in the ray (one index for the
+    # three gathers, made over the hits, not over every slot: most slots are empty)
+    keep = np.arange(new_offsets[-1]) + np.repeat(offsets[:-1] - new_offsets[:-1], n_found)
     uv = take_rows(uv, keep)
     return Intersections(new_offsets, np.take(t, keep), np.take(prim, keep), uv[:, 0],
                          uv[:, 1], object_table=tracer.tree.objects), more
@@ -580,31 +578,26 @@ def _list(tracer, rays, caps, crossing=False):
 
 def _replace_rows(hits, rows, other):
     """`hits` (an Intersections of N rays) with the hits of rays `rows` ((k,) int64,
-    ascending) replaced by those of `other` (an Intersections of the k rays, in that
-    order)."""
+    ascending, each with at least one hit) replaced by those of `other` (an
+    Intersections of the k rays, in that order)."""
     counts = np.diff(hits.offsets)
     other_counts = np.diff(other.offsets)
-    kept = np.ones(len(counts), dtype=bool)
-    kept[rows] = False
     new_counts = counts.copy()
     new_counts[rows] = other_counts
     offsets = np.zeros(len(counts) + 1, dtype=np.int64)
     np.cumsum(new_counts, out=offsets[1:])
-    # each hit's place: its ray's new first slot plus its rank in the ray
-    ray = hits.ray
-    mine = kept[ray]
-    ray = ray[mine]
-    at_mine = offsets[ray] + np.flatnonzero(mine) - hits.offsets[ray]
-    other_ray = np.repeat(rows, other_counts)
-    at_other = (offsets[other_ray] + np.arange(len(other.t))
-                - np.repeat(other.offsets[:-1], other_counts))
-    out = {}
-    for name in ("t", "prim", "u", "v"):
-        a, b = getattr(hits, name), getattr(other, name)
-        merged = np.empty(offsets[-1], dtype=a.dtype)
-        merged[at_mine] = a[mine]
-        merged[at_other] = b
-        out[name] = merged
+    # the hits of the other rays kept in order: +1 where a run of `rows` starts, -1
+    # where it ends (the runs are distinct and not empty), summed
+    start, stop = hits.offsets[rows], hits.offsets[rows + 1]
+    ends = np.zeros(len(hits.t) + 1, dtype=np.int32)
+    ends[start] += 1
+    ends[stop] -= 1
+    mine = np.cumsum(ends[:-1]) == 0
+    # each of rows' new hits goes in before the kept hits of the rays after its own
+    dropped = counts[rows]
+    at = np.repeat(start - (np.cumsum(dropped) - dropped), other_counts)
+    out = {name: np.insert(getattr(hits, name)[mine], at, getattr(other, name))
+           for name in ("t", "prim", "u", "v")}
     return Intersections(offsets, object_table=hits.object_table, **out)
 
 
