@@ -381,6 +381,16 @@ def test_rays_in_no_order_are_taken_in_one_with_the_same_hits(monkeypatch, packe
             for field in outputs:
                 assert np.array_equal(getattr(got, field), getattr(want, field),
                                       equal_nan=True), (field, t0)
+        # rays converted on the host (float32, in the tree's frame: a GPU's way)
+        on_host = Tracer(tree, packet=packet)
+        on_host._rays_in_kernel = False
+        want = on_host.trace(o, d, outputs=("uv", "normal"))
+        assert taken.pop() is not None
+        on_host._poison_outputs = True
+        monkeypatch.setattr(ktrace, "ray_order", lambda *args: None)
+        got = on_host.trace(o, d, outputs=("uv", "normal"))
+        for field in outputs:
+            assert np.array_equal(getattr(got, field), getattr(want, field), equal_nan=True)
     finally:
         tr._poison_outputs = False
     assert len(taken) == len(cases) and all(t is not None for t in taken)
