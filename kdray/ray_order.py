@@ -17,6 +17,7 @@ own index: no ray's answer depends on it, only the time (tests/test_trace.py).
 import numpy as np
 
 from .host import page_aligned_empty
+from .ray_input import C_TYPES
 
 ORDER_FROM = 1 << 14
 """Rays from which a trace considers ordering them (below, a few milliseconds' trace
@@ -93,8 +94,8 @@ def device_keys(tracer, origins, directions, lo, hi, o_step=1):
     (kernels/ray_order.cl): origins (M, 3) and directions (N, 3), float32 or float64
     arrays as the kernels read them, read in place on a CPU."""
     n = len(directions)
-    types = {"ORIGIN_T": _C_TYPE[np.dtype(origins.dtype)],
-             "DIRECTION_T": _C_TYPE[np.dtype(directions.dtype)]}
+    types = {"ORIGIN_T": C_TYPES[np.dtype(origins.dtype)],
+             "DIRECTION_T": C_TYPES[np.dtype(directions.dtype)]}
     entry = tracer._built("ray_order.cl", types, ("ray_keys",))
     keys = page_aligned_empty((n,), np.uint16)
     o_buf, o_at = tracer._input_buffer(np.ascontiguousarray(origins))
@@ -111,8 +112,6 @@ def device_keys(tracer, origins, directions, lo, hi, o_step=1):
     tracer._read_outputs(out, {"keys": keys})
     return keys
 
-
-_C_TYPE = {np.dtype(np.float32): "float", np.dtype(np.float64): "double"}
 
 KEYS_LOCAL = 64
 """ray_keys' work-group size (one ray a work-item)."""

@@ -893,11 +893,11 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
 /* The rays of block b0 / KD_WALK_BLOCK of this work-item into ids[0 .. m - 1]; returns
  * m (0: none left). Rays in rows (image_w 0): RUN consecutive slots from
  * get_global_id(0) * RUN, KD_WALK_BLOCK at a time, slot j holding ray j, or ray
- * order[j] where an order is given (NULL: none; kdray/ray_order.py). An image of image_w columns
- * (n_rays / image_w rows; KD_IMAGE_BLOCKS): a work-item's RUN rays are its band of
- * KD_BAND_W columns by KD_PACKET / 4 rows, packet p (KD_PACKET rays in ids) its
- * columns 4p .. 4p + 3 (lane l: column + l % 4, row + l / 4), the pixels outside the
- * image left out. */
+ * order[j] where an order is given (NULL: none; kdray/ray_order.py). An image of
+ * image_w columns (n_rays / image_w rows; KD_IMAGE_BLOCKS): a work-item's RUN rays
+ * are its band of KD_BAND_W columns by KD_PACKET / 4 rows, packet p (KD_PACKET rays
+ * in ids) its columns 4p .. 4p + 3 (lane l: column + l % 4, row + l / 4), the pixels
+ * outside the image left out. */
 KD_INLINE
 uint kd_block_rays(uint b0, uint n_rays, uint image_w, __global const uint *order, uint *ids)
 {
