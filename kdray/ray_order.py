@@ -19,9 +19,11 @@ import numpy as np
 from .host import page_aligned_empty
 from .ray_input import C_TYPES
 
-ORDER_FROM = 1 << 14
-"""Rays from which a trace considers ordering them (below, a few milliseconds' trace
-has little cache to lose)."""
+ORDER_FROM = 1 << 17
+"""Rays from which a trace considers ordering them: fewer share too few nodes for the
+order to pay (bunny-1.6M, Zen 4 VM, trace's time ordered / not: uniform rays 1.09-1.20
+at 2^14-2^15, 0.99 at 2^16 and 2^18, 0.86 at 2^20; ambient-occlusion rays 1.00-1.04 at
+2^14-2^15, 0.95 at 2^16, 0.72 at 2^18)."""
 
 ORIGIN_BITS = 4
 """A side of the entry points' grid: 2^ORIGIN_BITS cells (kernels/ray_order.cl has 16),

@@ -461,7 +461,7 @@ def test_which_rays_are_put_in_order(tracers):
         assert ro.ray_order(tr, walk, d, lo, hi) is not None
         assert ro.ray_order(tr, o[:ro.ORDER_FROM - 1], d[:ro.ORDER_FROM - 1], lo, hi) is None
         # a camera's rows, a sweep from one point, rays already in order: as they come
-        co, cd = Camera.frame(lo, hi, 160, 120).rays()
+        co, cd = Camera.frame(lo, hi, 512, 384).rays()      # 2^17 rays or more
         assert ro.ray_order(tr, co, cd, lo, hi) is None
         angle = np.linspace(0, 2 * np.pi, n)
         sweep = np.stack([np.cos(angle), np.sin(angle), 0.1 * np.ones(n)], axis=1)
