@@ -332,3 +332,20 @@ def edge_midpoints(v, f):
     e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
     e = np.unique(e, axis=0)
     return 0.5 * (v[e[:, 0]] + v[e[:, 1]])
+
+
+def force_ray_order(monkeypatch, module):
+    """Make `module` (kdray.trace or kdray.rays) take rays in no order of their own in
+    one (kdray.ray_order) however few they are and however small the tree: returns the
+    list of the orders it took (None where the rays were judged in order already)."""
+    import kdray.ray_order as ray_order
+    taken = []
+
+    def spy(*args):
+        taken.append(ray_order.ray_order(*args))
+        return taken[-1]
+
+    monkeypatch.setattr(ray_order, "ORDER_FROM", 1)
+    monkeypatch.setattr(ray_order, "ORDER_TREE_BYTES", 0)
+    monkeypatch.setattr(module, "ray_order", spy)
+    return taken

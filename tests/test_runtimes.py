@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 import trees
-from helpers import SCENES, camera_for, check_hits, random_rays, soup, split_plane_rays
+from helpers import (SCENES, camera_for, check_hits, force_ray_order, random_rays, soup,
+                     split_plane_rays)
 from kdray import layout
 from kdray.errors import KdrayError
 from kdray.load import load
@@ -513,15 +514,7 @@ def test_rays_taken_in_an_order_give_the_same_hits(runtime, monkeypatch, packet)
     tr = Tracer(tree, device=runtime.spec, packet=packet)
     tr._poison_outputs = True
     base = tr.trace(o, d)
-    taken = []
-
-    def spy(*args):
-        taken.append(ray_order.ray_order(*args))
-        return taken[-1]
-
-    monkeypatch.setattr(ray_order, "ORDER_FROM", 1)
-    monkeypatch.setattr(ray_order, "ORDER_TREE_BYTES", 0)
-    monkeypatch.setattr(trace, "ray_order", spy)
+    taken = force_ray_order(monkeypatch, trace)
     same_hits(tr.trace(o, d), base)
     assert len(taken) == 1 and taken[0] is not None
     assert np.array_equal(np.sort(taken[0]), np.arange(len(o)))

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import trees
-from helpers import (RTOL_T, assert_watertight, camera_for, check_hits, random_rays,
-                     real_mesh_arrays, soup, split_plane_rays)
+from helpers import (RTOL_T, assert_watertight, camera_for, check_hits, force_ray_order,
+                     random_rays, real_mesh_arrays, soup, split_plane_rays)
 from kdray import layout
 from kdray import trace as ktrace
 from kdray.device import has_fp64
@@ -351,7 +351,6 @@ def test_rays_in_no_order_are_taken_in_one_with_the_same_hits(monkeypatch, packe
     every output (each hit refined from the caller's rays, read through the order),
     within a t range, from one origin, from float32 arrays; every kind of ray mixed in
     (shuffled) and a count that leaves a packet short."""
-    import kdray.ray_order as ray_order
     tree = mesh_tree("teapot.obj", "sah")
     o, d = packet_rays(tree, camera_size=19)
     shuffle = np.random.default_rng(33).permutation(len(d))
@@ -365,15 +364,7 @@ def test_rays_in_no_order_are_taken_in_one_with_the_same_hits(monkeypatch, packe
              (o.astype(np.float32), d.astype(np.float32), 0.0, np.inf)]
     outputs = ("t", "prim", "u", "v", "normal")
     plain = [tr.trace(a, b, t0, t1, outputs=("uv", "normal")) for a, b, t0, t1 in cases]
-    taken = []
-
-    def spy(*args):
-        taken.append(ray_order.ray_order(*args))
-        return taken[-1]
-
-    monkeypatch.setattr(ray_order, "ORDER_FROM", 1)
-    monkeypatch.setattr(ray_order, "ORDER_TREE_BYTES", 0)
-    monkeypatch.setattr(ktrace, "ray_order", spy)
+    taken = force_ray_order(monkeypatch, ktrace)
     tr._poison_outputs = True
     try:
         for (a, b, t0, t1), want in zip(cases, plain):
