@@ -124,9 +124,10 @@ SORT_FROM = 4096
 than it saves)."""
 
 
-_SPREAD = np.array([sum(((i >> b) & 1) << (3 * b) for b in range(5)) for i in range(32)],
-                   dtype=np.uint16)
-"""_SPREAD[i]: the 5 bits of i (0..31) spread to every third bit (0, 3, 6, 9, 12)."""
+MORTON_SPREAD = np.array([sum(((i >> b) & 1) << (3 * b) for b in range(5)) for i in range(32)],
+                         dtype=np.uint16)
+"""MORTON_SPREAD[i]: the 5 bits of i (0..31) spread to every third bit (0, 3, 6, 9, 12):
+a cell index's part of a Morton code (here and kdray.ray_order)."""
 
 
 def spatial_order(points, lo, hi, sides=None):
@@ -150,7 +151,7 @@ def spatial_order(points, lo, hi, sides=None):
             col = x[:, k]
             col -= np.float32(lo[k])
             col *= np.float32(scale[k])
-            code |= np.take(_SPREAD, np.clip(col, 0, 31, out=col).astype(np.uint8)) << k
+            code |= np.take(MORTON_SPREAD, np.clip(col, 0, 31, out=col).astype(np.uint8)) << k
     if sides is not None:
         # the cells' top bits (bit 4 of each axis's cell) are the code's bits 12, 13, 14
         code &= np.uint16(0x0FFF)

@@ -17,6 +17,7 @@ own index: no ray's answer depends on it, only the time (tests/test_trace.py).
 import numpy as np
 
 from .host import page_aligned_empty
+from .points import MORTON_SPREAD
 from .ray_input import C_TYPES
 
 ORDER_FROM = 1 << 17
@@ -68,14 +69,9 @@ def ray_keys(origins, directions, lo, hi, o_step=1):
     cell = np.where(cells >= side - 1, side - 1, np.where(cells > 0, cells, 0)).astype(np.uint16)
     key = np.zeros(len(d), dtype=np.uint16)
     for k in range(3):
-        key |= _SPREAD4[cell[:, k]] << np.uint16(k)
+        key |= MORTON_SPREAD[cell[:, k]] << np.uint16(k)
         key |= (d[:, k] < 0).astype(np.uint16) << np.uint16(12 + k)
     return key
-
-
-_SPREAD4 = np.array([sum(((i >> b) & 1) << (3 * b) for b in range(ORIGIN_BITS))
-                     for i in range(1 << ORIGIN_BITS)], dtype=np.uint16)
-"""_SPREAD4[i]: the bits of a cell's index i spread to every third bit."""
 
 
 def unordered(origins, directions, lo, hi, o_step=1):
@@ -91,17 +87,21 @@ def unordered(origins, directions, lo, hi, o_step=1):
     return float(np.mean(keys[:, 1:] < keys[:, :-1])) > UNORDERED_SHARE
 
 
-def device_keys(tracer, origins, directions, lo, hi, o_step=1):
+def device_keys(tracer, origins, directions, lo, hi, o_step=1, buffers=None):
     """(N,) uint16: `ray_keys` of the rays, computed on the tracer's device
     (kernels/ray_order.cl): origins (M, 3) and directions (N, 3), float32 or float64
-    arrays as the kernels read them, read in place on a CPU."""
+    arrays as the kernels read them, read in place on a CPU. buffers: None, or the
+    device buffers the caller already holds them in, ((o_buf, o_offset), (d_buf,
+    d_offset)) in elements, so that a GPU is not sent them twice."""
     n = len(directions)
     types = {"ORIGIN_T": C_TYPES[np.dtype(origins.dtype)],
              "DIRECTION_T": C_TYPES[np.dtype(directions.dtype)]}
     entry = tracer._built("ray_order.cl", types, ("ray_keys",))
     keys = page_aligned_empty((n,), np.uint16)
-    o_buf, o_at = tracer._input_buffer(np.ascontiguousarray(origins))
-    d_buf, d_at = tracer._input_buffer(np.ascontiguousarray(directions))
+    if buffers is None:
+        buffers = (tracer._input_buffer(np.ascontiguousarray(origins)),
+                   tracer._input_buffer(np.ascontiguousarray(directions)))
+    (o_buf, o_at), (d_buf, d_at) = buffers
     out = {"keys": tracer._output_buffer(keys)}
     lo = np.asarray(lo, dtype=np.float64)
     size = np.asarray(hi, dtype=np.float64) - lo
@@ -119,16 +119,17 @@ KEYS_LOCAL = 64
 """ray_keys' work-group size (one ray a work-item)."""
 
 
-def ray_order(tracer, origins, directions, lo, hi, o_step=1):
+def ray_order(tracer, origins, directions, lo, hi, o_step=1, buffers=None):
     """None, or the (N,) uint32 order in which to trace rays (origins (M, 3),
     directions (N, 3), as the kernels read them, in the frame of the box lo .. hi)
     that are in no order of their own (`unordered`) through the tracer's tree, when
     it takes ORDER_TREE_BYTES or more on the device (`Tracer.device_bytes`): by their
-    keys (`device_keys`), stable (numpy's radix sort of 16-bit keys)."""
+    keys (`device_keys`, buffers as it takes them), stable (numpy's radix sort of
+    16-bit keys)."""
     if tracer.device_bytes < ORDER_TREE_BYTES or not unordered(origins, directions, lo, hi,
                                                                o_step):
         return None
-    key = device_keys(tracer, origins, directions, lo, hi, o_step)
+    key = device_keys(tracer, origins, directions, lo, hi, o_step, buffers)
     order = page_aligned_empty((len(key),), np.uint32)    # read in place (trace.py)
     order[:] = np.argsort(key, kind="stable")
     return order

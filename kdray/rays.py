@@ -312,9 +312,11 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False)
     # an image's blocks only where the launch takes all its rays; other rays in no
     # order of their own taken in one (kdray.ray_order)
     image_w = rays.image_w if (start, stop) == (0, rays.n) else 0
-    order = None if image_w else ray_order(tracer, o, d, *tracer.tree.bounds, rays.o_step)
+    o_buf, d_buf = inp(o), inp(d)
+    order = None if image_w else ray_order(tracer, o, d, *tracer.tree.bounds, rays.o_step,
+                                           ((o_buf, 0), (d_buf, 0)))
     args = (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
-            np.uint32(tracer._n_nodes), inp(o), inp(d), np.uint32(rays.o_step), inp(t_mins),
+            np.uint32(tracer._n_nodes), o_buf, d_buf, np.uint32(rays.o_step), inp(t_mins),
             inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), np.uint32(image_w), inp(order),
             *map(inp, extra), *exact_args, *device_out.values())
     items = -(-n // entry["run"])

@@ -672,11 +672,13 @@ class Tracer:
                 rows = slots // image_w
                 slots = -(-image_w // 4) * -(-rows // band_rows) * self.packet
             o_part = o[start:stop] if o_step else o
-            # rays in no order of their own are taken in one (kdray.ray_order)
-            order = None if image_w else ray_order(self, o_part, d[start:stop], *box, o_step)
-            order_buf = None if order is None else self._input_buffer(order)[0]
             o_buf, o_offset = self._input_buffer(o_part)
             d_buf, d_offset = self._input_buffer(d[start:stop])
+            # rays in no order of their own are taken in one (kdray.ray_order)
+            order = None if image_w else ray_order(
+                self, o_part, d[start:stop], *box, o_step,
+                ((o_buf, o_offset), (d_buf, d_offset)))
+            order_buf = None if order is None else self._input_buffer(order)[0]
             # with world rays the kernel takes the tree's origin and shifts them itself
             origin = tuple(np.float64(x) for x in self._origin) if rays_world else ()
             # t in the tree's units is t / scale (directions are not scaled)
