@@ -22,9 +22,7 @@ from .ray_input import C_TYPES
 
 ORDER_FROM = 1 << 17
 """Rays from which a trace considers ordering them: fewer share too few nodes for the
-order to pay (bunny-1.6M, Zen 4 VM, trace's time ordered / not: uniform rays 1.09-1.20
-at 2^14-2^15, 0.99 at 2^16 and 2^18, 0.86 at 2^20; ambient-occlusion rays 1.00-1.04 at
-2^14-2^15, 0.95 at 2^16, 0.72 at 2^18)."""
+order to pay (`bench/ab_order.py --rays N`; BENCHMARKS.md, "Incoherent rays")."""
 
 ORIGIN_BITS = 4
 """A side of the entry points' grid: 2^ORIGIN_BITS cells (kernels/ray_order.cl has 16),
@@ -34,9 +32,9 @@ ORDER_TREE_BYTES = 16 << 20
 """Trees on the device from which rays in no order are ordered (nodes, triangles and
 their ids: `Tracer.device_bytes`). The order costs its keys and their sort, and the
 kernel more time to read the rays and write their hits out of memory order, which a
-tree that the caches mostly hold does not win back: 2^20 rays on the Zen 4 VM (32 MB
-of L3) trace in 0.99-1.16 of their time as they come through the bunny's 4.7 MB,
-0.83-0.87 through bunny-x4's 19 MB (BENCHMARKS.md, "Incoherent rays")."""
+tree that the caches mostly hold does not win back: on a CPU with 32 MB of L3, the
+bunny's 4.7 MB tree does not gain, bunny-x4's 19 MB does (`bench/ab_order.py`;
+BENCHMARKS.md, "Incoherent rays")."""
 
 
 SAMPLE_RUNS, SAMPLE_RUN = 32, 16
