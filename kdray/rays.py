@@ -153,10 +153,10 @@ def check_t(t, name):
     return ray_input.numbers(name, t).astype(np.float64)
 
 
-def _ranges(t_min, t_max, n, scale):
-    """(t_mins, t_maxs, t_step) as the kernels take them: float32 arrays in the tree's
-    units, of n elements (t_step 1) or of one (t_step 0). KdrayError for NaN, t_min < 0,
-    t_min > t_max or arrays of another length."""
+def _checked_ranges(t_min, t_max, n):
+    """(lo, hi, t_step): t_min and t_max (numbers or (n,) arrays) as float64 arrays,
+    0-d or of n elements, and t_step 1 where either is an array, else 0. KdrayError for
+    NaN, t_min < 0, t_min > t_max or arrays of another length."""
     lo, hi = (check_t(t, name) for t, name in ((t_min, "t_min"), (t_max, "t_max")))
     for name, a in (("t_min", lo), ("t_max", hi)):
         if a.ndim > 1 or (a.ndim == 1 and len(a) != n):
@@ -173,12 +173,31 @@ def _ranges(t_min, t_max, n, scale):
         b = hi if hi.ndim == 0 else hi[i]
         raise KdrayError(f"need t_min <= t_max, got t_min={float(a)} > t_max={float(b)} "
                          f"(ray {i})")
-    step = 1 if lo.ndim or hi.ndim else 0
+    return lo, hi, (1 if lo.ndim or hi.ndim else 0)
+
+
+def _ranges(t_min, t_max, n, scale):
+    """(t_mins, t_maxs, t_step) as queries.cl takes them: float32 arrays in the tree's
+    units, of n elements (t_step 1) or of one (t_step 0) (`_checked_ranges`)."""
+    lo, hi, step = _checked_ranges(t_min, t_max, n)
     shape = (n,) if step else (1,)
     with np.errstate(over="ignore"):
         return (np.ascontiguousarray(np.broadcast_to(lo / scale, shape), dtype=np.float32),
                 np.ascontiguousarray(np.broadcast_to(hi / scale, shape), dtype=np.float32),
                 step)
+
+
+def range_pairs(t_min, t_max, n, scale):
+    """(t_ranges, t_step) as trace_rays takes them (render.cl): a page-aligned
+    float32 array of (t_min, t_max) pairs in the tree's units, (n, 2) (t_step 1) or
+    (1, 2) (t_step 0: one range for all), from numbers or (n,) arrays
+    (`_checked_ranges`; beyond float32: inf, the same range)."""
+    lo, hi, step = _checked_ranges(t_min, t_max, n)
+    pairs = page_aligned_empty((n if step else 1, 2), np.float32)
+    with np.errstate(over="ignore"):
+        pairs[:, 0] = lo / scale
+        pairs[:, 1] = hi / scale
+    return pairs, step
 
 
 class _Rays:
@@ -349,10 +368,10 @@ more than ALONE_SPREAD of the scene box's longest side, or whose directions span
 than ALONE_TURN of their largest component, has rays that share no path."""
 
 ALONE_SAMPLE = 64
-"""Packets `_share_paths` looks at."""
+"""Packets `share_paths` looks at."""
 
 
-def _share_paths(tracer, o, d, shape):
+def share_paths(tracer, o, d, shape):
     """Whether the rays (ray_input.flat_rays: o (3,) or (N, 3), d (N, 3), shape) mostly
     share their paths in packets: image-shaped rays, or most of ALONE_SAMPLE packets
     spread over the rays not alone by packet.cl's rule (kd_alone). Such rays are
@@ -381,15 +400,14 @@ def _share_paths(tracer, o, d, shape):
 def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     """(N,) bool (the rays' shape): whether each ray hits anything with t_min < t <
     t_max, the same answers as `trace(...).hit`. A traversal that stops at the first
-    hit it finds: for rays that share their paths (`_share_paths`) with one t range
-    for all, `trace`'s in packets (render.cl, trace_rays with ANY_HIT); else the
-    queries' walk, its lanes refilled as walks end."""
+    hit it finds: for rays that share their paths (`share_paths`), `trace`'s in
+    packets, each lane over its own range (render.cl, trace_rays with ANY_HIT); else
+    the queries' walk, its lanes refilled as walks end."""
     t_min, t_max = check_t(t_min, "t_min"), check_t(t_max, "t_max")
-    if np.ndim(t_min) == 0 and np.ndim(t_max) == 0:
-        o, d, shape = ray_input.flat_rays(origins, directions)
-        if _share_paths(tracer, o, d, shape):
-            hits = tracer._trace_rays(o, d, shape, t_min, t_max, (), any_hit=True)
-            return hits.hit.reshape(shape)
+    o, d, shape = ray_input.flat_rays(origins, directions)
+    if share_paths(tracer, o, d, shape):
+        hits = tracer._trace_rays(o, d, shape, t_min, t_max, (), any_hit=True)
+        return hits.hit.reshape(shape)
     rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
                   directions)
     out = page_aligned_empty((rays.n,), np.uint8)

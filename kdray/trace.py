@@ -509,9 +509,12 @@ class Tracer:
             are found to be one (kdray.ray_grid) and traced in blocks too, from
             IMAGE_SEARCH_MIN_RAYS rays on (below, the search costs more than it saves).
         t_min : >= 0 (default 0: hits behind the origin or at it never count)
-        t_min, t_max : numbers, or (N,) arrays, a range a ray: such rays are traced
-            one a work-item by the ray queries' walk (kdray.rays.nearest), with the
-            same hits, t, u, v and normals as they would get from a number
+        t_min, t_max : numbers, or (N,) arrays, a range a ray: rays that share their
+            paths (an image, a camera's or a lidar's rays: kdray.rays.share_paths)
+            are traced in packets as with a number, each lane over its own range;
+            others one a work-item by the ray queries' walk (kdray.rays.nearest),
+            whose lanes take a new ray as each walk ends. The same hits, t, u, v and
+            normals either way, and as each ray would get from a number
         precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
             v in float64 from the tree's float64 triangles (KdTree.triangles64) and
             the rays as given (kdray.double)
@@ -532,8 +535,10 @@ class Tracer:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
         origins, directions, shape = ray_input.flat_rays(origins, directions)
         t_min, t_max = _rays.check_t(t_min, "t_min"), _rays.check_t(t_max, "t_max")
-        if np.ndim(t_min) or np.ndim(t_max):
-            # a t range a ray: the queries' walk, the same hits (kdray.rays.nearest)
+        if (np.ndim(t_min) or np.ndim(t_max)) \
+                and not _rays.share_paths(self, origins, directions, shape):
+            # a t range a ray, rays in no packets' order: the queries' walk, the same
+            # hits (kdray.rays.nearest)
             hits = _rays.nearest(self, origins, directions, t_min, t_max, kernel)
         else:
             hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
@@ -544,8 +549,8 @@ class Tracer:
         return hits if len(shape) == 1 else hits._reshaped(shape)
 
     def _trace_rays(self, origins, directions, shape, t_min, t_max, outputs, any_hit=False):
-        """Hits of flat rays (ray_input.flat_rays: their shape `shape`) with one t range
-        for all, by trace_rays: image-shaped rays, given so or found so, in blocks of
+        """Hits of flat rays (ray_input.flat_rays: their shape `shape`) with t ranges
+        (numbers, or (N,) arrays) by trace_rays: image-shaped rays, given so or found so, in blocks of
         pixels on a CPU; any_hit: the first hit each ray's traversal finds (`program`)."""
         if len(shape) >= 2:
             image_w, search = shape[-1], None
@@ -637,25 +642,23 @@ class Tracer:
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False,
                outputs=KERNEL_OUTPUTS, image_w=0, while_running=None, any_hit=False):
-        """(Hits, STATS or None) of the rays; outputs: the kernel outputs computed and
+        """(Hits, STATS or None) of the rays; t_min, t_max: numbers, or (N,) arrays (a
+        range a ray); outputs: the kernel outputs computed and
         stored (KERNEL_OUTPUTS order; T and ID always), the others None in Hits.
         image_w: 0, or the rays are rows of an image that wide (N a multiple of it),
         traced in packets of blocks of pixels (render.cl, trace_rays).
         while_running: None or a function called once while the first launch runs.
         any_hit: each ray's first hit found, not its nearest (`program`)."""
         outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | {"T", "ID"})
-        t_min, t_max = float(t_min), float(t_max)
-        if not (t_min >= 0.0 and t_max >= t_min):
-            raise KdrayError(f"need 0 <= t_min <= t_max, got t_min={t_min}, t_max={t_max}")
-        with np.errstate(over="ignore"):        # beyond float32: inf, the same range
-            t32 = np.float32(t_min / self._scale), np.float32(t_max / self._scale)
         o, d, o_step, rays_world = self._rays(origins, directions)
         n = len(d)
+        t_ranges, t_step = _rays.range_pairs(t_min, t_max, n, self._scale)
         out = {name: page_aligned_empty((n, width) if width > 1 else (n,), dtype)
                for name, (width, dtype) in OUTPUT_WIDTH.items()
                if name in outputs or (stats and name == "STATS")}
         o_bytes, d_bytes = (ray_input.RAY_BYTES[t] for t in rays_world or ("float", "float"))
-        widths = [o_bytes] * o_step + [d_bytes] + [OUTPUT_WIDTH[k][0] * 4 for k in out]
+        widths = [o_bytes] * o_step + [d_bytes] + [8] * t_step \
+            + [OUTPUT_WIDTH[k][0] * 4 for k in out]
         per_launch = self._launch_size(widths)
         # with image blocks a launch takes whole rows of blocks (4 rows with packets
         # of 16); a band that does not fit in one launch is traced in rows
@@ -679,13 +682,14 @@ class Tracer:
                 self, o_part, d[start:stop], *box, o_step,
                 ((o_buf, o_offset), (d_buf, d_offset)))
             order_buf = None if order is None else self._input_buffer(order)[0]
+            t_buf, t_offset = self._input_buffer(t_ranges[start:stop] if t_step else t_ranges)
             # with world rays the kernel takes the tree's origin and shifts them itself
             origin = tuple(np.float64(x) for x in self._origin) if rays_world else ()
             # t in the tree's units is t / scale (directions are not scaled)
             self._launch("trace_rays", outputs, slots,
                          (o_buf, d_buf, np.uint32(o_offset), np.uint32(d_offset),
                           np.uint32(o_step), np.uint32(stop - start), np.uint32(image_w),
-                          order_buf, *t32,
+                          order_buf, t_buf, np.uint32(t_offset), np.uint32(t_step),
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
                          rays_world=rays_world, while_running=while_running,

@@ -162,7 +162,7 @@ bool kd_lane_finish(__global const KdNode *nodes, uint max_leaves, __global cons
 
 /* Nearest hits of the lanes in `on` (rays o + t d relative to the tree's origin, each
  * finite, d not 0, inside the scene box over [t_enter, t_exit], as trace_packet's box
- * clip leaves them), with t_min < t < t_max: lane l's t, u, v, tri as trace_ray's
+ * clip leaves them), with t_min < t < t_max (each lane's range): lane l's t, u, v, tri as trace_ray's
  * Hit, written to t_l, u_l, v_l, tri_l for the lanes it finishes. Returns the lanes it
  * hands back (see above), which the caller traces with trace_ray.
  *
@@ -175,11 +175,12 @@ KD_CALLED
 intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
                     __global const float *tris, __global const uint *tri_ids, intP on,
                     floatP ox, floatP oy, floatP oz, floatP dx, floatP dy, floatP dz,
-                    float t_min, float t_max, floatP t_enter, floatP t_exit,
+                    floatP t_min, floatP t_max, floatP t_enter, floatP t_exit,
                     KdFP *t_l, KdFP *u_l, KdFP *v_l, KdUP *tri_l)
 {
-    KdFP oxl, oyl, ozl, dxl, dyl, dzl;
+    KdFP oxl, oyl, ozl, dxl, dyl, dzl, lo, hi;
     oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
+    lo.v = t_min; hi.v = t_max;
     RayShear shear[KD_PACKET];
     Hit hit[KD_PACKET];
     KdLaneStacks stacks;
@@ -187,7 +188,7 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
     uint act = kd_bitsP(on);
     for (uint l = 0; l < KD_PACKET; l++) {
         shear[l] = ray_shear((float3)(dxl.s[l], dyl.s[l], dzl.s[l]));
-        hit[l].t = t_max;
+        hit[l].t = hi.s[l];
         hit[l].u = 0.0f;
         hit[l].v = 0.0f;
         hit[l].tri = KD_NO_HIT;
@@ -254,7 +255,7 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
                 n.flags = flags_l.s[l];
                 n.data = data_l.s[l];
                 kd_ray_leaf(n, tris, tri_ids, &shear[l],
-                            (float3)(oxl.s[l], oyl.s[l], ozl.s[l]), t_min, t_max, &hit[l]);
+                            (float3)(oxl.s[l], oyl.s[l], ozl.s[l]), lo.s[l], hi.s[l], &hit[l]);
                 if (kd_hit_done(hit[l].t, hit[l].tri, t1_l.s[l]) || stacks.top[l] == 0u) {
                     act &= ~(1u << l);
                 } else {
@@ -275,7 +276,7 @@ intP kd_lanes_trace(__global const KdNode *nodes, uint max_leaves,
             uint l = kd_take_lane(&act);
             if (!kd_lane_finish(nodes, max_leaves, tris, tri_ids, &shear[l],
                                 (float3)(oxl.s[l], oyl.s[l], ozl.s[l]),
-                                (float3)(dxl.s[l], dyl.s[l], dzl.s[l]), t_min, t_max,
+                                (float3)(dxl.s[l], dyl.s[l], dzl.s[l]), lo.s[l], hi.s[l],
                                 node_l.s[l], t0_l.s[l], t1_l.s[l], &stacks, l, leaves[l],
                                 &hit[l]))
                 handed |= 1u << l;

@@ -824,10 +824,10 @@ intP kd_inverse_far(floatP d)
 
 /* The rest of packet r for traversal: ray_shear's axes and constants for every lane,
  * whether the lanes in `on` share the axes of lane `first` (the first on), and the
- * rays' origins, directions and range. */
+ * rays' origins, directions and ranges (each lane's). */
 KD_INLINE
 void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, floatP oz,
-                     floatP dx, floatP dy, floatP dz, float t_min, float t_max)
+                     floatP dx, floatP dy, floatP dz, floatP t_min, floatP t_max)
 {
     floatP ax = kd_absP(dx), ay = kd_absP(dy), az = kd_absP(dz);
     intP kz = kd_selectPi(kd_selectPi((intP)(2), (intP)(1), ay >= az),
@@ -850,8 +850,8 @@ void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, flo
     r->d[0] = dx; r->d[1] = dy; r->d[2] = dz;
     r->d_inv[0] = 1.0f / dx; r->d_inv[1] = 1.0f / dy; r->d_inv[2] = 1.0f / dz;
     r->by_inverse = !kd_anyP(on & (kd_inverse_far(dx) | kd_inverse_far(dy) | kd_inverse_far(dz)));
-    r->t_min = (floatP)(t_min);
-    r->t_max = (floatP)(t_max);
+    r->t_min = t_min;
+    r->t_max = t_max;
     KdIP kx_l, ky_l, kz_l;
     kx_l.v = kx; ky_l.v = ky; kz_l.v = kz;
     r->ukx = (uint)kx_l.s[first]; r->uky = (uint)ky_l.s[first]; r->ukz = (uint)kz_l.s[first];
@@ -924,7 +924,7 @@ bool kd_alone(const KdPacket *r, intP on, bool camera, floatP ox, floatP oy, flo
 #include "lanes_trace.cl"
 
 /* Nearest hits of the rays o + t d (per lane, relative to the tree's origin) with
- * t_min < t < t_max, as trace_ray gives them, for the lanes in `on`; bmin, bmax: the
+ * t_min < t < t_max (each lane's range), as trace_ray gives them, for the lanes in `on`; bmin, bmax: the
  * scene box; camera: the rays are a camera's pixels (render_camera), which point
  * alike (kd_alone). Writes t (t_max on a miss), u, v (0 on a miss) and tri (KD_NO_HIT
  * on a miss) per lane, and with STATS per-lane counts. */
@@ -932,7 +932,7 @@ KD_INLINE
 void trace_packet(__global const KdNode *nodes, uint n_nodes,
                   __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax, intP on,
                   bool camera, floatP ox, floatP oy, floatP oz, floatP dx, floatP dy, floatP dz,
-                  float t_min, float t_max,
+                  floatP t_min, floatP t_max,
                   floatP *t_out, floatP *u_out, floatP *v_out, uintP *tri_out
 #ifdef STATS
                   , KdUP *stat_x, KdUP *stat_y, KdUP *stat_z, KdUP *stat_w
@@ -943,7 +943,7 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     intP finite = (ox - ox == 0.0f) & (oy - oy == 0.0f) & (oz - oz == 0.0f)
                   & (dx - dx == 0.0f) & (dy - dy == 0.0f) & (dz - dz == 0.0f);
     on &= finite & ~((dx == 0.0f) & (dy == 0.0f) & (dz == 0.0f));
-    floatP t_enter = (floatP)(t_min), t_exit = (floatP)(t_max);
+    floatP t_enter = t_min, t_exit = t_max;
     on &= kd_slabP(ox, dx, bmin.x, bmax.x, &t_enter, &t_exit);
     on &= kd_slabP(oy, dy, bmin.y, bmax.y, &t_enter, &t_exit);
     on &= kd_slabP(oz, dz, bmin.z, bmax.z, &t_enter, &t_exit);
@@ -951,7 +951,7 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     if (!kd_anyP(on)) {
         /* every ray misses the scene's box (most packets of a camera framing the
          * scene): nothing to set up */
-        *t_out = (floatP)(t_max);
+        *t_out = t_max;
         *u_out = (floatP)(0.0f);
         *v_out = (floatP)(0.0f);
         *tri_out = (uintP)(KD_NO_HIT);
@@ -976,7 +976,7 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
                                 | (oz != (floatP)(r.uo[2]))));
 
     KdPacketHit h;
-    h.t = (floatP)(t_max);
+    h.t = t_max;
     h.V = (floatP)(0.0f);
     h.W = (floatP)(0.0f);
     h.det = (floatP)(1.0f);
@@ -1017,8 +1017,9 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
 #endif
     if (kd_anyP(fallback.v)) {
         /* lanes the packet handed over: the scalar kernel from the start */
-        KdFP oxl, oyl, ozl, dxl, dyl, dzl;
+        KdFP oxl, oyl, ozl, dxl, dyl, dzl, lo, hi;
         oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
+        lo.v = t_min; hi.v = t_max;
         for (uint l = 0; l < KD_PACKET; l++) {
             if (!fallback.s[l])
                 continue;
@@ -1027,11 +1028,12 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
             float3 d = (float3)(dxl.s[l], dyl.s[l], dzl.s[l]);
 #ifdef STATS
             uint4 more = (uint4)(0u);
-            trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit, &more);
+            trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, lo.s[l], hi.s[l], &hit,
+                      &more);
             stat_x->s[l] += more.x; stat_y->s[l] += more.y;
             stat_z->s[l] += more.z; stat_w->s[l] += more.w;
 #else
-            trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, t_min, t_max, &hit);
+            trace_ray(nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, lo.s[l], hi.s[l], &hit);
 #endif
             t_l.s[l] = hit.t;
             u_l.s[l] = hit.u;
@@ -1041,7 +1043,7 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     }
     /* a miss: t_max, 0, 0 (as trace_ray) */
     intP miss = as_intP(tri_l.v == (uintP)(KD_NO_HIT));
-    *t_out = kd_selectP(t_l.v, (floatP)(t_max), miss);
+    *t_out = kd_selectP(t_l.v, t_max, miss);
     *u_out = kd_selectP(u_l.v, (floatP)(0.0f), miss);
     *v_out = kd_selectP(v_l.v, (floatP)(0.0f), miss);
     *tri_out = tri_l.v;

@@ -737,7 +737,8 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                                 | (o[2].v != (floatP)(r.uo[2]))));
     if (kd_alone(&r, on, false, o[0].v, o[1].v, o[2].v, dx.v, dy.v, dz.v, bmin, bmax))
         return on;
-    kd_packet_shear(&r, on, first, o[0].v, o[1].v, o[2].v, dx.v, dy.v, dz.v, 0.0f, INFINITY);
+    kd_packet_shear(&r, on, first, o[0].v, o[1].v, o[2].v, dx.v, dy.v, dz.v, (floatP)(0.0f),
+                    (floatP)(INFINITY));
 
     const KdLaneBounds *bounds = 0;      /* kd_walk_culls' bounds, where it applies */
 #ifdef KD_CULL

@@ -188,7 +188,7 @@ typedef union { doubleP v; double s[KD_PACKET]; } KdDP;
  * Lanes without a hit compute their ray against triangle 0, never kept. */
 KD_INLINE
 void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP found,
-                      const KdFP *P, float t_min, float t_max, const uint *idx, KdFP *t,
+                      const KdFP *P, KdFP t_min, KdFP t_max, const uint *idx, KdFP *t,
                       KdFP *u, KdFP *v KD_EXACT_PARAMS)
 {
     doubleP Ox = convert_doubleP(ox.v), Oy = convert_doubleP(oy.v), Oz = convert_doubleP(oz.v);
@@ -217,8 +217,8 @@ void kd_refine_packet(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP
     t_d.v = tt; u_d.v = uu; v_d.v = vv;
     for (uint l = 0; l < KD_PACKET; l++)
         if (found.s[l])
-            kd_take_refined(t_d.s[l], u_d.s[l], v_d.s[l], t_min, t_max, &t->s[l], &u->s[l],
-                            &v->s[l]);
+            kd_take_refined(t_d.s[l], u_d.s[l], v_d.s[l], t_min.s[l], t_max.s[l], &t->s[l],
+                            &u->s[l], &v->s[l]);
 }
 #endif
 
@@ -303,12 +303,13 @@ void kd_store_block(size_t k0, size_t row_stride, KdUP tri, KdFP t, KdFP u, KdFP
 #endif
 }
 
-/* Trace the packet of rays (ox, oy, oz) + t (dx, dy, dz) and store the outputs of each
- * lane l in `on` at index idx[l]; with row_stride > 0 every lane is on and the lanes
- * are a block (kd_store_block: idx[l] is idx[0] + (l / 4) row_stride + l % 4). */
+/* Trace the packet of rays (ox, oy, oz) + t (dx, dy, dz), each lane over its range
+ * t_min < t < t_max, and store the outputs of each lane l in `on` at index idx[l];
+ * with row_stride > 0 every lane is on and the lanes are a block (kd_store_block:
+ * idx[l] is idx[0] + (l / 4) row_stride + l % 4). */
 KD_INLINE
 void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz, KdIP on,
-                            bool camera, float t_min, float t_max, KD_TREE_PARAMS,
+                            bool camera, KdFP t_min, KdFP t_max, KD_TREE_PARAMS,
                             KD_OUTPUT_ARGS,
                             const uint *idx, uint row_stride KD_EXACT_PARAMS)
 {
@@ -317,11 +318,11 @@ void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz
 #ifdef STATS
     KdUP sx, sy, sz, sw;
     trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, camera, ox.v, oy.v, oz.v,
-                 dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
+                 dx.v, dy.v, dz.v, t_min.v, t_max.v, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
                  &sx, &sy, &sz, &sw);
 #else
     trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, camera, ox.v, oy.v, oz.v,
-                 dx.v, dy.v, dz.v, t_min, t_max, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
+                 dx.v, dy.v, dz.v, t_min.v, t_max.v, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
 #endif
     KdIP found;
     found.v = on.v & (tri_l.v != (uintP)(KD_NO_HIT));
@@ -592,6 +593,8 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
  * image's right or bottom edge are left out. Without PACKET it changes nothing.
  * order: NULL, or slot k takes ray order[k] (a permutation of the n_rays rays, image_w
  * 0: kdray/ray_order.py), its outputs written at its own index k.
+ * t_ranges: ray k's range t_min < t < t_max at 2 k t_step and 2 k t_step + 1 from
+ * element t_offset (t_step 0: one range for all rays), in the tree's units.
  *
  * The slots of a batch a work-item takes: with item_runs (CPU devices) one run of
  * BATCH_SIZE / LOCAL_SIZE in a row, so that a group, whose work-items PoCL runs one
@@ -605,11 +608,12 @@ void trace_rays(KD_TREE_ARGS,
                 __global const KD_ORIGIN_T *origins, __global const KD_DIRECTION_T *directions,
                 uint o_offset, uint d_offset,
                 uint o_step, uint n_rays, uint image_w, __global const uint *order,
-                float t_min, float t_max,
+                __global const float *t_ranges, uint t_offset, uint t_step,
                 uint item_runs KD_ORIGIN_PARAMS, __global volatile uint *counter, KD_OUTPUT_ARGS)
 {
     origins += o_offset;
     directions += d_offset;
+    t_ranges += t_offset;
     float3 bmin = vload3(0, bounds);
     float3 bmax = vload3(1, bounds);
     uint run = BATCH_SIZE / LOCAL_SIZE;
@@ -698,13 +702,26 @@ void trace_rays(KD_TREE_ARGS,
                     idx.s[l] = idx.s[0];          /* off lanes */
                 kd_gather_packet(count, o, d, &ox, &oy, &oz, &dx, &dy, &dz, &on);
             }
-            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, false, t_min, t_max, KD_TREE_PASS,
+            /* each lane's range (off lanes: a ray's that is on, or the first) */
+            KdFP t_lo, t_hi;
+            if (t_step) {
+                for (uint l = 0; l < KD_PACKET; l++) {
+                    size_t at = 2 * (size_t)(idx.s[l] < n_rays ? idx.s[l] : 0u);
+                    t_lo.s[l] = t_ranges[at];
+                    t_hi.s[l] = t_ranges[at + 1];
+                }
+            } else {
+                t_lo.v = (floatP)(t_ranges[0]);
+                t_hi.v = (floatP)(t_ranges[1]);
+            }
+            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, false, t_lo, t_hi, KD_TREE_PASS,
                                    KD_OUTPUT_PASS, idx.s, row_stride KD_TRACE_EXACT);
 #else
             uint k = order ? order[k0] : k0;
             float3 o = KD_RAY_ORIGIN(origins, (size_t)k * o_step);
             float3 d = kd_ray_direction(directions, k);
-            trace_and_store(o, d, t_min, t_max, KD_TREE_PASS, KD_OUTPUT_PASS, k
+            size_t at = 2 * (size_t)k * t_step;
+            trace_and_store(o, d, t_ranges[at], t_ranges[at + 1], KD_TREE_PASS, KD_OUTPUT_PASS, k
                             KD_TRACE_EXACT);
 #endif
         }
@@ -816,7 +833,10 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
             /* every lane on (a block inside the image, each pixel with a ray): its
              * outputs stored a row at a time */
             uint row_stride = kd_countP(on.v) == KD_PACKET ? width : 0u;
-            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, true, 0.0f, INFINITY, KD_TREE_PASS,
+            KdFP t_lo, t_hi;
+            t_lo.v = (floatP)(0.0f);
+            t_hi.v = (floatP)(INFINITY);
+            trace_packet_and_store(ox, oy, oz, dx, dy, dz, on, true, t_lo, t_hi, KD_TREE_PASS,
                                    KD_OUTPUT_PASS, idx, row_stride KD_NO_EXACT);
 #else
             uint col = tile_col + in_tile % TILE_W;
