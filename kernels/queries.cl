@@ -679,8 +679,9 @@ void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const
             uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
             KdFP qv[9];
             kd_gather_tris(tris, first + i0, qv);
-            uint keep = kd_bitsP((KD_LANE_INDEX < (intP)((int)m))
-                                 & ~kd_walk_culls(r, b, qv));
+            /* one origin: packet.cl's cull, which needs no bounds of the origins */
+            intP culls = r->cull ? kd_block_culls(r, qv) : kd_walk_culls(r, b, qv);
+            uint keep = kd_bitsP((KD_LANE_INDEX < (intP)((int)m)) & ~culls);
             while (keep != 0u)
                 kd_packet_query_tri(query, crossing, first + i0 + kd_take_lane(&keep), tris,
                                     tri_ids, r, act, shear, o, t_min, t_max, q);
@@ -768,6 +769,8 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
     for (;;) {
         KdNode n = nodes[node];
         while (!kd_is_leaf(n)) {
+            /* both children, loaded while the step runs (as kd_packet_traverse) */
+            KdNode n_below = nodes[node + 1u], n_above = nodes[kd_above_child(n)];
             KdPacketStep st = kd_packet_step(&r, kd_split_axis(n), kd_split(n), act, t_lo, t_hi);
             if (kd_anyP(st.leave)) {
                 fallback |= st.leave;
@@ -785,7 +788,7 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 node = first_child;
             } else if (!kd_anyP(st.need_first)) {
                 node = second_child;
-            } else if (kd_is_empty_leaf(nodes[first_child])) {
+            } else if (kd_is_empty_leaf(st.below_first ? n_below : n_above)) {
                 /* An empty first child holds no hit: its lanes go on in the second
                  * child (over [t_mid, t_max] where they need both), with no push; a
                  * lane that needs the first only is done here (its stack goes on). */
@@ -808,7 +811,7 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 t_hi = t_max_cur * (1.0f + KD_T_SLACK);
                 act = st.need_first;
             }
-            n = nodes[node];
+            n = node == below ? n_below : n_above;
         }
 
         if (kd_anyP(act)) {
@@ -818,7 +821,7 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
             uint tests = kd_n_prims(n);
             if ((query == KD_COUNT || query == KD_LIST)
                 && (float)(popcount(at_leaf) * ((tests + KD_PACKET - 1) / KD_PACKET))
-                   >= KD_LANE_RATIO * (float)tests) {
+                   >= (KD_CULLS(&r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO) * (float)tests) {
                 /* many lanes: a triangle against all of them at a time */
                 kd_packet_query_leaf(query, crossing, n, tris, tri_ids, &r, bounds, act,
                                      shear, o, &lo, &hi, q);
