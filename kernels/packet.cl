@@ -553,6 +553,10 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
             intP valid = KD_LANE_INDEX < (intP)((int)m);
             for (uint k = 0; k < n_on; k++) {
                 uint l = lane[k];
+#ifdef ANY_HIT
+                if (found[k])
+                    continue;                /* any hit: its first is enough */
+#endif
 #ifdef STATS
                 KdUP z;
                 z.v = (*pstats).z;
@@ -597,6 +601,12 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
                 uint j = kd_take_lane(&keep);
                 uint tri = first + i0 + j;
                 kd_packet_intersect(r, kd_tri_base(tris, tri), tri, tri_ids, act, h);
+#ifdef ANY_HIT
+                /* any hit: a lane with one is done, the leaf once every lane is */
+                act &= as_intP(h->tri == (uintP)(KD_NO_HIT));
+                if (!kd_anyP(act))
+                    return;
+#endif
             }
         }
         return;
@@ -606,6 +616,11 @@ void kd_packet_leaf(KdNode leaf, __global const float *tris, __global const uint
         uint tri = first + i;
         KD_PSTAT(z, act);
         kd_packet_intersect(r, kd_tri_base(tris, tri), tri, tri_ids, act, h);
+#ifdef ANY_HIT
+        act &= as_intP(h->tri == (uintP)(KD_NO_HIT));
+        if (!kd_anyP(act))
+            return;
+#endif
     }
 }
 
