@@ -12,7 +12,8 @@ framing camera's (N, 3) float64 rays, t and prim) or `trace-miss` (the same rays
 turned to miss the tree's box, from origins five times farther out: what a trace
 pays to read its rays and write its hits, with no traversal) or `trace-uniform`
 (2^18 incoherent rays: origins uniform in the box, random directions) or `count` (the
-camera's rays' crossing counts, kdray.rays) for --seconds, and
+camera's rays' crossing counts, kdray.rays) or `count-uniform` and `occluded-uniform`
+(those queries of the incoherent rays) for --seconds, and
 copies every
 executable anonymous mapping of the process (where Intel's runtime puts compiled
 kernels: perf sees them only as "[JIT]" addresses) to --out. It then counts the
@@ -54,7 +55,7 @@ def child(args):
         centre = (lo + hi) / 2
         o = o + 5 * (o - centre)
         d = np.ascontiguousarray((o[0] - centre) + (d - d.mean(axis=0)))
-    if args.call == "trace-uniform":
+    if args.call.endswith("-uniform"):
         lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
         rng = np.random.default_rng(1)
         o, d = lo + (hi - lo) * rng.random((1 << 18, 3)), rng.normal(size=(1 << 18, 3))
@@ -62,7 +63,8 @@ def child(args):
     call = {"render": lambda: tracer.render(camera, aovs=("depth",)),
             "render-default": lambda: tracer.render(camera),
             "trace": trace, "trace-miss": trace, "trace-uniform": trace,
-            "count": lambda: tracer.count(o, d)}[args.call]
+            "count": lambda: tracer.count(o, d), "count-uniform": lambda: tracer.count(o, d),
+            "occluded-uniform": lambda: tracer.occluded(o, d)}[args.call]
     call()
     call()
     start, calls = time.perf_counter(), 0
@@ -134,7 +136,8 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--mesh", default="bunny")
     p.add_argument("--call", default="render", choices=("render", "render-default", "trace", "trace-miss",
-                                                    "trace-uniform", "count"))
+                                                    "trace-uniform", "count", "count-uniform",
+                                                    "occluded-uniform"))
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--out", default="/tmp/kdray-profile")
