@@ -4,7 +4,7 @@ way to measure a change to the kernels or the Tracer on a machine whose speed dr
 
 usage: python bench/ab_trace.py [--base HEAD] [--work COMMIT] [--meshes bunny,bunny-1.6M]
                                 [--rounds 15] [--pairs 1] [--size 1024] [--packet 8]
-                                [--incoherent]
+                                [--incoherent] [--queries]
 
 The base commit's `kdray/` and `kernels/` are exported (git archive) into a temporary
 folder, and with --work another commit's too (so that a past change can be measured
@@ -22,7 +22,10 @@ image-shaped rays). With --incoherent, three more: `trace` of 100,000 rays in ra
 directions from the centre of the tree's box and from random points in it
 (bench_incoherent.py's rays), and `trace spread`, the camera's rays from origins spread
 over 1e-4 of the box's diagonal (a lens's or a projector's: coherent packets of
-several origins; t and prim). Separate processes, so each version has its own memory layout
+several origins; t and prim). With --queries, four more, the ray queries (kdray.rays)
+on the same rays: `count` and `intersections` of the camera's rays, `count random` of
+the rays from random points and `contains` of those points (NaN for a kdray without
+them). Separate processes, so each version has its own memory layout
 and OpenCL context. Prints each version's median times, wall and CPU (the worker
 process's, all its threads), the medians of the rounds' ratios (working tree / base:
 < 1 means faster) and whether the two gave bit-identical images and hits.
@@ -55,6 +58,7 @@ from it, so that its own kdray sets what it sets."""
 
 CALLS = ("render depth", "render default", "trace", "trace HxW")
 INCOHERENT = ("random centre", "random points", "trace spread")
+QUERIES = ("count", "intersections", "count random", "contains")
 
 
 def worker(tree_path, size, out_path, packet=0):
@@ -79,6 +83,18 @@ def worker(tree_path, size, out_path, packet=0):
              "random centre": lambda: tracer.trace(oc, dc),
              "random points": lambda: tracer.trace(op, dp),
              "trace spread": lambda: tracer.trace(spread, d, outputs=())}
+    queries = {}
+    if hasattr(tracer, "count"):          # a kdray with the ray queries
+        calls.update({"count": lambda: tracer.count(o, d),
+                      "intersections": lambda: tracer.intersections(o, d),
+                      "count random": lambda: tracer.count(op, dp),
+                      "contains": lambda: tracer.contains(op)})
+        listed = calls["intersections"]()
+        queries = {"count": calls["count"](), "count random": calls["count random"](),
+                   "contains": calls["contains"](), "intersections offsets": listed.offsets,
+                   "intersections prim": listed.prim}
+    else:
+        calls.update({k: (lambda: None) for k in QUERIES})
     images = calls["render default"]()
     hits = calls["trace"]()
     incoherent = {k: calls[k]().prim for k in INCOHERENT}
@@ -89,7 +105,7 @@ def worker(tree_path, size, out_path, packet=0):
         calls["trace HxW"] = lambda: None
     np.savez(out_path, **{f"render {k}": v for k, v in images.items()},
              **{f"trace {k}": getattr(hits, k) for k in ("t", "prim", "u", "v", "normal")},
-             **{f"{k} prim": v for k, v in incoherent.items()})
+             **{f"{k} prim": v for k, v in incoherent.items()}, **queries)
     print("ready", flush=True)
     for line in sys.stdin:
         t0, c0 = time.perf_counter(), time.process_time()
@@ -182,8 +198,10 @@ def main():
                     help="the Tracers' packet width: 1, 8 or 16 (default: the device's)")
     ap.add_argument("--incoherent", action="store_true",
                     help="also time 100,000 rays in random directions (two sets)")
+    ap.add_argument("--queries", action="store_true",
+                    help="also time the ray queries (count, intersections, contains)")
     args = ap.parse_args()
-    calls = CALLS + INCOHERENT if args.incoherent else CALLS
+    calls = CALLS + (INCOHERENT if args.incoherent else ()) + (QUERIES if args.queries else ())
     sys.path.insert(0, ROOT)
     with tempfile.TemporaryDirectory() as tmp:
         roots = {}
