@@ -618,12 +618,13 @@ intP kd_walk_culls(const KdPacket *r, const KdLaneBounds *b, const KdFP *q)
  * (kd_packet_leaf's pairs): the crossing rule's candidates (kd_crossing_pairs) each
  * decided by intersect_triangle with its lane's shear, or the nearest hit's rule
  * (kd_test_pairs with no best hit yet), then kd_count_hit or kd_list_hit lane by lane,
- * as kd_query_leaf does with the same pairs. r: the packet; shear, o: each lane's
- * (kd_walk's); t_min, t_max: each lane's range; q[l]: lane l's query. */
+ * as kd_query_leaf does with the same pairs. r: the packet (each lane's shear and
+ * origin: kd_lane_shear, kd_walk's bit for bit); t_min, t_max: each lane's range; q[l]:
+ * lane l's query. */
 KD_INLINE
 void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const float *tris,
                          __global const uint *tri_ids, const KdPacket *r, intP act,
-                         const RayShear *shear, const KdFP *o, const KdFP *t_min,
+                         const KdFP *t_min,
                          const KdFP *t_max, KdQuery *q)
 {
     __global const float *p = kd_tri_base(tris, tri);
@@ -653,11 +654,13 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
         } else if (!crossing) {
             kd_count_hit(&q[l], id, 0);
         } else {
-            float3 ol = (float3)(o[0].s[l], o[1].s[l], o[2].s[l]);
+            RayShear sl;
+            float3 ol;
+            kd_lane_shear(r, l, &sl, &ol);
             float th, u, v;
-            if (intersect_triangle(&shear[l], ol, p0, p1, p2, tri, t_min->s[l], t_max->s[l],
+            if (intersect_triangle(&sl, ol, p0, p1, p2, tri, t_min->s[l], t_max->s[l],
                                    t_max->s[l], KD_NO_HIT, tri_ids, true, &th, &u, &v))
-                kd_count_hit(&q[l], id, kd_facing(&shear[l], ol, p0, p1, p2));
+                kd_count_hit(&q[l], id, kd_facing(&sl, ol, p0, p1, p2));
         }
     } while (lanes);
 }
@@ -668,8 +671,8 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
 KD_INLINE
 void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const float *tris,
                           __global const uint *tri_ids, const KdPacket *r,
-                          const KdLaneBounds *b, intP act, const RayShear *shear,
-                          const KdFP *o, const KdFP *t_min, const KdFP *t_max, KdQuery *q)
+                          const KdLaneBounds *b, intP act, const KdFP *t_min,
+                          const KdFP *t_max, KdQuery *q)
 {
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
@@ -684,14 +687,14 @@ void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const
             uint keep = kd_bitsP((KD_LANE_INDEX < (intP)((int)m)) & ~culls);
             while (keep != 0u)
                 kd_packet_query_tri(query, crossing, first + i0 + kd_take_lane(&keep), tris,
-                                    tri_ids, r, act, shear, o, t_min, t_max, q);
+                                    tri_ids, r, act, t_min, t_max, q);
         }
         return;
     }
 #endif
     for (uint i = 0; i < count; i++)
-        kd_packet_query_tri(query, crossing, first + i, tris, tri_ids, r, act, shear, o, t_min,
-                            t_max, q);
+        kd_packet_query_tri(query, crossing, first + i, tris, tri_ids, r, act, t_min, t_max,
+                            q);
 }
 
 /* The walks of the packet of rays ids[0 .. m - 1] (m <= KD_PACKET) into q[0 .. m - 1]
@@ -749,9 +752,6 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
         bounds = &lane_bounds;
     }
 #endif
-    RayShear shear[KD_PACKET];           /* each lane's, as kd_walk makes it */
-    for (uint l = 0; l < KD_PACKET; l++)
-        shear[l] = ray_shear((float3)(dx.s[l], dy.s[l], dz.s[l]));
 
     uint stack_node[PACKET_STACK_SIZE];
     floatP stack_t_min[PACKET_STACK_SIZE];
@@ -824,15 +824,17 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                    >= (KD_CULLS(&r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO) * (float)tests) {
                 /* many lanes: a triangle against all of them at a time */
                 kd_packet_query_leaf(query, crossing, n, tris, tri_ids, &r, bounds, act,
-                                     shear, o, &lo, &hi, q);
+                                     &lo, &hi, q);
                 at_leaf = 0u;
             }
             KdFP t_exit_l;
             t_exit_l.v = t_max_cur;
             while (at_leaf) {
                 uint l = kd_take_lane(&at_leaf);
-                if (kd_query_leaf(query, n, tris, tri_ids, &shear[l],
-                                  (float3)(o[0].s[l], o[1].s[l], o[2].s[l]), lo.s[l], hi.s[l],
+                RayShear sl;         /* the lane's shear and origin, kd_walk's bit for bit */
+                float3 ol;
+                kd_lane_shear(&r, l, &sl, &ol);
+                if (kd_query_leaf(query, n, tris, tri_ids, &sl, ol, lo.s[l], hi.s[l],
                                   t_exit_l.s[l], &q[l]))
                     live &= ~kd_maskP(1u << l);
             }
