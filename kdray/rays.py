@@ -446,14 +446,17 @@ def nearest(tracer, origins, directions, t_min, t_max, outputs=("UV", "NORMAL"))
 
 
 def _counts(tracer, rays, crossing):
-    """(N,) int64 exact counts of distinct triangles hit (crossing: the count's rule)."""
+    """(N,) int32 exact counts of distinct triangles hit (crossing: the count's rule):
+    the kernel's output itself, seen as int32, the few marked rays mended in place."""
     out = page_aligned_empty((rays.n,), np.uint32)
     for start, stop in _launches(tracer, rays, [4]):
         _launch(tracer, "count_rays", rays, start, stop, (np.uint32(crossing),),
                 {"out": out[start:stop]})
-    _check_fault(out == WALK_FAULT, "count")
-    counts = out.astype(np.int64)
-    raw = np.flatnonzero(out & COUNT_RAW)
+    # one pass finds the marked rays (COUNT_RAW, WALK_FAULT), then only they are read
+    marked = np.flatnonzero(out >= np.uint32(WALK_FAULT))
+    _check_fault(out[marked] == WALK_FAULT, "count")
+    counts = out.view(np.int32)
+    raw = marked[(out[marked] & np.uint32(COUNT_RAW)) != 0]
     if raw.size:
         # more distinct hits than the kernel keeps ids of: listed, which deduplicates
         sub = rays.subset(raw)
@@ -469,7 +472,7 @@ def count(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     or a vertex shared by consistently oriented triangles crosses there once."""
     rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
                   directions)
-    return _counts(tracer, rays, True).astype(np.int32).reshape(rays.shape)
+    return _counts(tracer, rays, True).reshape(rays.shape)
 
 
 WINDING = 2
@@ -660,7 +663,7 @@ def _listed(tracer, rays, max_hits):
     redo = np.flatnonzero(more) if max_hits is None or max_hits > guess else ()
     if len(redo):
         sub = rays.subset(redo)
-        caps = _counts(tracer, sub, False)
+        caps = _counts(tracer, sub, False).astype(np.int64)
         if max_hits is not None:
             np.minimum(caps, int(max_hits), out=caps)
         hits = _replace_rows(hits, redo, _list(tracer, sub, caps)[0])
