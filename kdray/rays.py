@@ -214,13 +214,33 @@ class _Rays:
         self._given = (o, d)                     # as the caller gave them (`exact`)
         self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
 
+    @classmethod
+    def relative(cls, tracer, o32, d32, given):
+        """_Rays of rays already as queries.cl reads them (o32, d32: (N, 3) float32,
+        page-aligned, relative to the tree's origin in its units), each over (0, inf);
+        given: a function returning (o, d) as the caller gave them, called only where
+        they are needed (`exact`, `subset`)."""
+        rays = object.__new__(cls)
+        rays.n = len(d32)
+        rays.shape, rays.image_w, rays.o_step = (rays.n,), 0, 1
+        rays.o, rays.d, rays._given = o32, d32, given
+        rays.t_mins, rays.t_maxs, rays.t_step = _ranges(0.0, np.inf, rays.n, tracer._scale)
+        return rays
+
+    def given(self):
+        """(o, d): the rays as the caller gave them (made on first use where `relative`
+        did not keep them)."""
+        if callable(self._given):
+            self._given = self._given()
+        return self._given
+
     def exact(self, start, stop):
         """(o64, d64): the float64 rays start .. stop - 1 as given, in world
         coordinates, which list_rays and nearest_rays refine hits from with REFINE
         (`_launch`'s exact arguments): the caller's arrays themselves where they are
         float64 and contiguous, which the device reads in place."""
         if not hasattr(self, "_exact"):
-            o, d = self._given
+            o, d = self.given()
             self._exact = (np.ascontiguousarray(o, dtype=np.float64),
                            np.ascontiguousarray(d, dtype=np.float64))
         o, d = self._exact
@@ -243,7 +263,7 @@ class _Rays:
         other.d = self.d[index]
         other.t_mins = self.t_mins[index] if self.t_step else self.t_mins
         other.t_maxs = self.t_maxs[index] if self.t_step else self.t_maxs
-        o, d = self._given
+        o, d = self.given()
         other._given = (o[index] if self.o_step else o, d[index])
         return other
 
@@ -493,8 +513,16 @@ def _contains_rays(tracer, p):
         return _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf), None
     sides = _sides(tracer, p)
     order = spatial_order(p, *tracer.tree.world_box(), sides)
-    d = np.repeat(_OCTANT_DIRECTIONS, np.bincount(sides, minlength=8), axis=0)
-    return _Rays(tracer, take_rows(p, order), d, 0.0, np.inf), order
+    d = np.empty(p.shape, np.float32)
+    ends = np.cumsum(np.bincount(sides, minlength=8))
+    for k, (a, b) in enumerate(zip(np.concatenate([[0], ends[:-1]]), ends)):
+        d[a:b] = _OCTANT_DIRECTIONS[k]
+    # the points made float32 and relative to the tree first, then put in order: half
+    # the bytes of float64 rows to gather (the same numbers either way)
+    o32, d32 = ray_input.rays32(p, d, 1, tracer._origin, tracer._scale)
+    ordered = page_aligned_empty(p.shape, np.float32)
+    np.take(o32, order, axis=0, out=ordered, mode="wrap")     # unbuffered
+    return _Rays.relative(tracer, ordered, d32, lambda: (take_rows(p, order), d)), order
 
 
 def _unsorted(a, order):

@@ -212,6 +212,23 @@ def test_count_parity_on_fandisk(runtime):
     assert (c % 2 == np.repeat(inside, len(targets))).all()
 
 
+def test_contains_through_more_shells_than_the_kernel_keeps(runtime):
+    """Points in spatial order (SORT_FROM or more) inside 34 nested cubes: rays from the
+    innermost cross every shell, more than a ray's ids the kernel keeps (KD_SEEN), and
+    are counted again from the list; the parity of the shells around each point."""
+    v, f = grid_cube(1)
+    k = 34
+    shells = build(np.concatenate([v * (1 + 0.1 * i) for i in range(k)]),
+                   np.concatenate([f + i * len(v) for i in range(k)]))
+    tracer = Tracer(shells, device=runtime.spec)
+    rng = np.random.default_rng(22)
+    n = krays.SORT_FROM + 333
+    p = np.concatenate([rng.uniform(-4.5, 4.5, (n - 50, 3)), rng.uniform(-0.9, 0.9, (50, 3))])
+    around = (np.abs(p).max(axis=1)[:, None] < 1 + 0.1 * np.arange(k)).sum(axis=1)
+    assert (around == k).sum() >= 50
+    assert (tracer.contains(p) == (around % 2 == 1)).all()
+
+
 def test_contains_on_grids_through_vertices(runtime):
     """Points on a grid through every vertex of the grid cube and of a sphere, against
     the exact half-space test of a convex mesh; points on the cube's surface answer as
