@@ -10,7 +10,8 @@ three ray sets, the framing camera's 1024 x 1024 rays, `--rays` incoherent rays 
 random points in the tree's box in random directions) and as many rays that mostly hit
 (`aimed`: from a sphere around the mesh to random points on its surface), and as many
 random points in the box for the inside tests:
-- kdray: `trace` (t and prim), `occluded`, `count`, `intersections`, `contains`;
+- kdray: `trace` (t and prim), `occluded`, `count`, `intersections`, `contains`, and
+  `trace` and `occluded` with t_max an (N,) array (a range a ray, each inf);
 - Open3D's RaycastingScene: `cast_rays`, `test_occlusions`, `count_intersections`,
   `list_intersections`, `compute_occupancy` (nsamples 1 and 3);
 - trimesh with embreex: `intersects_location(multiple_hits=True)` and `contains`
@@ -122,8 +123,11 @@ def speed(name, args):
                           (f"{args.rays:,} rays aimed at the surface from around it",
                            aimed(m, tree, args.rays))):
         points = io                     # random points in the box
+        t_ray = np.full(len(d), np.inf)  # a range a ray
         calls = {"kdray trace": lambda: tracer.trace(o, d, outputs=()),
+                 "kdray trace, t a ray": lambda: tracer.trace(o, d, t_max=t_ray, outputs=()),
                  "kdray occluded": lambda: tracer.occluded(o, d),
+                 "kdray occluded, t a ray": lambda: tracer.occluded(o, d, t_max=t_ray),
                  "kdray count": lambda: tracer.count(o, d),
                  "kdray intersections": lambda: tracer.intersections(o, d),
                  "kdray contains": lambda: tracer.contains(points)}
@@ -136,6 +140,8 @@ def speed(name, args):
         wall, _, results = round_robin(calls, args.repeat)
         hits = results["kdray trace"]
         assert (results["kdray occluded"] == hits.hit).all()
+        assert (results["kdray occluded, t a ray"] == hits.hit).all()
+        assert np.array_equal(results["kdray trace, t a ray"].prim, hits.prim)
         listed = results["kdray intersections"]
         first = listed.offsets[:-1][listed.counts > 0]
         # the list's first hit is trace's but where two hits lie within float32
