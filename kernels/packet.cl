@@ -384,14 +384,17 @@ bool kd_ray_block(const RayShear *s, float3 o, float t_min, float t_max, float b
     if (!kd_anyP(cand))
         return false;
     /* the first candidate in the order (t, index); each one is before the best */
-    KdIP c;
     KdFP tl, Vl, Wl, dl;
     KdUP il;
-    c.v = cand; tl.v = t; Vl.v = V; Wl.v = W; dl.v = det; il.v = triP;
-    uint best = KD_PACKET;
-    for (uint j = 0; j < KD_PACKET; j++)
-        if (c.s[j] && (best == KD_PACKET || kd_before(tl.s[j], il.s[j], tl.s[best], il.s[best], tri_ids)))
+    tl.v = t; Vl.v = V; Wl.v = W; dl.v = det; il.v = triP;
+    /* the candidates' lanes only, in ascending order (most blocks have one) */
+    uint lanes = kd_bitsP(cand);
+    uint best = kd_take_lane(&lanes);
+    while (lanes) {
+        uint j = kd_take_lane(&lanes);
+        if (kd_before(tl.s[j], il.s[j], tl.s[best], il.s[best], tri_ids))
             best = j;
+    }
     *t_out = tl.s[best];
     *V_out = Vl.s[best];
     *W_out = Wl.s[best];
