@@ -39,6 +39,16 @@ def poisoned_case(runtime, tree, n, seed):
     return o, d, tracer
 
 
+def eye_image(tree, side):
+    """(eye (3,), directions (side, side, 3)): an image's rays from one eye in front of
+    the tree's box to a grid of points across its middle."""
+    lo, hi = tree.world_box()
+    g = np.linspace(0.05, 0.95, side)
+    target = lo + (hi - lo) * np.stack(np.meshgrid(g, g, [0.5], indexing="ij"), -1)[:, :, 0]
+    eye = lo + (hi - lo) * np.array([0.5, 0.5, -1.5])
+    return eye, target - eye
+
+
 def test_occluded_is_traces_hit(runtime, teapot_tree):
     tree = teapot_tree
     n = runtime.small(3001, 61)
@@ -62,11 +72,7 @@ def test_occluded_stops_at_any_hit_in_packets_and_lanes(runtime, teapot_tree):
     in split planes and random rays, in packets of each width, answer trace's hit."""
     tree = teapot_tree
     lo, hi = tree.world_box()
-    side = runtime.small(96, 8)
-    g = np.linspace(0.05, 0.95, side)
-    target = lo + (hi - lo) * np.stack(np.meshgrid(g, g, [0.5], indexing="ij"), -1)[:, :, 0]
-    eye = lo + (hi - lo) * np.array([0.5, 0.5, -1.5])
-    image = target - eye
+    eye, image = eye_image(tree, runtime.small(96, 8))
     flat = image.reshape(-1, 3)
     o_r, d_r = random_rays(tree, runtime.small(2001, 61), seed=14)
     o_s, d_s = split_plane_rays(tree, runtime.small(500, 30), seed=15)
@@ -524,10 +530,7 @@ def test_ranges_a_ray_through_trace_packets(runtime, teapot_tree, monkeypatch):
     tree = teapot_tree
     lo, hi = tree.world_box()
     side = runtime.small(64, 8)
-    g = np.linspace(0.05, 0.95, side)
-    target = lo + (hi - lo) * np.stack(np.meshgrid(g, g, [0.5], indexing="ij"), -1)[:, :, 0]
-    eye = lo + (hi - lo) * np.array([0.5, 0.5, -1.5])
-    image = target - eye
+    eye, image = eye_image(tree, side)
     n = side * side
     rng = np.random.default_rng(21)
     eyes = eye + 1e-3 * (hi - lo) * rng.random((n, 3))
