@@ -567,12 +567,15 @@ def contains(tracer, points):
     return _unsorted(_counts(tracer, rays, True) % 2 == 1, order).reshape(shape)
 
 
-def _list(tracer, rays, caps, crossing=False):
+def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     """(Intersections, more) of `rays` (their float32 t, u, v) with at most caps[i]
     hits of ray i ((N,) int64; at least its distinct hits for every hit; or an int,
     the same for all), its nearest in (t, input id) order: the kernel fills each ray's
     slots, then the slots left empty are dropped. more: (N,) bool, the rays that had
-    more hits than caps[i]."""
+    more hits than caps[i]. nearest_k: the caps are the nearest hits wanted (max_hits,
+    or a ray's exact count), not whether there are more: a ray's walk ends once its
+    slots are taken and the last hit is final (queries.cl, kd_list_done), and `more`
+    is then not known."""
     cap = int(caps) if np.ndim(caps) == 0 else None      # the same for every ray
     caps = np.broadcast_to(np.asarray(caps, dtype=np.int64), (rays.n,))
     total = int(caps.sum())
@@ -600,11 +603,11 @@ def _list(tracer, rays, caps, crossing=False):
             raise DeviceError(f"ray {start}'s {b - a} hits do not fit in one buffer on "
                               f"{tracer.device.name.strip()}: ask for fewer (max_hits)")
         if cap is None:
-            extra = (np.uint32(crossing), np.uint32(0),
+            extra = (np.uint32(crossing), np.uint32(0), np.uint32(nearest_k),
                      (offsets[start:stop] - a).astype(np.uint64),
                      caps[start:stop].astype(np.uint32))
         else:
-            extra = (np.uint32(crossing), np.uint32(cap), None, None)
+            extra = (np.uint32(crossing), np.uint32(cap), np.uint32(nearest_k), None, None)
         _launch(tracer, "list_rays", rays, start, stop, extra,
                 {"t": t[a:b] if b > a else np.empty(1, np.float32),
                  "uv": uv[a:b] if b > a else np.empty((1, 2), np.float32),
@@ -687,14 +690,17 @@ def _listed(tracer, rays, max_hits):
     GUESS_HITS nearest (its max_hits when fewer), then the rays that had more counted
     and listed again in full."""
     guess = GUESS_HITS if max_hits is None else min(GUESS_HITS, int(max_hits))
-    hits, more = _list(tracer, rays, guess)
-    redo = np.flatnonzero(more) if max_hits is None or max_hits > guess else ()
+    # max_hits within the guess: the first pass is a k-nearest query, its walks ending
+    # at the k-th hit's leaf; else it must see whether a ray has more
+    final = max_hits is not None and max_hits <= guess
+    hits, more = _list(tracer, rays, guess, nearest_k=final)
+    redo = () if final else np.flatnonzero(more)
     if len(redo):
         sub = rays.subset(redo)
         caps = _counts(tracer, sub, False).astype(np.int64)
         if max_hits is not None:
             np.minimum(caps, int(max_hits), out=caps)
-        hits = _replace_rows(hits, redo, _list(tracer, sub, caps)[0])
+        hits = _replace_rows(hits, redo, _list(tracer, sub, caps, nearest_k=True)[0])
     return hits
 
 

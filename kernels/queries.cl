@@ -74,7 +74,10 @@
 typedef struct {
     bool crossing;                       /* the count's rule (intersect_triangle) */
     bool fault;                          /* the walk's stack or leaf bound was exceeded */
-    bool in_plane;                       /* nearest: a node's plane held the ray */
+    bool in_plane;                       /* nearest, list: a node's plane held the ray */
+    bool nearest_k;                      /* list (set by list_rays): the slots want the
+                                          * cap nearest hits only, not whether there are
+                                          * more: the walk may end (kd_list_done) */
     Hit hit;                             /* nearest: the best hit so far */
     uint n;                              /* distinct hits (any: 1 once hit) */
     uint raw;                            /* count: hits found, copies included; list:
@@ -215,10 +218,21 @@ intP kd_crossing_lanes(const RayShear *s, float3 o, const KdFP *q, intP valid)
 }
 #endif
 
+/* list (nearest_k): whether the walk may end at a leaf whose exit is t_exit: every slot
+ * taken and the last one's hit final there (kd_hit_final), so that no later leaf holds
+ * a nearer hit, unless a node's plane has held the ray (kd_query_leaf). */
+KD_INLINE
+bool kd_list_done(const KdQuery *q, float t_exit)
+{
+    return q->nearest_k && q->cap > 0u && q->n == q->cap && !q->in_plane
+           && kd_hit_final(q->t[q->cap - 1u], t_exit);
+}
+
 /* Test a leaf's triangles for `query`; true when the walk may stop: any, at a hit;
  * nearest, when its best hit is final at the leaf's exit t_exit (traverse.cl,
  * kd_hit_final), unless the walk has met a node whose plane holds the ray: its
- * second child is then walked over the same range, and may hold a nearer hit. */
+ * second child is then walked over the same range, and may hold a nearer hit; list,
+ * when kd_list_done. */
 KD_INLINE
 bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                    __global const uint *tri_ids, const RayShear *shear, float3 o, float t_min,
@@ -262,7 +276,7 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                     kd_list_hit(q, tri, t.s[j], V.s[j] / det.s[j], W.s[j] / det.s[j], tri_ids);
             }
         }
-        return false;
+        return query == KD_LIST && kd_list_done(q, t_exit);
     }
     /* the count's crossing rule: the lanes that may be crossed, each then decided by
      * intersect_triangle as the loop below decides it */
@@ -307,7 +321,7 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
         else
             kd_list_hit(q, tri, t, u, v, tri_ids);
     }
-    return false;
+    return query == KD_LIST && kd_list_done(q, t_exit);
 }
 
 /* The walk of one ray carried on from `node` over [t0, t1], with `count` entries on
@@ -825,6 +839,13 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 /* many lanes: a triangle against all of them at a time */
                 kd_packet_query_leaf(query, crossing, n, tris, tri_ids, &r, bounds, act,
                                      &lo, &hi, q);
+                KdFP t_exit_l;
+                t_exit_l.v = t_max_cur;
+                for (uint done = query == KD_LIST ? at_leaf : 0u; done;) {
+                    uint l = kd_take_lane(&done);
+                    if (kd_list_done(&q[l], t_exit_l.s[l]))
+                        live &= ~kd_maskP(1u << l);
+                }
                 at_leaf = 0u;
             }
             KdFP t_exit_l;
@@ -1033,7 +1054,10 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
  * fault): with caps[k] at least its distinct hits, every hit, else the caps[k] first
  * in (t, input id) order, the count then marked KD_LIST_MORE. Sorted by (t, input id),
  * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
- * k * cap (a first pass's guess: no arrays to make and copy). */
+ * k * cap (a first pass's guess: no arrays to make and copy). nearest_k: the slots
+ * are the nearest hits wanted, not whether there are more (a k-nearest query, or
+ * caps[k] the ray's exact count): a walk ends once they are taken and the last is
+ * final (kd_list_done), its KD_LIST_MORE then unknown. */
 #if defined(REFINE) && defined(cl_khr_fp64)
 /* the caller's rays in double as given, in world coordinates (origins o_step apart, as
  * `origins`), from element exact_o_offset and exact_d_offset on (the host's arrays,
@@ -1056,7 +1080,8 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 #endif
 
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
-void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, __global const ulong *offsets,
+void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, uint nearest_k,
+               __global const ulong *offsets,
                __global const uint *caps KD_EXACT_RAY_ARGS, __global float *hit_t,
                __global float *hit_uv, __global uint *hit_id, __global uint *out_n)
 {
@@ -1070,6 +1095,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, __global const ulong *off
             q->uv = hit_uv + 2u * at;
             q->tri = hit_id + at;            /* copies while walking, input ids at the end */
             q->cap = caps ? caps[k] : cap;
+            q->nearest_k = nearest_k != 0u;
         }
         kd_walk_block(KD_LIST, crossing != 0u, KD_WALK_ARGS, ids, m, qs);
         for (uint l = 0; l < m; l++) {

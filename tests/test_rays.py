@@ -158,6 +158,46 @@ def test_intersections_match_brute_force(runtime, teapot_tree, monkeypatch):
         assert (few.counts == counts).all() and (few.prim == hits.prim[keep]).all()
 
 
+def test_nearest_hits_end_their_walks_and_keep_the_whole_lists_first(runtime, teapot_tree,
+                                                                     monkeypatch):
+    """max_hits=k ends a ray's walk once its k slots are taken and the k-th hit is
+    final (kd_list_done): the answer is still the whole list's first k, bit for bit, for
+    an image's rays (packets), random rays (lanes), rays in the tree's split planes and
+    the rays with more hits than the first pass's slots (listed again to their count),
+    at each packet width; but where hits tie within float32 rounding at the k-th place
+    (rays through an edge of two triangles), which the slots keep follows the walk's
+    float32 t as trace's hit does, and the whole list orders them by their refined t.
+    max_hits=1 is trace's hit."""
+    tree = teapot_tree
+    eye, image = eye_image(tree, runtime.small(48, 8))
+    o_r, d_r = random_rays(tree, runtime.small(1500, 41), seed=23)
+    o_s, d_s = split_plane_rays(tree, runtime.small(400, 30), seed=24)
+    cases = [(eye, image.reshape(-1, 3)), (o_r, d_r), (o_s, d_s)]
+    for packet in [1] if runtime.simulator else [1, *PACKETS]:
+        tracer = Tracer(tree, device=runtime.spec, packet=packet)
+        tracer._poison_outputs = True
+        for o, d in cases:
+            whole = tracer.intersections(o, d)
+            assert (whole.counts > 3).any()
+            for k, guess in ((1, 4), (3, 4), (3, 1), (6, 2)):
+                monkeypatch.setattr(krays, "GUESS_HITS", guess)
+                few = tracer.intersections(o, d, max_hits=k)
+                counts = np.minimum(whole.counts, k)
+                rank = np.arange(len(whole.t)) - np.repeat(whole.offsets[:-1], whole.counts)
+                keep = rank < np.repeat(counts, whole.counts)
+                assert np.array_equal(few.counts, counts), (packet, k, guess)
+                other = few.prim != whole.prim[keep]
+                assert other.mean() <= 0.05, (packet, k, guess)   # edges: split planes
+                assert np.allclose(few.t[other], whole.t[keep][other], rtol=1e-6, atol=0)
+                for name in ("t", "prim", "u", "v"):
+                    assert np.array_equal(getattr(few, name)[~other],
+                                          getattr(whole, name)[keep][~other]), (packet, k, name)
+                if k == 1:
+                    hit = tracer.trace(o, d)
+                    assert np.array_equal(few.prim, hit.prim[hit.hit])
+                    assert np.array_equal(few.t, hit.t[hit.hit])
+
+
 def test_counts_are_exact_through_vertices_and_edges(runtime):
     """A ray into a convex closed mesh through any vertex or edge crosses it exactly
     twice; from inside, once; a ray grazing it (in a face's plane) an even number."""
