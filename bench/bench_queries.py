@@ -10,8 +10,9 @@ three ray sets, the framing camera's 1024 x 1024 rays, `--rays` incoherent rays 
 random points in the tree's box in random directions) and as many rays that mostly hit
 (`aimed`: from a sphere around the mesh to random points on its surface), and as many
 random points in the box for the inside tests:
-- kdray: `trace` (t and prim), `occluded`, `count`, `intersections`, `contains`, and
-  `trace` and `occluded` with t_max an (N,) array (a range a ray, each inf);
+- kdray: `trace` (t and prim), `occluded`, `count`, `intersections`, `contains`,
+  `trace` and `occluded` with t_max an (N,) array (a range a ray, each inf), and
+  `intersections` with max_hits=1 (the nearest hit as a k-nearest list);
 - Open3D's RaycastingScene: `cast_rays`, `test_occlusions`, `count_intersections`,
   `list_intersections`, `compute_occupancy` (nsamples 1 and 3);
 - trimesh with embreex: `intersects_location(multiple_hits=True)` and `contains`
@@ -130,6 +131,8 @@ def speed(name, args):
                  "kdray occluded, t a ray": lambda: tracer.occluded(o, d, t_max=t_ray),
                  "kdray count": lambda: tracer.count(o, d),
                  "kdray intersections": lambda: tracer.intersections(o, d),
+                 "kdray intersections, max_hits=1":
+                     lambda: tracer.intersections(o, d, max_hits=1),
                  "kdray contains": lambda: tracer.contains(points)}
         if not args.no_peers and installed("open3d"):
             calls.update(open3d_calls(m, o, d, points))
@@ -142,6 +145,8 @@ def speed(name, args):
         assert (results["kdray occluded"] == hits.hit).all()
         assert (results["kdray occluded, t a ray"] == hits.hit).all()
         assert np.array_equal(results["kdray trace, t a ray"].prim, hits.prim)
+        assert np.array_equal(results["kdray intersections, max_hits=1"].prim,
+                              hits.prim[hits.hit])
         listed = results["kdray intersections"]
         first = listed.offsets[:-1][listed.counts > 0]
         # the list's first hit is trace's but where two hits lie within float32
@@ -156,7 +161,7 @@ def speed(name, args):
                  if "mitsuba ray_test" in results else ""))
         for key, times in wall.items():
             n = len(o) // (SAMPLE if key.startswith("trimesh") else 1)
-            print(f"    {key:<28} {n / times.min() / 1e6:8.3f} Mrays/s (best) "
+            print(f"    {key:<32} {n / times.min() / 1e6:8.3f} Mrays/s (best) "
                   f"{n / np.median(times) / 1e6:8.3f} (median)  "
                   f"{np.median(times) / base * len(o) / n:6.2f} x kdray trace's time a ray")
 
