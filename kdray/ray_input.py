@@ -29,11 +29,12 @@ C_TYPES = {np.dtype(np.float32): "float", np.dtype(np.float64): "double"}
 """The ray arrays trace_rays reads as they are (RAYS_WORLD): numpy dtype -> C type."""
 
 
-RAY_HOST_BYTES = 72
+RAY_HOST_BYTES = 80
 """Host bytes a ray needs at most while it is traced: its float32 origin and direction
-(24), the nearest hit's outputs (t, prim, u, v, normal: 28) and, for rays taken in an
-order (kdray.ray_order), its key, its place in the sort and in the order (14), rounded
-up. `flat_rays` checks the host has them for every ray before anything is made."""
+(24), the nearest hit's outputs (t, prim, u, v, normal: 28), for rays taken in an order
+(kdray.ray_order) its key, its place in the sort and in the order (14), and its float32
+t range where it has one of its own (8), rounded up. `flat_rays` checks the host has
+them for every ray before anything is made."""
 
 
 def numbers(name, values):

@@ -150,7 +150,7 @@ def check_t(t, name):
     of numbers (strings and bools refused, not converted; ray_input.numbers)."""
     if isinstance(t, (bool, str, bytes)) or t is None:
         raise KdrayError(f"{name} must be a number or an array of one a ray, got {t!r:.80}")
-    return ray_input.numbers(name, t).astype(np.float64)
+    return ray_input.numbers(name, t).astype(np.float64, copy=False)
 
 
 def _checked_ranges(t_min, t_max, n):

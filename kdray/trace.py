@@ -550,8 +550,9 @@ class Tracer:
 
     def _trace_rays(self, origins, directions, shape, t_min, t_max, outputs, any_hit=False):
         """Hits of flat rays (ray_input.flat_rays: their shape `shape`) with t ranges
-        (numbers, or (N,) arrays) by trace_rays: image-shaped rays, given so or found so, in blocks of
-        pixels on a CPU; any_hit: the first hit each ray's traversal finds (`program`)."""
+        (numbers, or (N,) arrays) by trace_rays: image-shaped rays, given so or found
+        so, in blocks of pixels on a CPU; any_hit: the first hit each ray's traversal
+        finds (`program`)."""
         if len(shape) >= 2:
             image_w, search = shape[-1], None
         elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
