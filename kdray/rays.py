@@ -578,11 +578,14 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     is then not known."""
     cap = int(caps) if np.ndim(caps) == 0 else None      # the same for every ray
     caps = np.broadcast_to(np.asarray(caps, dtype=np.int64), (rays.n,))
-    total = int(caps.sum())
+    total = rays.n * cap if cap is not None else int(caps.sum())
     check_host_memory(total * (HIT_BYTES + 4) + rays.n * 12,
                       f"the {total} hits of {rays.n} rays")
-    offsets = np.zeros(rays.n + 1, dtype=np.int64)
-    np.cumsum(caps, out=offsets[1:])
+    if cap is not None:
+        offsets = np.arange(rays.n + 1, dtype=np.int64) * cap
+    else:
+        offsets = np.zeros(rays.n + 1, dtype=np.int64)
+        np.cumsum(caps, out=offsets[1:])
     t = page_aligned_empty((total,), np.float32)
     uv = page_aligned_empty((total, 2), np.float32)
     prim = page_aligned_empty((total,), np.uint32)
@@ -614,9 +617,13 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
                  "prim": prim[a:b] if b > a else np.empty(1, np.uint32),
                  "found": found[start:stop]}, exact=tracer.refine)
         start = stop
-    _check_fault(found == WALK_FAULT, "intersections")
-    more = (found & LIST_MORE) != 0
-    n_found = (found & ~np.uint32(LIST_MORE)).astype(np.int64)
+    # one pass finds the marked rays (LIST_MORE, WALK_FAULT), then only they are read
+    marked = np.flatnonzero(found >= np.uint32(LIST_MORE))
+    _check_fault(found[marked] == WALK_FAULT, "intersections")
+    more = np.zeros(rays.n, dtype=bool)
+    more[marked] = True
+    n_found = found.astype(np.int64)
+    n_found[marked] &= ~LIST_MORE
     if (n_found == caps).all():
         return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1],
                              object_table=tracer.tree.objects), more
