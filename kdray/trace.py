@@ -512,9 +512,9 @@ class Tracer:
         t_min, t_max : numbers, or (N,) arrays, a range a ray: rays that share their
             paths (an image, a camera's or a lidar's rays: kdray.rays.share_paths)
             are traced in packets as with a number, each lane over its own range;
-            others one a work-item by the ray queries' walk (kdray.rays.nearest),
-            whose lanes take a new ray as each walk ends. The same hits, t, u, v and
-            normals either way, and as each ray would get from a number
+            others by the ray queries' walk (kdray.rays.nearest), whose lanes take
+            a new ray as each walk ends. The same hits, t, u, v and normals either
+            way, and as each ray would get from a number
         precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
             v in float64 from the tree's float64 triangles (KdTree.triangles64) and
             the rays as given (kdray.double)
