@@ -513,10 +513,7 @@ def _contains_rays(tracer, p):
         return _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf), None
     sides = _sides(tracer, p)
     order = spatial_order(p, *tracer.tree.world_box(), sides)
-    d = np.empty(p.shape, np.float32)
-    ends = np.cumsum(np.bincount(sides, minlength=8))
-    for k, (a, b) in enumerate(zip(np.concatenate([[0], ends[:-1]]), ends)):
-        d[a:b] = _OCTANT_DIRECTIONS[k]
+    d = np.repeat(_OCTANT_DIRECTIONS, np.bincount(sides, minlength=8), axis=0)
     # the points made float32 and relative to the tree first, then put in order: half
     # the bytes of float64 rows to gather (the same numbers either way)
     o32, d32 = ray_input.rays32(p, d, 1, tracer._origin, tracer._scale)

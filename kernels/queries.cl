@@ -833,14 +833,14 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 return fallback | live;      /* more leaves than a valid tree has */
             uint at_leaf = kd_bitsP(act);
             uint tests = kd_n_prims(n);
+            KdFP t_exit_l;
+            t_exit_l.v = t_max_cur;
             if ((query == KD_COUNT || query == KD_LIST)
                 && (float)(popcount(at_leaf) * ((tests + KD_PACKET - 1) / KD_PACKET))
                    >= (KD_CULLS(&r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO) * (float)tests) {
                 /* many lanes: a triangle against all of them at a time */
                 kd_packet_query_leaf(query, crossing, n, tris, tri_ids, &r, bounds, act,
                                      &lo, &hi, q);
-                KdFP t_exit_l;
-                t_exit_l.v = t_max_cur;
                 for (uint done = query == KD_LIST ? at_leaf : 0u; done;) {
                     uint l = kd_take_lane(&done);
                     if (kd_list_done(&q[l], t_exit_l.s[l]))
@@ -848,8 +848,6 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 }
                 at_leaf = 0u;
             }
-            KdFP t_exit_l;
-            t_exit_l.v = t_max_cur;
             while (at_leaf) {
                 uint l = kd_take_lane(&at_leaf);
                 RayShear sl;         /* the lane's shear and origin, kd_walk's bit for bit */
