@@ -136,7 +136,7 @@ def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="windi
         sigma = float(np.linalg.norm(hi - lo)) / 200.0
     if isinstance(sigma, bool) or not isinstance(sigma, (int, float, np.integer, np.floating)):
         raise KdrayError(f"sigma must be a number, got {sigma!r}")
-    sigma = float(sigma)
+    sigma = float(sigma) + 0.0         # -0.0 is 0 (numpy's normal refuses it)
     if not (np.isfinite(sigma) and 0 <= sigma <= FLOAT32_MAX):
         raise KdrayError(f"sigma must be a number from 0 to {FLOAT32_MAX:.4g} (float32's "
                          f"range), got {sigma!r}")

@@ -349,6 +349,9 @@ def test_grids_and_samples(tracers):
     assert np.array_equal(p, again[0]) and np.array_equal(s, again[1])
     assert (np.abs(s[:800]) < 0.06).all()              # near the surface
     assert np.allclose(s, tracer.signed_distance(p))
+    # a sigma of -0 is 0: the surface points themselves (numpy's normal refuses -0.0)
+    flat = sdf_samples(tracer, 100, sigma=-0.0, uniform=0.0, seed=3)
+    assert np.array_equal(flat[0], sdf_samples(tracer, 100, sigma=0.0, uniform=0.0, seed=3)[0])
 
 
 def test_sdf_command(tmp_path, capsys):
