@@ -147,18 +147,33 @@ def _build_mesh(mesh, path, params, builder=None, *args):
         raise MeshError(f"{path}: {e}") from None
 
 
-def _scene_tree(step, scene, tree_file, params):
+def _scene_tree(step, scene, tree_file, params, double=False):
     """The tree of a command's SCENE, each part timed by `step` (Steps): loaded from
-    tree_file when given, else built from the mesh with params, with its objects."""
+    tree_file when given, else built from the mesh with params, with its objects; with
+    `double`, with the mesh's float64 triangles (--precision double)."""
     from .tree import KdTree
     if tree_file:
         with step("loading the tree"):
-            return KdTree.load(tree_file)
+            tree = KdTree.load(tree_file)
+        return _with_double(step, tree, scene, tree_file) if double else tree
     from .load import load
     with step("loading"):
         mesh = load(scene)
     with step(f"building the tree of {len(mesh.faces):,} triangles"):
+        params = dict(params, keep_double=True) if double else params
         return _build_mesh(mesh, scene, params).with_objects(mesh.objects, mesh.object_names)
+
+
+def _with_double(step, tree, scene, tree_file):
+    """`tree`, read from tree_file, with the float64 triangles of SCENE, its mesh
+    (TreeError when SCENE is not that mesh)."""
+    from .load import load
+    with step("loading the float64 triangles"):
+        mesh = load(scene)
+        try:
+            return tree.with_double(mesh.vertices, mesh.faces)
+        except TreeError as e:
+            raise TreeError(f"{scene} is not the mesh of {tree_file}: {e}") from None
 
 
 def _say_if_builder_compiles():
@@ -365,13 +380,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
         with step("loading the tree"):
             tree = KdTree.load(tree_file)
         if precision == "double":
-            from .load import load
-            with step("loading the float64 triangles"):
-                mesh = load(scene)
-                try:
-                    tree = tree.with_double(mesh.vertices, mesh.faces)
-                except TreeError as e:
-                    raise TreeError(f"{scene} is not the mesh of {tree_file}: {e}") from None
+            tree = _with_double(step, tree, scene, tree_file)
         camera = _camera(lambda: _tree_box(tree), width, height, eye, target, up, fov,
                          intrinsics, pose, camera_file)
     else:
@@ -469,22 +478,86 @@ def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
                + f" ({beams} beams x {columns} columns, {hit} of {beams * columns} beams hit)")
 
 
-def _read_points(path):
-    """(N, 3) float64 points of a .npy file or a text file of three numbers a line."""
+def _write_npz(step, output, arrays):
+    """Write arrays (name -> numpy array) to the .npz file `output`, whole or not at all
+    (kdray.files.atomic_write), timed by `step` (Steps)."""
+    from .files import atomic_write
+
+    def save(tmp):
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+
+    with step("writing"):
+        atomic_write(output, save)
+
+
+def _read_table(path, what):
+    """The numbers of a .npy file, or of a text file (rows of numbers): a 2-D array,
+    float64 from text; KdrayError naming `what` for a file that cannot be read."""
     from .validate import read_npy
     if str(path).endswith(".npy"):
-        points = read_npy(path, f"points file {path}", KdrayError)
-    else:
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("error")          # "input contained no data": refused
-                points = np.loadtxt(path, dtype=np.float64, ndmin=2)
-        except (OSError, ValueError, UserWarning) as e:
-            raise KdrayError(f"{path}: cannot read points ({one_line(e)})") from None
+        return read_npy(path, f"{what} file {path}", KdrayError)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")          # "input contained no data": refused
+            return np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except (OSError, ValueError, UserWarning) as e:
+        raise KdrayError(f"{path}: cannot read {what} ({one_line(e)})") from None
+
+
+def _read_points(path):
+    """(N, 3) points of a .npy file, or of a text file (X Y Z a line): KdrayError
+    otherwise."""
+    points = _read_table(path, "points")
     if points.dtype.kind not in "fiu" or points.ndim != 2 or points.shape[1] != 3:
         raise KdrayError(f"{path}: points must be an (N, 3) array of numbers, got "
                          f"{points.dtype} {points.shape}")
     return points
+
+
+RAY_ARRAYS = ("origins", "directions", "t_min", "t_max")
+"""The arrays of a .npz rays file (`kdray cast`): origins (N, 3) or (3,), directions
+(N, 3), and optionally t_min and t_max, (N,) or one number."""
+
+
+def _read_rays(path):
+    """{"origins", "directions"[, "t_min", "t_max"]: arrays} of a rays file: a .npz
+    file of RAY_ARRAYS, or an (N, 6) .npy or text file (origin x y z, direction x y z a
+    row, as Open3D's rays). KdrayError for anything else; the shapes are checked here,
+    the values (finite, nonzero directions, ranges) by the queries."""
+    if str(path).endswith(".npz"):
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                arrays = {k: np.asarray(f[k]) for k in f.files}
+        except FileNotFoundError:
+            raise KdrayError(f"rays file {path} does not exist") from None
+        except Exception as e:          # np.load on hostile bytes: any of a dozen classes
+            raise KdrayError(f"{path}: cannot read rays ({one_line(e) or type(e).__name__})") \
+                from None
+        extra = sorted(set(arrays) - set(RAY_ARRAYS))
+        missing = [k for k in RAY_ARRAYS[:2] if k not in arrays]
+        if extra or missing:
+            raise KdrayError(f"{path}: a rays .npz file holds origins, directions and "
+                             f"optionally t_min and t_max; "
+                             + (f"{', '.join(missing)} missing" if missing
+                                else f"{', '.join(extra)} unknown"))
+        for k, a in arrays.items():
+            if a.dtype.kind not in "fiu":
+                raise KdrayError(f"{path}: {k} must hold numbers, got {a.dtype}")
+        d, o = arrays["directions"], arrays["origins"]
+        if d.ndim != 2 or d.shape[1] != 3 or o.shape not in ((3,), d.shape):
+            raise KdrayError(f"{path}: directions must be (N, 3) and origins (N, 3) or (3,), "
+                             f"got {d.shape} and {o.shape}")
+        for k in RAY_ARRAYS[2:]:
+            if k in arrays and arrays[k].shape not in ((), (len(d),)):
+                raise KdrayError(f"{path}: {k} must be one number or ({len(d)},), got "
+                                 f"{arrays[k].shape}")
+        return arrays
+    rays = _read_table(path, "rays")
+    if rays.dtype.kind not in "fiu" or rays.ndim != 2 or rays.shape[1] != 6:
+        raise KdrayError(f"{path}: rays must be an (N, 6) array of numbers (origin, "
+                         f"direction), got {rays.dtype} {rays.shape}")
+    return {"origins": rays[:, :3], "directions": rays[:, 3:]}
 
 
 @cli.command()
@@ -536,6 +609,80 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
 
 @cli.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--rays", "rays_file", required=True, type=click.Path(dir_okay=False),
+              help="The rays: an (N, 6) .npy or text file (origin, direction a row), or a "
+                   ".npz file of origins, directions and optionally t_min and t_max.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The .npz file to write (its arrays depend on --query).")
+@click.option("--query", type=click.Choice(["nearest", "any", "count", "all"]),
+              default="nearest", show_default=True,
+              help="nearest: each ray's nearest hit; any: whether it hits anything; count: "
+                   "its exact surface crossings; all: every hit, sorted by t.")
+@click.option("--max-hits", type=int, default=None,
+              help="--query all: keep each ray's K nearest hits.")
+@click.option("--t-min", type=float, default=None,
+              help="Hits count from here on, in units of each ray's |direction|  [default: 0].")
+@click.option("--t-max", type=float, default=None,
+              help="... and up to here  [default: inf].")
+@click.option("--precision", type=click.Choice(["single", "double"]), default="single",
+              show_default=True,
+              help="nearest and all: double gives t, u and v in float64 from the mesh's "
+                   "float64 triangles.")
+@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
+              help="Use this dumped tree instead of building one.")
+@device_option
+@build_options
+def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tree_file, device,
+         **kw):
+    """Cast the rays of a file at SCENE: their nearest hits, whether they hit anything,
+    their exact crossing counts or all their hits (docs/interface.md, "kdray cast")."""
+    from .trace import Tracer
+    params = _build_kwargs(kw)
+    check_output(output, inputs=(scene, tree_file, rays_file), what="-o")
+    if max_hits is not None and query != "all":
+        raise click.UsageError("--max-hits goes with --query all")
+    if precision == "double" and query not in ("nearest", "all"):
+        raise click.UsageError(f"--precision double gives float64 t, u and v: --query "
+                               f"{query} has none")
+    rays = _read_rays(rays_file)
+    ranges = {}
+    for name, value in (("t_min", t_min), ("t_max", t_max)):
+        if value is not None and name in rays:
+            raise click.UsageError(f"--{name.replace('_', '-')} and the rays file's {name} "
+                                   f"cannot both be given")
+        if name in rays or value is not None:
+            ranges[name] = rays.get(name, value)
+    o, d = rays["origins"], rays["directions"]
+    n = len(d)
+    step = Steps()
+    tree = _scene_tree(step, scene, tree_file, params, double=precision == "double")
+    with step("setting up the device"):
+        tracer = Tracer(tree, device=device)
+    with step(f"casting {n:,} rays ({query})"):
+        if query == "nearest":
+            hits = tracer.trace(o, d, precision=precision, **ranges)
+            arrays = {"t": hits.t, "prim": hits.prim, "u": hits.u, "v": hits.v,
+                      "normal": hits.normal, "object": hits.object}
+            summary = f"{int(np.count_nonzero(hits.hit)):,} hit"
+        elif query == "any":
+            arrays = {"occluded": tracer.occluded(o, d, **ranges)}
+            summary = f"{int(np.count_nonzero(arrays['occluded'])):,} hit"
+        elif query == "count":
+            arrays = {"count": tracer.count(o, d, **ranges)}
+            summary = f"{int(np.count_nonzero(arrays['count'])):,} cross the surface"
+        else:
+            hits = tracer.intersections(o, d, max_hits=max_hits, precision=precision, **ranges)
+            arrays = {"offsets": hits.offsets, "ray": hits.ray, "t": hits.t, "prim": hits.prim,
+                      "u": hits.u, "v": hits.v, "object": hits.object}
+            summary = f"{len(hits.t):,} hits"
+
+    _write_npz(step, output, arrays)
+    step.log()
+    click.echo(f"wrote {output} ({n:,} rays, {summary})")
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The .npz file to write: a grid (sdf or occupancy, origin, spacing, "
                    "sign), or with --samples the points and their sdf.")
@@ -568,7 +715,6 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
     """Signed distances of SCENE (negative inside) on a grid, or at points sampled near
     its surface (docs/conventions.md, "Point queries")."""
     from . import sdf as _sdf
-    from .files import atomic_write
     from .points import OpenMeshWarning, open_edges
     from .trace import Tracer
     params = _build_kwargs(kw)
@@ -617,12 +763,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
             arrays = {"points": p, "sdf": d, "sign": np.str_(sign)}
             summary = f"{samples:,} samples, {int(np.count_nonzero(d < 0)):,} inside"
 
-    def save(tmp):
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
-
-    with step("writing"):
-        atomic_write(output, save)
+    _write_npz(step, output, arrays)
     step.log()
     click.echo(f"wrote {output} ({summary})")
 

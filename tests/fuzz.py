@@ -555,6 +555,10 @@ class Examples:
         np.save(npy, pts)
         self.points = {"points.npy": npy.getvalue(),
                        "points.txt": "\n".join(" ".join(repr(x) for x in p) for p in pts).encode()}
+        rays = np.concatenate([pts, np.random.default_rng(1).normal(size=(20, 3))], axis=1)
+        npy = io.BytesIO()
+        np.save(npy, rays)
+        self.rays = {"rays.npy": npy.getvalue()}
 
 
 # -- cases ---------------------------------------------------------------------------------------
@@ -888,7 +892,8 @@ class Generator:
                  "cams.json": json_bytes(self.ex.camera_lists["list.json"]),
                  "lidar.json": json_bytes(LIDARS["os.json"]), "pose.txt": SENSOR_POSE,
                  "campose.txt": CAMERA_POSE, "t.kdt": self.ex.trees["v1.kdt"],
-                 "pts.npy": self.ex.points["points.npy"], "sub/": None,
+                 "pts.npy": self.ex.points["points.npy"], "rays.npy": self.ex.rays["rays.npy"],
+                 "sub/": None,
                  "link.obj": Link("cornell.obj"), "hard.obj": Link("cornell.obj", hard=True),
                  "old.exr": b"not an exr, but it was here",
                  "jobs.jsonl": json_bytes({"scene": "cornell.obj", "cameras": "cams.json",
@@ -957,6 +962,14 @@ def hostile_option(rng, kind):
         try:
             int(v)
             refuse = False
+        except ValueError:
+            refuse = True
+        return v, refuse
+    if kind == "t":                 # a ray's range: 0 <= t_min <= t_max, inf allowed
+        v = pick(rng, ("nan", "inf", "-inf", "1e309", "-1", "0", "-0", "1", "1e-320", "abc", "",
+                       "1,2"))
+        try:
+            refuse = not float(v) >= 0
         except ValueError:
             refuse = True
         return v, refuse
@@ -1041,6 +1054,10 @@ ARGV_TEMPLATES = (
     {"argv": ["contains", "sphere.obj", "--points", "pts.npy", "-o", "in.npy"],
      "values": {"--points": "path", "-o": "out", "--count": "vec3", "--tree": "path"},
      "aliases": [("-o", "pts.npy"), ("-o", "sphere.obj")], "outputs": ("in.npy",)},
+    {"argv": ["cast", "sphere.obj", "--rays", "rays.npy", "-o", "h.npz", "--query", "all"],
+     "values": {"--rays": "path", "-o": "out", "--max-hits": "count", "--t-min": "t",
+                "--t-max": "t", "--tree": "path"},
+     "aliases": [("-o", "rays.npy"), ("-o", "sphere.obj")], "outputs": ("h.npz",)},
     {"argv": ["sdf", "sphere.obj", "-o", "g.npz", "--resolution", "8"],
      "values": {"--resolution": "int", "--padding": "float", "--sign": "sign", "-o": "out"},
      "aliases": [("-o", "sphere.obj")], "outputs": ("g.npz",)},

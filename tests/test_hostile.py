@@ -114,6 +114,7 @@ def test_bench_csv_equal_to_a_scene(capsys, folder):
 @pytest.mark.parametrize("command", [
     ["render", "c.obj", "--size", "8x6"],
     ["contains", "c.obj", "--points", "pts.txt"],
+    ["cast", "c.obj", "--rays", "rays.txt"],
     ["sdf", "c.obj", "--resolution", "4"],
     ["scan", "c.obj", "--lidar", "lidar.json", "--pose", "pose.txt"],
 ])
@@ -124,6 +125,7 @@ def test_outputs_that_cannot_be_written_are_refused_first(capsys, folder, comman
     option takes files only)."""
     os.mkdir("sub")
     Path("pts.txt").write_text("0 0.5 0\n")
+    Path("rays.txt").write_text("0 0.5 3 0 0 -1\n")
     before = snapshot(folder)
     code, _, err = run(capsys, *command, "-o", output)
     assert code in (1, 2) and "Traceback" not in err, err

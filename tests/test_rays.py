@@ -561,6 +561,71 @@ def test_contains_command(tmp_path, capsys):
     assert np.load(tmp_path / "p.npy").shape == (3, 3)          # the input is kept
 
 
+def test_cast_command(tmp_path, capsys):
+    """`kdray cast` writes what the Tracer's queries give for the rays of a file (each
+    layout of the file), the nearest hits matching the float64 oracle, and refuses bad
+    files and options with one line."""
+    from helpers import run
+    mesh = load(SCENES / "sphere.obj")
+    tree = build(mesh.vertices, mesh.faces)
+    tracer = Tracer(tree)
+    o, d = random_rays(tree, 301, seed=5)
+    lo, hi = ranges(np.random.default_rng(6), len(d), 1.0)
+    np.save(tmp_path / "r.npy", np.concatenate([o, d], axis=1))
+    np.savetxt(tmp_path / "r.txt", np.concatenate([o, d], axis=1), fmt="%.17g")
+    np.savez(tmp_path / "r.npz", origins=o, directions=d, t_min=lo, t_max=hi)
+
+    def cast(source, query, *more):
+        out = tmp_path / f"{query}.npz"
+        code, said, err = run(capsys, "cast", SCENES / "sphere.obj", "--rays", tmp_path / source,
+                              "-o", out, "--query", query, *more)
+        assert code == 0 and said.startswith(f"wrote {out} (301 rays, "), err
+        with np.load(out) as f:
+            return {k: f[k] for k in f.files}
+
+    for source, t in (("r.npy", {}), ("r.txt", {}), ("r.npz", {"t_min": lo, "t_max": hi})):
+        got = cast(source, "nearest")
+        want = tracer.trace(o, d, **t)
+        for k in ("t", "prim", "u", "v", "normal", "object"):
+            np.testing.assert_array_equal(got[k], getattr(want, k))
+        assert cast(source, "any")["occluded"].tolist() == tracer.occluded(o, d, **t).tolist()
+        assert cast(source, "count")["count"].tolist() == tracer.count(o, d, **t).tolist()
+        got, want = cast(source, "all"), tracer.intersections(o, d, **t)
+        for k in ("offsets", "ray", "t", "prim", "u", "v", "object"):
+            np.testing.assert_array_equal(got[k], getattr(want, k))
+    ray, prim, t, _, _ = all_hits(tree.world(tree.triangles.reshape(-1, 3, 3)), o, d, lo, hi)
+    first = np.full(len(d), np.inf)
+    np.minimum.at(first, ray, t)
+    got = cast("r.npz", "nearest", "--precision", "double")
+    assert got["t"].dtype == np.float64
+    assert np.allclose(got["t"], first, rtol=RTOL_T, equal_nan=False)
+    got = cast("r.npy", "all", "--max-hits", "1", "--t-max", "2.5")
+    want = tracer.intersections(o, d, t_max=2.5, max_hits=1)
+    np.testing.assert_array_equal(got["t"], want.t)
+    assert (np.diff(got["offsets"]) <= 1).all()
+
+    np.save(tmp_path / "bad.npy", np.zeros((3, 5)))
+    np.savez(tmp_path / "bad.npz", origins=o, directions=d[:, :2])
+    np.savez(tmp_path / "extra.npz", origins=o, directions=d, weights=lo)
+    np.savez(tmp_path / "short.npz", origins=o, directions=d, t_max=hi[:-1])
+    for argv in (("--rays", tmp_path / "bad.npy"), ("--rays", tmp_path / "bad.npz"),
+                 ("--rays", tmp_path / "extra.npz"), ("--rays", tmp_path / "short.npz"),
+                 ("--rays", tmp_path / "none.npz"),
+                 ("--rays", tmp_path / "r.npy", "--query", "all", "--max-hits", "0")):
+        code, _, err = run(capsys, "cast", SCENES / "sphere.obj", *argv, "-o", tmp_path / "x.npz")
+        assert code == 1 and err.count("\n") == 1 and err.startswith("kdray: error:"), argv
+    for argv in (("--rays", tmp_path / "r.npz", "--t-max", "1"),
+                 ("--rays", tmp_path / "r.npy", "--max-hits", "2"),
+                 ("--rays", tmp_path / "r.npy", "--query", "count", "--precision", "double")):
+        code, _, err = run(capsys, "cast", SCENES / "sphere.obj", *argv, "-o", tmp_path / "x.npz")
+        assert code == 2 and "Error:" in err, argv
+    code, _, err = run(capsys, "cast", SCENES / "sphere.obj", "--rays", tmp_path / "r.npy",
+                       "-o", tmp_path / "r.npy")
+    assert code == 1 and err.count("\n") == 1
+    assert np.load(tmp_path / "r.npy").shape == (301, 6)          # the input is kept
+    assert not (tmp_path / "x.npz").exists()
+
+
 def test_ranges_a_ray_through_trace_packets(runtime, teapot_tree, monkeypatch):
     """Rays that share their paths (an image from one eye, flat and (H, W, 3), and from
     eyes spread over a patch) with a range a ray are traced in trace_rays' packets,
