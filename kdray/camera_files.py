@@ -139,7 +139,11 @@ def read_cameras(path):
     not a valid set of views of the cameras kdray renders; see the module docstring.
     """
     path = Path(path)
-    if path.is_dir():
+    try:
+        folder = path.is_dir()
+    except OSError:         # a name the system cannot look up (too long): reading it says so
+        folder = False
+    if folder:
         where = path / "images.txt"
         views, origins = _read_colmap(path, path / "cameras.txt", where)
     elif path.name in ("cameras.txt", "images.txt"):

@@ -505,6 +505,8 @@ def test_nerfstudio_too_many_views(tmp_path, monkeypatch):
 
 def test_files_that_are_not_camera_files(tmp_path):
     assert error(tmp_path / "missing.json").endswith("missing.json does not exist.")
+    # a name the system cannot look up (ENAMETOOLONG from the folder test too)
+    assert error(tmp_path / ("x" * 300 + ".json")).endswith("cannot be read: File name too long.")
     assert "is not valid JSON: Expecting value: line 1 column 1" in error(write(tmp_path, "fl_x: 3", "a.json"))
     assert "is not valid JSON" in error(write(tmp_path, "[1, 2", "b.json"))
     assert "JSON nested more than 32 deep (JSON_MAX_DEPTH)" in error(write(tmp_path, "[" * 100000 + "]" * 100000, "c.json"))
