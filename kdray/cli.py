@@ -681,6 +681,81 @@ def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tre
     click.echo(f"wrote {output} ({n:,} rays, {summary})")
 
 
+POINT_QUERIES = ("closest", "distance", "signed", "winding", "occupancy")
+"""`kdray points`' queries: Tracer.closest_points, distance, signed_distance,
+winding_number and occupancy."""
+
+
+@cli.command()
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--points", "points_file", required=True, type=click.Path(dir_okay=False),
+              help="The points: an (N, 3) .npy file, or text, X Y Z a line.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The .npz file to write (its arrays depend on --query).")
+@click.option("--query", type=click.Choice(POINT_QUERIES), default="signed", show_default=True,
+              help="closest: the nearest surface point, its distance, triangle and "
+                   "barycentrics; distance; signed: the distance, negative inside; winding: "
+                   "the generalized winding number; occupancy: inside or not.")
+@click.option("--sign", type=click.Choice(["winding", "parity"]), default=None,
+              help="signed and occupancy: inside by the generalized winding number (meshes "
+                   "with holes too) or by the parity of an exact crossing count (closed "
+                   "meshes)  [default: winding].")
+@click.option("--max-distance", type=float, default=None,
+              help="closest, distance and signed: look no farther (world units); beyond, "
+                   "a miss (inf)  [default: inf].")
+@click.option("--precision", type=click.Choice(["single", "double"]), default="single",
+              show_default=True,
+              help="closest, distance and signed: double measures against the mesh's "
+                   "float64 triangles.")
+@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
+              help="Use this dumped tree instead of building one.")
+@device_option
+@build_options
+def points(scene, points_file, output, query, sign, max_distance, precision, tree_file, device,
+           **kw):
+    """The point queries at the points of a file: nearest surface points, distances,
+    signed distances, winding numbers or occupancy (docs/interface.md, "kdray points")."""
+    from .trace import Tracer
+    params = _build_kwargs(kw)
+    check_output(output, inputs=(scene, tree_file, points_file), what="-o")
+    measures = query in ("closest", "distance", "signed")
+    for name, given, fits in (("--sign", sign is not None, query in ("signed", "occupancy")),
+                              ("--max-distance", max_distance is not None, measures),
+                              ("--precision double", precision == "double", measures)):
+        if given and not fits:
+            raise click.UsageError(f"{name} does not go with --query {query}")
+    sign = sign or "winding"
+    limit = {} if max_distance is None else {"max_distance": max_distance}
+    at = _read_points(points_file)
+    n = len(at)
+    step = Steps()
+    tree = _scene_tree(step, scene, tree_file, params, double=precision == "double")
+    with step("setting up the device"):
+        tracer = Tracer(tree, device=device)
+    with step(f"{query} of {n:,} points"):
+        if query == "closest":
+            c = tracer.closest_points(at, precision=precision, **limit)
+            arrays = {"point": c.point, "distance": c.distance, "prim": c.prim, "u": c.u,
+                      "v": c.v, "object": c.object}
+            summary = f"{int(np.count_nonzero(c.hit)):,} found"
+        elif query == "distance":
+            arrays = {"distance": tracer.distance(at, precision=precision, **limit)}
+            summary = f"{int(np.count_nonzero(np.isfinite(arrays['distance']))):,} found"
+        elif query == "signed":
+            d = tracer.signed_distance(at, sign, precision=precision, **limit)
+            arrays = {"signed_distance": d}
+            summary = f"{int(np.count_nonzero(d < 0)):,} inside"
+        elif query == "winding":
+            arrays = {"winding_number": tracer.winding_number(at)}
+            summary = f"{int(np.count_nonzero(arrays['winding_number'] > 0.5)):,} inside"
+        else:
+            arrays = {"occupancy": tracer.occupancy(at, sign)}
+            summary = f"{int(np.count_nonzero(arrays['occupancy'])):,} inside"
+    _write_npz(step, output, arrays)
+    step.log()
+    click.echo(f"wrote {output} ({n:,} points, {summary})")
+
+
 @cli.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),

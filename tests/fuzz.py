@@ -965,7 +965,7 @@ def hostile_option(rng, kind):
         except ValueError:
             refuse = True
         return v, refuse
-    if kind == "t":                 # a ray's range: 0 <= t_min <= t_max, inf allowed
+    if kind == "t":                 # t_min, t_max, a distance limit: >= 0, inf allowed
         v = pick(rng, ("nan", "inf", "-inf", "1e309", "-1", "0", "-0", "1", "1e-320", "abc", "",
                        "1,2"))
         try:
@@ -1058,6 +1058,9 @@ ARGV_TEMPLATES = (
      "values": {"--rays": "path", "-o": "out", "--max-hits": "count", "--t-min": "t",
                 "--t-max": "t", "--tree": "path"},
      "aliases": [("-o", "rays.npy"), ("-o", "sphere.obj")], "outputs": ("h.npz",)},
+    {"argv": ["points", "sphere.obj", "--points", "pts.npy", "-o", "q.npz", "--query", "closest"],
+     "values": {"--points": "path", "-o": "out", "--max-distance": "t", "--tree": "path"},
+     "aliases": [("-o", "pts.npy"), ("-o", "sphere.obj")], "outputs": ("q.npz",)},
     {"argv": ["sdf", "sphere.obj", "-o", "g.npz", "--resolution", "8"],
      "values": {"--resolution": "int", "--padding": "float", "--sign": "sign", "-o": "out"},
      "aliases": [("-o", "sphere.obj")], "outputs": ("g.npz",)},

@@ -115,6 +115,7 @@ def test_bench_csv_equal_to_a_scene(capsys, folder):
     ["render", "c.obj", "--size", "8x6"],
     ["contains", "c.obj", "--points", "pts.txt"],
     ["cast", "c.obj", "--rays", "rays.txt"],
+    ["points", "c.obj", "--points", "pts.txt"],
     ["sdf", "c.obj", "--resolution", "4"],
     ["scan", "c.obj", "--lidar", "lidar.json", "--pose", "pose.txt"],
 ])

@@ -378,3 +378,63 @@ def test_sdf_command(tmp_path, capsys):
         assert code == 2 and "cannot be combined with --samples" in err
     code, _, err = run(capsys, "sdf", mesh, "-o", out, "--sigma", 0.1)
     assert code == 2 and "--sigma goes with --samples" in err
+
+
+def test_points_command(tmp_path, capsys):
+    """`kdray points` writes what the Tracer's point queries give at a file's points,
+    the distances matching the float64 brute force, and refuses what does not fit."""
+    v, f = icosphere(2)
+    mesh = tmp_path / "ball.obj"
+    mesh.write_text("".join(f"v {float(a)!r} {float(b)!r} {float(c)!r}\n" for a, b, c in v)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    at = np.random.default_rng(4).uniform(-1.5, 1.5, (203, 3))
+    np.save(tmp_path / "p.npy", at)
+    np.savetxt(tmp_path / "p.txt", at, fmt="%.17g")
+    tracer = Tracer(build(v, f))
+    out = tmp_path / "q.npz"
+
+    def points(source, query, *more):
+        code, said, err = run(capsys, "points", mesh, "--points", tmp_path / source, "-o", out,
+                              "--query", query, *more)
+        assert code == 0 and said.startswith(f"wrote {out} (203 points, "), err
+        with np.load(out) as got:
+            return {k: got[k] for k in got.files}
+
+    want_d, _ = reference.closest_points(v[f], at)
+    for source in ("p.npy", "p.txt"):
+        got, want = points(source, "closest"), tracer.closest_points(at)
+        for k in ("point", "distance", "prim", "u", "v", "object"):
+            np.testing.assert_array_equal(got[k], getattr(want, k))
+        assert np.allclose(got["distance"], want_d, rtol=1e-5, atol=1e-6)
+        assert np.array_equal(points(source, "distance")["distance"], tracer.distance(at))
+        got = points(source, "signed")["signed_distance"]
+        assert np.array_equal(got, tracer.signed_distance(at))
+        inside = np.linalg.norm(at, axis=1) < 0.9          # the icosphere's inner radius ~0.95
+        assert (got[inside] < 0).all() and np.allclose(np.abs(got), want_d, rtol=1e-5, atol=1e-6)
+        assert np.array_equal(points(source, "winding")["winding_number"],
+                              tracer.winding_number(at))
+        assert np.array_equal(points(source, "occupancy")["occupancy"], tracer.occupancy(at))
+    got = points("p.npy", "signed", "--sign", "parity", "--max-distance", "0.3")
+    assert np.array_equal(got["signed_distance"],
+                          tracer.signed_distance(at, "parity", max_distance=0.3))
+    assert np.isinf(got["signed_distance"][want_d > 0.3 * (1 + 1e-6)]).all()
+    got = points("p.npy", "closest", "--precision", "double")
+    assert got["distance"].dtype == np.float64
+    assert np.allclose(got["distance"], want_d, rtol=1e-12, atol=1e-12)
+    # the triangle found is a nearest one (several are where the nearest point is a vertex)
+    d2 = reference.point_triangle_d2(at, v[f].astype(np.float64))
+    assert np.allclose(np.sqrt(d2[np.arange(len(at)), got["prim"]]), want_d, rtol=1e-12,
+                       atol=1e-12)
+
+    for more in (("--query", "winding", "--sign", "parity"),
+                 ("--query", "occupancy", "--max-distance", "1"),
+                 ("--query", "winding", "--precision", "double")):
+        code, _, err = run(capsys, "points", mesh, "--points", tmp_path / "p.npy", "-o", out, *more)
+        assert code == 2 and "does not go with" in err, more
+    np.save(tmp_path / "bad.npy", np.zeros((3, 2)))
+    for more in (("--points", tmp_path / "bad.npy", "-o", out),
+                 ("--points", tmp_path / "p.npy", "-o", tmp_path / "p.npy"),
+                 ("--points", tmp_path / "p.npy", "-o", out, "--max-distance", "-1")):
+        code, _, err = run(capsys, "points", mesh, *more)
+        assert code == 1 and err.count("\n") == 1 and err.startswith("kdray: error:"), more
+    assert np.load(tmp_path / "p.npy").shape == (203, 3)
