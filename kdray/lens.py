@@ -39,6 +39,7 @@ import os
 import numpy as np
 
 from .errors import CameraError
+from .validate import check_numbers
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +73,10 @@ def check_distortion(model, distortion):
     CameraError (one line)."""
     if model not in MODELS:
         raise CameraError(f"unknown camera model {model!r}; expected one of {', '.join(MODELS)}.")
-    if isinstance(distortion, (str, bytes)):
+    if isinstance(distortion, (str, bytes)) or (
+            isinstance(distortion, np.ndarray) and distortion.dtype.kind not in "fiu"):
         raise CameraError(f"distortion must be a sequence of numbers, got {distortion!r}.")
+    check_numbers(distortion, "distortion", CameraError)    # no '1e3' or True among them
     try:
         values = tuple(float(c) for c in np.asarray(distortion, dtype=np.float64).reshape(-1))
     except (TypeError, ValueError):

@@ -208,6 +208,10 @@ def test_json_look_at_form_with_a_model(tmp_path):
     ("kannala", (), r"unknown camera model 'kannala'; expected one of pinhole, opencv"),
     ("opencv", "0.1 0.2", r"distortion must be a sequence of numbers"),
     ("opencv", ((0.1, 0.2), (0.0, 0.0)), r"distortion must be a flat sequence"),
+    # strings and bools are refused, not converted (numpy would read '1e3' as 1000.0)
+    ("fisheye", (0.0, "1e3", 0.0, 0.0), r"distortion must hold numbers only, got '1e3'"),
+    ("opencv", (0.1, True, 0.0, 0.0), r"distortion must hold numbers only, got True"),
+    ("opencv", np.array(["0.1", "0", "0", "0"]), r"distortion must be a sequence of numbers"),
 ])
 def test_bad_models_and_coefficients(model, distortion, match):
     with pytest.raises(CameraError, match=match) as info:
