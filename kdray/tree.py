@@ -381,7 +381,8 @@ class KdTree:
         root_area = area[0] if area[0] > 0 else 1.0
         n_in_leaf = layout.n_prims(self.nodes[leaf]).astype(np.float64)
         p = self.params
-        sah = (p.K_T * area[~leaf].sum() + p.K_I * (area[leaf] * n_in_leaf).sum()) / root_area
+        with np.errstate(over="ignore"):      # K_T or K_I near float64's largest: inf
+            sah = (p.K_T * area[~leaf].sum() + p.K_I * (area[leaf] * n_in_leaf).sum()) / root_area
         n_tris = len(self.triangles)
         return {
             "triangles": n_tris,

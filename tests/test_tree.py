@@ -1,5 +1,6 @@
 """KdTree.validate() catches broken trees; stats() reports what a tree is."""
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -46,3 +47,8 @@ def test_stats_of_a_known_tree():
     # box 4 x 2 x 0.5 split in half at x = 0: each child has area 2(2*2 + 2*.5 + .5*2) = 12
     root = 2 * (4 * 2 + 2 * .5 + .5 * 4)
     assert s["sah_cost"] == pytest.approx((15 * root + 20 * 12 + 20 * 12) / root)
+    # costs near float64's largest (a tree file may hold them): inf, and no warning
+    huge = broken(params=dataclasses.replace(two_leaf_tree().params, K_T=1e308, K_I=1e308))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert huge.stats()["sah_cost"] == np.inf
