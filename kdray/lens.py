@@ -165,7 +165,13 @@ def _radial(distortion):
 def _monotonic_limit(g, dg, need, cap, den=None):
     """(limit, g(limit)): the first r > 0 where g stops increasing (g' <= 0, or `den`
     <= 0) found by a scan, or the r where g passes `need` (every pixel's target), or
-    `cap`, whichever comes first. g is monotonic increasing on [0, limit)."""
+    `cap`, whichever comes first. g is monotonic increasing on [0, limit). Values that
+    overflow (coefficients near float64's largest) are not finite, and so not > 0: bad."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        return _scan_limit(g, dg, need, cap, den)
+
+
+def _scan_limit(g, dg, need, cap, den):
     lo, hi = 0.0, max(min(2.0 * need, cap), 1e-6)
     while True:
         r = np.linspace(lo, hi, SCAN_STEPS + 1)[1:]

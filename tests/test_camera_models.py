@@ -4,6 +4,7 @@ analytic directions of the equirectangular and orthographic cameras; renders who
 points project back onto their pixel centres; the valid mask; bad input."""
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -217,6 +218,20 @@ def test_bad_models_and_coefficients(model, distortion, match):
     with pytest.raises(CameraError, match=match) as info:
         Camera(W, H, _K(), _pose(), model, distortion)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("model, distortion", [
+    ("opencv", (-1e308, 0.0, 0.0, 0.0)), ("opencv", (0.0, -1e308, 0.0, 0.0, 1e308)),
+    ("fisheye", (0.0, 0.0, 0.0, 1e308)),
+])
+def test_huge_coefficients_give_misses_not_warnings(model, distortion):
+    """Coefficients near float64's largest overflow the monotonic radius' scan: its
+    values are then not finite, the pixels misses, and numpy says nothing."""
+    from kdray import lens
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        _, d, valid = lens.model_rays(model, _K(), distortion, W, H)
+    assert not valid.any() and np.isnan(d).all()
 
 
 @pytest.mark.parametrize("width, height", [(0, H), (W, -3), (2.5, H)])
