@@ -1,0 +1,179 @@
+/* bench/wide_nodes.cl: an experiment, not part of kdray's kernels (bench/wide_nodes.py
+ * builds and runs it). Nearest hits through wide nodes collapsed from the k-d tree:
+ * each node holds up to W_N children (the k-d subtree's nodes 3 levels down for 8, 4
+ * for 16; empty leaves left out), each with the box of its triangles clipped to its
+ * cell. A ray tests all W_N boxes in one vector step, pushes the children it meets
+ * nearest last, and skips an entry whose box it enters beyond its best hit. W_R rays
+ * a work-item take their steps in turns, so that their chains of loads overlap.
+ *
+ * The hits are trace's bit for bit: hits do not depend on the tree (the nearest in
+ * (t, input id) order), every leaf is tested with kd_ray_leaf (the same arithmetic),
+ * and a box is only missed where no triangle in it can be hit: each box is widened by
+ * W_PAD of the ray's reach (the largest coordinate of the scene plus of the origin,
+ * which bounds |v - o| of every vertex), more than the triangle test's and the slab
+ * test's roundings (packet.cl's reasoning for KD_T_SLACK, at 2^-16 instead of 2^-20);
+ * a NaN slab (a ray parallel to a face, in its widened plane) is ignored by fmin and
+ * fmax, which only widens what is kept. */
+#pragma OPENCL FP_CONTRACT OFF
+#include "layout.h"
+#include "triangle.cl"
+#include "traverse.cl"
+#include "packet.cl"
+
+#ifndef W_N
+#define W_N 8
+#endif
+#if W_N == 16
+typedef float16 floatW;
+typedef int16 intW;
+typedef uint16 uintW;
+#define as_intW as_int16
+#define as_uintW as_uint16
+#define vloadW vload16
+#else
+typedef float8 floatW;
+typedef int8 intW;
+typedef uint8 uintW;
+#define as_intW as_int8
+#define as_uintW as_uint8
+#define vloadW vload8
+#endif
+#define W_WORDS (8u * W_N)
+#define W_LEAF 0x80000000u
+#define W_EMPTY 0xFFFFFFFFu
+#define W_PAD 0x1p-16f
+#ifndef W_STACK
+#define W_STACK 96
+#endif
+
+#ifndef W_R
+#define W_R 1
+#endif
+
+typedef struct {
+    float3 o;
+    RayShear shear;
+    floatW ox, oy, oz, ix, iy, iz, pad;
+    Hit hit;
+    uint top, n_nodes, n_leaves;
+    uint st_meta[W_STACK], st_child[W_STACK];
+    float st_t[W_STACK];
+} WRay;
+
+KD_INLINE
+void w_start(WRay *r, float3 o, float3 d, float reach)
+{
+    r->o = o;
+    r->shear = ray_shear(d);
+    float3 inv = (float3)(1.0f) / d;
+    r->hit.t = INFINITY; r->hit.u = 0.0f; r->hit.v = 0.0f; r->hit.tri = KD_NO_HIT;
+    r->st_meta[0] = 0u; r->st_child[0] = 0u; r->st_t[0] = 0.0f; r->top = 1;
+    r->n_nodes = 0u; r->n_leaves = 0u;
+    r->ox = (floatW)(o.x); r->oy = (floatW)(o.y); r->oz = (floatW)(o.z);
+    r->ix = (floatW)(inv.x); r->iy = (floatW)(inv.y); r->iz = (floatW)(inv.z);
+    float a = fmax(fmax(fabs(o.x), fabs(o.y)), fabs(o.z));
+    r->pad = (floatW)((a + reach) * W_PAD + 0x1p-120f);
+}
+
+/* one entry of the ray's stack: a leaf tested, or a node's hit children pushed */
+KD_INLINE
+void w_step(WRay *r, __global const float *wide, __global const float *tris,
+            __global const uint *tri_ids)
+{
+    const float t_min = 0.0f, t_max = INFINITY;
+    uint top = --r->top;
+    uint meta = r->st_meta[top], child = r->st_child[top];
+    if (r->st_t[top] > r->hit.t)
+        return;
+    if (meta & W_LEAF) {
+        KdNode leaf;
+        leaf.flags = ((meta & ~W_LEAF) << 2) | KD_LEAF;
+        leaf.data = child;
+        r->n_leaves++;
+        kd_ray_leaf(leaf, tris, tri_ids, &r->shear, r->o, t_min, t_max, &r->hit);
+        return;
+    }
+    r->n_nodes++;
+    __global const float *w = wide + (size_t)child * W_WORDS;
+    floatW lx = vloadW(0, w) - r->ox, ly = vloadW(1, w) - r->oy, lz = vloadW(2, w) - r->oz;
+    floatW hx = vloadW(3, w) - r->ox, hy = vloadW(4, w) - r->oy, hz = vloadW(5, w) - r->oz;
+    floatW pad = r->pad;
+    floatW ax = (lx - pad) * r->ix, bx = (hx + pad) * r->ix;
+    floatW ay = (ly - pad) * r->iy, by = (hy + pad) * r->iy;
+    floatW az = (lz - pad) * r->iz, bz = (hz + pad) * r->iz;
+    floatW tn = fmax(fmax(fmin(ax, bx), fmin(ay, by)), fmax(fmin(az, bz), (floatW)(t_min)));
+    floatW tf = fmin(fmin(fmax(ax, bx), fmax(ay, by)), fmin(fmax(az, bz), (floatW)(r->hit.t)));
+    __global const uint *cm = (__global const uint *)(w + 6 * W_N);
+#if W_N == 16
+    intW valid = as_intW(vload16(1, cm)) != (intW)(-1);
+    uintW wbits = (uintW)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u,
+                          4096u, 8192u, 16384u, 32768u);
+#else
+    intW valid = as_intW(vload8(1, cm)) != (intW)(-1);
+    uintW wbits = (uintW)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u);
+#endif
+    intW ok = (tn <= tf) & valid;
+    uintW b = as_uintW(ok) & wbits;
+#if W_N == 16
+    uint8 b8 = b.lo | b.hi;
+#else
+    uint8 b8 = b;
+#endif
+    uint4 b4 = b8.lo | b8.hi;
+    uint2 b2 = b4.lo | b4.hi;
+    uint bits = b2.x | b2.y;
+    union { floatW v; float s[W_N]; } tnl;
+    tnl.v = tn;
+    uint base = top;
+    while (bits) {
+        uint j = 31u - clz(bits & (0u - bits));
+        bits &= bits - 1u;
+        float t = tnl.s[j];
+        uint i = top++;
+        while (i > base && r->st_t[i - 1] < t) {
+            r->st_t[i] = r->st_t[i - 1]; r->st_meta[i] = r->st_meta[i - 1];
+            r->st_child[i] = r->st_child[i - 1];
+            i--;
+        }
+        r->st_t[i] = t; r->st_meta[i] = cm[W_N + j]; r->st_child[i] = cm[j];
+    }
+    r->top = top;
+}
+
+__kernel __attribute__((vec_type_hint(floatW)))
+void wide_trace(__global const float *wide, __global const float *tris,
+                __global const uint *tri_ids, __global const float *bounds,
+                __global const float *o_in, __global const float *d_in, uint n,
+                __global float *out_t, __global uint *out_tri)
+{
+    /* the scene's largest coordinate: |v - o| <= reach + |o| for every vertex v */
+    float reach = fmax(fmax(fmax(fabs(bounds[0]), fabs(bounds[1])), fabs(bounds[2])),
+                       fmax(fmax(fabs(bounds[3]), fabs(bounds[4])), fabs(bounds[5])));
+    uint k0 = get_global_id(0) * W_R;
+    if (k0 >= n)
+        return;
+    WRay r[W_R];
+    uint live = 0u;
+    for (uint i = 0; i < W_R; i++) {
+        uint k = k0 + i < n ? k0 + i : k0;
+        w_start(&r[i], vload3(k, o_in), vload3(k, d_in), reach);
+        live |= 1u << i;
+    }
+    while (live) {
+        for (uint i = 0; i < W_R; i++) {
+            if (r[i].top) {
+                w_step(&r[i], wide, tris, tri_ids);
+                if (!r[i].top)
+                    live &= ~(1u << i);
+            }
+        }
+    }
+    for (uint i = 0; i < W_R && k0 + i < n; i++) {
+#ifdef W_COUNT
+        out_t[k0 + i] = (float)r[i].n_nodes + 1000.0f * (float)r[i].n_leaves;
+#else
+        out_t[k0 + i] = r[i].hit.t;
+#endif
+        out_tri[k0 + i] = r[i].hit.tri == KD_NO_HIT ? KD_NO_HIT : tri_ids[r[i].hit.tri];
+    }
+}
