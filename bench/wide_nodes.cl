@@ -56,6 +56,8 @@ typedef struct {
     floatW ox, oy, oz, ix, iy, iz, pad;
     Hit hit;
     uint top, n_nodes, n_leaves;
+    bool has_cur;                        /* W_DIRECT: the entry to take next, off the stack */
+    uint cur_meta, cur_child;
     uint st_meta[W_STACK], st_child[W_STACK];
     float st_t[W_STACK];
 } WRay;
@@ -69,6 +71,7 @@ void w_start(WRay *r, float3 o, float3 d, float reach)
     r->hit.t = INFINITY; r->hit.u = 0.0f; r->hit.v = 0.0f; r->hit.tri = KD_NO_HIT;
     r->st_meta[0] = 0u; r->st_child[0] = 0u; r->st_t[0] = 0.0f; r->top = 1;
     r->n_nodes = 0u; r->n_leaves = 0u;
+    r->has_cur = false; r->cur_meta = 0u; r->cur_child = 0u;
     r->ox = (floatW)(o.x); r->oy = (floatW)(o.y); r->oz = (floatW)(o.z);
     r->ix = (floatW)(inv.x); r->iy = (floatW)(inv.y); r->iz = (floatW)(inv.z);
     float a = fmax(fmax(fabs(o.x), fabs(o.y)), fabs(o.z));
@@ -81,10 +84,18 @@ void w_step(WRay *r, __global const float *wide, __global const float *tris,
             __global const uint *tri_ids)
 {
     const float t_min = 0.0f, t_max = INFINITY;
-    uint top = --r->top;
-    uint meta = r->st_meta[top], child = r->st_child[top];
-    if (r->st_t[top] > r->hit.t)
-        return;
+    uint top = r->top, meta, child;
+    if (r->has_cur) {
+        meta = r->cur_meta;
+        child = r->cur_child;
+        r->has_cur = false;
+    } else {
+        top = --r->top;
+        meta = r->st_meta[top];
+        child = r->st_child[top];
+        if (r->st_t[top] > r->hit.t)
+            return;
+    }
     if (meta & W_LEAF) {
         KdNode leaf;
         leaf.flags = ((meta & ~W_LEAF) << 2) | KD_LEAF;
@@ -124,6 +135,29 @@ void w_step(WRay *r, __global const float *wide, __global const float *tris,
     uint bits = b2.x | b2.y;
     union { floatW v; float s[W_N]; } tnl;
     tnl.v = tn;
+#ifdef W_DIRECT
+    /* the nearest child next, off the stack; the others pushed, nearest last */
+    if (!bits)
+        return;
+    uint near = 31u - clz(bits & (0u - bits));
+    uint rest = bits & (bits - 1u);
+    if (rest) {
+        uint far = 31u - clz(rest & (0u - rest));
+        if (!(rest & (rest - 1u))) {             /* two: push the farther */
+            if (tnl.s[far] < tnl.s[near]) {
+                uint x = near; near = far; far = x;
+            }
+            r->st_t[top] = tnl.s[far]; r->st_meta[top] = cm[W_N + far];
+            r->st_child[top] = cm[far];
+            r->top = top + 1u;
+            r->has_cur = true; r->cur_meta = cm[W_N + near]; r->cur_child = cm[near];
+            return;
+        }
+    } else {
+        r->has_cur = true; r->cur_meta = cm[W_N + near]; r->cur_child = cm[near];
+        return;
+    }
+#endif
     uint base = top;
     while (bits) {
         uint j = 31u - clz(bits & (0u - bits));
@@ -138,6 +172,11 @@ void w_step(WRay *r, __global const float *wide, __global const float *tris,
         r->st_t[i] = t; r->st_meta[i] = cm[W_N + j]; r->st_child[i] = cm[j];
     }
     r->top = top;
+#ifdef W_DIRECT
+    /* three or more: the nearest, on top, taken next */
+    top = --r->top;
+    r->has_cur = true; r->cur_meta = r->st_meta[top]; r->cur_child = r->st_child[top];
+#endif
 }
 
 __kernel __attribute__((vec_type_hint(floatW)))
@@ -161,9 +200,9 @@ void wide_trace(__global const float *wide, __global const float *tris,
     }
     while (live) {
         for (uint i = 0; i < W_R; i++) {
-            if (r[i].top) {
+            if (r[i].top || r[i].has_cur) {
                 w_step(&r[i], wide, tris, tri_ids);
-                if (!r[i].top)
+                if (!r[i].top && !r[i].has_cur)
                     live &= ~(1u << i);
             }
         }

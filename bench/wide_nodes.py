@@ -128,7 +128,7 @@ def rays_of(kind, tree, n, rng):
 class WideKernel:
     """The wide kernel of one Tracer on one set of rays; call() -> (t, input id)."""
 
-    def __init__(self, tracer, width, interleave, o, d, count=False):
+    def __init__(self, tracer, width, interleave, o, d, count=False, direct=False):
         import pyopencl as cl
         self.tracer, self.interleave, self.n = tracer, interleave, len(d)
         records = wide_nodes(tracer.tree, tracer.packet, width)
@@ -140,6 +140,8 @@ class WideKernel:
             defines["REFINE"] = None      # kd_ray_leaf's test as trace_rays takes it
         if count:
             defines["W_COUNT"] = None
+        if direct:
+            defines["W_DIRECT"] = None
         entry = tracer._built(os.path.join(HERE, "wide_nodes.cl"), defines, ("wide_trace",))
         self.kernel = entry["wide_trace"]
         o32, d32 = ray_input.rays32(o, d, 1, tracer._origin, tracer._scale)
@@ -173,6 +175,8 @@ def main():
     p.add_argument("--rays", type=int, default=1 << 20)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--repeat", type=int, default=5)
+    p.add_argument("--direct", action="store_true",
+                   help="a node's nearest child taken next without the stack (W_DIRECT)")
     p.add_argument("--sorted", action="store_true",
                    help="rays sorted on the host first (sort_rays), for both kernels")
     args = p.parse_args()
@@ -184,11 +188,12 @@ def main():
             o, d = rays_of(kind, tree, args.rays, np.random.default_rng(0))
             if args.sorted:
                 o, d = sort_rays(o, d, tree)
-            wide = WideKernel(tracer, args.width, args.interleave, o, d)
+            wide = WideKernel(tracer, args.width, args.interleave, o, d, direct=args.direct)
             _, ids = wide()
             hits = tracer.trace(o, d, outputs=())
             bad = int(np.count_nonzero(ids != hits.prim))
-            visits = WideKernel(tracer, args.width, args.interleave, o, d, count=True)()[0]
+            visits = WideKernel(tracer, args.width, args.interleave, o, d, count=True,
+                                direct=args.direct)()[0]
             visits = visits.astype(np.int64)
             print(f"{name} {kind}: {wide.n_wide} wide nodes of {args.width}, "
                   f"{(visits % 1000).mean():.2f} of them and {(visits // 1000).mean():.2f} "
