@@ -191,6 +191,28 @@ void wide_trace(__global const float *wide, __global const float *tris,
     uint k0 = get_global_id(0) * W_R;
     if (k0 >= n)
         return;
+#if W_R == 2
+    /* two rays in structs of their own (no array indexed at run time): their state can
+     * stay in registers between turns */
+    WRay a, b;
+    w_start(&a, vload3(k0, o_in), vload3(k0, d_in), reach);
+    uint kb = k0 + 1u < n ? k0 + 1u : k0;
+    w_start(&b, vload3(kb, o_in), vload3(kb, d_in), reach);
+    bool la = true, lb = true;
+    while (la | lb) {
+        if (la) {
+            w_step(&a, wide, tris, tri_ids);
+            la = a.top || a.has_cur;
+        }
+        if (lb) {
+            w_step(&b, wide, tris, tri_ids);
+            lb = b.top || b.has_cur;
+        }
+    }
+    WRay r[2];
+    r[0] = a;
+    r[1] = b;
+#else
     WRay r[W_R];
     uint live = 0u;
     for (uint i = 0; i < W_R; i++) {
@@ -207,6 +229,7 @@ void wide_trace(__global const float *wide, __global const float *tris,
             }
         }
     }
+#endif
     for (uint i = 0; i < W_R && k0 + i < n; i++) {
 #ifdef W_COUNT
         out_t[k0 + i] = (float)r[i].n_nodes + 1000.0f * (float)r[i].n_leaves;

@@ -2,7 +2,7 @@
 the incoherent rays of issue 51, against `Tracer.trace` on the same rays, in turns.
 
 usage: python bench/wide_nodes.py [--meshes bunny,bunny-1.6M] [--kinds uniform,centre]
-                                  [--width 8] [--interleave 4] [--rays 1048576]
+                                  [--width 8] [--interleave 2] [--rays 1048576]
                                   [--rounds 3] [--repeat 5] [--sorted]
 
 The k-d tree's walk takes most of an incoherent ray's time (BENCHMARKS.md, "Incoherent
@@ -12,7 +12,9 @@ down (--width 8) or 4 (--width 16), empty leaves left out, each with the box of 
 triangles clipped to its cell (`wide_nodes`); bench/wide_nodes.cl tests a ray against
 all the children's boxes in one vector step, keeps the nearest first and skips what
 it enters beyond its best hit, and tests leaves with kdray's own kd_ray_leaf.
---interleave R rays a work-item take their steps in turns.
+--interleave R rays a work-item take their steps in turns (2: each in a struct of its
+own, whose state the compiler keeps in registers; more: an array of them). --direct:
+a node's nearest child is taken next without the stack.
 
 The script checks that every ray's hit triangle is trace's (prints the mismatches:
 they must be 0), prints the wide nodes and leaves a ray visits, then the time of the
@@ -171,7 +173,7 @@ def main():
     p.add_argument("--meshes", default="bunny,bunny-1.6M")
     p.add_argument("--kinds", default="uniform,centre")
     p.add_argument("--width", type=int, default=8, choices=(8, 16))
-    p.add_argument("--interleave", type=int, default=4)
+    p.add_argument("--interleave", type=int, default=2)
     p.add_argument("--rays", type=int, default=1 << 20)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--repeat", type=int, default=5)
