@@ -22,7 +22,8 @@ wide kernel (float32 rays relative to the tree in, t and input id out) against
 `Tracer.trace(o, d, outputs=())` (float64 rays in), median of --repeat calls each way
 in --rounds rounds. trace orders incoherent rays through trees of 16 MiB and more
 (kdray.ray_order); this kernel takes them as they come, unless --sorted sorts them on
-the host (by octant and the origin's Morton code) for both.
+the host in kdray.ray_order's order (octant, the cell where a ray enters the box) for
+both.
 """
 import argparse
 import os
@@ -104,16 +105,12 @@ def wide_nodes(tree, packet, width):
 
 
 def sort_rays(o, d, tree):
-    """o, d in the order of (direction octant, Morton code of the origin in the box):
-    rays that start near each other in the same octant side by side."""
-    lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
-    q = np.clip((o - lo) / np.maximum(hi - lo, 1e-300) * 1024, 0, 1023).astype(np.uint64)
-    code = np.zeros(len(o), np.uint64)
-    for bit in range(10):
-        for axis in range(3):
-            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
-    octant = ((d[:, 0] < 0) * 4 + (d[:, 1] < 0) * 2 + (d[:, 2] < 0)).astype(np.uint64)
-    order = np.argsort(code | (octant << np.uint64(30)), kind="stable")
+    """o, d in kdray.ray_order's order (octant, then the Morton code of the cell of a
+    16^3 grid where the ray enters the box), sorted on the host: what trace_rays reads
+    its rays in through trees of 16 MiB and more."""
+    from kdray.ray_order import ray_keys
+    lo, hi = tree.world_box()
+    order = np.argsort(ray_keys(o, d, lo, hi), kind="stable")
     return np.ascontiguousarray(o[order]), np.ascontiguousarray(d[order])
 
 
@@ -180,7 +177,7 @@ def main():
     p.add_argument("--direct", action="store_true",
                    help="a node's nearest child taken next without the stack (W_DIRECT)")
     p.add_argument("--sorted", action="store_true",
-                   help="rays sorted on the host first (sort_rays), for both kernels")
+                   help="rays sorted on the host first in kdray.ray_order's order, for both")
     args = p.parse_args()
     for name in args.meshes.split(","):
         m = load_mesh(name)
