@@ -582,7 +582,8 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
     from .trace import Tracer
     params = _build_kwargs(kw)
     check_output(output, inputs=(scene, tree_file, points_file), what="-o")
-    points = _read_points(points_file)
+    from .points import check_points
+    points = check_points(_read_points(points_file))[0]      # finite, with --count too
     if direction is not None and not (np.isfinite(direction).all() and np.any(direction)):
         raise KdrayError(f"--count needs a finite, nonzero direction, got {direction}")
     step = Steps()

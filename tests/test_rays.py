@@ -552,7 +552,10 @@ def test_contains_command(tmp_path, capsys):
                      "-o", tmp_path / "c.npy", "--count", "1,0,0")
     assert code == 0 and np.load(tmp_path / "c.npy").tolist() == [1, 0, 1]
     np.save(tmp_path / "bad.npy", np.zeros((3, 2)))
+    np.save(tmp_path / "nan.npy", np.array([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0]]))
     for argv in (("--points", tmp_path / "bad.npy", "-o", tmp_path / "x.npy"),
+                 ("--points", tmp_path / "nan.npy", "-o", tmp_path / "x.npy"),
+                 ("--points", tmp_path / "nan.npy", "-o", tmp_path / "x.npy", "--count", "1,0,0"),
                  ("--points", tmp_path / "none.npy", "-o", tmp_path / "x.npy"),
                  ("--points", tmp_path / "p.npy", "-o", tmp_path / "p.npy"),
                  ("--points", tmp_path / "p.npy", "-o", tmp_path / "x.npy", "--count", "0,0,0")):
