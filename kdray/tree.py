@@ -291,7 +291,9 @@ class KdTree:
         if t.objects is not None or len(t.object_names):
             self._check_objects()
         p = t.params
-        if not (p.K_T > 0 and p.K_I > 0 and 0 < p.empty_bonus <= 1 and 1 <= p.max_depth <= layout.MAX_DEPTH_LIMIT):
+        # finite costs, as the builder takes them (builder.check_params)
+        if not (0 < p.K_T < np.inf and 0 < p.K_I < np.inf and 0 < p.empty_bonus <= 1
+                and 1 <= p.max_depth <= layout.MAX_DEPTH_LIMIT):
             raise TreeError("build parameters out of range")
         leaf = layout.is_leaf(t.nodes)
         ends = layout.leaf_offset(t.nodes[leaf]).astype(np.int64) + layout.n_prims(t.nodes[leaf])

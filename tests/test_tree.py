@@ -26,6 +26,8 @@ def broken(**changes):
     ("tri id out of range", broken(tri_ids=np.array([0, 3], dtype=np.uint32))),
     ("depth mismatch", broken(depth=2)),
     ("deeper than max_depth", broken(params=dataclasses.replace(two_leaf_tree().params, max_depth=0))),
+    ("infinite K_T", broken(params=dataclasses.replace(two_leaf_tree().params, K_T=np.inf))),
+    ("infinite K_I", broken(params=dataclasses.replace(two_leaf_tree().params, K_I=np.inf))),
     ("triangle outside bounds", broken(bounds=np.array([[-1, -1, 0], [2, 1, .5]], dtype=np.float32))),
     ("split outside the box", broken(nodes=np.concatenate([layout.make_interior([0], [9.0], [2]),
                                                             two_leaf_tree().nodes[1:]]))),
