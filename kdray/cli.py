@@ -49,6 +49,11 @@ device_option = click.option(
     help="OpenCL device, PYOPENCL_CTX syntax (0:0, intel, pocl; see `kdray devices`).")
 """The --device option every command that traces takes."""
 
+tree_option = click.option(
+    "--tree", "tree_file", type=click.Path(dir_okay=False),
+    help="Use this dumped tree instead of building one.")
+"""The --tree option of the query commands (contains, cast, points, sdf)."""
+
 
 def build_options(f):
     """The builder's parameters as options (defaults documented in kdray.tree.BuildParams)."""
@@ -570,8 +575,7 @@ def _read_rays(path):
 @click.option("--count", "direction", callback=_floats(3), default=None,
               help="Write each point's surface crossings along the direction X,Y,Z "
                    "instead of inside or not.")
-@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
-              help="Use this dumped tree instead of building one.")
+@tree_option
 @device_option
 @build_options
 def contains(scene, points_file, output, direction, tree_file, device, **kw):
@@ -629,8 +633,7 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
               show_default=True,
               help="nearest and all: double gives t, u and v in float64 from the mesh's "
                    "float64 triangles.")
-@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
-              help="Use this dumped tree instead of building one.")
+@tree_option
 @device_option
 @build_options
 def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tree_file, device,
@@ -708,8 +711,7 @@ winding_number and occupancy."""
               show_default=True,
               help="closest, distance and signed: double measures against the mesh's "
                    "float64 triangles.")
-@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
-              help="Use this dumped tree instead of building one.")
+@tree_option
 @device_option
 @build_options
 def points(scene, points_file, output, query, sign, max_distance, precision, tree_file, device,
@@ -782,8 +784,7 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
               help="--samples: the fraction of points uniform in the padded box.")
 @click.option("--seed", type=int, default=0, show_default=True,
               help="--samples: the random seed (the same seed, the same samples).")
-@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
-              help="Use this dumped tree instead of building one.")
+@tree_option
 @device_option
 @build_options
 def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uniform, seed,
