@@ -38,7 +38,16 @@ typedef uint8 uintW;
 #define as_uintW as_uint8
 #define vloadW vload8
 #endif
+#ifdef W_ORDER
+/* W_ORDER (8 children only): after the children's rows, 8 words, one an octant of the
+ * ray's direction (bit 0: x negative, 1: y, 2: z): the children's slots in the order a
+ * ray of that octant meets their cells (3 bits a slot, the nearest in the lowest bits).
+ * The cells are disjoint k-d cells, so this order is front to back for every ray of
+ * the octant: pushing the hit children in it needs no compare. */
+#define W_WORDS (8u * W_N + 8u)
+#else
 #define W_WORDS (8u * W_N)
+#endif
 #define W_LEAF 0x80000000u
 #define W_EMPTY 0xFFFFFFFFu
 #define W_PAD 0x1p-16f
@@ -58,6 +67,10 @@ typedef struct {
     uint top, n_nodes, n_leaves;
     bool has_cur;                        /* W_DIRECT: the entry to take next, off the stack */
     uint cur_meta, cur_child;
+#ifdef W_ORDER
+    uint oct, nx, fx, ny, fy, nz, fz;   /* the octant; the rows of the near, far planes */
+    floatW cnx, cny, cnz, cfx, cfy, cfz; /* near, far planes' pad outwards, minus o */
+#endif
     uint st_meta[W_STACK], st_child[W_STACK];
     float st_t[W_STACK];
 } WRay;
@@ -76,6 +89,22 @@ void w_start(WRay *r, float3 o, float3 d, float reach)
     r->ix = (floatW)(inv.x); r->iy = (floatW)(inv.y); r->iz = (floatW)(inv.z);
     float a = fmax(fmax(fabs(o.x), fabs(o.y)), fabs(o.z));
     r->pad = (floatW)((a + reach) * W_PAD + 0x1p-120f);
+#ifdef W_ORDER
+    /* the near plane of a slab is its min for a ray going up the axis, its max going
+     * down (inv's sign: -0 gives -inf, going down); each plane moved out by the pad,
+     * and the origin taken off with it: the rounding of (pad - o) and of (plane + c)
+     * is at most 2^-23 of (|o| + reach), far below the pad's 2^-16 of it, so each box
+     * stays widened by more than the tests' roundings */
+    float px = inv.x < 0.0f ? 1.0f : -1.0f, py = inv.y < 0.0f ? 1.0f : -1.0f;
+    float pz = inv.z < 0.0f ? 1.0f : -1.0f;
+    r->oct = (inv.x < 0.0f ? 1u : 0u) | (inv.y < 0.0f ? 2u : 0u) | (inv.z < 0.0f ? 4u : 0u);
+    r->nx = inv.x < 0.0f ? 3u : 0u; r->fx = 3u - r->nx;
+    r->ny = inv.y < 0.0f ? 4u : 1u; r->fy = 5u - r->ny;
+    r->nz = inv.z < 0.0f ? 5u : 2u; r->fz = 7u - r->nz;
+    r->cnx = r->pad * px - r->ox; r->cny = r->pad * py - r->oy; r->cnz = r->pad * pz - r->oz;
+    r->cfx = -r->pad * px - r->ox; r->cfy = -r->pad * py - r->oy;
+    r->cfz = -r->pad * pz - r->oz;
+#endif
 }
 
 /* one entry of the ray's stack: a leaf tested, or a node's hit children pushed */
@@ -106,6 +135,40 @@ void w_step(WRay *r, __global const float *wide, __global const float *tris,
     }
     r->n_nodes++;
     __global const float *w = wide + (size_t)child * W_WORDS;
+#ifdef W_ORDER
+    {
+        /* entry: near plane + cn, exit: far plane + cf, times 1 / d. An empty slot (min
+         * +inf, max -inf) enters at +inf whatever the direction. */
+        /* maxima and minima as selects with the slab's value first: a NaN slab (a
+         * ray parallel to a face, in its widened plane) loses the compare and leaves
+         * the other, as fmax and fmin ignore NaN, in one vmaxps or vminps each */
+        floatW tn = (floatW)(t_min), tf = (floatW)(r->hit.t), s;
+        s = (vloadW(r->nz, w) + r->cnz) * r->iz; tn = s > tn ? s : tn;
+        s = (vloadW(r->ny, w) + r->cny) * r->iy; tn = s > tn ? s : tn;
+        s = (vloadW(r->nx, w) + r->cnx) * r->ix; tn = s > tn ? s : tn;
+        s = (vloadW(r->fz, w) + r->cfz) * r->iz; tf = s < tf ? s : tf;
+        s = (vloadW(r->fy, w) + r->cfy) * r->iy; tf = s < tf ? s : tf;
+        s = (vloadW(r->fx, w) + r->cfx) * r->ix; tf = s < tf ? s : tf;
+        __global const uint *cw = (__global const uint *)(w + 6 * W_N);
+        union { floatW v; float s[W_N]; } tv;
+        union { intW v; int s[W_N]; } okv;
+        tv.v = tn;
+        okv.v = tn <= tf;
+        uint seq = cw[2 * W_N + r->oct];
+        /* the farthest first, so that the nearest is on top; every slot written, the
+         * top moved only for those hit */
+#pragma unroll
+        for (int k = W_N - 1; k >= 0; k--) {
+            uint j = (seq >> (3 * k)) & 7u;
+            r->st_t[top] = tv.s[j];
+            r->st_meta[top] = cw[W_N + j];
+            r->st_child[top] = cw[j];
+            top += (uint)(okv.s[j]) & 1u;
+        }
+        r->top = top;
+        return;
+    }
+#endif
     floatW lx = vloadW(0, w) - r->ox, ly = vloadW(1, w) - r->oy, lz = vloadW(2, w) - r->oz;
     floatW hx = vloadW(3, w) - r->ox, hy = vloadW(4, w) - r->oy, hz = vloadW(5, w) - r->oz;
     floatW pad = r->pad;

@@ -3,7 +3,7 @@ the incoherent rays of issue 51, against `Tracer.trace` on the same rays, in tur
 
 usage: python bench/wide_nodes.py [--meshes bunny,bunny-1.6M] [--kinds uniform,centre]
                                   [--width 8] [--interleave 2] [--rays 1048576]
-                                  [--rounds 3] [--repeat 5] [--sorted]
+                                  [--rounds 3] [--repeat 5] [--sorted] [--ordered]
 
 The k-d tree's walk takes most of an incoherent ray's time (BENCHMARKS.md, "Incoherent
 rays"): 18 node steps and 4 leaves a bunny ray from a random point. Here each node of
@@ -14,7 +14,12 @@ all the children's boxes in one vector step, keeps the nearest first and skips w
 it enters beyond its best hit, and tests leaves with kdray's own kd_ray_leaf.
 --interleave R rays a work-item take their steps in turns (2: each in a struct of its
 own, whose state the compiler keeps in registers; more: an array of them). --direct:
-a node's nearest child is taken next without the stack.
+a node's nearest child is taken next without the stack. --ordered (8 children): each
+wide node also holds, for each octant of directions, the order in which such rays meet
+its children's cells (disjoint k-d cells, so the order is front to back for every ray
+of the octant); the hit children are pushed in it with no compare and no branch, and
+each slab's near and far planes are picked by the direction's signs instead of a min
+and a max.
 
 The script checks that every ray's hit triangle is trace's (prints the mismatches:
 they must be 0), prints the wide nodes and leaves a ray visits, then the time of the
@@ -66,7 +71,34 @@ def content_boxes(nodes, tris, cells):
     return lo, hi
 
 
-def wide_nodes(tree, packet, width):
+def octant_order(root, depth, leaf, axis, above, kids):
+    """The slots of `kids` (root's subtree nodes `depth` levels down, in their order) in
+    the order rays of each octant (bit a: the direction's axis a negative) meet their
+    cells: (8,) uint32, 3 bits a slot, the nearest lowest; slots past len(kids) after."""
+    words = np.zeros(8, np.uint32)
+    for octant in range(8):
+        seq = []
+
+        def walk(k, level):
+            if k in kids and (leaf[k] or level == depth):
+                seq.append(kids.index(k))
+                return
+            if leaf[k]:
+                return                                   # an empty leaf, left out
+            near, far = k + 1, above[k]
+            if octant >> int(axis[k]) & 1:
+                near, far = far, near
+            walk(near, level + 1)
+            walk(far, level + 1)
+
+        walk(root, 0)
+        assert sorted(seq) == list(range(len(kids)))
+        seq += range(len(kids), 8)
+        words[octant] = sum(j << (3 * i) for i, j in enumerate(seq))
+    return words
+
+
+def wide_nodes(tree, packet, width, ordered=False):
     """The wide nodes of `tree` for a Tracer of packets of `packet`: (m * 8 * width,)
     float32, node j's record at j * 8 * width: the children's min x, y, z and max x, y, z
     (6 rows of `width` floats), then as uint32 each child's index (a wide node's, or its
@@ -76,6 +108,8 @@ def wide_nodes(tree, packet, width):
     count = layout.n_prims(nodes).astype(np.int64)
     first = layout.leaf_offset(nodes).astype(np.int64)
     above = layout.above_child(nodes).astype(np.int64)
+    axis = layout.split_axis(nodes)
+    extra = 8 if ordered else 0
     lo, hi = content_boxes(nodes, tris, tree.node_boxes().astype(np.float32))
     records = []
 
@@ -86,10 +120,10 @@ def wide_nodes(tree, packet, width):
         for _ in range(LEVELS[width]):
             kids = [c for k in kids for c in ((k,) if leaf[k] else (k + 1, above[k]))]
         kids = [c for c in kids if not (leaf[c] and count[c] == 0)]
-        rec = np.zeros(8 * width, np.float32)
+        rec = np.zeros(8 * width + extra, np.float32)
         words = rec.view(np.uint32)
         rec[:3 * width], rec[3 * width:6 * width] = np.inf, -np.inf
-        words[7 * width:] = EMPTY
+        words[7 * width:8 * width] = EMPTY
         for j, c in enumerate(kids):
             rec[j:3 * width:width] = lo[c]
             rec[3 * width + j:6 * width:width] = hi[c]
@@ -97,6 +131,8 @@ def wide_nodes(tree, packet, width):
                 words[6 * width + j], words[7 * width + j] = first[c], LEAF | count[c]
             else:
                 words[6 * width + j], words[7 * width + j] = build(c), 0
+        if ordered:
+            words[8 * width:] = octant_order(root, LEVELS[width], leaf, axis, above, kids)
         records[index] = rec
         return index
 
@@ -127,11 +163,12 @@ def rays_of(kind, tree, n, rng):
 class WideKernel:
     """The wide kernel of one Tracer on one set of rays; call() -> (t, input id)."""
 
-    def __init__(self, tracer, width, interleave, o, d, count=False, direct=False):
+    def __init__(self, tracer, width, interleave, o, d, count=False, direct=False,
+                 ordered=False):
         import pyopencl as cl
         self.tracer, self.interleave, self.n = tracer, interleave, len(d)
-        records = wide_nodes(tracer.tree, tracer.packet, width)
-        self.n_wide = len(records) // (8 * width)
+        records = wide_nodes(tracer.tree, tracer.packet, width, ordered)
+        self.n_wide = len(records) // (8 * width + (8 if ordered else 0))
         defines = {"W_N": width, "W_R": interleave, "PACKET": tracer.packet,
                    "PACKET_STACK_SIZE": tracer.packet_stack_size,
                    "STACK_SIZE": tracer.stack_size}
@@ -141,6 +178,8 @@ class WideKernel:
             defines["W_COUNT"] = None
         if direct:
             defines["W_DIRECT"] = None
+        if ordered:
+            defines["W_ORDER"] = None
         entry = tracer._built(os.path.join(HERE, "wide_nodes.cl"), defines, ("wide_trace",))
         self.kernel = entry["wide_trace"]
         o32, d32 = ray_input.rays32(o, d, 1, tracer._origin, tracer._scale)
@@ -176,6 +215,9 @@ def main():
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--direct", action="store_true",
                    help="a node's nearest child taken next without the stack (W_DIRECT)")
+    p.add_argument("--ordered", action="store_true",
+                   help="hit children pushed in their octant's order, near and far planes "
+                        "chosen by the direction's signs (W_ORDER; --width 8)")
     p.add_argument("--sorted", action="store_true",
                    help="rays sorted on the host first in kdray.ray_order's order, for both")
     args = p.parse_args()
@@ -187,12 +229,13 @@ def main():
             o, d = rays_of(kind, tree, args.rays, np.random.default_rng(0))
             if args.sorted:
                 o, d = sort_rays(o, d, tree)
-            wide = WideKernel(tracer, args.width, args.interleave, o, d, direct=args.direct)
+            wide = WideKernel(tracer, args.width, args.interleave, o, d, direct=args.direct,
+                              ordered=args.ordered)
             _, ids = wide()
             hits = tracer.trace(o, d, outputs=())
             bad = int(np.count_nonzero(ids != hits.prim))
             visits = WideKernel(tracer, args.width, args.interleave, o, d, count=True,
-                                direct=args.direct)()[0]
+                                direct=args.direct, ordered=args.ordered)()[0]
             visits = visits.astype(np.int64)
             print(f"{name} {kind}: {wide.n_wide} wide nodes of {args.width}, "
                   f"{(visits % 1000).mean():.2f} of them and {(visits // 1000).mean():.2f} "
