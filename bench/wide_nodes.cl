@@ -59,6 +59,12 @@ typedef uint8 uintW;
 #define W_R 1
 #endif
 
+/* a ray's stack of entries: the node or leaf (child, meta) and where the ray enters it */
+typedef struct {
+    uint meta[W_STACK], child[W_STACK];
+    float t[W_STACK];
+} WStack;
+
 typedef struct {
     float3 o;
     RayShear shear;
@@ -71,18 +77,18 @@ typedef struct {
     uint oct, nx, fx, ny, fy, nz, fz;   /* the octant; the rows of the near, far planes */
     floatW cnx, cny, cnz, cfx, cfy, cfz; /* near, far planes' pad outwards, minus o */
 #endif
-    uint st_meta[W_STACK], st_child[W_STACK];
-    float st_t[W_STACK];
+    WStack *st;                          /* apart, so that the rest can stay in registers */
 } WRay;
 
 KD_INLINE
-void w_start(WRay *r, float3 o, float3 d, float reach)
+void w_start(WRay *r, WStack *st, float3 o, float3 d, float reach)
 {
+    r->st = st;
     r->o = o;
     r->shear = ray_shear(d);
     float3 inv = (float3)(1.0f) / d;
     r->hit.t = INFINITY; r->hit.u = 0.0f; r->hit.v = 0.0f; r->hit.tri = KD_NO_HIT;
-    r->st_meta[0] = 0u; r->st_child[0] = 0u; r->st_t[0] = 0.0f; r->top = 1;
+    r->st->meta[0] = 0u; r->st->child[0] = 0u; r->st->t[0] = 0.0f; r->top = 1;
     r->n_nodes = 0u; r->n_leaves = 0u;
     r->has_cur = false; r->cur_meta = 0u; r->cur_child = 0u;
     r->ox = (floatW)(o.x); r->oy = (floatW)(o.y); r->oz = (floatW)(o.z);
@@ -120,9 +126,9 @@ void w_step(WRay *r, __global const float *wide, __global const float *tris,
         r->has_cur = false;
     } else {
         top = --r->top;
-        meta = r->st_meta[top];
-        child = r->st_child[top];
-        if (r->st_t[top] > r->hit.t)
+        meta = r->st->meta[top];
+        child = r->st->child[top];
+        if (r->st->t[top] > r->hit.t)
             return;
     }
     if (meta & W_LEAF) {
@@ -160,9 +166,9 @@ void w_step(WRay *r, __global const float *wide, __global const float *tris,
 #pragma unroll
         for (int k = W_N - 1; k >= 0; k--) {
             uint j = (seq >> (3 * k)) & 7u;
-            r->st_t[top] = tv.s[j];
-            r->st_meta[top] = cw[W_N + j];
-            r->st_child[top] = cw[j];
+            r->st->t[top] = tv.s[j];
+            r->st->meta[top] = cw[W_N + j];
+            r->st->child[top] = cw[j];
             top += (uint)(okv.s[j]) & 1u;
         }
         r->top = top;
@@ -210,8 +216,8 @@ void w_step(WRay *r, __global const float *wide, __global const float *tris,
             if (tnl.s[far] < tnl.s[near]) {
                 uint x = near; near = far; far = x;
             }
-            r->st_t[top] = tnl.s[far]; r->st_meta[top] = cm[W_N + far];
-            r->st_child[top] = cm[far];
+            r->st->t[top] = tnl.s[far]; r->st->meta[top] = cm[W_N + far];
+            r->st->child[top] = cm[far];
             r->top = top + 1u;
             r->has_cur = true; r->cur_meta = cm[W_N + near]; r->cur_child = cm[near];
             return;
@@ -227,18 +233,18 @@ void w_step(WRay *r, __global const float *wide, __global const float *tris,
         bits &= bits - 1u;
         float t = tnl.s[j];
         uint i = top++;
-        while (i > base && r->st_t[i - 1] < t) {
-            r->st_t[i] = r->st_t[i - 1]; r->st_meta[i] = r->st_meta[i - 1];
-            r->st_child[i] = r->st_child[i - 1];
+        while (i > base && r->st->t[i - 1] < t) {
+            r->st->t[i] = r->st->t[i - 1]; r->st->meta[i] = r->st->meta[i - 1];
+            r->st->child[i] = r->st->child[i - 1];
             i--;
         }
-        r->st_t[i] = t; r->st_meta[i] = cm[W_N + j]; r->st_child[i] = cm[j];
+        r->st->t[i] = t; r->st->meta[i] = cm[W_N + j]; r->st->child[i] = cm[j];
     }
     r->top = top;
 #ifdef W_DIRECT
     /* three or more: the nearest, on top, taken next */
     top = --r->top;
-    r->has_cur = true; r->cur_meta = r->st_meta[top]; r->cur_child = r->st_child[top];
+    r->has_cur = true; r->cur_meta = r->st->meta[top]; r->cur_child = r->st->child[top];
 #endif
 }
 
@@ -258,9 +264,10 @@ void wide_trace(__global const float *wide, __global const float *tris,
     /* two rays in structs of their own (no array indexed at run time): their state can
      * stay in registers between turns */
     WRay a, b;
-    w_start(&a, vload3(k0, o_in), vload3(k0, d_in), reach);
+    WStack sa, sb;
+    w_start(&a, &sa, vload3(k0, o_in), vload3(k0, d_in), reach);
     uint kb = k0 + 1u < n ? k0 + 1u : k0;
-    w_start(&b, vload3(kb, o_in), vload3(kb, d_in), reach);
+    w_start(&b, &sb, vload3(kb, o_in), vload3(kb, d_in), reach);
     bool la = true, lb = true;
     while (la | lb) {
         if (la) {
@@ -277,10 +284,11 @@ void wide_trace(__global const float *wide, __global const float *tris,
     r[1] = b;
 #else
     WRay r[W_R];
+    WStack s[W_R];
     uint live = 0u;
     for (uint i = 0; i < W_R; i++) {
         uint k = k0 + i < n ? k0 + i : k0;
-        w_start(&r[i], vload3(k, o_in), vload3(k, d_in), reach);
+        w_start(&r[i], &s[i], vload3(k, o_in), vload3(k, d_in), reach);
         live |= 1u << i;
     }
     while (live) {
