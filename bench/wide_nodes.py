@@ -1,7 +1,7 @@
 """Wide nodes collapsed from the k-d tree, traced one ray at a time: an experiment for
 the incoherent rays of issue 51, against `Tracer.trace` on the same rays, in turns.
 
-usage: python bench/wide_nodes.py [--meshes bunny,bunny-1.6M] [--kinds uniform,centre]
+usage: python bench/wide_nodes.py [--meshes bunny,bunny-1.6M] [--kinds uniform,centre,ao]
                                   [--width 8] [--interleave 2] [--rays 1048576]
                                   [--rounds 3] [--repeat 5] [--sorted] [--ordered]
 
@@ -150,14 +150,18 @@ def sort_rays(o, d, tree):
     return np.ascontiguousarray(o[order]), np.ascontiguousarray(d[order])
 
 
-def rays_of(kind, tree, n, rng):
+def rays_of(kind, tree, n, rng, mesh=None):
+    """(o, d) (n, 3) float64 of a kind: uniform, centre or ao (bench_embree's)."""
     lo, hi = tree.world_box()
     d = rng.normal(size=(n, 3))
     if kind == "uniform":
         return rng.uniform(lo, hi, (n, 3)), d
     if kind == "centre":
         return np.broadcast_to(0.5 * (lo + hi), (n, 3)).copy(), d
-    raise SystemExit(f"unknown kind {kind!r}: uniform or centre")
+    if kind == "ao":
+        from bench_embree import AO_OFFSET, ao_rays
+        return ao_rays(mesh, n, rng, AO_OFFSET * np.linalg.norm(np.subtract(hi, lo)))
+    raise SystemExit(f"unknown kind {kind!r}: uniform, centre or ao")
 
 
 class WideKernel:
@@ -226,7 +230,7 @@ def main():
         tree = kdray.build(m.vertices, m.faces)
         tracer = kdray.Tracer(tree)
         for kind in args.kinds.split(","):
-            o, d = rays_of(kind, tree, args.rays, np.random.default_rng(0))
+            o, d = rays_of(kind, tree, args.rays, np.random.default_rng(0), m)
             if args.sorted:
                 o, d = sort_rays(o, d, tree)
             wide = WideKernel(tracer, args.width, args.interleave, o, d, direct=args.direct,
