@@ -2,9 +2,9 @@
 through the tree.
 
 Rays that come in no order (origins anywhere, directions anywhere: inside tests, ambient
-occlusion, a user's own rays) are traced each on its own path (kernels/lanes_trace.cl),
-and a work-item's rays then meet nodes and triangles that the rays before them left in
-no cache. Taken grouped by their direction's octant and, within it, in Morton order of
+occlusion, a user's own rays) are traced each on its own path (kernels/wide.cl and
+queries.cl), and a work-item's rays then meet nodes and triangles that the rays before
+them left in no cache. Taken grouped by their direction's octant and, within it, in Morton order of
 the cell of a 16^3 grid over the scene's box where they enter it (kernels/ray_order.cl),
 neighbouring rays enter close together and head the same way: their walks share nodes
 and triangles in the caches, and more packets are traced as packets.

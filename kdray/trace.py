@@ -55,6 +55,7 @@ from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import object_ids
 from .validate import check_float32, whole_or_none
+from .wide import wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
                          default_stack_size, default_work_sizes, max_local_size,
                          pocl_item_bytes, thread_stack_bytes)
@@ -155,7 +156,8 @@ class Tracer:
         whatever the triangle's size against t; which triangle is hit does not change.
         Only on devices with cl_khr_fp64; `self.refine` says whether it is on.
 
-    device_bytes : bytes of the tree on the device (`device_sizes`).
+    device_bytes : bytes of the tree on the device (`device_sizes`), and of its wide
+        nodes (kdray.wide, about a tenth more) once a trace has made them.
     """
 
     def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
@@ -207,10 +209,6 @@ class Tracer:
         # tests set the spread -1 (always), or the spread and the turn inf (never)
         self._alone_spread = None
         self._alone_turn = None
-        # such rays go side by side in vector lanes while at least this many are left
-        # (lanes_trace.cl, KD_LANES_MIN), else one by one: None = the kernel's; tests
-        # set 1 (every lane in vectors) or 99 (never)
-        self._lanes_min = None
         # trace_rays: each work-item takes a run of its group's batch (render.cl,
         # item_runs) on CPUs, where a group's work-items run one after another; on
         # GPUs every local_size-th packet, for coalesced reads. Tests set both.
@@ -295,10 +293,12 @@ class Tracer:
         self._tri_ids = self._buffer(tri_ids)
         self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))
         self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)
+        self._wide_nodes = None               # (buffer, levels), made when needed (`_wide`)
         self._origin = np.asarray(tree.origin, dtype=np.float64)
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
 
-    def program(self, outputs, stats=False, rays_world=None, rays="pinhole", any_hit=False):
+    def program(self, outputs, stats=False, rays_world=None, rays="pinhole", any_hit=False,
+                wide=False):
         """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
         with its kernels: {"program": Program, "trace_rays": Kernel, ...} (and the
         argument types `_launch` gave each kernel, under ("arg_types", name)). rays_world:
@@ -307,7 +307,10 @@ class Tracer:
         rays: how render_camera makes its rays: "pinhole", "map" (a camera model's ray
         map, RAY_MAP) or "orthographic" (ORTHOGRAPHIC); render.cl says how.
         any_hit: trace_rays stops at any hit (ANY_HIT, for `occluded`; with no
-        refinement: it changes no hit into a miss)."""
+        refinement: it changes no hit into a miss).
+        wide: packets' rays that share no path walk the wide nodes (KD_WIDE, `_wide`):
+        for trace_rays of rays that are not an image; packet programs only, not with
+        stats (their kernels take the records after n_nodes: `_launch` passes them)."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
                    "BATCH_SIZE": self.batch_size, "TILE_W": _render.RENDER_TILE[0],
                    "TILE_H": _render.RENDER_TILE[1]}
@@ -338,13 +341,26 @@ class Tracer:
                                 ("KD_ALONE_TURN", self._alone_turn)):
                 if value is not None:
                     defines[name] = f"{min(float(value), 1e30):.9e}f"
-            if self._lanes_min is not None:
-                defines["KD_LANES_MIN"] = f"{int(self._lanes_min)}u"
+            if wide and not stats:
+                defines["KD_WIDE"] = None
+                defines["WIDE_STACK"] = 7 * self._wide()[1] + 8
         for name in outputs:
             defines[f"OUT_{name}"] = None
         if stats:
             defines["STATS"] = None
-        return self._built("render.cl", defines, ("trace_rays", "render_camera"))
+        entry = self._built("render.cl", defines, ("trace_rays", "render_camera"))
+        entry["wide"] = "KD_WIDE" in defines
+        return entry
+
+    def _wide(self):
+        """(buffer, levels): the tree's wide nodes on the device (kdray.wide), made at
+        the first trace that needs them; their bytes join device_bytes."""
+        if self._wide_nodes is None:
+            nodes, _, _ = device_triangles(self.tree, self.packet)
+            records, levels = wide_nodes(self.tree, nodes)
+            self._wide_nodes = (self._buffer(records), levels)
+            self.device_bytes += records.nbytes
+        return self._wide_nodes
 
     def _built(self, source, defines, kernels):
         """kernels/<source> built with `defines` (dict name -> value or None), once per
@@ -402,24 +418,25 @@ class Tracer:
     # -- launching ---------------------------------------------------------------------
 
     def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_world=None,
-                rays="pinhole", while_running=None, any_hit=False):
+                rays="pinhole", while_running=None, any_hit=False, wide=False):
         """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
         slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
         args: the kernel's arguments between the tree and the counter; while_running:
         None or a function to call once the kernel has been submitted, before waiting
-        for it; any_hit: see `program`."""
+        for it; any_hit, wide: see `program`."""
         cl = _device._cl()
         if n == 0:
             return
-        entry = self.program(outputs, stats, rays_world, rays, any_hit)
+        entry = self.program(outputs, stats, rays_world, rays, any_hit, wide)
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
             device_out[name] = self._output_buffer(host_out[name])
         cl.enqueue_fill_buffer(self.queue, self._counter, np.uint32(0), 0, 4)
         groups = min(self.groups, -(-n // self.batch_size))
+        wide = (self._wide()[0],) if entry["wide"] else ()
         call_args = (self._nodes, self._tris, self._tri_ids, self._bounds,
-                     np.uint32(self._n_nodes), *args, self._counter,
+                     np.uint32(self._n_nodes), *wide, *args, self._counter,
                      *(device_out.get(name) for name in _OUTPUTS))
         self._enqueue(entry, kernel_name, groups * self.local_size, self.local_size, call_args)
         if while_running is not None:
@@ -660,6 +677,11 @@ class Tracer:
         o_bytes, d_bytes = (ray_input.RAY_BYTES[t] for t in rays_world or ("float", "float"))
         widths = [o_bytes] * o_step + [d_bytes] + [8] * t_step \
             + [OUTPUT_WIDTH[k][0] * 4 for k in out]
+        # packets' rays that share no path walk the wide nodes, made now so that their
+        # bytes count in what a launch may take
+        wide = self.packet > 1 and not stats
+        if wide:
+            self._wide()
         per_launch = self._launch_size(widths)
         # with image blocks a launch takes whole rows of blocks (4 rows with packets
         # of 16); a band that does not fit in one launch is traced in rows
@@ -694,7 +716,7 @@ class Tracer:
                           np.uint32(self._item_runs), *origin),
                          {k: v[start:stop] for k, v in out.items()}, stats=stats,
                          rays_world=rays_world, while_running=while_running,
-                         any_hit=any_hit)
+                         any_hit=any_hit, wide=wide)
             while_running = None
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
         uv = out.get("UV")

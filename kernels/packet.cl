@@ -894,8 +894,8 @@ void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, flo
 #endif
 
 /* Whether the lanes in `on` (origins ox, oy, oz, directions dx, dy, dz; r: their
- * packet) are better traced each on its own path (kd_lanes_trace, or trace_ray when
- * few; their leaves KD_PACKET triangles at a time: kd_ray_leaf) than as a packet: their
+ * packet) are better traced each on its own path (trace_packet: wide.cl's walk; their
+ * leaves KD_PACKET triangles at a time: kd_ray_leaf) than as a packet: their
  * origins span more than KD_ALONE_SPREAD of the scene box's longest side on some axis,
  * or their directions more than KD_ALONE_TURN. Rays that far apart or that diverge
  * share few nodes below the top of the tree, and the union of their paths, each node a
@@ -939,7 +939,7 @@ bool kd_alone(const KdPacket *r, intP on, bool camera, floatP ox, floatP oy, flo
     return span > KD_ALONE_TURN * big;
 }
 
-#include "lanes_trace.cl"
+#include "wide.cl"
 
 /* Nearest hits of the rays o + t d (per lane, relative to the tree's origin) with
  * t_min < t < t_max (each lane's range), as trace_ray gives them, for the lanes in `on`; bmin, bmax: the
@@ -948,7 +948,8 @@ bool kd_alone(const KdPacket *r, intP on, bool camera, floatP ox, floatP oy, flo
  * on a miss) per lane, and with STATS per-lane counts. */
 KD_INLINE
 void trace_packet(__global const KdNode *nodes, uint n_nodes,
-                  __global const float *tris, __global const uint *tri_ids, float3 bmin, float3 bmax, intP on,
+                  __global const float *tris, __global const uint *tri_ids KD_WIDE_PARAM,
+                  float3 bmin, float3 bmax, intP on,
                   bool camera, floatP ox, floatP oy, floatP oz, floatP dx, floatP dy, floatP dz,
                   floatP t_min, floatP t_max,
                   floatP *t_out, floatP *u_out, floatP *v_out, uintP *tri_out
@@ -1023,18 +1024,19 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
 #ifdef STATS
     stat_x->v = ps.x; stat_y->v = ps.y; stat_z->v = ps.z; stat_w->v = (uintP)(0u);
 #endif
-#ifndef STATS
-    if (!camera && kd_countP(fallback.v) >= KD_LANES_ENTER) {
-        /* lanes the packet handed over, or all of a packet traced alone: side by side,
-         * each its own path, from the start; those it hands back go one by one (a
-         * camera's packets rarely leave 8 lanes: render_camera has no such code) */
-        fallback.v = kd_lanes_trace(nodes, 2u * n_nodes + 2u, tris, tri_ids, fallback.v,
-                                    ox, oy, oz, dx, dy, dz, t_min, t_max, t_enter, t_exit,
-                                    &t_l, &u_l, &v_l, &tri_l);
+#ifdef KD_WIDE
+    if (!camera && kd_anyP(fallback.v)) {
+        /* lanes the packet handed over, or all of a packet traced alone: through the
+         * wide nodes, two at a time, from the start (wide.cl) */
+        kd_wide_trace(wide, tris, tri_ids, fallback.v, ox, oy, oz, dx, dy, dz, t_min, t_max,
+                      bmin.x, bmin.y, bmin.z, bmax.x, bmax.y, bmax.z, &t_l, &u_l, &v_l,
+                      &tri_l);
+        fallback.v = (intP)(0);
     }
 #endif
     if (kd_anyP(fallback.v)) {
-        /* lanes the packet handed over: the scalar kernel from the start */
+        /* lanes the packet handed over where there are no wide nodes (a camera's, and
+         * programs that count the work): the scalar kernel from the start */
         KdFP oxl, oyl, ozl, dxl, dyl, dzl, lo, hi;
         oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
         lo.v = t_min; hi.v = t_max;

@@ -43,6 +43,7 @@
  * kd_ray_leaf: kd_intersect_leaf's hit bit for bit), which the nearest and any-hit
  * queries use: they keep one best hit a leaf; count and list need every hit */
 #include "packet.cl"
+#include "lanes_step.cl"
 #endif
 
 #ifndef LOCAL_SIZE
@@ -417,7 +418,7 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
 
 #ifdef PACKET
 /* The walks of rays ids[rays[i]] into q[rays[i]] (i < n), side by side, one a vector lane,
- * as kd_lanes_trace (lanes_trace.cl) traces rays that share no path: one vector node
+ * with lanes_step.cl's node step and stacks (rays that share no path): one vector node
  * step moves every lane one node down its own path, and a lane whose walk ends takes
  * the next ray, so that the lanes stay full while rays are left. Each ray is walked
  * exactly as kd_walk walks it: the same node decisions (kd_node_stepP), the same

@@ -64,9 +64,16 @@
 #define BATCH_SIZE LOCAL_SIZE
 #endif
 
+/* KD_WIDE (packet programs of trace_rays): the tree's wide nodes follow n_nodes
+ * (wide.cl) */
+#ifndef KD_WIDE_PARAM
+#define KD_WIDE_PARAM
+#define KD_WIDE_PASS
+#endif
+
 #define KD_TREE_ARGS                                                                     \
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
-    __global const float *bounds, uint n_nodes
+    __global const float *bounds, uint n_nodes KD_WIDE_PARAM
 
 #define KD_OUTPUT_ARGS                                                                   \
     __global float *out_t, __global float *out_uv, __global float *out_normal,           \
@@ -74,8 +81,8 @@
 
 #define KD_TREE_PARAMS                                                                   \
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
-    float3 bmin, float3 bmax, uint n_nodes
-#define KD_TREE_PASS nodes, tris, tri_ids, bmin, bmax, n_nodes
+    float3 bmin, float3 bmax, uint n_nodes KD_WIDE_PARAM
+#define KD_TREE_PASS nodes, tris, tri_ids, bmin, bmax, n_nodes KD_WIDE_PASS
 #define KD_OUTPUT_PASS out_t, out_uv, out_normal, out_id, out_stats
 
 /* The caller's rays in world coordinates, when trace_rays reads them (RAYS_WORLD):
@@ -317,11 +324,13 @@ void trace_packet_and_store(KdFP ox, KdFP oy, KdFP oz, KdFP dx, KdFP dy, KdFP dz
     KdUP tri_l;
 #ifdef STATS
     KdUP sx, sy, sz, sw;
-    trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, camera, ox.v, oy.v, oz.v,
+    trace_packet(nodes, n_nodes, tris, tri_ids KD_WIDE_PASS, bmin, bmax, on.v, camera,
+                 ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min.v, t_max.v, &t_l.v, &u_l.v, &v_l.v, &tri_l.v,
                  &sx, &sy, &sz, &sw);
 #else
-    trace_packet(nodes, n_nodes, tris, tri_ids, bmin, bmax, on.v, camera, ox.v, oy.v, oz.v,
+    trace_packet(nodes, n_nodes, tris, tri_ids KD_WIDE_PASS, bmin, bmax, on.v, camera,
+                 ox.v, oy.v, oz.v,
                  dx.v, dy.v, dz.v, t_min.v, t_max.v, &t_l.v, &u_l.v, &v_l.v, &tri_l.v);
 #endif
     KdIP found;

@@ -292,8 +292,8 @@ def test_packets_equal_single_rays(packet, kind, leaf, tracers):
         assert np.array_equal(ra[name], rb[name], equal_nan=True), name
 
 
-OWN_PATHS_FAST = {("rule", "median"), ("rule", "soup"), ("every lane", "soup"),
-                  ("full packets", "soup"), ("stack of 2", "soup")}
+OWN_PATHS_FAST = {("rule", "median"), ("rule", "soup"), ("every packet alone", "soup"),
+                  ("stack of 2", "soup")}
 """test_rays_on_their_own_paths_equal_single_rays's cases in `make test`: the rule on
 two trees, every setting on the soup (each setting and tree is a program of its own);
 the others in `make test-long`."""
@@ -301,20 +301,18 @@ the others in `make test-long`."""
 
 @pytest.mark.parametrize("setting,kind", [
     pytest.param(setting, kind, marks=[] if (setting, kind) in OWN_PATHS_FAST else [pytest.mark.slow])
-    for setting in ["rule", "every lane", "full packets", "stack of 2"]
+    for setting in ["rule", "every packet alone", "stack of 2"]
     for kind in ["median", "sah", "soup"]])
 def test_rays_on_their_own_paths_equal_single_rays(kind, setting, tracers):
     """Rays that share no path (each lane its own origin, or one origin and diverging
-    directions: kd_alone), and the lanes a packet hands over, are traced side by side
-    in vector lanes, each on its own path (kernels/lanes_trace.cl): bit for bit what
-    one ray a work-item gives, and the oracle's hits. Packets mix every kind of ray
-    (shuffled: split planes and vertices, which a lane hands back, beside random and
-    invalid rays) and a count that leaves lanes empty; rays from one point in random
-    directions. By the kernel's rule (the last few lanes one by one), with every lane
-    in vectors to the last, with vectors only while every lane is left (most of the
-    work one by one, carried on from the lanes' state), and with a packet stack of 2 (lanes hand themselves back
-    when theirs is full); in a deep tree, a mesh's and a soup's (triangles across many
-    leaves, where a hit past a leaf's exit must not end a ray)."""
+    directions: kd_alone), and the lanes a packet hands over, walk the wide nodes two at
+    a time (kernels/wide.cl): bit for bit what one ray a work-item gives, and the
+    oracle's hits. Packets mix every kind of ray (shuffled: split planes and vertices
+    beside random and invalid rays) and a count that leaves lanes empty; rays from one
+    point in random directions. By the kernel's rule, with every packet alone, and with
+    a packet stack of 2 (lanes leave a packet when its stack is full); in a deep tree,
+    a mesh's and a soup's (triangles across many leaves, where a hit past a leaf's exit
+    must not end a ray)."""
     tree = {"median": deep_tree, "sah": lambda: mesh_tree("teapot.obj", "sah"),
             "soup": lambda: sah_tree(*soup(7, m=2000))}[kind]()
     o, d = packet_rays(tree, camera_size=19)
@@ -328,10 +326,8 @@ def test_rays_on_their_own_paths_equal_single_rays(kind, setting, tracers):
     if packed.packet == 1:
         pytest.skip("no packets on this device")
     packed._poison_outputs = True
-    if setting == "every lane":
-        packed._lanes_min = 1
-    if setting == "full packets":
-        packed._lanes_min = packed.packet      # the rest one by one from the first done
+    if setting == "every packet alone":
+        packed._alone_spread = -1.0
     if setting == "stack of 2":
         packed.packet_stack_size = 2
     for rays in [(o, d), (o_one, d_one)]:

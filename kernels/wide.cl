@@ -1,0 +1,219 @@
+/* kernels/wide.cl: rays that share no path through the tree, walked through its wide
+ * nodes (kdray/wide.py: the k-d tree three levels at a time, each child's box its
+ * triangles' clipped to its cell, and each node's slots in the order a ray of each
+ * octant meets them), two rays a work-item taking their steps in turns.
+ *
+ * Why: a k-d walk on its own pays a dependent load and a decision at every node (18
+ * nodes and 4 leaves a bunny ray from a random point); here one vector step tests a
+ * ray against 8 boxes, and it visits about 5 wide nodes and 0.8 leaves. Two rays in
+ * turns keep two chains of loads in flight. Each ray's state stays in registers; its
+ * stack lives apart (a struct holding the stack arrays would be kept in memory).
+ *
+ * The hits are trace_ray's bit for bit. A hit does not depend on the tree: it is the
+ * nearest in (t, input id) order over t_min < t < t_max of the triangle test, and every
+ * leaf is tested with kd_ray_leaf (the same arithmetic). A child is skipped only when
+ * its box, widened by KD_WIDE_PAD of the ray's reach, is missed or entered beyond the
+ * best hit so far (strictly: a tie is still visited). The reach, the scene's largest
+ * coordinate plus the origin's, bounds |v - o| for every vertex v, and every rounding
+ * of the slab test and of the triangle test is far below 2^-16 of it (traverse.cl's
+ * KD_T_SLACK reasoning allows 2^-20): so a triangle hit at t lies in a box the ray
+ * enters at or before t. A NaN slab (a ray parallel to a face, in its widened plane)
+ * loses every compare it is in, which only keeps a child.
+ *
+ * Options (-D): KD_WIDE (the program takes the wide records after n_nodes),
+ * WIDE_STACK (entries a ray's stack: the host's 7 a level of wide nodes plus the 8 a
+ * node's push writes, kdray/trace.py). Not with STATS (such programs trace these rays
+ * one by one, trace_ray counting them).
+ */
+#ifndef KDRAY_WIDE_CL
+#define KDRAY_WIDE_CL
+
+/* the wide records follow n_nodes in the tree's arguments of a KD_WIDE program */
+#ifdef KD_WIDE
+#define KD_WIDE_PARAM , __global const uint *wide
+#define KD_WIDE_PASS , wide
+#else
+#define KD_WIDE_PARAM
+#define KD_WIDE_PASS
+#endif
+
+#ifdef KD_WIDE
+#ifdef STATS
+#error "KD_WIDE programs do not count work (STATS)"
+#endif
+#ifndef WIDE_STACK
+#error "KD_WIDE needs WIDE_STACK"
+#endif
+
+#pragma OPENCL FP_CONTRACT OFF
+
+/* a record (kdray/wide.py): 6 rows of 8 box planes, 8 children, 8 kinds, 8 orders */
+#define KD_WIDE_WORDS 72u
+#define KD_WIDE_CHILD 48u
+#define KD_WIDE_KIND 56u
+#define KD_WIDE_ORDER 64u
+#define KD_WIDE_LEAF 0x80000000u
+#define KD_WIDE_PAD 0x1p-16f
+
+/* a ray's stack: each entry a wide node or a leaf (child, kind) and where the ray
+ * enters its box */
+typedef struct {
+    uint kind[WIDE_STACK], child[WIDE_STACK];
+    float t[WIDE_STACK];
+} KdWideStack;
+
+/* A ray's walk: the ray relative to the tree, its range, its best hit, its stack's
+ * top, and for the box test its octant, the rows of each slab's near and far planes
+ * (near: the min going up an axis, the max going down) and each plane's offset c
+ * (the pad outwards, minus the origin): the plane's t is (plane + c) / d. */
+typedef struct {
+    float3 o;
+    RayShear shear;
+    float t_min, t_max;
+    Hit hit;
+    uint top, octant, nx, ny, nz, fx, fy, fz;
+    float8 ix, iy, iz, cnx, cny, cnz, cfx, cfy, cfz;
+    KdWideStack *stack;
+} KdWideRay;
+
+/* Start ray o + t d over t_min < t < t_max (relative to the tree, finite, d not 0) at
+ * the root; reach: the scene box's largest |coordinate|. */
+KD_INLINE
+void kd_wide_start(KdWideRay *r, KdWideStack *stack, float3 o, float3 d, float t_min,
+                   float t_max, float reach)
+{
+    r->o = o;
+    r->shear = ray_shear(d);
+    r->t_min = t_min;
+    r->t_max = t_max;
+    r->hit.t = t_max;
+    r->hit.u = 0.0f;
+    r->hit.v = 0.0f;
+    r->hit.tri = KD_NO_HIT;
+    r->stack = stack;
+    stack->kind[0] = 0u;
+    stack->child[0] = 0u;
+    stack->t[0] = t_min;
+    r->top = 1u;
+    float3 inv = (float3)(1.0f) / d;
+    /* going down an axis: inv < 0 (d = -0 gives -inf) */
+    bool down_x = inv.x < 0.0f, down_y = inv.y < 0.0f, down_z = inv.z < 0.0f;
+    r->octant = (down_x ? 1u : 0u) | (down_y ? 2u : 0u) | (down_z ? 4u : 0u);
+    r->nx = down_x ? 3u : 0u;
+    r->ny = down_y ? 4u : 1u;
+    r->nz = down_z ? 5u : 2u;
+    r->fx = 3u - r->nx;
+    r->fy = 5u - r->ny;
+    r->fz = 7u - r->nz;
+    r->ix = (float8)(inv.x);
+    r->iy = (float8)(inv.y);
+    r->iz = (float8)(inv.z);
+    /* the pad: KD_WIDE_PAD of |o| + reach (and a floor for a scene at the origin);
+     * the roundings of (pad - o) and of (plane + c) are at most 2^-23 of it */
+    float a = kd_max(kd_max(kd_abs(o.x), kd_abs(o.y)), kd_abs(o.z));
+    float pad = (a + reach) * KD_WIDE_PAD + 0x1p-120f;
+    float px = down_x ? pad : -pad, py = down_y ? pad : -pad, pz = down_z ? pad : -pad;
+    r->cnx = (float8)(px - o.x);
+    r->cny = (float8)(py - o.y);
+    r->cnz = (float8)(pz - o.z);
+    r->cfx = (float8)(-px - o.x);
+    r->cfy = (float8)(-py - o.y);
+    r->cfz = (float8)(-pz - o.z);
+}
+
+/* One entry off the ray's stack: a leaf tested, or a wide node's children that the
+ * ray meets before its best hit pushed, the nearest last. */
+KD_INLINE
+void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float *tris,
+                  __global const uint *tri_ids)
+{
+    KdWideStack *st = r->stack;
+    uint top = --r->top;
+    uint kind = st->kind[top], child = st->child[top];
+    if (st->t[top] > r->hit.t)
+        return;                           /* entered beyond the best hit */
+    if (kind & KD_WIDE_LEAF) {
+        KdNode leaf;
+        leaf.flags = ((kind & ~KD_WIDE_LEAF) << 2) | KD_LEAF;
+        leaf.data = child;
+        kd_ray_leaf(leaf, tris, tri_ids, &r->shear, r->o, r->t_min, r->t_max, &r->hit);
+#ifdef ANY_HIT
+        if (r->hit.tri != KD_NO_HIT)
+            r->top = 0u;                  /* any hit ends the walk */
+#endif
+        return;
+    }
+    __global const uint *w = wide + (size_t)child * KD_WIDE_WORDS;
+    __global const float *rows = (__global const float *)w;
+    /* the slabs' entries and exits as selects with the slab's value first: a NaN
+     * loses the compare (as fmax and fmin ignore it), one vmaxps or vminps each */
+    float8 tn = (float8)(r->t_min), tf = (float8)(r->hit.t), s;
+    s = (vload8(r->nz, rows) + r->cnz) * r->iz; tn = s > tn ? s : tn;
+    s = (vload8(r->ny, rows) + r->cny) * r->iy; tn = s > tn ? s : tn;
+    s = (vload8(r->nx, rows) + r->cnx) * r->ix; tn = s > tn ? s : tn;
+    s = (vload8(r->fz, rows) + r->cfz) * r->iz; tf = s < tf ? s : tf;
+    s = (vload8(r->fy, rows) + r->cfy) * r->iy; tf = s < tf ? s : tf;
+    s = (vload8(r->fx, rows) + r->cfx) * r->ix; tf = s < tf ? s : tf;
+    union { float8 v; float s[8]; } t_in;
+    union { int8 v; int s[8]; } met;
+    t_in.v = tn;
+    met.v = tn <= tf;                     /* an empty slot enters at +inf: never met */
+    uint order = w[KD_WIDE_ORDER + r->octant];
+    /* the farthest first, so that the nearest ends on top: every slot written, the
+     * top moved past those met (no branch a child) */
+#pragma unroll
+    for (int k = 7; k >= 0; k--) {
+        uint j = (order >> (3 * k)) & 7u;
+        st->t[top] = t_in.s[j];
+        st->kind[top] = w[KD_WIDE_KIND + j];
+        st->child[top] = w[KD_WIDE_CHILD + j];
+        top += (uint)met.s[j] & 1u;
+    }
+    r->top = top;
+}
+
+/* Nearest hits (with ANY_HIT: any hit) of the lanes in `on`, rays o + t d relative
+ * to the tree (each finite, d not 0, as trace_packet's checks leave them) with t_min
+ * < t < t_max (each lane's range), as trace_ray's Hit: written to t_l, u_l, v_l, tri_l
+ * for every lane in `on`. bmin, bmax: the scene box. Two lanes at a time. */
+KD_CALLED
+void kd_wide_trace(__global const uint *wide, __global const float *tris,
+                   __global const uint *tri_ids, intP on, floatP ox, floatP oy, floatP oz,
+                   floatP dx, floatP dy, floatP dz, floatP t_min, floatP t_max,
+                   float bmin_x, float bmin_y, float bmin_z, float bmax_x, float bmax_y,
+                   float bmax_z, KdFP *t_l, KdFP *u_l, KdFP *v_l, KdUP *tri_l)
+{
+    float reach = kd_max(kd_max(kd_max(kd_abs(bmin_x), kd_abs(bmin_y)), kd_abs(bmin_z)),
+                         kd_max(kd_max(kd_abs(bmax_x), kd_abs(bmax_y)), kd_abs(bmax_z)));
+    KdFP oxl, oyl, ozl, dxl, dyl, dzl, lo, hi;
+    oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
+    lo.v = t_min; hi.v = t_max;
+    KdWideStack sa, sb;
+    uint lanes = kd_bitsP(on);
+    while (lanes) {
+        uint la = kd_take_lane(&lanes);
+        bool two = lanes != 0u;
+        uint lb = two ? kd_take_lane(&lanes) : la;
+        KdWideRay a, b;
+        kd_wide_start(&a, &sa, (float3)(oxl.s[la], oyl.s[la], ozl.s[la]),
+                      (float3)(dxl.s[la], dyl.s[la], dzl.s[la]), lo.s[la], hi.s[la], reach);
+        kd_wide_start(&b, &sb, (float3)(oxl.s[lb], oyl.s[lb], ozl.s[lb]),
+                      (float3)(dxl.s[lb], dyl.s[lb], dzl.s[lb]), lo.s[lb], hi.s[lb], reach);
+        b.top = two ? 1u : 0u;
+        while (a.top | b.top) {
+            if (a.top)
+                kd_wide_step(&a, wide, tris, tri_ids);
+            if (b.top)
+                kd_wide_step(&b, wide, tris, tri_ids);
+        }
+        t_l->s[la] = a.hit.t; u_l->s[la] = a.hit.u; v_l->s[la] = a.hit.v;
+        tri_l->s[la] = a.hit.tri;
+        if (two) {
+            t_l->s[lb] = b.hit.t; u_l->s[lb] = b.hit.u; v_l->s[lb] = b.hit.v;
+            tri_l->s[lb] = b.hit.tri;
+        }
+    }
+}
+
+#endif
+#endif
