@@ -236,7 +236,7 @@ class _Rays:
 
     def exact(self, start, stop):
         """(o64, d64): the float64 rays start .. stop - 1 as given, in world
-        coordinates, which list_rays and nearest_rays refine hits from with REFINE
+        coordinates, which list_rays refines hits from with REFINE
         (`_launch`'s exact arguments): the caller's arrays themselves where they are
         float64 and contiguous, which the device reads in place."""
         if not hasattr(self, "_exact"):
@@ -304,7 +304,7 @@ def _program(tracer):
         if tracer._plain_vector_ops:
             defines["KD_PLAIN_VECTOR_OPS"] = None
     entry = tracer._built("queries.cl", defines,
-                          ("occluded_rays", "count_rays", "list_rays", "nearest_rays"))
+                          ("count_rays", "list_rays"))
     entry["run"], entry["local"] = run, local
     return entry
 
@@ -341,7 +341,7 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False)
                   for name, a in outputs.items()}
     exact_args = ()
     if exact:
-        # read in place from their page's start, at an offset (list_rays, nearest_rays)
+        # read in place from their page's start, at an offset (list_rays)
         given = rays.exact(start, stop)
         keep.extend(given)
         (o64, o_at), (d64, d_at) = map(tracer._input_buffer, given)
@@ -382,87 +382,15 @@ def _check_fault(faulty, what):
                           f"leaves than nodes; the tree is corrupt (kdray info --check)")
 
 
-ALONE_SPREAD, ALONE_TURN = 0.25, 0.5
-"""kernels/packet.cl's KD_ALONE_SPREAD and KD_ALONE_TURN: a packet whose origins span
-more than ALONE_SPREAD of the scene box's longest side, or whose directions span more
-than ALONE_TURN of their largest component, has rays that share no path."""
-
-ALONE_SAMPLE = 64
-"""Packets `share_paths` looks at."""
-
-
-def share_paths(tracer, o, d, shape):
-    """Whether the rays (ray_input.flat_rays: o (3,) or (N, 3), d (N, 3), shape) mostly
-    share their paths in packets: image-shaped rays, or most of ALONE_SAMPLE packets
-    spread over the rays not alone by packet.cl's rule (kd_alone). Such rays are
-    traversed faster as packets (trace_rays), the others by the queries' walk, whose
-    lanes take a new ray as each walk ends. The answers are the same either way."""
-    if tracer.packet == 1 or len(shape) >= 2:
-        return True
-    p = tracer.packet
-    packets = len(d) // p
-    if packets == 0:
-        return True
-    starts = np.unique(np.linspace(0, packets - 1, min(packets, ALONE_SAMPLE)).astype(np.int64))
-    rows = (starts * p)[:, None] + np.arange(p)
-    with np.errstate(invalid="ignore"):
-        dd = d[rows]
-        turn = (dd.max(axis=1) - dd.min(axis=1)).max(axis=1)
-        alone = turn > ALONE_TURN * np.abs(dd).max(axis=(1, 2))
-        if o.ndim == 2 and len(o) == len(d):
-            oo = o[rows]
-            lo, hi = tracer.tree.world_box()
-            spread = (oo.max(axis=1) - oo.min(axis=1)).max(axis=1)
-            alone |= spread > ALONE_SPREAD * float(np.max(np.subtract(hi, lo)))
-    return alone.mean() < 0.5
-
-
 def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     """(N,) bool (the rays' shape): whether each ray hits anything with t_min < t <
-    t_max, the same answers as `trace(...).hit`. A traversal that stops at the first
-    hit it finds: for rays that share their paths (`share_paths`), `trace`'s in
-    packets, each lane over its own range (render.cl, trace_rays with ANY_HIT); else
-    the queries' walk, its lanes refilled as walks end."""
+    t_max, the same answers as `trace(...).hit`: `trace`'s traversal (render.cl,
+    trace_rays with ANY_HIT), each ray over its own range, stopped at the first hit it
+    finds; rays that share no path walk the wide nodes (kernels/wide.cl)."""
     t_min, t_max = check_t(t_min, "t_min"), check_t(t_max, "t_max")
     o, d, shape = ray_input.flat_rays(origins, directions)
-    if share_paths(tracer, o, d, shape):
-        hits = tracer._trace_rays(o, d, shape, t_min, t_max, (), any_hit=True)
-        return hits.hit.reshape(shape)
-    rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
-                  directions)
-    out = page_aligned_empty((rays.n,), np.uint8)
-    for start, stop in _launches(tracer, rays, [1]):
-        _launch(tracer, "occluded_rays", rays, start, stop, (), {"out": out[start:stop]})
-    _check_fault(out == 2, "occluded")
-    return out.view(bool).reshape(rays.shape)
-
-
-def nearest(tracer, origins, directions, t_min, t_max, outputs=("UV", "NORMAL")):
-    """Tracer.trace's Hits for rays with a t range each (t_min, t_max (N,) arrays, or
-    numbers): the walk's nearest hit (queries.cl, nearest_rays), the hit trace_rays
-    finds, refined alike; outputs: which of "UV", "NORMAL" to compute besides t and
-    prim. Hits of the rays' flattened shape."""
-    from .trace import Hits
-    rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
-                  directions)
-    t = page_aligned_empty((rays.n,), np.float32)
-    prim = page_aligned_empty((rays.n,), np.uint32)
-    uv = page_aligned_empty((rays.n, 2), np.float32) if "UV" in outputs else None
-    normal = page_aligned_empty((rays.n, 3), np.float32) if "NORMAL" in outputs else None
-    widths = [4, 4] + [8] * (uv is not None) + [12] * (normal is not None)
-    if tracer.refine:
-        widths += [24 * rays.o_step, 24]
-    for start, stop in _launches(tracer, rays, widths):
-        part = slice(start, stop)
-        _launch(tracer, "nearest_rays", rays, start, stop, (),
-                {"t": t[part], "uv": None if uv is None else uv[part],
-                 "normal": None if normal is None else normal[part], "prim": prim[part]},
-                exact=tracer.refine)
-    _check_fault(np.isnan(t), "trace")
-    t *= np.float32(tracer._scale)           # a power of two: exact
-    return Hits(t=t, prim=prim, u=None if uv is None else uv[:, 0],
-                v=None if uv is None else uv[:, 1], normal=normal,
-                object_table=tracer.tree.objects)
+    hits = tracer._trace_rays(o, d, shape, t_min, t_max, (), any_hit=True)
+    return hits.hit.reshape(shape)
 
 
 def _counts(tracer, rays, crossing):

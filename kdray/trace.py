@@ -526,12 +526,9 @@ class Tracer:
             are found to be one (kdray.ray_grid) and traced in blocks too, from
             IMAGE_SEARCH_MIN_RAYS rays on (below, the search costs more than it saves).
         t_min : >= 0 (default 0: hits behind the origin or at it never count)
-        t_min, t_max : numbers, or (N,) arrays, a range a ray: rays that share their
-            paths (an image, a camera's or a lidar's rays: kdray.rays.share_paths)
-            are traced in packets as with a number, each lane over its own range;
-            others by the ray queries' walk (kdray.rays.nearest), whose lanes take
-            a new ray as each walk ends. The same hits, t, u, v and normals either
-            way, and as each ray would get from a number
+        t_min, t_max : numbers, or (N,) arrays, a range a ray (each lane of a packet
+            over its own): the same hits, t, u, v and normals as each ray would get
+            from a number
         precision : "single" (float32 t, u, v) or "double": the same hits, their t, u,
             v in float64 from the tree's float64 triangles (KdTree.triangles64) and
             the rays as given (kdray.double)
@@ -552,13 +549,7 @@ class Tracer:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
         origins, directions, shape = ray_input.flat_rays(origins, directions)
         t_min, t_max = _rays.check_t(t_min, "t_min"), _rays.check_t(t_max, "t_max")
-        if (np.ndim(t_min) or np.ndim(t_max)) \
-                and not _rays.share_paths(self, origins, directions, shape):
-            # a t range a ray, rays in no packets' order: the queries' walk, the same
-            # hits (kdray.rays.nearest)
-            hits = _rays.nearest(self, origins, directions, t_min, t_max, kernel)
-        else:
-            hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
+        hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
         if double:
             hits = self._double_hits(hits, origins, directions)
             if "uv" not in outputs:

@@ -1,12 +1,12 @@
 /* kernels/queries.cl: ray queries beyond the nearest hit (kdray/rays.py).
  *
- *   occluded_rays  is there any hit with t_min < t < t_max (stops at the first)
  *   count_rays     how many triangles the ray hits: with `crossing`, how many times
  *                  it crosses the surface (triangle.cl, kd_tie: a shared edge or
  *                  vertex counts once); else every triangle hit, for list_rays' sizes
  *   list_rays      every hit, into the ray's own slots, sorted by (t, input id)
- *   nearest_rays   the nearest hit, as trace_rays finds it (render.cl), for rays with
- *                  a t range each (trace_rays takes one for all)
+ *
+ * (Any hit and the nearest hit, with a t range a ray too, are trace_rays': render.cl,
+ * with ANY_HIT for any.)
  *
  * One walk (kd_walk) serves them all: it visits every leaf the ray's range reaches,
  * near child first, and hands each to kd_query_leaf, which does what the query does
@@ -15,7 +15,7 @@
  * leaf's triangles against all of them), and other rays a packet's width side by
  * side, one a vector lane (kd_lanes_walk), each lane making kd_walk's decisions in
  * kd_walk's order. Unlike the nearest hit's traversal
- * (traverse.cl), a walk needs every leaf (bar the any-hit's early stop), so it keeps a
+ * (traverse.cl), a walk needs every leaf (bar a k-nearest list's early stop), so it keeps a
  * full stack and never restarts, and a ray that lies in a split plane visits both
  * children over the same range in one walk (order does not matter here).
  *
@@ -29,7 +29,7 @@
  *
  * Options (-D): STACK_SIZE (at least the tree's depth + 1), LOCAL_SIZE, RUN (rays a
  * work-item takes: consecutive, or a band of an image's pixels, kd_block_rays), REFINE
- * (list_rays' and nearest_rays' t, u, v recomputed in double, triangle.cl,
+ * (list_rays' t, u, v recomputed in double, triangle.cl,
  * kd_refine_hit, from the caller's rays in double). Rays are float32, relative to the
  * tree's origin in its units; t_min, t_max per ray (t_step 1) or one pair for all
  * (t_step 0), in the same units. Outputs are in those units too: the host scales t.
@@ -39,9 +39,8 @@
 #include "triangle.cl"
 #include "traverse.cl"
 #ifdef PACKET
-/* packet programs test a lone ray's leaf KD_PACKET triangles at a time (packet.cl,
- * kd_ray_leaf: kd_intersect_leaf's hit bit for bit), which the nearest and any-hit
- * queries use: they keep one best hit a leaf; count and list need every hit */
+/* packet programs walk packets that share their paths as one (packet.cl's node step
+ * and cull) and test a lone ray's leaf KD_PACKET triangles at a time (kd_ray_block_all) */
 #include "packet.cl"
 #include "lanes_step.cl"
 #endif
@@ -66,21 +65,18 @@
 #define KD_WINDING 2u                    /* count_rays' crossing argument for windings */
 #define KD_WINDING_RAW 0x7FFFFFFFu       /* count_rays: too many crossings for a winding */
 
-#define KD_ANY 0u
 #define KD_COUNT 1u
 #define KD_LIST 2u
-#define KD_NEAREST 3u
 
 /* What a query keeps of one ray while it walks. */
 typedef struct {
     bool crossing;                       /* the count's rule (intersect_triangle) */
     bool fault;                          /* the walk's stack or leaf bound was exceeded */
-    bool in_plane;                       /* nearest, list: a node's plane held the ray */
+    bool in_plane;                       /* list: a node's plane held the ray */
     bool nearest_k;                      /* list (set by list_rays): the slots want the
                                           * cap nearest hits only, not whether there are
                                           * more: the walk may end (kd_list_done) */
-    Hit hit;                             /* nearest: the best hit so far */
-    uint n;                              /* distinct hits (any: 1 once hit) */
+    uint n;                              /* distinct hits */
     uint raw;                            /* count: hits found, copies included; list:
                                           * 1 when a hit found no slot */
     int winding;                         /* count: the crossings' facings summed */
@@ -229,29 +225,17 @@ bool kd_list_done(const KdQuery *q, float t_exit)
            && kd_hit_final(q->t[q->cap - 1u], t_exit);
 }
 
-/* Test a leaf's triangles for `query`; true when the walk may stop: any, at a hit;
- * nearest, when its best hit is final at the leaf's exit t_exit (traverse.cl,
- * kd_hit_final), unless the walk has met a node whose plane holds the ray: its
- * second child is then walked over the same range, and may hold a nearer hit; list,
- * when kd_list_done. */
+/* Test a leaf's triangles for `query` (count or list); true when the walk may stop:
+ * a list, when kd_list_done (its nearest hits taken and final at the leaf's exit
+ * t_exit). */
 KD_INLINE
 bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                    __global const uint *tri_ids, const RayShear *shear, float3 o, float t_min,
                    float t_max, float t_exit, KdQuery *q)
 {
-    if (query == KD_NEAREST) {
-        KD_RAY_LEAF(leaf, tris, tri_ids, shear, o, t_min, t_max, &q->hit);
-        return !q->in_plane && kd_hit_final(q->hit.t, t_exit);
-    }
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
 #ifdef PACKET
-    if (query == KD_ANY) {
-        /* the leaf's nearest hit, a vector of triangles at a time: any is one */
-        KD_RAY_LEAF(leaf, tris, tri_ids, shear, o, t_min, t_max, &q->hit);
-        q->n = q->hit.tri != KD_NO_HIT;
-        return q->n != 0u;
-    }
     if (!(query == KD_COUNT && q->crossing)) {
         /* every hit of the nearest hit's rule: the block test's lanes (kd_ray_block_all
          * with no best hit yet), each as kd_query_leaf's loop below takes it */
@@ -310,10 +294,6 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                                 kd_vertex(tris, tri, 2), tri, t_min, t_max, t_max, KD_NO_HIT,
                                 tri_ids, query == KD_COUNT && q->crossing, &t, &u, &v))
             continue;
-        if (query == KD_ANY) {
-            q->n = 1u;
-            return true;
-        }
         if (query == KD_COUNT)
             kd_count_hit(q, tri_ids[tri],
                          q->crossing ? kd_facing(shear, o, kd_vertex(tris, tri, 0),
@@ -836,8 +816,7 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
             uint tests = kd_n_prims(n);
             KdFP t_exit_l;
             t_exit_l.v = t_max_cur;
-            if ((query == KD_COUNT || query == KD_LIST)
-                && (float)(popcount(at_leaf) * ((tests + KD_PACKET - 1) / KD_PACKET))
+            if ((float)(popcount(at_leaf) * ((tests + KD_PACKET - 1) / KD_PACKET))
                    >= (KD_CULLS(&r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO) * (float)tests) {
                 /* many lanes: a triangle against all of them at a time */
                 kd_packet_query_leaf(query, crossing, n, tris, tri_ids, &r, bounds, act,
@@ -877,10 +856,9 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
 }
 #endif
 
-/* A query's state before its walk: nothing found (a nearest hit of t_max), the
- * count's rule when `crossing`. */
+/* A query's state before its walk: nothing found, the count's rule when `crossing`. */
 KD_INLINE
-void kd_query_start(KdQuery *q, bool crossing, float t_max)
+void kd_query_start(KdQuery *q, bool crossing)
 {
     q->crossing = crossing;
     q->fault = false;
@@ -888,10 +866,6 @@ void kd_query_start(KdQuery *q, bool crossing, float t_max)
     q->n = 0u;
     q->raw = 0u;
     q->winding = 0;
-    q->hit.t = t_max;
-    q->hit.u = 0.0f;
-    q->hit.v = 0.0f;
-    q->hit.tri = KD_NO_HIT;
 }
 
 #define KD_QUERY_ARGS                                                                      \
@@ -972,7 +946,7 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
                    KdQuery *q)
 {
     for (uint l = 0; l < n; l++)
-        kd_query_start(&q[l], crossing, t_maxs[ids[l] * t_step]);
+        kd_query_start(&q[l], crossing);
     float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
 #ifdef PACKET
     if (n >= KD_LANES_MIN) {
@@ -989,7 +963,7 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
             for (uint l = 0u; l < m; l++) {
                 if (!leave.s[l])
                     continue;
-                kd_query_start(&q[p0 + l], crossing, t_maxs[ids[p0 + l] * t_step]);
+                kd_query_start(&q[p0 + l], crossing);
                 alone[n_alone++] = (uchar)(p0 + l);
             }
         }
@@ -1017,18 +991,6 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
 
 #define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes, origins, directions, o_step,   \
     t_mins, t_maxs, t_step, n_rays, image_w, order
-
-/* out[k]: 1 when ray k hits anything with t_min < t < t_max, else 0; 2 on a fault. */
-__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
-void occluded_rays(KD_QUERY_ARGS, __global uchar *out)
-{
-    KD_FOR_ITEM_BLOCKS(ids, m) {
-        KdQuery q[KD_WALK_BLOCK];
-        kd_walk_block(KD_ANY, false, KD_WALK_ARGS, ids, m, q);
-        for (uint l = 0; l < m; l++)
-            out[ids[l]] = q[l].fault ? (uchar)2 : (uchar)q[l].n;
-    }
-}
 
 /* out[k]: the number of distinct triangles ray k hits (crossing 1: under the count's
  * rule), or every hit found | KD_COUNT_RAW when they were more than KD_SEEN, or
@@ -1122,51 +1084,6 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, uint nearest_k,
             for (uint j = 0; j < q->n; j++)
                 q->tri[j] = tri_ids[q->tri[j]];
             out_n[k] = q->n | (q->raw ? KD_LIST_MORE : 0u);
-        }
-    }
-}
-
-/* Ray k's nearest hit with t_mins[k] < t < t_maxs[k], the one trace_rays finds
- * (render.cl; the hit depends on the ray and the triangles only, not on the walk):
- * out_t its t (+inf on a miss, NaN on a fault), and where not NULL out_uv (u, v; 0 on
- * a miss), out_normal (unit geometric normal, render.cl's store_hit; 0) and out_id
- * (input id; KD_NO_HIT). With REFINE its t, u, v are refined as trace_rays refines
- * them, from the caller's rays. */
-__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
-void nearest_rays(KD_QUERY_ARGS KD_EXACT_RAY_ARGS, __global float *out_t,
-                  __global float *out_uv, __global float *out_normal, __global uint *out_id)
-{
-    KD_FOR_ITEM_BLOCKS(ids, m) {
-        KdQuery qs[KD_WALK_BLOCK];
-        kd_walk_block(KD_NEAREST, false, KD_WALK_ARGS, ids, m, qs);
-        for (uint l = 0; l < m; l++) {
-            KdQuery *q = &qs[l];
-            uint k = ids[l];
-            float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
-            bool found = q->hit.tri != KD_NO_HIT && !q->fault;
-            float3 p0 = (float3)(0.0f), p1 = (float3)(0.0f), p2 = (float3)(0.0f);
-            if (found) {
-                p0 = kd_vertex(tris, q->hit.tri, 0);
-                p1 = kd_vertex(tris, q->hit.tri, 1);
-                p2 = kd_vertex(tris, q->hit.tri, 2);
-#if defined(REFINE) && defined(cl_khr_fp64)
-                kd_refine_hit(kd_exact_origin(k), kd_exact_direction(k), p0, p1, p2,
-                              t_min, t_max, &q->hit.t, &q->hit.u, &q->hit.v);
-#endif
-            }
-            out_t[k] = q->fault ? NAN : (found ? q->hit.t : INFINITY);
-            if (out_uv) {
-                out_uv[2 * (size_t)k] = found ? q->hit.u : 0.0f;
-                out_uv[2 * (size_t)k + 1] = found ? q->hit.v : 0.0f;
-            }
-            if (out_normal) {
-                float3 normal = found ? kd_normalize(kd_cross(p1 - p0, p2 - p0)) : (float3)(0.0f);
-                out_normal[3 * (size_t)k] = normal.x;
-                out_normal[3 * (size_t)k + 1] = normal.y;
-                out_normal[3 * (size_t)k + 2] = normal.z;
-            }
-            if (out_id)
-                out_id[k] = found ? tri_ids[q->hit.tri] : KD_NO_HIT;
         }
     }
 }

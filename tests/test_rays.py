@@ -68,10 +68,10 @@ def test_occluded_is_traces_hit(runtime, teapot_tree):
 
 def test_occluded_stops_at_any_hit_in_packets_and_lanes(runtime, teapot_tree):
     """occluded with one t range for all is trace's traversal stopping at the first hit
-    it finds (ANY_HIT): rays from one origin as an image, given (H, W, 3) and flat, rays
-    in split planes and random rays, in packets of each width, answer trace's hit."""
+    it finds (ANY_HIT; rays that share no path through the wide nodes): rays from one
+    origin as an image, given (H, W, 3) and flat, rays in split planes and random rays,
+    in packets of each width, answer trace's hit."""
     tree = teapot_tree
-    lo, hi = tree.world_box()
     eye, image = eye_image(tree, runtime.small(96, 8))
     flat = image.reshape(-1, 3)
     o_r, d_r = random_rays(tree, runtime.small(2001, 61), seed=14)
@@ -86,14 +86,6 @@ def test_occluded_stops_at_any_hit_in_packets_and_lanes(runtime, teapot_tree):
                 assert np.array_equal(tracer.occluded(o, d, t_min, t_max), want), packet
         # (the image looks at the teapot: some of its rays hit)
         assert tracer.occluded(eye, image).any()
-    # which traversal: an image's rays share their paths, random rays do not
-    tracer = Tracer(tree, device=runtime.spec)
-    if tracer.packet > 1:
-        assert krays.share_paths(tracer, eye, flat, flat.shape[:1])
-        o_u = lo + (hi - lo) * np.random.default_rng(16).random((4096, 3))
-        d_u = np.random.default_rng(17).normal(size=(4096, 3))
-        assert not krays.share_paths(tracer, o_u, d_u, (4096,))
-        assert not krays.share_paths(tracer, eye, d_u, (4096,))
 
 
 def test_intersections_match_brute_force(runtime, teapot_tree, monkeypatch):
@@ -383,7 +375,6 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
     parallel_o = patch + 0.01 * (hi - lo) * rng.random(patch.shape)
     parallel_d = np.broadcast_to(krays.CONTAINS_DIRECTION.astype(np.float64), parallel_o.shape)
     for o, d in ((camera_o, camera_d), (parallel_o, parallel_d)):
-        assert krays.share_paths(Tracer(tree, device=runtime.spec), np.asarray(o), d, (len(d),))
         t_lo, t_hi = ranges(np.random.default_rng(13), len(d), 2.0)
 
         def answers(tracer, o, d):
@@ -419,7 +410,6 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
         targets = targets[spatial_order(targets, v.min(axis=0), v.max(axis=0))]  # near together
         tracer = Tracer(build(*far_corner(v, f)), device=runtime.spec)
         o, d = 3 * targets, -targets
-        assert krays.share_paths(tracer, o, d, (len(d),))
         # from outside through the target and the centre, stopping before the far tip
         assert (tracer.count(o, d, t_max=4.5) == 2).all()
         # along one direction through each target: 0 or 2, the float64 rule's parity
@@ -455,21 +445,19 @@ def test_packet_walks_on_every_runtime(runtime):
 
 
 @pytest.mark.parametrize("packet", [1, None], ids=["one ray", "lanes"])
-def test_a_corrupt_tree_is_reported_not_walked_on(runtime, teapot_tree, packet, monkeypatch):
+def test_a_corrupt_tree_is_reported_not_walked_on(runtime, teapot_tree, packet):
     """A walk that needs more stack than the tree's depth allows, or visits more leaves
-    than the tree has nodes (what a corrupt tree does), stops with an error from every
-    query, whether the rays are walked one by one or side by side in lanes."""
+    than the tree has nodes (what a corrupt tree does), stops with an error from count
+    and intersections, whether the rays are walked one by one or side by side in lanes
+    (occluded takes trace's traversal, which keeps to its bounds)."""
     if packet is None and runtime.simulator:
         pytest.skip("a simulator runs no packet programs")
     o, d = random_rays(teapot_tree, runtime.small(300, 40), seed=13)
-    # occluded's walk too (rays that share paths, as one ray a work-item is taken to,
-    # would take trace's traversal)
-    monkeypatch.setattr(krays, "share_paths", lambda *args: False)
     t_max = np.full(len(o), np.inf)
     for corrupt in ("packet_stack_size", "_n_nodes"):
         tracer = Tracer(teapot_tree, device=runtime.spec, packet=packet)
         setattr(tracer, corrupt, 2)
-        for query in (tracer.occluded, tracer.count, tracer.intersections):
+        for query in (tracer.count, tracer.intersections):
             with pytest.raises(KdrayError, match="corrupt"):
                 query(o, d, t_max=t_max)
 
@@ -629,12 +617,12 @@ def test_cast_command(tmp_path, capsys):
     assert not (tmp_path / "x.npz").exists()
 
 
-def test_ranges_a_ray_through_trace_packets(runtime, teapot_tree, monkeypatch):
-    """Rays that share their paths (an image from one eye, flat and (H, W, 3), and from
-    eyes spread over a patch) with a range a ray are traced in trace_rays' packets,
-    each lane over its own range: every output bit for bit what each ray gets from a
-    number and what the queries' walk gives it, at each packet width; occluded with a
-    range a ray is that trace's hit."""
+def test_ranges_a_ray_through_trace_packets(runtime, teapot_tree):
+    """Rays with a range a ray (an image from one eye, flat and (H, W, 3), from eyes
+    spread over a patch, and from random points, which share no path) are traced in
+    trace_rays' packets, each lane over its own range: every output bit for bit what
+    each ray gets from a number, at each packet width; occluded with a range a ray is
+    that trace's hit."""
     tree = teapot_tree
     lo, hi = tree.world_box()
     side = runtime.small(64, 8)
@@ -642,40 +630,31 @@ def test_ranges_a_ray_through_trace_packets(runtime, teapot_tree, monkeypatch):
     n = side * side
     rng = np.random.default_rng(21)
     eyes = eye + 1e-3 * (hi - lo) * rng.random((n, 3))
+    scattered = lo + (hi - lo) * rng.random((n, 3))
     pairs = [(0.0, np.inf), (0.75, 1.05), (0.0, 0.85), (0.9, 0.9)]
     which = rng.integers(0, len(pairs), n)
     t_lo = np.array([pairs[i][0] for i in which])
     t_hi = np.array([pairs[i][1] for i in which])
     names = ("t", "prim", "u", "v", "normal")
+    flat = image.reshape(-1, 3)
     for packet in [1, *PACKETS]:
         tracer = Tracer(tree, device=runtime.spec, packet=packet)
         tracer._poison_outputs = True
-        walked = {}
-        for o in (eye, eyes):
-            flat = image.reshape(-1, 3)
-            assert krays.share_paths(tracer, np.asarray(o), flat, (n,))
-            walked[o.ndim] = krays.nearest(tracer, o, flat, t_lo, t_hi)
-        with monkeypatch.context() as m:
-            m.setattr(krays, "nearest", None)       # the packets' path, not the walk
-            for o in (eye, eyes):
-                flat = image.reshape(-1, 3)
-                got = tracer.trace(o, flat, t_lo, t_hi)
-                assert got.hit.any() and not got.hit.all()
-                for i, (a, b) in enumerate(pairs):
-                    want = tracer.trace(o, flat, a, b)
-                    part = which == i
-                    for name in names:
-                        assert np.array_equal(getattr(got, name)[part],
-                                              getattr(want, name)[part]), (packet, i, name)
+        for o in (eye, eyes, scattered):
+            got = tracer.trace(o, flat, t_lo, t_hi)
+            assert got.hit.any() and not got.hit.all()
+            for i, (a, b) in enumerate(pairs):
+                want = tracer.trace(o, flat, a, b)
+                part = which == i
                 for name in names:
-                    assert np.array_equal(getattr(got, name), getattr(walked[o.ndim], name)), \
-                        (packet, name)
-                occ = tracer.occluded(o, flat, t_lo, t_hi)
-                assert np.array_equal(occ, got.hit), packet
-            shaped = tracer.trace(eye, image, t_lo, t_hi, outputs=())
-            assert shaped.t.shape == (side, side)
-            assert np.array_equal(shaped.prim.ravel(), tracer.trace(eye, image.reshape(-1, 3),
-                                                                    t_lo, t_hi).prim)
+                    assert np.array_equal(getattr(got, name)[part],
+                                          getattr(want, name)[part]), (packet, i, name)
+            occ = tracer.occluded(o, flat, t_lo, t_hi)
+            assert np.array_equal(occ, got.hit), packet
+        shaped = tracer.trace(eye, image, t_lo, t_hi, outputs=())
+        assert shaped.t.shape == (side, side)
+        assert np.array_equal(shaped.prim.ravel(), tracer.trace(eye, image.reshape(-1, 3),
+                                                                t_lo, t_hi).prim)
 
 
 def test_trace_takes_a_t_range_a_ray(runtime, teapot_tree):
