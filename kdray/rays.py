@@ -91,9 +91,9 @@ a ray, 80 bytes) take at most 80 MB beside the hits listed."""
 
 RUN_CPU = 64
 """Consecutive rays a work-item takes on a CPU device (one per work-item on a GPU). In
-packet programs its lanes walk them, a lane taking the next ray when its walk ends
-(kernels/queries.cl, kd_lanes_walk): more rays keep the lanes full for longer, each
-holding its query's state in private memory (about 200 bytes: 25 KB a work-item)."""
+packet programs those that share their paths are walked as packets, the others
+through the wide nodes two at a time (kernels/queries.cl, kd_walk_block), each holding
+its query's state in private memory (about 200 bytes: 13 KB a work-item)."""
 
 HIT_BYTES = 16
 """Host bytes of one listed hit: t (4), u and v (8), prim (4); ray and object are
@@ -303,6 +303,9 @@ def _program(tracer):
         defines["PACKET_STACK_SIZE"] = tracer.packet_stack_size
         if tracer._plain_vector_ops:
             defines["KD_PLAIN_VECTOR_OPS"] = None
+        # rays that share no path walk the tree's wide nodes (kernels/wide.cl)
+        defines["KD_WIDE"] = None
+        defines["WIDE_STACK"] = tracer._wide()[1]
     entry = tracer._built("queries.cl", defines,
                           ("count_rays", "list_rays"))
     entry["run"], entry["local"] = run, local
@@ -354,8 +357,9 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False)
     o_buf, d_buf = inp(o), inp(d)
     order = None if image_w else ray_order(tracer, o, d, *tracer.tree.bounds, rays.o_step,
                                            ((o_buf, 0), (d_buf, 0)))
+    wide = (tracer._wide()[0],) if tracer.packet > 1 else ()
     args = (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
-            np.uint32(tracer._n_nodes), o_buf, d_buf, np.uint32(rays.o_step), inp(t_mins),
+            np.uint32(tracer._n_nodes), *wide, o_buf, d_buf, np.uint32(rays.o_step), inp(t_mins),
             inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), np.uint32(image_w), inp(order),
             *map(inp, extra), *exact_args, *device_out.values())
     items = -(-n // entry["run"])

@@ -55,7 +55,7 @@ from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import object_ids
 from .validate import check_float32, whole_or_none
-from .wide import wide_nodes
+from .wide import stack_entries, wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
                          default_stack_size, default_work_sizes, max_local_size,
                          pocl_item_bytes, thread_stack_bytes)
@@ -293,7 +293,7 @@ class Tracer:
         self._tri_ids = self._buffer(tri_ids)
         self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))
         self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)
-        self._wide_nodes = None               # (buffer, levels), made when needed (`_wide`)
+        self._wide_nodes = None               # (buffer, stack), made when needed (`_wide`)
         self._origin = np.asarray(tree.origin, dtype=np.float64)
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
 
@@ -343,7 +343,7 @@ class Tracer:
                     defines[name] = f"{min(float(value), 1e30):.9e}f"
             if wide and not stats:
                 defines["KD_WIDE"] = None
-                defines["WIDE_STACK"] = 7 * self._wide()[1] + 8
+                defines["WIDE_STACK"] = self._wide()[1]
         for name in outputs:
             defines[f"OUT_{name}"] = None
         if stats:
@@ -353,12 +353,13 @@ class Tracer:
         return entry
 
     def _wide(self):
-        """(buffer, levels): the tree's wide nodes on the device (kdray.wide), made at
-        the first trace that needs them; their bytes join device_bytes."""
+        """(buffer, stack entries): the tree's wide nodes on the device (kdray.wide) and
+        the stack a walk of them needs, made at the first trace or query that needs
+        them; their bytes join device_bytes."""
         if self._wide_nodes is None:
             nodes, _, _ = device_triangles(self.tree, self.packet)
             records, levels = wide_nodes(self.tree, nodes)
-            self._wide_nodes = (self._buffer(records), levels)
+            self._wide_nodes = (self._buffer(records), stack_entries(levels))
             self.device_bytes += records.nbytes
         return self._wide_nodes
 

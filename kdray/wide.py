@@ -71,6 +71,13 @@ def content_boxes(tree):
     return lo, hi
 
 
+def stack_entries(levels):
+    """A wide walk's stack entries (kernels/wide.cl, WIDE_STACK) for a tree of `levels`
+    wide levels: a node taken off the stack puts at most 8 back, 7 more, one level
+    down, and a push writes all 8 slots past the top before it knows which it keeps."""
+    return 7 * levels + 8
+
+
 def wide_nodes(tree, device_nodes):
     """The wide nodes of `tree`: (records (m, WIDE_WORDS) uint32, levels), the layout
     above; device_nodes: the nodes as the kernels read them (layout.device_triangles),

@@ -70,8 +70,8 @@ step over the guard page into other memory instead of crashing. A bound on one
 work-item's bytes with packets of P rays and a packet stack of S entries:
 P (2560 + 44 S): about twice the frames of PoCL's compiled kernels (BENCHMARKS.md; 12.9
 and 18.2 KiB a work-item with P = 8, 22.5 and 32.2 KiB with P = 16, at S = 16 and 64;
-tests/test_runtimes.py checks the compiled frames against it) before each lane had a
-stack of its own (lanes_step.cl: 12 bytes an entry a lane, and its shear and hit),
+tests/test_runtimes.py checks the compiled frames against it), measured before the
+wide walks (two rays' stacks, 12 bytes an entry, 7 entries a level of wide nodes),
 which PoCL 3.0 has not compiled since (it fails its probe on the AVX-512 CPUs here)."""
 
 POCL_STACK_RESERVE = 256 << 10

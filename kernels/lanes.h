@@ -77,6 +77,13 @@ typedef ulong8 ulongP;
 #endif
 #define KD_GATHER(p, i) KD_GATHER_AS(uintP, p, i)
 
+/* The lanes whose bits are set in `bits` (lane l: bit l), as a mask. */
+KD_INLINE
+intP kd_maskP(uint bits)
+{
+    return -as_intP(((uintP)(bits) >> KD_LANE_INDEX_U) & (uintP)(1u));
+}
+
 KD_INLINE floatP kd_absP(floatP x) { return as_floatP(as_uintP(x) & (uintP)(0x7FFFFFFFu)); }
 /* lanes of b where mask m is set, else of a (select(a, b, m)), as OpenCL's vector
  * ternary: Oclgrind 21.10 gets the same select written with & and | wrong, in the

@@ -12,11 +12,11 @@
  * near child first, and hands each to kd_query_leaf, which does what the query does
  * with a hit and says when the walk may stop. Packet programs walk a packet of rays
  * that share their paths as one (kd_packet_walk: a node step for all its lanes, a
- * leaf's triangles against all of them), and other rays a packet's width side by
- * side, one a vector lane (kd_lanes_walk), each lane making kd_walk's decisions in
- * kd_walk's order. Unlike the nearest hit's traversal
- * (traverse.cl), a walk needs every leaf (bar a k-nearest list's early stop), so it keeps a
- * full stack and never restarts, and a ray that lies in a split plane visits both
+ * leaf's triangles against all of them), and other rays through the tree's wide nodes
+ * two at a time (kd_wide_walks, wide.cl), each visiting every leaf whose triangles'
+ * box its range meets. Unlike the nearest hit's traversal (traverse.cl), a walk needs
+ * every leaf (bar a k-nearest list's early stop), so it keeps a full stack and never
+ * restarts, and a ray that lies in a split plane visits both
  * children over the same range in one walk (order does not matter here).
  *
  * A triangle in several leaves has a copy in each (layout.h), and a ray that reaches
@@ -42,7 +42,12 @@
 /* packet programs walk packets that share their paths as one (packet.cl's node step
  * and cull) and test a lone ray's leaf KD_PACKET triangles at a time (kd_ray_block_all) */
 #include "packet.cl"
-#include "lanes_step.cl"
+#ifndef KD_WIDE
+#error "packet programs of the queries walk rays that share no path through wide nodes: KD_WIDE"
+#endif
+/* The fewest rays a work-item's block walks as packets and wide walks (fewer: one by
+ * one, kd_walk) */
+#define KD_PACKET_WALK_MIN 4u
 #endif
 
 #ifndef LOCAL_SIZE
@@ -308,8 +313,7 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
 /* The walk of one ray carried on from `node` over [t0, t1], with `count` entries on
  * its stack (entry i: stack_node[i * stride], stack_t0[..], stack_t1[..]; room for
  * STACK_SIZE) and `leaves` leaves visited: every leaf left, near child first, each
- * handed to kd_query_leaf until it says stop. kd_walk starts it at the root; a lane of
- * kd_lanes_walk ends on it. */
+ * handed to kd_query_leaf until it says stop. kd_walk starts it at the root. */
 KD_INLINE
 void kd_walk_on(uint query, __global const KdNode *nodes, uint n_nodes,
                 __global const float *tris, __global const uint *tri_ids,
@@ -397,149 +401,91 @@ void kd_walk(uint query, __global const KdNode *nodes, uint n_nodes, __global co
 }
 
 #ifdef PACKET
-/* The walks of rays ids[rays[i]] into q[rays[i]] (i < n), side by side, one a vector lane,
- * with lanes_step.cl's node step and stacks (rays that share no path): one vector node
- * step moves every lane one node down its own path, and a lane whose walk ends takes
- * the next ray, so that the lanes stay full while rays are left. Each ray is walked
- * exactly as kd_walk walks it: the same node decisions (kd_node_stepP), the same
- * leaves in the same order, the same stops and faults. When no ray is left and fewer
- * than KD_LANES_MIN lanes are busy, each goes on alone (kd_walk_on). */
+/* How far a query's walk must still look: t_max, or once a k-nearest list's slots are
+ * full, its last hit's t (an entry beyond it holds no nearer hit; one at it may hold
+ * a tie with a lower input id, and is walked). A list's fields only for a list (a
+ * count's are not set). */
 KD_INLINE
-void kd_lanes_walk(uint query, __global const KdNode *nodes, uint n_nodes,
+float kd_query_far(uint query, const KdQuery *q, float t_max)
+{
+    if (query == KD_LIST && q->nearest_k && q->cap > 0u && q->n == q->cap)
+        return kd_min(t_max, q->t[q->cap - 1u]);
+    return t_max;
+}
+
+/* One entry off a query's wide walk (wide.cl): a leaf handed to kd_query_leaf, or a
+ * wide node's children that the ray meets before kd_query_far pushed; leaves counts
+ * the leaves walked (more than the tree's nodes: corrupt, as kd_walk_on says). */
+KD_INLINE
+void kd_wide_query_step(uint query, KdWideRay *r, KdQuery *q, __global const uint *wide,
+                        uint n_nodes, __global const float *tris, __global const uint *tri_ids,
+                        uint *leaves)
+{
+    KdWideStack *st = r->stack;
+    uint top = --r->top;
+    uint kind = st->kind[top], child = st->child[top];
+    float far = kd_query_far(query, q, r->t_max);
+    if (st->t[top] > far)
+        return;
+    if (kind & KD_WIDE_LEAF) {
+        if (++*leaves > n_nodes) {
+            q->fault = true;
+            r->top = 0u;
+            return;
+        }
+        /* no exit t: a wide walk ends when its stack does (kd_query_far prunes it) */
+        if (kd_query_leaf(query, kd_wide_leaf(kind, child), tris, tri_ids, &r->shear, r->o,
+                          r->t_min, r->t_max, -INFINITY, q))
+            r->top = 0u;
+        return;
+    }
+    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, far);
+}
+
+/* Start ray k's wide walk into r (its stack st), or leave r->top 0 where the ray has
+ * nothing to walk (kd_walk_range). */
+KD_INLINE
+void kd_wide_query_start(KdWideRay *r, KdWideStack *st, __global const float *origins,
+                         __global const float *directions, uint o_step,
+                         __global const float *t_mins, __global const float *t_maxs,
+                         uint t_step, uint k, float3 bmin, float3 bmax, float reach)
+{
+    float3 o = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
+    float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step], t_enter, t_exit;
+    r->top = 0u;
+    if (kd_walk_range(bmin, bmax, o, d, t_min, t_max, &t_enter, &t_exit))
+        kd_wide_start(r, st, o, d, t_min, t_max, reach);
+}
+
+/* The walks of rays ids[rays[i]] into q[rays[i]] (i < n) through the wide nodes, two at
+ * a time taking their steps in turns (wide.cl): every leaf whose triangles' box the
+ * ray's range meets, so every hit kd_walk finds, each leaf once; a k-nearest list's
+ * walk pruned by its last slot's t. */
+KD_INLINE
+void kd_wide_walks(uint query, __global const uint *wide, uint n_nodes,
                    __global const float *tris, __global const uint *tri_ids, float3 bmin,
                    float3 bmax, __global const float *origins, __global const float *directions,
                    uint o_step, __global const float *t_mins, __global const float *t_maxs,
                    uint t_step, const uint *ids, const uchar *rays, uint n, KdQuery *q)
 {
-    RayShear shear[KD_PACKET];
-    KdLaneStacks stacks;
-    uint leaves[KD_PACKET];
-    uint ray[KD_PACKET];                 /* the ray in each lane: q[ray[l]] */
-    float t_min_l[KD_PACKET], t_max_l[KD_PACKET];
-    KdFP ox_l, oy_l, oz_l, dx_l, dy_l, dz_l, t1_l;   /* lane by lane reads */
-    floatP ox = (floatP)(0.0f), oy = ox, oz = ox, dx = ox, dy = ox, dz = ox;
-    uintP node = (uintP)(0u);
-    floatP t0 = ox, t1 = ox;
-    uint act = 0u;
-    uint next = 0u;                      /* the next ray to take */
-    for (;;) {
-        /* free lanes take the next rays that have a range to walk (kd_walk_range) */
-        uint free = ~act & (uint)((1ul << KD_PACKET) - 1ul);
-        while (free && next < n) {
-            uint k = ids[rays[next]];
-            float3 o = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
-            float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
-            float t_enter, t_exit;
-            next++;
-            if (!kd_walk_range(bmin, bmax, o, d, t_min, t_max, &t_enter, &t_exit))
-                continue;
-            uint l = kd_take_lane(&free);
-            act |= 1u << l;
-            ray[l] = rays[next - 1u];
-            shear[l] = ray_shear(d);
-            stacks.top[l] = 0u;
-            leaves[l] = 0u;
-            t_min_l[l] = t_min;
-            t_max_l[l] = t_max;
-            ox_l.s[l] = o.x; oy_l.s[l] = o.y; oz_l.s[l] = o.z;
-            dx_l.s[l] = d.x; dy_l.s[l] = d.y; dz_l.s[l] = d.z;
-            intP m = KD_LANE_INDEX == (intP)((int)l);
-            ox = kd_selectP(ox, (floatP)(o.x), m);
-            oy = kd_selectP(oy, (floatP)(o.y), m);
-            oz = kd_selectP(oz, (floatP)(o.z), m);
-            dx = kd_selectP(dx, (floatP)(d.x), m);
-            dy = kd_selectP(dy, (floatP)(d.y), m);
-            dz = kd_selectP(dz, (floatP)(d.z), m);
-            node = kd_selectPu(node, (uintP)(0u), m);
-            t0 = kd_selectP(t0, (floatP)(t_enter), m);
-            t1 = kd_selectP(t1, (floatP)(t_exit), m);
+    float reach = kd_wide_reach(bmin, bmax);
+    KdWideStack sa, sb;
+    for (uint i = 0u; i < n; i += 2u) {
+        uint ia = rays[i], ib = i + 1u < n ? rays[i + 1u] : rays[i];
+        KdWideRay a, b;
+        kd_wide_query_start(&a, &sa, origins, directions, o_step, t_mins, t_maxs, t_step,
+                            ids[ia], bmin, bmax, reach);
+        b.top = 0u;
+        if (i + 1u < n)
+            kd_wide_query_start(&b, &sb, origins, directions, o_step, t_mins, t_maxs, t_step,
+                                ids[ib], bmin, bmax, reach);
+        uint leaves_a = 0u, leaves_b = 0u;
+        while (a.top | b.top) {
+            if (a.top)
+                kd_wide_query_step(query, &a, &q[ia], wide, n_nodes, tris, tri_ids, &leaves_a);
+            if (b.top)
+                kd_wide_query_step(query, &b, &q[ib], wide, n_nodes, tris, tri_ids, &leaves_b);
         }
-        if (popcount(act) < KD_LANES_MIN)
-            break;
-
-        /* every lane's node as one 8-byte word (free lanes read a node again) */
-        ulongP word = KD_GATHER_AS(ulongP, (__global const ulong *)nodes, node);
-        uintP flags = convert_uintP(word & (ulongP)(0xFFFFFFFFul));
-        uintP data = convert_uintP(word >> 32);
-        intP leaf = as_intP((flags & (uintP)(3u)) == (uintP)(KD_LEAF));
-        uint inner = act & ~kd_bitsP(leaf);
-
-        if (inner) {
-            KdStepP st = kd_node_stepP(flags, data, node, ox, oy, oz, dx, dy, dz, t0, t1);
-            uint in_plane = inner & kd_bitsP(st.in_plane);
-            uint both = inner & ~kd_bitsP(st.go_first | st.go_second);
-            /* both children, or a plane that holds the ray: push the second over
-             * [t_mid, t1] (in the plane: [t0, t1]), go on in the first over [t0, t_mid]
-             * (in the plane: t_mid is t1) */
-            floatP t_mid = kd_selectP(st.t_mid, t1, kd_maskP(in_plane));
-            if (both) {
-                KdUP second_l;
-                KdFP mid_l, from_l, to_l;
-                second_l.v = st.second;
-                mid_l.v = t_mid;
-                from_l.v = kd_selectP(t_mid, t0, kd_maskP(in_plane));
-                to_l.v = t1;
-                uint push = both;
-                do {
-                    uint l = kd_take_lane(&push);
-                    if ((in_plane >> l) & 1u)
-                        q[ray[l]].in_plane = true;
-                    if (!kd_lane_push(&stacks, l, second_l.s[l], from_l.s[l], to_l.s[l])) {
-                        q[ray[l]].fault = true;  /* deeper than the tree's depth: corrupt */
-                        act &= ~(1u << l);
-                    }
-                } while (push);
-            }
-            intP step = kd_maskP(inner & act);
-            node = kd_selectPu(node, kd_selectPu(st.first, st.second, st.go_second), step);
-            t1 = kd_selectP(t1, t_mid, step & kd_maskP(both));
-        }
-
-        /* leaves: each lane's to kd_query_leaf; then its next entry, or it is done */
-        uint at_leaf = act & kd_bitsP(leaf);
-        if (at_leaf) {
-            KdUP flags_n, data_n;
-            flags_n.v = flags;
-            data_n.v = data;
-            t1_l.v = t1;
-            do {
-                uint l = kd_take_lane(&at_leaf);
-                KdQuery *ql = &q[ray[l]];
-                if (++leaves[l] > n_nodes) {    /* more leaves than nodes: corrupt */
-                    ql->fault = true;
-                    act &= ~(1u << l);
-                    continue;
-                }
-                KdNode nd;
-                nd.flags = flags_n.s[l];
-                nd.data = data_n.s[l];
-                if (kd_query_leaf(query, nd, tris, tri_ids, &shear[l],
-                                  (float3)(ox_l.s[l], oy_l.s[l], oz_l.s[l]), t_min_l[l],
-                                  t_max_l[l], t1_l.s[l], ql)
-                    || stacks.top[l] == 0u) {
-                    act &= ~(1u << l);
-                } else {
-                    kd_lane_resume(&stacks, l, &node, &t0, &t1);
-                }
-            } while (at_leaf);
-        }
-    }
-
-    /* no ray left: the last few lanes one by one */
-    if (act) {
-        KdUP node_n;
-        KdFP t0_l;
-        node_n.v = node;
-        t0_l.v = t0;
-        t1_l.v = t1;
-        do {
-            uint l = kd_take_lane(&act);
-            kd_walk_on(query, nodes, n_nodes, tris, tri_ids, &shear[l],
-                       (float3)(ox_l.s[l], oy_l.s[l], oz_l.s[l]),
-                       (float3)(dx_l.s[l], dy_l.s[l], dz_l.s[l]), t_min_l[l], t_max_l[l],
-                       node_n.s[l], t0_l.s[l], t1_l.s[l], stacks.node + l, stacks.t0 + l,
-                       stacks.t1 + l, KD_PACKET, stacks.top[l], leaves[l], &q[ray[l]]);
-        } while (act);
     }
 }
 
@@ -868,14 +814,21 @@ void kd_query_start(KdQuery *q, bool crossing)
     q->winding = 0;
 }
 
+/* packet programs with KD_WIDE take the tree's wide nodes after n_nodes (wide.cl) */
+#ifndef KD_WIDE_PARAM
+#define KD_WIDE_PARAM
+#define KD_WIDE_PASS
+#endif
+
 #define KD_QUERY_ARGS                                                                      \
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
-    __global const float *bounds, uint n_nodes, __global const float *origins,             \
+    __global const float *bounds, uint n_nodes KD_WIDE_PARAM, __global const float *origins, \
     __global const float *directions, uint o_step, __global const float *t_mins,          \
     __global const float *t_maxs, uint t_step, uint n_rays, uint image_w,                 \
     __global const uint *order
 
-/* Rays walked together: a packet program's work-item's RUN (kd_lanes_walk), else one. */
+/* Rays walked together: a packet program's work-item's RUN (as packets and wide
+ * walks), else one. */
 #ifdef PACKET
 #define KD_WALK_BLOCK RUN
 #else
@@ -939,7 +892,8 @@ uint kd_block_rays(uint b0, uint n_rays, uint image_w, __global const uint *orde
 
 /* Walk rays ids[0 .. n - 1] into q[0 .. n - 1], each started first (kd_query_start,
  * the count's rule when `crossing`; a list's slots, set before, are kept): kd_walk; in
- * packet programs as packets (kd_packet_walk) or side by side (kd_lanes_walk), which
+ * packet programs as packets (kd_packet_walk) or through the wide nodes
+ * (kd_wide_walks), which
  * give each ray kd_walk's answer. */
 KD_INLINE
 void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, uint n,
@@ -949,9 +903,9 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
         kd_query_start(&q[l], crossing);
     float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
 #ifdef PACKET
-    if (n >= KD_LANES_MIN) {
+    if (n >= KD_PACKET_WALK_MIN) {
         /* packets of rays that share their paths walk as packets, the others (and
-         * the lanes that leave a packet, started again) side by side */
+         * the lanes that leave a packet, started again) through the wide nodes */
         uchar alone[KD_WALK_BLOCK];
         uint n_alone = 0u;
         for (uint p0 = 0u; p0 < n; p0 += KD_PACKET) {
@@ -967,17 +921,8 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
                 alone[n_alone++] = (uchar)(p0 + l);
             }
         }
-        if (n_alone >= KD_LANES_MIN) {
-            kd_lanes_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, origins, directions,
-                          o_step, t_mins, t_maxs, t_step, ids, alone, n_alone, q);
-            return;
-        }
-        for (uint i = 0u; i < n_alone; i++) {
-            uint k = ids[alone[i]];
-            kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax,
-                    kd_load3(origins, (size_t)k * o_step), kd_load3(directions, k),
-                    t_mins[k * t_step], t_maxs[k * t_step], &q[alone[i]]);
-        }
+        kd_wide_walks(query, wide, n_nodes, tris, tri_ids, bmin, bmax, origins, directions,
+                      o_step, t_mins, t_maxs, t_step, ids, alone, n_alone, q);
         return;
     }
 #endif
@@ -989,8 +934,8 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
     }
 }
 
-#define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes, origins, directions, o_step,   \
-    t_mins, t_maxs, t_step, n_rays, image_w, order
+#define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes KD_WIDE_PASS, origins,          \
+    directions, o_step, t_mins, t_maxs, t_step, n_rays, image_w, order
 
 /* out[k]: the number of distinct triangles ray k hits (crossing 1: under the count's
  * rule), or every hit found | KD_COUNT_RAW when they were more than KD_SEEN, or

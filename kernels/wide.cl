@@ -21,8 +21,8 @@
  * loses every compare it is in, which only keeps a child.
  *
  * Options (-D): KD_WIDE (the program takes the wide records after n_nodes),
- * WIDE_STACK (entries a ray's stack: the host's 7 a level of wide nodes plus the 8 a
- * node's push writes, kdray/trace.py). Not with STATS (such programs trace these rays
+ * WIDE_STACK (entries a ray's stack: 7 a level of wide nodes plus the 8 a node's push
+ * writes, kdray/wide.py stack_entries). Not with STATS (such programs trace these rays
  * one by one, trace_ray counting them).
  */
 #ifndef KDRAY_WIDE_CL
@@ -121,33 +121,17 @@ void kd_wide_start(KdWideRay *r, KdWideStack *stack, float3 o, float3 d, float t
     r->cfz = (float8)(-pz - o.z);
 }
 
-/* One entry off the ray's stack: a leaf tested, or a wide node's children that the
- * ray meets before its best hit pushed, the nearest last. */
+/* Push the children of wide node w (its record) that the ray meets over [t_min, far],
+ * the nearest last, each with where the ray enters its box. */
 KD_INLINE
-void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float *tris,
-                  __global const uint *tri_ids)
+void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
 {
     KdWideStack *st = r->stack;
-    uint top = --r->top;
-    uint kind = st->kind[top], child = st->child[top];
-    if (st->t[top] > r->hit.t)
-        return;                           /* entered beyond the best hit */
-    if (kind & KD_WIDE_LEAF) {
-        KdNode leaf;
-        leaf.flags = ((kind & ~KD_WIDE_LEAF) << 2) | KD_LEAF;
-        leaf.data = child;
-        kd_ray_leaf(leaf, tris, tri_ids, &r->shear, r->o, r->t_min, r->t_max, &r->hit);
-#ifdef ANY_HIT
-        if (r->hit.tri != KD_NO_HIT)
-            r->top = 0u;                  /* any hit ends the walk */
-#endif
-        return;
-    }
-    __global const uint *w = wide + (size_t)child * KD_WIDE_WORDS;
+    uint top = r->top;
     __global const float *rows = (__global const float *)w;
     /* the slabs' entries and exits as selects with the slab's value first: a NaN
      * loses the compare (as fmax and fmin ignore it), one vmaxps or vminps each */
-    float8 tn = (float8)(r->t_min), tf = (float8)(r->hit.t), s;
+    float8 tn = (float8)(r->t_min), tf = (float8)(far), s;
     s = (vload8(r->nz, rows) + r->cnz) * r->iz; tn = s > tn ? s : tn;
     s = (vload8(r->ny, rows) + r->cny) * r->iy; tn = s > tn ? s : tn;
     s = (vload8(r->nx, rows) + r->cnx) * r->ix; tn = s > tn ? s : tn;
@@ -172,6 +156,47 @@ void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float 
     r->top = top;
 }
 
+/* The leaf a stack entry (kind, child) names, as a k-d leaf node */
+KD_INLINE
+KdNode kd_wide_leaf(uint kind, uint child)
+{
+    KdNode leaf;
+    leaf.flags = ((kind & ~KD_WIDE_LEAF) << 2) | KD_LEAF;
+    leaf.data = child;
+    return leaf;
+}
+
+/* One entry off the ray's stack: a leaf tested, or a wide node's children that the
+ * ray meets before its best hit pushed. */
+KD_INLINE
+void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float *tris,
+                  __global const uint *tri_ids)
+{
+    KdWideStack *st = r->stack;
+    uint top = --r->top;
+    uint kind = st->kind[top], child = st->child[top];
+    if (st->t[top] > r->hit.t)
+        return;                           /* entered beyond the best hit */
+    if (kind & KD_WIDE_LEAF) {
+        kd_ray_leaf(kd_wide_leaf(kind, child), tris, tri_ids, &r->shear, r->o, r->t_min,
+                    r->t_max, &r->hit);
+#ifdef ANY_HIT
+        if (r->hit.tri != KD_NO_HIT)
+            r->top = 0u;                  /* any hit ends the walk */
+#endif
+        return;
+    }
+    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, r->hit.t);
+}
+
+/* The scene's largest |coordinate| (box bmin, bmax): a wide walk's reach */
+KD_INLINE
+float kd_wide_reach(float3 bmin, float3 bmax)
+{
+    return kd_max(kd_max(kd_max(kd_abs(bmin.x), kd_abs(bmin.y)), kd_abs(bmin.z)),
+                  kd_max(kd_max(kd_abs(bmax.x), kd_abs(bmax.y)), kd_abs(bmax.z)));
+}
+
 /* Nearest hits (with ANY_HIT: any hit) of the lanes in `on`, rays o + t d relative
  * to the tree (each finite, d not 0, as trace_packet's checks leave them) with t_min
  * < t < t_max (each lane's range), as trace_ray's Hit: written to t_l, u_l, v_l, tri_l
@@ -183,8 +208,8 @@ void kd_wide_trace(__global const uint *wide, __global const float *tris,
                    float bmin_x, float bmin_y, float bmin_z, float bmax_x, float bmax_y,
                    float bmax_z, KdFP *t_l, KdFP *u_l, KdFP *v_l, KdUP *tri_l)
 {
-    float reach = kd_max(kd_max(kd_max(kd_abs(bmin_x), kd_abs(bmin_y)), kd_abs(bmin_z)),
-                         kd_max(kd_max(kd_abs(bmax_x), kd_abs(bmax_y)), kd_abs(bmax_z)));
+    float reach = kd_wide_reach((float3)(bmin_x, bmin_y, bmin_z),
+                                (float3)(bmax_x, bmax_y, bmax_z));
     KdFP oxl, oyl, ozl, dxl, dyl, dzl, lo, hi;
     oxl.v = ox; oyl.v = oy; ozl.v = oz; dxl.v = dx; dyl.v = dy; dzl.v = dz;
     lo.v = t_min; hi.v = t_max;

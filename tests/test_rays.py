@@ -320,8 +320,8 @@ def test_queries_do_not_depend_on_work_sizes_or_packets(runtime, teapot_tree, mo
                 listed.t, listed.u, near.t, near.prim, near.u, near.normal)
 
     want = answers(Tracer(tree, device=runtime.spec, packet=1))
-    # rays a work-item (RUN_CPU): 3 walks one by one in packet programs too; 21 walks a
-    # packet's width side by side (kd_lanes_walk), then a part of one
+    # rays a work-item (RUN_CPU): 3 walks one by one in packet programs too; 21 walks as
+    # packets and through the wide nodes (kd_wide_walks), an odd one left
     options = [dict(packet=1, local_size=1, batch_size=1, run=3),
                dict(packet=1, local_size=4, batch_size=4, run=3)]
     if not runtime.simulator:
@@ -422,24 +422,31 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
 
 
 def test_packet_walks_on_every_runtime(runtime):
-    """The queries' packet walks (kd_packet_walk, an image's blocks, the cull) at
-    packets of 8 on every runtime, a simulator's included (a small image of the
-    sphere): the answers of one ray at a time, bit for bit."""
+    """The queries' packet walks (kd_packet_walk, an image's blocks, the cull) and wide
+    walks (kd_wide_walks: rays from scattered points in all directions, a k-nearest
+    list pruned by its last slot) at packets of 8 on every runtime, a simulator's
+    included (a small image of the sphere, a few scattered rays): the answers of one
+    ray at a time, bit for bit."""
     mesh = load(SCENES / "sphere.obj")
     tree = build(mesh.vertices, mesh.faces)
     one = Tracer(tree, device=runtime.spec, packet=1)
     o, d = one.camera_rays(camera_for(tree, 16, 12))
     d = d.reshape(12, 16, 3)
     lo, hi = ranges(np.random.default_rng(14), d.size // 3, 3.0)
+    o_s, d_s = random_rays(tree, runtime.small(997, 45), seed=15, inside=0.6)
 
     def answers(tracer):
         listed = tracer.intersections(o[0], d)
         near = tracer.trace(o[0], d, lo, hi)
+        scattered = tracer.intersections(o_s, d_s)
+        nearest = tracer.intersections(o_s, d_s, max_hits=1)
         return (tracer.count(o[0], d), tracer.occluded(o[0], d, lo, hi), listed.offsets,
-                listed.prim, listed.t, near.t, near.prim)
+                listed.prim, listed.t, near.t, near.prim, tracer.count(o_s, d_s),
+                scattered.offsets, scattered.prim, scattered.t, nearest.offsets,
+                nearest.prim, tracer.contains(o_s))
 
     want = answers(one)
-    assert want[0].sum() > 50
+    assert want[0].sum() > 50 and want[7].sum() > 10
     for a, b in zip(answers(Tracer(tree, device=runtime.spec, packet=8)), want):
         assert np.array_equal(a, b)
 
@@ -448,13 +455,15 @@ def test_packet_walks_on_every_runtime(runtime):
 def test_a_corrupt_tree_is_reported_not_walked_on(runtime, teapot_tree, packet):
     """A walk that needs more stack than the tree's depth allows, or visits more leaves
     than the tree has nodes (what a corrupt tree does), stops with an error from count
-    and intersections, whether the rays are walked one by one or side by side in lanes
-    (occluded takes trace's traversal, which keeps to its bounds)."""
+    and intersections, whether the rays are walked one by one or, in packet programs,
+    through the wide nodes (whose stacks are sized by the wide nodes themselves, so a
+    wrong depth does not reach them: the leaf bound does). occluded takes trace's
+    traversal, which keeps to its bounds."""
     if packet is None and runtime.simulator:
         pytest.skip("a simulator runs no packet programs")
     o, d = random_rays(teapot_tree, runtime.small(300, 40), seed=13)
     t_max = np.full(len(o), np.inf)
-    for corrupt in ("packet_stack_size", "_n_nodes"):
+    for corrupt in ("packet_stack_size", "_n_nodes") if packet == 1 else ("_n_nodes",):
         tracer = Tracer(teapot_tree, device=runtime.spec, packet=packet)
         setattr(tracer, corrupt, 2)
         for query in (tracer.count, tracer.intersections):
