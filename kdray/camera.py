@@ -200,9 +200,10 @@ def _fov_intrinsics(fov_deg, width, height):
     if not (0.0 < fov < 180.0):
         raise CameraError(f"fov must be between 0 and 180 degrees (exclusive), got {fov_deg!r}.")
     half = math.tan(math.radians(fov) / 2.0)
-    if not half > 0.0:          # a fov below float64's smallest angle: no focal length
+    # a fov below float64's smallest angle, or so small that the focal length overflows
+    f = (height / 2.0) / half if half > 0.0 else math.inf
+    if not math.isfinite(f):
         raise CameraError(f"fov {fov_deg!r} degrees is too small for a focal length.")
-    f = (height / 2.0) / half
     return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
 
 

@@ -189,7 +189,7 @@ def test_pose_from_text_and_npy(tmp_path):
 # Errors ---------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("fov", [0, 180, -10, 200, float("nan"), float("inf"), 5e-324])
+@pytest.mark.parametrize("fov", [0, 180, -10, 200, float("nan"), float("inf"), 5e-324, 1e-320])
 def test_bad_fov(fov):
     with pytest.raises(CameraError, match="fov"):
         Camera.look_at((0, 0, 1), (0, 0, 0), fov_deg=fov)
