@@ -204,6 +204,12 @@ intP kd_test_pairs(floatP P0x, floatP P0y, floatP P0z, floatP P1x, floatP P1y, f
     /* t of a far-reaching triangle from double before it is compared (intersect_triangle) */
     intP in_double = cand & !(kd_absP(Sz) * kd_maxP(kd_absP(Az), kd_maxP(kd_absP(Bz), kd_absP(Cz)))
                               <= KD_FAR_REACH * kd_absP(t));
+    /* the bound on t's rounding error (triangle.cl): a far-reaching triangle whose t
+     * and bound lie below t_min misses without double (intersect_triangle says why) */
+    KD_T_ERROR_BOUND(floatP, kd_absP, kd_maxP, KD_GAMMA, Sz, det_abs, delta_t)
+    intP below = in_double & (t + delta_t < t_min);
+    cand &= ~below;
+    in_double &= ~below;
     if (kd_anyP(in_double)) {
         KdIP in_l, ok_l;
         KdFP t_l;
@@ -239,11 +245,11 @@ intP kd_test_pairs(floatP P0x, floatP P0y, floatP P0z, floatP P1x, floatP P1y, f
     if (!kd_anyP(cand))
         return cand;
 
-    /* The bound on t's rounding error (triangle.cl) */
-    KD_T_ERROR_BOUND(floatP, kd_absP, kd_maxP, KD_GAMMA, Sz, det_abs, delta_t)
 #if defined(REFINE) && defined(cl_khr_fp64)
     intP doubt = cand & ~in_double & !(t > delta_t);
 #else
+    /* The bound on t's rounding error (triangle.cl) */
+    KD_T_ERROR_BOUND(floatP, kd_absP, kd_maxP, KD_GAMMA, Sz, det_abs, delta_t)
     intP doubt = cand & !(t > delta_t);
 #endif
     if (kd_anyP(doubt)) {

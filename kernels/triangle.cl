@@ -320,6 +320,13 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
      * wins for its rounding; double's bound decides whether it is positive. */
     bool in_double = !(kd_abs(s->Sz) * kd_max(kd_abs(Az), kd_max(kd_abs(Bz), kd_abs(Cz)))
                        <= KD_FAR_REACH * kd_abs(t));
+    KD_T_ERROR_BOUND(float, kd_abs, kd_max, KD_GAMMA, s->Sz, det_abs, delta_t)
+    /* ... unless t and its error bound lie below t_min: the exact t of the same inputs,
+     * which double's t rounds, lies below it too, so double's t would miss (a
+     * rounded sum is at least t_min when the exact one is: no false miss). A ray
+     * leaving a surface meets its own triangle so, behind its origin. */
+    if (in_double && t + delta_t < t_min)
+        return false;
     if (in_double) {
         double bound;
         double t_d = kd_t_double(s, o, p0, p1, p2, &bound);
@@ -329,7 +336,6 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     }
     if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best, tri_ids)))
         return false;
-    KD_T_ERROR_BOUND(float, kd_abs, kd_max, KD_GAMMA, s->Sz, det_abs, delta_t)
     if (!in_double && !(t > delta_t)) {
 #else
     if (!(t > t_min && t < t_max && kd_before(t, tri, t_best, tri_best, tri_ids)))

@@ -199,3 +199,33 @@ def test_the_float_test_alone_is_not_enough(runtime):
         pytest.skip("checked on the CPU runtimes")
     rel, own, _, _, _ = errors("ground-1e7", OFFSETS[0], runtime, refine=False)
     assert rel.max() > 100 * MAX and own.max() > 100 * MAX
+
+
+def test_rays_leaving_a_huge_triangle_skip_it_and_rays_reaching_it_hit(runtime):
+    """Rays from points near the centre of a quad 2^20 across, moved 1e-4 along their
+    direction (ambient-occlusion rays) or against it: the quad lies behind the first
+    (its t and error bound below t_min: missed without double, triangle.cl) and ahead of
+    the second (hit at t = 1e-4, from double). Every answer, in packets and one ray a
+    work-item alike."""
+    R = 2.0 ** 19
+    v, f = quad([(-R, 0.0, -R), (R, 0.0, -R), (R, 0.0, R), (-R, 0.0, R)])
+    f = f[:, ::-1]                                 # either side: the test is two-sided
+    tree = build(v, f)
+    rng = np.random.default_rng(31)
+    n = runtime.small(4001, 61)
+    p = np.column_stack([rng.uniform(-1, 1, n), np.zeros(n), rng.uniform(-1, 1, n)])
+    d = rng.normal(size=(n, 3))
+    d[:, 1] = np.abs(d[:, 1]) + 0.05               # away from the quad, never along it
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    eps = 1e-4
+    answers = []
+    for packet in [1] if runtime.simulator else [1, None]:
+        tr = Tracer(tree, device=runtime.spec, packet=packet)
+        leaving = tr.trace(p + eps * d, d)
+        reaching = tr.trace(p - eps * d, d)
+        assert not leaving.hit.any()
+        assert reaching.hit.all()
+        assert np.allclose(reaching.t, eps, rtol=1e-3), (reaching.t.min(), reaching.t.max())
+        answers.append((leaving.t, reaching.t, reaching.prim, reaching.u))
+    for a, b in zip(answers[0], answers[-1]):
+        assert np.array_equal(a, b)
