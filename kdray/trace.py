@@ -157,7 +157,7 @@ class Tracer:
         Only on devices with cl_khr_fp64; `self.refine` says whether it is on.
 
     device_bytes : bytes of the tree on the device (`device_sizes`), and of its wide
-        nodes (kdray.wide, about a tenth more) once a trace has made them.
+        nodes (kdray.wide, about a tenth more) once a trace or query has made them.
     """
 
     def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
@@ -309,8 +309,8 @@ class Tracer:
         any_hit: trace_rays stops at any hit (ANY_HIT, for `occluded`; with no
         refinement: it changes no hit into a miss).
         wide: packets' rays that share no path walk the wide nodes (KD_WIDE, `_wide`):
-        for trace_rays of rays that are not an image; packet programs only, not with
-        stats (their kernels take the records after n_nodes: `_launch` passes them)."""
+        trace_rays' programs, packet programs only, not with stats (their kernels take
+        the records after n_nodes: `_launch` passes them)."""
         defines = {"STACK_SIZE": self.stack_size, "LOCAL_SIZE": self.local_size,
                    "BATCH_SIZE": self.batch_size, "TILE_W": _render.RENDER_TILE[0],
                    "TILE_H": _render.RENDER_TILE[1]}

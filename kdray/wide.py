@@ -41,10 +41,10 @@ LEAF = 0x80000000
 EMPTY = 0xFFFFFFFF
 
 
-def content_boxes(tree):
+def content_boxes(tree, depth):
     """(lo, hi) (n_nodes, 3) float32: the box of each node's triangles clipped to its
     cell (tree.node_boxes), relative to the tree's origin; +inf and -inf where a node
-    holds no triangle."""
+    holds no triangle. depth: each node's depth (KdTree._topology)."""
     nodes = tree.nodes
     n = len(nodes)
     leaf = layout.is_leaf(nodes)
@@ -61,7 +61,6 @@ def content_boxes(tree):
         tris = np.asarray(tree.triangles, np.float32)[np.asarray(tree.leaf_tris, np.int64)[entry]]
         lo[full] = np.maximum(np.minimum.reduceat(tris.min(axis=1), starts), cells[full, 0])
         hi[full] = np.minimum(np.maximum.reduceat(tris.max(axis=1), starts), cells[full, 1])
-    depth = tree._topology()[0]
     above = layout.above_child(nodes).astype(np.int64)
     inner = np.flatnonzero(~leaf)
     for level in range(int(depth.max(initial=0)) - 1, -1, -1):   # deepest parents first
@@ -90,7 +89,7 @@ def wide_nodes(tree, device_nodes):
     above = layout.above_child(nodes).astype(np.int64)
     axis = layout.split_axis(nodes).astype(np.int64)
     depth = tree._topology()[0]
-    lo, hi = content_boxes(tree)
+    lo, hi = content_boxes(tree, depth)
 
     roots = np.flatnonzero(~leaf & (depth % LEVELS == 0))
     if leaf[0]:
@@ -104,11 +103,11 @@ def wide_nodes(tree, device_nodes):
     ids = roots[:, None]
     axes = np.zeros((m, 1, 0), np.int64)
     for _ in range(LEVELS):
-        has = ids >= 0
-        inner = has & ~leaf[np.where(has, ids, 0)]
+        safe = np.where(ids >= 0, ids, 0)
+        inner = (ids >= 0) & ~leaf[safe]
         below = np.where(inner, ids + 1, ids)
-        up = np.where(inner, above[np.where(has, ids, 0)], -1)
-        ax = np.where(inner, axis[np.where(has, ids, 0)], -1)
+        up = np.where(inner, above[safe], -1)
+        ax = np.where(inner, axis[safe], -1)
         ids = np.stack([below, up], axis=2).reshape(m, -1)
         axes = np.concatenate([np.repeat(axes, 2, axis=1), np.repeat(ax, 2, axis=1)[..., None]],
                               axis=2)
