@@ -344,6 +344,26 @@ def triangle_blocks(tris):
     return np.ascontiguousarray(blocks.reshape(-1, TRI_BLOCK, 9).transpose(0, 2, 1)).reshape(-1)
 
 
+def _device_leaves(tree, run):
+    """(nodes, first, count, padded, start): tree.nodes (n_nodes, 2) uint32 with each
+    leaf's leaf_offset its first copy as the kernels read them (`device_triangles`),
+    and per leaf (L,) intp its first entry of tree.leaf_tris, n_prims, n_prims padded
+    to runs of `run`, and first copy."""
+    nodes = np.array(tree.nodes, dtype=np.uint32).reshape(-1, 2)
+    leaf, count, padded = _leaf_runs(nodes, run)
+    first = leaf_offset(nodes)[leaf].astype(np.intp)
+    start = np.cumsum(padded) - padded               # each leaf's first copy, in node order
+    nodes[leaf, 1] = start
+    return nodes, first, count, padded, start
+
+
+def device_nodes(tree, run=1):
+    """The nodes of `device_triangles` alone, (n_nodes, 2) uint32: tree.nodes with each
+    leaf's offset its first triangle as the kernels read them, without making the
+    triangle copies."""
+    return _device_leaves(tree, run)[0]
+
+
 def device_triangles(tree, run=1):
     """The tree as the kernels read it, its leaves read in runs of `run` triangles (1;
     with packets, the packet's width, a divisor of TRI_BLOCK): (nodes (n_nodes, 2)
@@ -365,11 +385,7 @@ def device_triangles(tree, run=1):
     (kd_before) and a hit does not depend on the copy found."""
     if run < 1 or TRI_BLOCK % run:
         raise ValueError(f"run must divide {TRI_BLOCK}, got {run}")
-    nodes = np.array(tree.nodes, dtype=np.uint32).reshape(-1, 2)
-    leaf, count, padded = _leaf_runs(nodes, run)
-    first = leaf_offset(nodes)[leaf].astype(np.intp)
-    start = np.cumsum(padded) - padded               # each leaf's first copy, in node order
-    nodes[leaf, 1] = start
+    nodes, first, count, padded, start = _device_leaves(tree, run)
     # each copy's place k in its leaf: entry first + k of leaf_tris, or padding from
     # k = count on (given entry 0, then cleared)
     k = np.arange(int(padded.sum())) - np.repeat(start, padded)

@@ -48,8 +48,8 @@ from . import render as _render
 from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty
-from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_sizes,
-                     device_triangles, triangle_blocks)
+from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_nodes,
+                     device_sizes, device_triangles, triangle_blocks)
 from .ray_grid import grid_width
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
@@ -357,8 +357,7 @@ class Tracer:
         the stack a walk of them needs, made at the first trace or query that needs
         them; their bytes join device_bytes."""
         if self._wide_nodes is None:
-            nodes, _, _ = device_triangles(self.tree, self.packet)
-            records, levels = wide_nodes(self.tree, nodes)
+            records, levels = wide_nodes(self.tree, device_nodes(self.tree, self.packet))
             self._wide_nodes = (self._buffer(records), stack_entries(levels))
             self.device_bytes += records.nbytes
         return self._wide_nodes

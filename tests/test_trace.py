@@ -496,13 +496,14 @@ def test_ties_go_to_the_lowest_input_id_in_any_device_order(packet):
 
 @pytest.mark.parametrize("run", [1, 8, 16])
 def test_device_triangles_are_each_leafs_run(run):
-    """device_triangles: the device nodes are the tree's but for leaf offsets, each a
-    multiple of `run`; leaf i's triangles are copies [leaf_offset, leaf_offset +
-    n_prims) of the tree's, with their input ids; the rest of its last run, and
+    """device_triangles (and device_nodes alone): the device nodes are the tree's but
+    for leaf offsets, each a multiple of `run`; leaf i's triangles are copies
+    [leaf_offset, leaf_offset + n_prims) of the tree's, with their input ids; the rest of its last run, and
     nothing else, is padding (zeros, id MISS); device_sizes counts what it makes."""
     v, f = mesh("teapot.obj")
     tree = sah_tree(v, f)
     nodes, tris, ids = layout.device_triangles(tree, run)
+    assert np.array_equal(layout.device_nodes(tree, run), nodes)     # without the copies
     assert nodes.dtype == np.uint32 and tris.dtype == np.float32 and ids.dtype == np.uint32
     assert len(tris) == len(ids) == layout.n_device_triangles(tree.nodes, run) >= len(tree.leaf_tris)
     assert layout.device_sizes(tree, run) == {"nodes": tree.nodes.nbytes,

@@ -58,7 +58,7 @@ def test_wide_nodes_hold_each_leaf_once_in_front_to_back_order(name):
     axis in the octant's direction (so every ray of the octant meets them in that
     order)."""
     tree = _tree(name)
-    dev_nodes, tris, _ = layout.device_triangles(tree, 8)
+    dev_nodes = layout.device_nodes(tree, 8)
     records, levels = wide_nodes(tree, dev_nodes)
     assert records.dtype == np.uint32 and records.shape[1] == WIDE_WORDS
     boxes, child, kind, orders = _unpack(records)
@@ -169,7 +169,7 @@ def test_wide_nodes_are_made_by_the_first_trace_and_follow_the_tree(tracers):
     assert tr._wide_nodes is None and tr.device_bytes == before
     o, d = random_rays(tree, 301, seed=43)
     tr.trace(o, d)
-    assert tr.device_bytes == before + wide_nodes(tree, layout.device_triangles(tree, tr.packet)[0])[0].nbytes
+    assert tr.device_bytes == before + wide_nodes(tree, layout.device_nodes(tree, tr.packet))[0].nbytes
     swapped = tr.with_tree(other)
     o, d = random_rays(other, 301, seed=44)
     want = tracers(other, packet=1).trace(o, d)
