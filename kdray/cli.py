@@ -169,6 +169,16 @@ def _scene_tree(step, scene, tree_file, params, double=False):
         return _build_mesh(mesh, scene, params).with_objects(mesh.objects, mesh.object_names)
 
 
+def _scene_tracer(scene, tree_file, params, device, double=False):
+    """(step, tracer): a command's new Steps and a Tracer of its SCENE's tree
+    (`_scene_tree`) on `device`, each part timed."""
+    from .trace import Tracer
+    step = Steps()
+    tree = _scene_tree(step, scene, tree_file, params, double=double)
+    with step("setting up the device"):
+        return step, Tracer(tree, device=device)
+
+
 def _with_double(step, tree, scene, tree_file):
     """`tree`, read from tree_file, with the float64 triangles of SCENE, its mesh
     (TreeError when SCENE is not that mesh)."""
@@ -454,7 +464,6 @@ def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
     from .camera import pose_from_file
     from .images import write_exr
     from .lidar import Lidar, write_points_ply
-    from .trace import Tracer
     params = _build_kwargs(kw)
     if output is None:
         output = os.path.splitext(os.path.basename(scene))[0] + ".exr"
@@ -465,16 +474,14 @@ def scan(scene, lidar_file, pose, output, points, tree_file, device, **kw):
     lidar = Lidar.from_json(lidar_file)          # a bad spec or pose: one line, nothing read
     lidar.check_memory()                         # before the tree is built
     sensor_to_world = pose_from_file(pose)
-    step = Steps()
-    tree = _scene_tree(step, scene, tree_file, params)
-    with step("setting up the device"):
-        tracer = Tracer(tree, device=device)
+    step, tracer = _scene_tracer(scene, tree_file, params, device)
     beams, columns = lidar.shape
     with step(f"scanning {beams}x{columns} beams"):
         images = tracer.scan(lidar, sensor_to_world)
     with step("writing"):
         write_exr(output, {k: images[k] for k in ("range", "id", "object")},
-                  object_names=tree.object_names, lidar=lidar, sensor_to_world=sensor_to_world)
+                  object_names=tracer.tree.object_names, lidar=lidar,
+                  sensor_to_world=sensor_to_world)
         if points:
             write_points_ply(points, images)
     step.log()
@@ -583,17 +590,13 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
     crossing count: docs/conventions.md), or with --count how many times a ray from
     each point crosses the surface."""
     from .files import atomic_write
-    from .trace import Tracer
     params = _build_kwargs(kw)
     check_output(output, inputs=(scene, tree_file, points_file), what="-o")
     from .points import check_points
     points = check_points(_read_points(points_file))[0]      # finite, with --count too
     if direction is not None and not (np.isfinite(direction).all() and np.any(direction)):
         raise KdrayError(f"--count needs a finite, nonzero direction, got {direction}")
-    step = Steps()
-    tree = _scene_tree(step, scene, tree_file, params)
-    with step("setting up the device"):
-        tracer = Tracer(tree, device=device)
+    step, tracer = _scene_tracer(scene, tree_file, params, device)
     if direction is None:
         with step(f"testing {len(points):,} points"):
             answers = tracer.contains(points)
@@ -640,7 +643,6 @@ def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tre
          **kw):
     """Cast the rays of a file at SCENE: their nearest hits, whether they hit anything,
     their exact crossing counts or all their hits (docs/interface.md, "kdray cast")."""
-    from .trace import Tracer
     params = _build_kwargs(kw)
     check_output(output, inputs=(scene, tree_file, rays_file), what="-o")
     if max_hits is not None and query != "all":
@@ -658,10 +660,7 @@ def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tre
             ranges[name] = rays.get(name, value)
     o, d = rays["origins"], rays["directions"]
     n = len(d)
-    step = Steps()
-    tree = _scene_tree(step, scene, tree_file, params, double=precision == "double")
-    with step("setting up the device"):
-        tracer = Tracer(tree, device=device)
+    step, tracer = _scene_tracer(scene, tree_file, params, device, double=precision == "double")
     with step(f"casting {n:,} rays ({query})"):
         if query == "nearest":
             hits = tracer.trace(o, d, precision=precision, **ranges)
@@ -718,7 +717,6 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
            **kw):
     """The point queries at the points of a file: nearest surface points, distances,
     signed distances, winding numbers or occupancy (docs/interface.md, "kdray points")."""
-    from .trace import Tracer
     params = _build_kwargs(kw)
     check_output(output, inputs=(scene, tree_file, points_file), what="-o")
     measures = query in ("closest", "distance", "signed")
@@ -731,10 +729,7 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
     limit = {} if max_distance is None else {"max_distance": max_distance}
     at = _read_points(points_file)
     n = len(at)
-    step = Steps()
-    tree = _scene_tree(step, scene, tree_file, params, double=precision == "double")
-    with step("setting up the device"):
-        tracer = Tracer(tree, device=device)
+    step, tracer = _scene_tracer(scene, tree_file, params, device, double=precision == "double")
     with step(f"{query} of {n:,} points"):
         if query == "closest":
             c = tracer.closest_points(at, precision=precision, **limit)
