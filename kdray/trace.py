@@ -55,7 +55,7 @@ from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import object_ids
 from .validate import check_float32, whole_or_none
-from .wide import stack_entries, wide_nodes
+from .wide import stack_groups, wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
                          default_stack_size, default_work_sizes, max_local_size,
                          pocl_item_bytes, thread_stack_bytes)
@@ -353,12 +353,12 @@ class Tracer:
         return entry
 
     def _wide(self):
-        """(buffer, stack entries): the tree's wide nodes on the device (kdray.wide) and
+        """(buffer, stack groups): the tree's wide nodes on the device (kdray.wide) and
         the stack a walk of them needs, made at the first trace or query that needs
         them; their bytes join device_bytes."""
         if self._wide_nodes is None:
             records, levels = wide_nodes(self.tree, device_nodes(self.tree, self.packet))
-            self._wide_nodes = (self._buffer(records), stack_entries(levels))
+            self._wide_nodes = (self._buffer(records), stack_groups(levels))
             self.device_bytes += records.nbytes
         return self._wide_nodes
 

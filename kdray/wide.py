@@ -70,18 +70,18 @@ def content_boxes(tree, depth):
     return lo, hi
 
 
-def stack_entries(levels):
-    """A wide walk's stack entries (kernels/wide.cl, WIDE_STACK) for a tree of `levels`
-    wide levels: a node taken off the stack puts at most 8 back, 7 more, one level
-    down, and a push writes all 8 slots past the top before it knows which it keeps."""
-    return 7 * levels + 8
+def stack_groups(levels):
+    """A wide walk's stack groups (kernels/wide.cl, WIDE_STACK) for a tree of `levels`
+    wide levels: a node's group stays until its last child is taken, so the groups
+    belong to nodes on one path from the root, at most one a level."""
+    return levels
 
 
 def wide_nodes(tree, device_nodes):
     """The wide nodes of `tree`: (records (m, WIDE_WORDS) uint32, levels), the layout
     above; device_nodes: the nodes as the kernels read them (layout.device_triangles),
     whose leaves' offsets the records take. levels: the most wide nodes a path from the
-    root passes (its stack needs at most 7 entries a level, kernels/wide.cl)."""
+    root passes (its stack needs a group a level, kernels/wide.cl)."""
     nodes = tree.nodes
     n = len(nodes)
     leaf = layout.is_leaf(nodes)

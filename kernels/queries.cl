@@ -421,11 +421,9 @@ void kd_wide_query_step(uint query, KdWideRay *r, KdQuery *q, __global const uin
                         uint n_nodes, __global const float *tris, __global const uint *tri_ids,
                         uint *leaves)
 {
-    KdWideStack *st = r->stack;
-    uint top = --r->top;
-    uint kind = st->kind[top], child = st->child[top];
+    uint kind, child;
     float far = kd_query_far(query, q, r->t_max);
-    if (st->t[top] > far)
+    if (kd_wide_pop(r, &kind, &child) > far)
         return;
     if (kind & KD_WIDE_LEAF) {
         if (++*leaves > n_nodes) {

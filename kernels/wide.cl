@@ -21,8 +21,8 @@
  * loses every compare it is in, which only keeps a child.
  *
  * Options (-D): KD_WIDE (the program takes the wide records after n_nodes),
- * WIDE_STACK (entries a ray's stack: 7 a level of wide nodes plus the 8 a node's push
- * writes, kdray/wide.py stack_entries). Not with STATS (such programs trace these rays
+ * WIDE_STACK (groups a ray's stack: the levels of wide nodes, kdray/wide.py
+ * stack_groups). Not with STATS (such programs trace these rays
  * one by one, trace_ray counting them).
  */
 #ifndef KDRAY_WIDE_CL
@@ -55,23 +55,30 @@
 #define KD_WIDE_LEAF 0x80000000u
 #define KD_WIDE_PAD 0x1p-16f
 
-/* a ray's stack: each entry a wide node or a leaf (child, kind) and where the ray
- * enters its box */
+/* A ray's stack: a group for each wide node whose children it has still to take (at
+ * most one a level, WIDE_STACK levels), each the node's 8 slots copied as they lie
+ * (kind, child and where the ray enters the slot's box, t) with, for the group below
+ * the top, its mask (bit k: the slot k-th nearest in the ray's octant is still to
+ * take) and that order (the node's word for the octant) at mask[g + 1], order[g + 1]:
+ * the top group's are in the ray (KdWideRay), and index 0 is a spare that a walk's
+ * last group reads. A push is three vector copies and a mask, not a store a child. */
 typedef struct {
-    uint kind[WIDE_STACK], child[WIDE_STACK];
-    float t[WIDE_STACK];
+    uint kind[8 * WIDE_STACK], child[8 * WIDE_STACK];
+    float t[8 * WIDE_STACK];
+    uint mask[WIDE_STACK + 1], order[WIDE_STACK + 1];
 } KdWideStack;
 
 /* A ray's walk: the ray relative to the tree, its range, its best hit, its stack's
- * top, and for the box test its octant, the rows of each slab's near and far planes
- * (near: the min going up an axis, the max going down) and each plane's offset c
- * (the pad outwards, minus the origin): the plane's t is (plane + c) / d. */
+ * groups (top; 0: the walk is over) and the top group's mask and order, and for the
+ * box test its octant, the rows of each slab's near and far planes (near: the min
+ * going up an axis, the max going down) and each plane's offset c (the pad outwards,
+ * minus the origin): the plane's t is (plane + c) / d. */
 typedef struct {
     float3 o;
     RayShear shear;
     float t_min, t_max;
     Hit hit;
-    uint top, octant, nx, ny, nz, fx, fy, fz;
+    uint top, mask, order, octant, nx, ny, nz, fx, fy, fz;
     float8 ix, iy, iz, cnx, cny, cnz, cfx, cfy, cfz;
     KdWideStack *stack;
 } KdWideRay;
@@ -91,10 +98,15 @@ void kd_wide_start(KdWideRay *r, KdWideStack *stack, float3 o, float3 d, float t
     r->hit.v = 0.0f;
     r->hit.tri = KD_NO_HIT;
     r->stack = stack;
+    /* the root, a group of one slot */
     stack->kind[0] = 0u;
     stack->child[0] = 0u;
     stack->t[0] = t_min;
+    stack->mask[0] = 0u;
+    stack->order[0] = 0u;
     r->top = 1u;
+    r->mask = 1u;
+    r->order = 0u;
     float3 inv = (float3)(1.0f) / d;
     /* going down an axis: inv < 0 (d = -0 gives -inf) */
     bool down_x = inv.x < 0.0f, down_y = inv.y < 0.0f, down_z = inv.z < 0.0f;
@@ -121,13 +133,22 @@ void kd_wide_start(KdWideRay *r, KdWideStack *stack, float3 o, float3 d, float t
     r->cfz = (float8)(-pz - o.z);
 }
 
+/* The lanes' bits of a mask of 8 (lane l: bit l set where m's lane l is), or of
+ * bits in 8 lanes: halves or-ed down to one */
+KD_INLINE
+uint kd_bits8(uint8 b)
+{
+    uint4 a = b.lo | b.hi;
+    uint2 c = a.lo | a.hi;
+    return c.x | c.y;
+}
+
 /* Push the children of wide node w (its record) that the ray meets over [t_min, far],
- * the nearest last, each with where the ray enters its box. */
+ * each with where the ray enters its box, as a group that gives the nearest first
+ * (KdWideStack). */
 KD_INLINE
 void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
 {
-    KdWideStack *st = r->stack;
-    uint top = r->top;
     __global const float *rows = (__global const float *)w;
     /* the slabs' entries and exits as selects with the slab's value first: a NaN
      * loses the compare (as fmax and fmin ignore it), one vmaxps or vminps each */
@@ -138,22 +159,47 @@ void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
     s = (vload8(r->fz, rows) + r->cfz) * r->iz; tf = s < tf ? s : tf;
     s = (vload8(r->fy, rows) + r->cfy) * r->iy; tf = s < tf ? s : tf;
     s = (vload8(r->fx, rows) + r->cfx) * r->ix; tf = s < tf ? s : tf;
-    union { float8 v; float s[8]; } t_in;
-    union { int8 v; int s[8]; } met;
-    t_in.v = tn;
-    met.v = tn <= tf;                     /* an empty slot enters at +inf: never met */
+    /* the slots met (an empty slot enters at +inf and leaves at -inf: never met) */
+    const uint8 lane = (uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u);
+    uint met = kd_bits8(as_uint8(tn <= tf) & ((uint8)(1u) << lane));
+    if (met == 0u)
+        return;
+    /* bit k of the mask: whether the k-th slot in the octant's order is met */
     uint order = w[KD_WIDE_ORDER + r->octant];
-    /* the farthest first, so that the nearest ends on top: every slot written, the
-     * top moved past those met (no branch a child) */
-#pragma unroll
-    for (int k = 7; k >= 0; k--) {
-        uint j = (order >> (3 * k)) & 7u;
-        st->t[top] = t_in.s[j];
-        st->kind[top] = w[KD_WIDE_KIND + j];
-        st->child[top] = w[KD_WIDE_CHILD + j];
-        top += (uint)met.s[j] & 1u;
+    uint8 slot = ((uint8)(order) >> ((uint8)(3u) * lane)) & (uint8)(7u);
+    uint mask = kd_bits8((((uint8)(met) >> slot) & (uint8)(1u)) << lane);
+    KdWideStack *st = r->stack;
+    uint g = r->top;
+    st->mask[g] = r->mask;                /* the group below's (index 0: a spare) */
+    st->order[g] = r->order;
+    vstore8(tn, g, st->t);
+    vstore8(vload8(0, w + KD_WIDE_KIND), g, st->kind);
+    vstore8(vload8(0, w + KD_WIDE_CHILD), g, st->child);
+    r->top = g + 1u;
+    r->mask = mask;
+    r->order = order;
+}
+
+/* The nearest slot of the top group (r->top > 0) off the stack: its kind and child,
+ * and where the ray enters its box (returned). */
+KD_INLINE
+float kd_wide_pop(KdWideRay *r, uint *kind, uint *child)
+{
+    KdWideStack *st = r->stack;
+    uint m = r->mask, g = r->top - 1u;
+    uint k = 31u - clz(m & (0u - m));
+    uint e = 8u * g + ((r->order >> (3u * k)) & 7u);
+    *kind = st->kind[e];
+    *child = st->child[e];
+    m &= m - 1u;
+    if (m == 0u) {
+        /* the group is done: the one below (index 0: none) is the top now */
+        r->top = g;
+        m = st->mask[g];
+        r->order = st->order[g];
     }
-    r->top = top;
+    r->mask = m;
+    return st->t[e];
 }
 
 /* The leaf a stack entry (kind, child) names, as a k-d leaf node */
@@ -172,10 +218,8 @@ KD_INLINE
 void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float *tris,
                   __global const uint *tri_ids)
 {
-    KdWideStack *st = r->stack;
-    uint top = --r->top;
-    uint kind = st->kind[top], child = st->child[top];
-    if (st->t[top] > r->hit.t)
+    uint kind, child;
+    if (kd_wide_pop(r, &kind, &child) > r->hit.t)
         return;                           /* entered beyond the best hit */
     if (kind & KD_WIDE_LEAF) {
         kd_ray_leaf(kd_wide_leaf(kind, child), tris, tri_ids, &r->shear, r->o, r->t_min,
