@@ -435,6 +435,9 @@ void kd_ray_leaf(KdNode leaf, __global const float *tris, __global const uint *t
             hit->u = V / det;
             hit->v = W / det;
             hit->tri = tri;
+#ifdef ANY_HIT
+            return;                       /* any hit: the leaf's other runs are not needed */
+#endif
         }
     }
 }
