@@ -1,8 +1,10 @@
 """Host memory: page-aligned arrays for CPU devices, and how much memory is free.
 
     a = page_aligned_empty((n, 3), np.float32)     # data starts on a PAGE boundary
+    t = huge_page_copy(tris)                       # a copy in huge pages where it can be
     check_host_memory(nbytes, "a 4096x4096 render of depth")   # KdrayError if too much
 """
+import mmap
 import os
 
 import numpy as np
@@ -23,6 +25,39 @@ def page_aligned_empty(shape, dtype):
     raw = np.empty(nbytes + PAGE, dtype=np.uint8)
     start = -raw.ctypes.data % PAGE
     return raw[start:start + nbytes].view(dtype).reshape(shape)
+
+
+HUGE_PAGE = 2 << 20
+"""A transparent huge page on x86-64 Linux. A tree's kernels read its buffers at random
+(a ray's nodes and leaves), and through a tree of tens of MiB a 4 KiB page is a TLB
+miss at nearly every read, costly in a virtual machine (two page tables to walk); 2
+MiB pages keep a 100 MiB tree within the TLB's reach (BENCHMARKS.md)."""
+
+
+def huge_page_copy(array):
+    """A C-contiguous copy of `array` whose data starts on a HUGE_PAGE boundary, its
+    whole huge pages advised to the kernel as such (madvise MADV_HUGEPAGE: Linux backs
+    them with huge pages where transparent huge pages are enabled, "always" or
+    "madvise"); the tail, smaller arrays and other systems in pages of PAGE bytes
+    (page_aligned_empty). Its memory is freed with the array."""
+    array = np.ascontiguousarray(array)
+    advice = getattr(mmap, "MADV_HUGEPAGE", None)
+    if advice is None or array.nbytes < HUGE_PAGE:
+        out = page_aligned_empty(array.shape, array.dtype)
+        np.copyto(out, array)
+        return out
+    # private anonymous memory (a shared mapping follows shmem's huge page setting)
+    region = mmap.mmap(-1, array.nbytes + HUGE_PAGE,
+                       flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    raw = np.frombuffer(region, dtype=np.uint8)
+    start = -raw.ctypes.data % HUGE_PAGE
+    try:
+        region.madvise(advice, start, array.nbytes // HUGE_PAGE * HUGE_PAGE)
+    except OSError:
+        pass                                 # no huge pages here: small pages it is
+    out = raw[start:start + array.nbytes].view(array.dtype).reshape(array.shape)
+    np.copyto(out, array)
+    return out
 
 
 def available_memory():

@@ -240,7 +240,7 @@ def _tris64(tracer):
     state = _state(tracer)
     if "tris64" not in state:
         t64 = (np.asarray(tracer.tree.triangles64, dtype=np.float64) - tracer._origin) / tracer._scale
-        state["tris64"] = tracer._buffer(np.ascontiguousarray(t64.reshape(-1)))
+        state["tris64"] = tracer._tree_buffer(t64.reshape(-1))
     return state["tris64"]
 
 
@@ -583,5 +583,6 @@ def _winding_data(tracer):
         nodes, tris, tri_ids = device_triangles(tracer.tree, tracer.packet)
         depth, parent, _ = tracer.tree._topology()
         moments, owned = winding_moments(nodes, tris, tri_ids, depth, parent)
-        state["winding"] = (tracer._buffer(moments.reshape(-1)), tracer._buffer(owned))
+        state["winding"] = (tracer._tree_buffer(moments.reshape(-1)),
+                            tracer._tree_buffer(owned))
     return state["winding"]

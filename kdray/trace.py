@@ -47,7 +47,7 @@ from . import points as _points
 from . import render as _render
 from .double import wants_double
 from .errors import DeviceError, KdrayError
-from .host import PAGE, check_host_memory, page_aligned_empty
+from .host import PAGE, check_host_memory, huge_page_copy, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_nodes,
                      device_sizes, device_triangles, triangle_blocks)
 from .ray_grid import grid_width
@@ -238,6 +238,21 @@ class Tracer:
         return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                          hostbuf=array)
 
+    def _tree_buffer(self, array):
+        """A read-only device buffer of the tree's, kept as long as the Tracer is: on a
+        CPU device the host's memory itself, a copy in huge pages (host.huge_page_copy:
+        the kernels' reads at random through a large tree miss the TLB less), else a
+        device copy (`_buffer`)."""
+        if not self._zero_copy:
+            return self._buffer(array)
+        cl = _device._cl()
+        array = np.ascontiguousarray(array)
+        if array.size == 0:
+            array = np.zeros(1, dtype=array.dtype)
+        # the buffer keeps its host array (pyopencl's hostbuf), so the copy lives as long
+        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR,
+                         hostbuf=huge_page_copy(array))
+
     def _check_fits(self, tree):
         """The tree's device buffers' bytes (`device_sizes`, leaves in runs of a
         packet); DeviceError when the tree cannot live on the device: one buffer larger
@@ -288,9 +303,9 @@ class Tracer:
         self._n_nodes = len(tree.nodes)
         # packets read a leaf's triangles a packet's width at a time (kd_gather_tris)
         nodes, tris, tri_ids = device_triangles(tree, self.packet)
-        self._nodes = self._buffer(nodes)
-        self._tris = self._buffer(triangle_blocks(tris))
-        self._tri_ids = self._buffer(tri_ids)
+        self._nodes = self._tree_buffer(nodes)
+        self._tris = self._tree_buffer(triangle_blocks(tris))
+        self._tri_ids = self._tree_buffer(tri_ids)
         self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))
         self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)
         self._wide_nodes = None               # (buffer, stack), made when needed (`_wide`)
@@ -358,7 +373,7 @@ class Tracer:
         them; their bytes join device_bytes."""
         if self._wide_nodes is None:
             records, levels = wide_nodes(self.tree, device_nodes(self.tree, self.packet))
-            self._wide_nodes = (self._buffer(records), stack_groups(levels))
+            self._wide_nodes = (self._tree_buffer(records), stack_groups(levels))
             self.device_bytes += records.nbytes
         return self._wide_nodes
 

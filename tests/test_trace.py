@@ -571,6 +571,51 @@ def test_rays_converted_in_the_kernel(packet, tracers):
     assert np.allclose(a.t, b.t, rtol=1e-5, equal_nan=True)
 
 
+def test_huge_page_copy_equals_its_array_at_every_size():
+    """host.huge_page_copy: the array's values, shape and dtype, C-contiguous, starting on
+    a huge page where it holds one (and where Python can advise it), on a page
+    otherwise; the input left as it was (a Fortran-ordered one too)."""
+    import mmap
+    from kdray.host import HUGE_PAGE, PAGE, huge_page_copy
+    rng = np.random.default_rng(5)
+    for n, dtype in [(0, np.float32), (7, np.uint32), (HUGE_PAGE // 8 - 1, np.float64),
+                     (HUGE_PAGE // 4, np.float32), (3 * HUGE_PAGE // 4 + 5, np.uint32)]:
+        a = (rng.random(n) * 1e6).astype(dtype)
+        before = a.copy()
+        c = huge_page_copy(a)
+        assert c.dtype == a.dtype and c.shape == a.shape and c.flags.c_contiguous
+        assert np.array_equal(c, a) and np.array_equal(a, before)
+        big = a.nbytes >= HUGE_PAGE and hasattr(mmap, "MADV_HUGEPAGE")
+        assert n == 0 or c.ctypes.data % (HUGE_PAGE if big else PAGE) == 0
+        c[...] = 0                               # a copy, writable: not the input
+        assert np.array_equal(a, before)
+    f = np.asfortranarray(rng.random((300, 3)))
+    assert np.array_equal(huge_page_copy(f), f)
+
+
+def test_tree_buffers_live_in_the_hosts_memory_on_a_cpu(tracers):
+    """On a CPU device a Tracer's tree buffers are host memory it keeps (huge-page
+    copies, Tracer._tree_buffer), and traces through them give the hits of a Tracer
+    whose buffers are the runtime's own copies."""
+    from kdray.host import HUGE_PAGE
+    tree = mesh_tree("teapot.obj", "sah")
+    tracer = tracers(tree)
+    if not tracer._zero_copy:
+        pytest.skip("a GPU keeps device copies")
+    for buf in (tracer._nodes, tracer._tris, tracer._tri_ids):
+        host = buf.hostbuf
+        assert host is not None and host.nbytes == buf.size
+        if host.nbytes >= HUGE_PAGE:
+            assert host.ctypes.data % HUGE_PAGE == 0
+    o, d = random_rays(tree, 3001, seed=11)
+    want = tracer.trace(o, d)
+    copied = Tracer(tree)
+    copied._tree_buffer = copied._buffer          # the runtime's copies
+    copied._upload(tree)
+    got = copied.trace(o, d)
+    assert np.array_equal(want.prim, got.prim) and np.array_equal(want.t, got.t)
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_rays_anywhere_in_memory(dtype, tracers):
     """Ray arrays at any address give the hits of page-aligned copies: slices of larger
