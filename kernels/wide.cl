@@ -56,16 +56,17 @@
 #define KD_WIDE_PAD 0x1p-16f
 
 /* A ray's stack: a group for each wide node whose children it has still to take (at
- * most one a level, WIDE_STACK levels), each the node's 8 slots copied as they lie
- * (kind, child and where the ray enters the slot's box, t) with, for the group below
- * the top, its mask (bit k: the slot k-th nearest in the ray's octant is still to
- * take) and that order (the node's word for the octant) at mask[g + 1], order[g + 1]:
- * the top group's are in the ray (KdWideRay), and index 0 is a spare that a walk's
- * last group reads. A push is three vector copies and a mask, not a store a child. */
+ * most one a level, WIDE_STACK levels), group g the node's 8 slots copied as they lie
+ * (kind, child and where the ray enters the slot's box, t) at 8 g .. 8 g + 7, with its
+ * mask (bit k: the slot k-th nearest in the ray's octant is still to take) and that
+ * order (the node's word for the octant). The top group's mask and order are in the
+ * ray (KdWideRay); a group below keeps them at mask[g + 1], order[g + 1] (written by
+ * the push above it), and mask[0] is 0 for the pop that ends the walk. A push is three
+ * vector copies and a mask, not a store a child. */
 typedef struct {
     uint kind[8 * WIDE_STACK], child[8 * WIDE_STACK];
     float t[8 * WIDE_STACK];
-    uint mask[WIDE_STACK + 1], order[WIDE_STACK + 1];
+    uint mask[WIDE_STACK], order[WIDE_STACK];
 } KdWideStack;
 
 /* A ray's walk: the ray relative to the tree, its range, its best hit, its stack's
@@ -133,8 +134,8 @@ void kd_wide_start(KdWideRay *r, KdWideStack *stack, float3 o, float3 d, float t
     r->cfz = (float8)(-pz - o.z);
 }
 
-/* The lanes' bits of a mask of 8 (lane l: bit l set where m's lane l is), or of
- * bits in 8 lanes: halves or-ed down to one */
+/* The 8 lanes of b or-ed together, halves down to one (lane l holding bit l or 0:
+ * a mask's lanes as bits) */
 KD_INLINE
 uint kd_bits8(uint8 b)
 {
@@ -170,7 +171,7 @@ void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
     uint mask = kd_bits8((((uint8)(met) >> slot) & (uint8)(1u)) << lane);
     KdWideStack *st = r->stack;
     uint g = r->top;
-    st->mask[g] = r->mask;                /* the group below's (index 0: a spare) */
+    st->mask[g] = r->mask;                /* the group below's (at 0: the 0 of none) */
     st->order[g] = r->order;
     vstore8(tn, g, st->t);
     vstore8(vload8(0, w + KD_WIDE_KIND), g, st->kind);
