@@ -1,0 +1,180 @@
+"""A prototype of the next lever for rays that share no path: an 8-wide BVH over small
+leaves, walked by kdray's own wide walk (kernels/wide.cl) in place of the k-d tree's
+wide nodes, timed against them on the same rays with the same hits required.
+
+usage: python bench/proto_bvh8.py [--meshes bunny,bunny-1.6M] [--rays 1048576]
+                                  [--leaf 16] [--repeat 5]
+
+Rays: bench_incoherent.py's (from the box's centre, from random points in it),
+bench_embree.py's ambient-occlusion rays and bench_queries.py's rays aimed at the
+surface from around it.
+
+The BVH: binary splits of the triangles sorted by centroid along the longest axis of
+their centroids' box, at the multiple of 16 triangles (a packet's run) with the least
+surface-area cost, down to leaves of at most --leaf triangles; three binary levels make
+one wide node (kdray/wide.py's record: 8 boxes, children, kinds, and per octant the
+children in the order of their boxes' centres along the octant's diagonal, which need
+not be front to back: the walk's pruning by entry t makes any order exact). The
+leaves' triangles are copied in leaf order, each leaf on a multiple of 16, as
+layout.device_triangles does for the k-d leaves.
+
+It is built here in Python, node by node (about 40 s for bunny-1.6M): a measurement,
+not a builder. The BVH goes into a second Tracer through its private buffers
+(`_tris`, `_tri_ids`, `_wide_nodes`) with every packet traced ray by ray
+(`_alone_spread` -1), so that its hits' triangle indices are the BVH's copies; the k-d
+Tracer's and the BVH's hits must be the same triangles, and are (the walk's exactness
+argument, wide.cl, does not depend on the tree). Not for kdray's users: a Tracer that
+adopts the BVH needs its hits mapped back to the k-d copies (packets, refinement,
+normals and the queries read those) and a real builder (BENCHMARKS.md, "Incoherent
+rays").
+"""
+import argparse
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_embree import AO_OFFSET, ao_rays  # noqa: E402
+from bench_incoherent import ray_sets  # noqa: E402
+from bench_queries import aimed  # noqa: E402
+from meshes import mesh as bench_mesh  # noqa: E402
+from timing import round_robin  # noqa: E402
+
+import kdray  # noqa: E402
+from kdray.layout import MISS, TRI_BLOCK, triangle_blocks  # noqa: E402
+from kdray.wide import EMPTY, LEAF, WIDE_WORDS, WIDTH  # noqa: E402
+
+
+def _area(lo, hi):
+    e = np.maximum(hi - lo, 0).astype(np.float64)
+    return e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
+
+
+def binary_bvh(tris, leaf):
+    """(root, leaves): a binary BVH over tris (n, 3, 3) float32 as nested tuples
+    ("node", left, right) / ("leaf", i), and each leaf's triangle indices."""
+    cent = tris.mean(axis=1).astype(np.float64)
+    lo_t, hi_t = tris.min(axis=1), tris.max(axis=1)
+    leaves = []
+
+    def split(idx):
+        if len(idx) <= leaf:
+            leaves.append(idx)
+            return ("leaf", len(leaves) - 1)
+        c = cent[idx]
+        axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
+        o = idx[np.argsort(c[:, axis], kind="stable")]
+        n = len(o)
+        cand = np.arange(TRI_BLOCK, n, TRI_BLOCK)
+        if len(cand) == 0:
+            cand = np.array([n // 2])
+        lo_pre = np.minimum.accumulate(lo_t[o], axis=0)
+        hi_pre = np.maximum.accumulate(hi_t[o], axis=0)
+        lo_suf = np.minimum.accumulate(lo_t[o][::-1], axis=0)[::-1]
+        hi_suf = np.maximum.accumulate(hi_t[o][::-1], axis=0)[::-1]
+        cost = (_area(lo_pre[cand - 1], hi_pre[cand - 1]) * np.ceil(cand / TRI_BLOCK)
+                + _area(lo_suf[cand], hi_suf[cand]) * np.ceil((n - cand) / TRI_BLOCK))
+        k = int(cand[np.argmin(cost)])
+        return ("node", split(o[:k]), split(o[k:]))
+
+    sys.setrecursionlimit(max(10000, sys.getrecursionlimit()))
+    return split(np.arange(len(tris))), leaves
+
+
+def wide_bvh(tree, leaf):
+    """(records (m, WIDE_WORDS) uint32, levels, tris (k, 3, 3) float32, ids (k,)
+    uint32): the BVH's wide nodes and its leaves' triangle copies (MISS padding)."""
+    tris = np.asarray(tree.triangles, np.float32).reshape(-1, 3, 3)
+    ids = np.asarray(tree.tri_ids, np.uint32)
+    root, leaves = binary_bvh(tris, leaf)
+    sizes = np.array([-(-len(x) // TRI_BLOCK) * TRI_BLOCK for x in leaves])
+    starts = np.cumsum(sizes) - sizes
+    dev = np.zeros((int(sizes.sum()), 3, 3), np.float32)
+    dev_ids = np.full(int(sizes.sum()), MISS, np.uint32)
+    box = {}
+    for i, x in enumerate(leaves):
+        dev[starts[i]:starts[i] + len(x)] = tris[x]
+        dev_ids[starts[i]:starts[i] + len(x)] = ids[x]
+        box[("leaf", i)] = (tris[x].min(axis=(0, 1)), tris[x].max(axis=(0, 1)))
+
+    def bounds(nd):
+        if nd[0] == "leaf":
+            return box[nd]
+        (a0, a1), (b0, b1) = bounds(nd[1]), bounds(nd[2])
+        return np.minimum(a0, b0), np.maximum(a1, b1)
+
+    records, deepest = [], [0]
+    sign = np.array([[-1.0 if (o >> a) & 1 else 1.0 for a in range(3)] for o in range(8)])
+
+    def wide(nd, depth):
+        at = len(records)
+        records.append(None)
+        deepest[0] = max(deepest[0], depth)
+        kids = [nd]
+        for _ in range(3):
+            kids = [c for k in kids for c in ((k[1], k[2]) if k[0] == "node" else (k,))]
+        rec = np.zeros(WIDE_WORDS, np.uint32)
+        rows = rec[:6 * WIDTH].view(np.float32).reshape(6, WIDTH)
+        rows[:3], rows[3:] = np.inf, -np.inf
+        rec[7 * WIDTH:8 * WIDTH] = EMPTY
+        centre = np.zeros((WIDTH, 3))
+        for s, k in enumerate(kids):
+            lo, hi = bounds(k)
+            rows[:3, s], rows[3:, s] = lo, hi
+            centre[s] = 0.5 * (lo.astype(np.float64) + hi)
+            if k[0] == "leaf":
+                rec[6 * WIDTH + s] = starts[k[1]]
+                rec[7 * WIDTH + s] = LEAF | len(leaves[k[1]])
+            else:
+                rec[6 * WIDTH + s] = wide(k, depth + 1)
+                rec[7 * WIDTH + s] = 0
+        for octant in range(8):
+            key = np.where(np.arange(WIDTH) < len(kids), centre @ sign[octant], np.inf)
+            order = np.argsort(key, kind="stable").astype(np.int64)
+            rec[8 * WIDTH + octant] = int((order << (3 * np.arange(WIDTH))).sum())
+        records[at] = rec
+        return at
+
+    wide(root, 0)
+    return np.array(records), deepest[0] + 1, dev, dev_ids
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--meshes", default="bunny,bunny-1.6M")
+    ap.add_argument("--rays", type=int, default=1 << 20)
+    ap.add_argument("--leaf", type=int, default=16)
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    for name in args.meshes.split(","):
+        m = bench_mesh(name)
+        tree = kdray.build(m.vertices, m.faces)
+        kd = kdray.Tracer(tree)
+        bvh = kdray.Tracer(tree)
+        bvh._alone_spread = -1.0
+        records, levels, dev, dev_ids = wide_bvh(tree, args.leaf)
+        bvh._tris = bvh._tree_buffer(triangle_blocks(dev))
+        bvh._tri_ids = bvh._tree_buffer(dev_ids)
+        bvh._wide_nodes = (bvh._tree_buffer(records), levels)
+        print(f"{name}: BVH {len(records)} wide nodes, {levels} levels, "
+              f"{(records.nbytes + dev.nbytes) / 2**20:.1f} MiB; k-d wide nodes "
+              f"{kd._wide()[1]} levels", flush=True)
+        sets = ray_sets(tree, args.rays)
+        lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
+        sets["ambient occlusion"] = ao_rays(m, args.rays, np.random.default_rng(2),
+                                            AO_OFFSET * np.linalg.norm(hi - lo))
+        sets["aimed at the surface"] = aimed(m, tree, args.rays)
+        for label, (o, d) in sets.items():
+            wall, _, res = round_robin({"kd": lambda: kd.trace(o, d),
+                                        "bvh": lambda: bvh.trace(o, d)}, args.repeat)
+            ms = {k: float(np.median(v)) * 1e3 for k, v in wall.items()}
+            same = np.array_equal(res["kd"].prim, res["bvh"].prim)
+            print(f"  {label:<20} k-d {ms['kd']:7.1f} ms  BVH {ms['bvh']:7.1f} ms  "
+                  f"BVH / k-d {ms['bvh'] / ms['kd']:.3f}  same triangles {same}", flush=True)
+            if not same:
+                raise SystemExit("the BVH's hits differ from the k-d tree's")
+
+
+if __name__ == "__main__":
+    main()
