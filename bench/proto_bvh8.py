@@ -3,7 +3,7 @@ leaves, walked by kdray's own wide walk (kernels/wide.cl) in place of the k-d tr
 wide nodes, timed against them on the same rays with the same hits required.
 
 usage: python bench/proto_bvh8.py [--meshes bunny,bunny-1.6M] [--rays 1048576]
-                                  [--leaf 16] [--repeat 5]
+                                  [--leaf 16] [--split sah] [--repeat 5]
 
 Rays: bench_incoherent.py's (from the box's centre, from random points in it),
 bench_embree.py's ambient-occlusion rays and bench_queries.py's rays aimed at the
@@ -11,7 +11,9 @@ surface from around it.
 
 The BVH: binary splits of the triangles sorted by centroid along the longest axis of
 their centroids' box, at the multiple of 16 triangles (a packet's run) with the least
-surface-area cost, down to leaves of at most --leaf triangles; three binary levels make
+surface-area cost (--split median: at the median, rounded to a multiple of 16: what a
+vectorized builder would find easiest), down to leaves of at most --leaf triangles;
+three binary levels make
 one wide node (kdray/wide.py's record: 8 boxes, children, kinds, and per octant the
 children in the order of their boxes' centres along the octant's diagonal, which need
 not be front to back: the walk's pruning by entry t makes any order exact). The
@@ -51,7 +53,7 @@ def _area(lo, hi):
     return e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
 
 
-def binary_bvh(tris, leaf):
+def binary_bvh(tris, leaf, split_at="sah"):
     """(root, leaves): a binary BVH over tris (n, 3, 3) float32 as nested tuples
     ("node", left, right) / ("leaf", i), and each leaf's triangle indices."""
     cent = tris.mean(axis=1).astype(np.float64)
@@ -66,6 +68,9 @@ def binary_bvh(tris, leaf):
         axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
         o = idx[np.argsort(c[:, axis], kind="stable")]
         n = len(o)
+        if split_at == "median":
+            k = max(TRI_BLOCK, n // 2 // TRI_BLOCK * TRI_BLOCK) if n > 2 * TRI_BLOCK else n // 2
+            return ("node", split(o[:k]), split(o[k:]))
         cand = np.arange(TRI_BLOCK, n, TRI_BLOCK)
         if len(cand) == 0:
             cand = np.array([n // 2])
@@ -82,12 +87,12 @@ def binary_bvh(tris, leaf):
     return split(np.arange(len(tris))), leaves
 
 
-def wide_bvh(tree, leaf):
+def wide_bvh(tree, leaf, split_at="sah"):
     """(records (m, WIDE_WORDS) uint32, levels, tris (k, 3, 3) float32, ids (k,)
     uint32): the BVH's wide nodes and its leaves' triangle copies (MISS padding)."""
     tris = np.asarray(tree.triangles, np.float32).reshape(-1, 3, 3)
     ids = np.asarray(tree.tri_ids, np.uint32)
-    root, leaves = binary_bvh(tris, leaf)
+    root, leaves = binary_bvh(tris, leaf, split_at)
     sizes = np.array([-(-len(x) // TRI_BLOCK) * TRI_BLOCK for x in leaves])
     starts = np.cumsum(sizes) - sizes
     dev = np.zeros((int(sizes.sum()), 3, 3), np.float32)
@@ -145,6 +150,7 @@ def main():
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")
     ap.add_argument("--rays", type=int, default=1 << 20)
     ap.add_argument("--leaf", type=int, default=16)
+    ap.add_argument("--split", choices=("sah", "median"), default="sah")
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     for name in args.meshes.split(","):
@@ -153,7 +159,7 @@ def main():
         kd = kdray.Tracer(tree)
         bvh = kdray.Tracer(tree)
         bvh._alone_spread = -1.0
-        records, levels, dev, dev_ids = wide_bvh(tree, args.leaf)
+        records, levels, dev, dev_ids = wide_bvh(tree, args.leaf, args.split)
         bvh._tris = bvh._tree_buffer(triangle_blocks(dev))
         bvh._tri_ids = bvh._tree_buffer(dev_ids)
         bvh._wide_nodes = (bvh._tree_buffer(records), levels)
