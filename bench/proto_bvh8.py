@@ -12,7 +12,10 @@ surface from around it.
 The BVH: binary splits of the triangles sorted by centroid along the longest axis of
 their centroids' box, at the multiple of 16 triangles (a packet's run) with the least
 surface-area cost (--split median: at the median, rounded to a multiple of 16: what a
-vectorized builder would find easiest), down to leaves of at most --leaf triangles;
+vectorized builder would find easiest; --split morton: the triangles in the Morton
+order of their centroids, 30 bits, split where the highest bit that differs in the
+range changes, a linear BVH's radix tree, whose leaves need not fill their runs),
+down to leaves of at most --leaf triangles;
 three binary levels make
 one wide node (kdray/wide.py's record: 8 boxes, children, kinds, and per octant the
 children in the order of their boxes' centres along the octant's diagonal, which need
@@ -84,6 +87,28 @@ def binary_bvh(tris, leaf, split_at="sah"):
         return ("node", split(o[:k]), split(o[k:]))
 
     sys.setrecursionlimit(max(10000, sys.getrecursionlimit()))
+    if split_at == "morton":
+        lo, hi = cent.min(axis=0), cent.max(axis=0)
+        q = np.clip(((cent - lo) / np.maximum(hi - lo, 1e-300) * 1023).astype(np.int64), 0, 1023)
+        code = np.zeros(len(q), np.int64)
+        for b in range(10):
+            for a in range(3):
+                code |= ((q[:, a] >> b) & 1) << (3 * b + a)
+        order = np.argsort(code, kind="stable")
+        code = code[order]
+
+        def radix(a, b):
+            if b - a <= leaf:
+                leaves.append(order[a:b])
+                return ("leaf", len(leaves) - 1)
+            diff = int(code[a] ^ code[b - 1])
+            if diff == 0:
+                k = a + (b - a) // 2
+            else:
+                bit = 1 << (diff.bit_length() - 1)
+                k = a + int(np.searchsorted(code[a:b] & bit, bit))
+            return ("node", radix(a, k), radix(k, b))
+        return radix(0, len(tris)), leaves
     return split(np.arange(len(tris))), leaves
 
 
@@ -150,7 +175,7 @@ def main():
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")
     ap.add_argument("--rays", type=int, default=1 << 20)
     ap.add_argument("--leaf", type=int, default=16)
-    ap.add_argument("--split", choices=("sah", "median"), default="sah")
+    ap.add_argument("--split", choices=("sah", "median", "morton"), default="sah")
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     for name in args.meshes.split(","):
