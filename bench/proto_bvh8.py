@@ -12,7 +12,8 @@ surface from around it.
 The BVH: binary splits of the triangles sorted by centroid along the longest axis of
 their centroids' box, at the multiple of 16 triangles (a packet's run) with the least
 surface-area cost (--split median: at the median, rounded to a multiple of 16: what a
-vectorized builder would find easiest; --split morton: the triangles in the Morton
+vectorized builder would find easiest, and --split fastmedian the same split made level by
+level in numpy, `median_bvh_arrays`, timed; --split morton: the triangles in the Morton
 order of their centroids, 30 bits, split where the highest bit that differs in the
 range changes, a linear BVH's radix tree, whose leaves need not fill their runs),
 down to leaves of at most --leaf triangles;
@@ -112,6 +113,105 @@ def binary_bvh(tris, leaf, split_at="sah"):
     return split(np.arange(len(tris))), leaves
 
 
+def median_bvh_arrays(tris, leaf):
+    """A median-split binary BVH built level by level with numpy (the split that
+    `binary_bvh(split_at="median")` makes, each level's segments sorted at once):
+    (perm (n,) the triangles in leaf order, left, right (k,) int64 children or -1,
+    first, count (k,) each node's range of perm, depth (k,))."""
+    n = len(tris)
+    cent = tris.mean(axis=1)
+    perm = np.arange(n)
+    left, right, first, count, depth = [np.array([-1])], [np.array([-1])], [np.array([0])], \
+        [np.array([n])], [np.array([0])]
+    seg = np.array([0]) if n > leaf else np.zeros(0, np.int64)   # active nodes
+    s_first, s_count = np.array([0]), np.array([n])
+    n_nodes, level = 1, 0
+    left_all = np.full(4 * (n // max(leaf // 2, 1) + 2), -1, np.int64)
+    right_all = left_all.copy()
+    while len(seg):
+        starts = np.cumsum(s_count) - s_count
+        pos = np.repeat(s_first - starts, s_count) + np.arange(int(s_count.sum()))
+        c = cent[perm[pos]]
+        extent = np.maximum.reduceat(c, starts) - np.minimum.reduceat(c, starts)
+        axis = np.argmax(extent, axis=1)
+        seg_of = np.repeat(np.arange(len(seg)), s_count)
+        key = c[np.arange(len(pos)), axis[seg_of]]
+        perm[pos] = perm[pos][np.lexsort((key, seg_of))]
+        k = np.where(s_count > 2 * leaf, np.maximum(leaf, s_count // 2 // leaf * leaf), leaf)
+        ids = n_nodes + np.arange(2 * len(seg))
+        left_all[seg], right_all[seg] = ids[0::2], ids[1::2]
+        c_first = np.stack([s_first, s_first + k], axis=1).reshape(-1)
+        c_count = np.stack([k, s_count - k], axis=1).reshape(-1)
+        first.append(c_first)
+        count.append(c_count)
+        depth.append(np.full(len(ids), level + 1))
+        n_nodes += len(ids)
+        go = c_count > leaf
+        seg, s_first, s_count = ids[go], c_first[go], c_count[go]
+        level += 1
+    return (perm, left_all[:n_nodes], right_all[:n_nodes], np.concatenate(first),
+            np.concatenate(count), np.concatenate(depth))
+
+
+def wide_bvh_fast(tree, leaf):
+    """wide_bvh's outputs for median_bvh_arrays' tree, every step vectorized."""
+    tris = np.asarray(tree.triangles, np.float32).reshape(-1, 3, 3)
+    ids = np.asarray(tree.tri_ids, np.uint32)
+    perm, left, right, first, count, depth = median_bvh_arrays(tris, leaf)
+    is_leaf = left < 0
+    # the leaves in perm order, each from a multiple of TRI_BLOCK
+    leaves = np.flatnonzero(is_leaf)
+    leaves = leaves[np.argsort(first[leaves])]
+    size = -(-count[leaves] // TRI_BLOCK) * TRI_BLOCK
+    start = np.cumsum(size) - size
+    copy_of = np.full(len(first), -1, np.int64)
+    copy_of[leaves] = start
+    k = np.arange(int(size.sum())) - np.repeat(start, size)
+    src = np.repeat(first[leaves], size) + k
+    real = k < np.repeat(count[leaves], size)
+    dev = np.zeros((int(size.sum()), 3, 3), np.float32)
+    dev_ids = np.full(int(size.sum()), MISS, np.uint32)
+    dev[real] = tris[perm[src[real]]]
+    dev_ids[real] = ids[perm[src[real]]]
+    # boxes: leaves from their triangles, then parents deepest first
+    lo = np.zeros((len(first), 3), np.float32)
+    hi = np.zeros((len(first), 3), np.float32)
+    t_lo, t_hi = tris.min(axis=1)[perm], tris.max(axis=1)[perm]
+    lo[leaves] = np.minimum.reduceat(t_lo, first[leaves])
+    hi[leaves] = np.maximum.reduceat(t_hi, first[leaves])
+    for d in range(int(depth.max()), -1, -1):
+        at = np.flatnonzero((depth == d) & ~is_leaf)
+        lo[at] = np.minimum(lo[left[at]], lo[right[at]])
+        hi[at] = np.maximum(hi[left[at]], hi[right[at]])
+    # wide nodes: the binary nodes at depths 0, 3, 6, ..., three levels each
+    roots = np.flatnonzero(~is_leaf & (depth % 3 == 0)) if not is_leaf[0] else np.array([0])
+    wide_index = np.full(len(first), -1, np.int64)
+    wide_index[roots] = np.arange(len(roots))
+    kid = roots[:, None]
+    for _ in range(3):
+        safe = np.maximum(kid, 0)
+        inner = (kid >= 0) & ~is_leaf[safe]
+        kid = np.stack([np.where(inner, left[safe], kid), np.where(inner, right[safe], -1)],
+                       axis=2).reshape(len(roots), -1)
+    kid = np.take_along_axis(kid, np.argsort(kid < 0, axis=1, kind="stable"), axis=1)
+    has = kid >= 0
+    safe = np.maximum(kid, 0)
+    records = np.zeros((len(roots), WIDE_WORDS), np.uint32)
+    rows = records[:, :6 * WIDTH].view(np.float32).reshape(len(roots), 6, WIDTH)
+    rows[:, :3] = np.where(has[:, None, :], lo[safe].transpose(0, 2, 1), np.inf)
+    rows[:, 3:] = np.where(has[:, None, :], hi[safe].transpose(0, 2, 1), -np.inf)
+    leafy = has & is_leaf[safe]
+    records[:, 6 * WIDTH:7 * WIDTH] = np.where(leafy, copy_of[safe], np.where(has, wide_index[safe], 0))
+    records[:, 7 * WIDTH:8 * WIDTH] = np.where(leafy, LEAF | count[safe], np.where(has, 0, EMPTY))
+    centre = 0.5 * (lo[safe].astype(np.float64) + hi[safe])
+    for octant in range(8):
+        sign = np.array([-1.0 if (octant >> a) & 1 else 1.0 for a in range(3)])
+        key = np.where(has, centre @ sign, np.inf)
+        order = np.argsort(key, axis=1, kind="stable").astype(np.int64)
+        records[:, 8 * WIDTH + octant] = (order << (3 * np.arange(WIDTH))).sum(axis=1)
+    return records, int(depth[roots].max()) // 3 + 1, dev, dev_ids
+
+
 def wide_bvh(tree, leaf, split_at="sah"):
     """(records (m, WIDE_WORDS) uint32, levels, tris (k, 3, 3) float32, ids (k,)
     uint32): the BVH's wide nodes and its leaves' triangle copies (MISS padding)."""
@@ -175,7 +275,7 @@ def main():
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")
     ap.add_argument("--rays", type=int, default=1 << 20)
     ap.add_argument("--leaf", type=int, default=16)
-    ap.add_argument("--split", choices=("sah", "median", "morton"), default="sah")
+    ap.add_argument("--split", choices=("sah", "median", "morton", "fastmedian"), default="sah")
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     for name in args.meshes.split(","):
@@ -184,7 +284,13 @@ def main():
         kd = kdray.Tracer(tree)
         bvh = kdray.Tracer(tree)
         bvh._alone_spread = -1.0
-        records, levels, dev, dev_ids = wide_bvh(tree, args.leaf, args.split)
+        import time
+        t0 = time.perf_counter()
+        if args.split == "fastmedian":
+            records, levels, dev, dev_ids = wide_bvh_fast(tree, args.leaf)
+        else:
+            records, levels, dev, dev_ids = wide_bvh(tree, args.leaf, args.split)
+        print(f"{name}: built in {time.perf_counter() - t0:.2f} s", flush=True)
         bvh._tris = bvh._tree_buffer(triangle_blocks(dev))
         bvh._tri_ids = bvh._tree_buffer(dev_ids)
         bvh._wide_nodes = (bvh._tree_buffer(records), levels)
