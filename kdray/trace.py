@@ -228,13 +228,18 @@ class Tracer:
 
     # -- set-up ----------------------------------------------------------------------
 
-    def _buffer(self, array):
+    def _buffer(self, array, resident=False):
         """A read-only device copy of `array` (one dummy element when it is empty:
-        OpenCL has no empty buffers)."""
+        OpenCL has no empty buffers). resident: one of the tree's, kept as long as the
+        Tracer is (`_tree_buffer`)."""
         cl = _device._cl()
         array = np.ascontiguousarray(array)
         if array.size == 0:
             array = np.zeros(1, dtype=array.dtype)
+        if resident and self._zero_copy:
+            # the buffer keeps its host array (pyopencl's hostbuf), so the copy lives as long
+            return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR,
+                             hostbuf=huge_page_copy(array))
         return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                          hostbuf=array)
 
@@ -242,16 +247,8 @@ class Tracer:
         """A read-only device buffer of the tree's, kept as long as the Tracer is: on a
         CPU device the host's memory itself, a copy in huge pages (host.huge_page_copy:
         the kernels' reads at random through a large tree miss the TLB less), else a
-        device copy (`_buffer`)."""
-        if not self._zero_copy:
-            return self._buffer(array)
-        cl = _device._cl()
-        array = np.ascontiguousarray(array)
-        if array.size == 0:
-            array = np.zeros(1, dtype=array.dtype)
-        # the buffer keeps its host array (pyopencl's hostbuf), so the copy lives as long
-        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR,
-                         hostbuf=huge_page_copy(array))
+        device copy."""
+        return self._buffer(array, resident=True)
 
     def _check_fits(self, tree):
         """The tree's device buffers' bytes (`device_sizes`, leaves in runs of a
