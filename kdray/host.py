@@ -35,29 +35,33 @@ MiB pages keep a 100 MiB tree within the TLB's reach (BENCHMARKS.md)."""
 
 
 def huge_page_copy(array):
-    """A C-contiguous copy of `array` whose data starts on a HUGE_PAGE boundary, its
-    whole huge pages advised to the kernel as such (madvise MADV_HUGEPAGE: Linux backs
-    them with huge pages where transparent huge pages are enabled, "always" or
+    """A C-contiguous copy of `array` in memory from `huge_page_empty`."""
+    array = np.ascontiguousarray(array)
+    out = huge_page_empty(array.shape, array.dtype)
+    np.copyto(out, array)
+    return out
+
+
+def huge_page_empty(shape, dtype):
+    """An uninitialised C-contiguous array whose data starts on a HUGE_PAGE boundary,
+    its whole huge pages advised to the kernel as such (madvise MADV_HUGEPAGE: Linux
+    backs them with huge pages where transparent huge pages are enabled, "always" or
     "madvise"); the tail, smaller arrays and other systems in pages of PAGE bytes
     (page_aligned_empty). Its memory is freed with the array."""
-    array = np.ascontiguousarray(array)
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
     advice = getattr(mmap, "MADV_HUGEPAGE", None)
-    if advice is None or array.nbytes < HUGE_PAGE:
-        out = page_aligned_empty(array.shape, array.dtype)
-        np.copyto(out, array)
-        return out
+    if advice is None or nbytes < HUGE_PAGE:
+        return page_aligned_empty(shape, dtype)
     # private anonymous memory (a shared mapping follows shmem's huge page setting)
-    region = mmap.mmap(-1, array.nbytes + HUGE_PAGE,
-                       flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    region = mmap.mmap(-1, nbytes + HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
     raw = np.frombuffer(region, dtype=np.uint8)
     start = -raw.ctypes.data % HUGE_PAGE
     try:
-        region.madvise(advice, start, array.nbytes // HUGE_PAGE * HUGE_PAGE)
+        region.madvise(advice, start, nbytes // HUGE_PAGE * HUGE_PAGE)
     except OSError:
         pass                                 # no huge pages here: small pages it is
-    out = raw[start:start + array.nbytes].view(array.dtype).reshape(array.shape)
-    np.copyto(out, array)
-    return out
+    return raw[start:start + nbytes].view(dtype).reshape(shape)
 
 
 def available_memory():

@@ -329,19 +329,27 @@ def n_triangle_blocks(n):
     return -(-n // TRI_BLOCK)
 
 
-def triangle_blocks(tris):
+def triangle_blocks(tris, out=None):
     """The device's triangle buffer: tris (n, 3, 3) float32 in blocks of TRI_BLOCK,
     each number of its triangles in a row, (n_triangle_blocks(n) * 9 * TRI_BLOCK,)
-    float32. Number c (0..8: v0 x y z, v1 x y z, v2 x y z) of triangle i is at
-    (i // TRI_BLOCK) * 9 * TRI_BLOCK + c * TRI_BLOCK + i % TRI_BLOCK; past the last
-    triangle, zeros.
+    float32 (written into `out`, such an array, when given). Number c (0..8: v0 x y z,
+    v1 x y z, v2 x y z) of triangle i is at (i // TRI_BLOCK) * 9 * TRI_BLOCK + c *
+    TRI_BLOCK + i % TRI_BLOCK; past the last triangle, zeros.
 
     Why: a leaf's next run of triangles (kernels/packet.cl, kd_gather_tris) is then 9
     vector loads, a number of each, where 9-float rows took a float at a time."""
     tris = np.asarray(tris, dtype=np.float32).reshape(-1, 9)
-    blocks = np.zeros((n_triangle_blocks(len(tris)) * TRI_BLOCK, 9), dtype=np.float32)
-    blocks[:len(tris)] = tris
-    return np.ascontiguousarray(blocks.reshape(-1, TRI_BLOCK, 9).transpose(0, 2, 1)).reshape(-1)
+    n, blocks = len(tris), n_triangle_blocks(len(tris))
+    if out is None:
+        out = np.empty(blocks * 9 * TRI_BLOCK, np.float32)
+    rows = out.reshape(blocks, 9, TRI_BLOCK)
+    full = n // TRI_BLOCK
+    rows[:full] = tris[:full * TRI_BLOCK].reshape(full, TRI_BLOCK, 9).transpose(0, 2, 1)
+    if full < blocks:
+        last = np.zeros((TRI_BLOCK, 9), np.float32)
+        last[:n - full * TRI_BLOCK] = tris[full * TRI_BLOCK:]
+        rows[full] = last.T
+    return out
 
 
 def _device_leaves(tree, run):
@@ -389,12 +397,22 @@ def device_triangles(tree, run=1):
     # each copy's place k in its leaf: entry first + k of leaf_tris, or padding from
     # k = count on (given entry 0, then cleared)
     k = np.arange(int(padded.sum())) - np.repeat(start, padded)
-    pad = np.flatnonzero(k >= np.repeat(count, padded))
-    entry = np.repeat(first, padded) + k
-    entry[pad] = 0
-    tri = np.asarray(tree.leaf_tris, dtype=np.intp)[entry]
-    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[tri]
+    pad = k >= np.repeat(count, padded)
+    entry = np.where(pad, 0, np.repeat(first, padded) + k)
+    tri = np.where(pad, -1, np.asarray(tree.leaf_tris, dtype=np.intp)[entry])
+    return (nodes, *triangle_copies(tree, tri))
+
+
+def triangle_copies(tree, tri):
+    """(tris (k, 3, 3) float32, tri_ids (k,) uint32): copies of tree.triangles[tri]
+    with their input ids, for tri (k,) integers, -1 where a copy is padding (zero
+    triangles, id MISS): the copies the kernels read (`device_triangles`, and the wide
+    nodes' leaves, kdray/wide.py)."""
+    tri = np.asarray(tri, dtype=np.intp)
+    pad = tri < 0
+    safe = np.where(pad, 0, tri)
+    tris = np.asarray(tree.triangles, dtype=np.float32).reshape(-1, 3, 3)[safe]
     tris[pad] = 0.0
-    tri_ids = np.asarray(tree.tri_ids, dtype=np.uint32)[tri]
+    tri_ids = np.asarray(tree.tri_ids, dtype=np.uint32)[safe]
     tri_ids[pad] = MISS
-    return nodes, tris, tri_ids
+    return tris, tri_ids

@@ -47,9 +47,10 @@ from . import points as _points
 from . import render as _render
 from .double import wants_double
 from .errors import DeviceError, KdrayError
-from .host import PAGE, check_host_memory, huge_page_copy, page_aligned_empty
-from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, device_nodes,
-                     device_sizes, device_triangles, triangle_blocks)
+from .host import PAGE, check_host_memory, huge_page_copy, huge_page_empty, page_aligned_empty
+from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BLOCK,
+                     device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
+                     triangle_copies)
 from .ray_grid import grid_width
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
@@ -231,15 +232,17 @@ class Tracer:
     def _buffer(self, array, resident=False):
         """A read-only device copy of `array` (one dummy element when it is empty:
         OpenCL has no empty buffers). resident: one of the tree's, kept as long as the
-        Tracer is (`_tree_buffer`)."""
+        Tracer is (`_tree_buffer`); "placed": such an array from `_grown`, taken as it
+        is on a CPU device."""
         cl = _device._cl()
         array = np.ascontiguousarray(array)
         if array.size == 0:
             array = np.zeros(1, dtype=array.dtype)
         if resident and self._zero_copy:
-            # the buffer keeps its host array (pyopencl's hostbuf), so the copy lives as long
+            # the buffer keeps its host array (pyopencl's hostbuf), so the copy lives as
+            # long; one from `_grown` is such memory already
             return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR,
-                             hostbuf=huge_page_copy(array))
+                             hostbuf=array if resident == "placed" else huge_page_copy(array))
         return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                          hostbuf=array)
 
@@ -300,6 +303,7 @@ class Tracer:
         self._n_nodes = len(tree.nodes)
         # packets read a leaf's triangles a packet's width at a time (kd_gather_tris)
         nodes, tris, tri_ids = device_triangles(tree, self.packet)
+        self._n_copies = len(tri_ids)
         self._nodes = self._tree_buffer(nodes)
         self._tris = self._tree_buffer(triangle_blocks(tris))
         self._tri_ids = self._tree_buffer(tri_ids)
@@ -367,12 +371,45 @@ class Tracer:
     def _wide(self):
         """(buffer, stack groups): the tree's wide nodes on the device (kdray.wide) and
         the stack a walk of them needs, made at the first trace or query that needs
-        them; their bytes join device_bytes."""
+        them. Their leaves' triangle copies follow the k-d leaves' (from the next
+        TRI_BLOCK on) in the triangle buffers, which are made again with them (the k-d
+        part unchanged, so that every kernel reads either); their bytes join
+        device_bytes. DeviceError when they do not fit (as `_check_fits`)."""
         if self._wide_nodes is None:
-            records, levels = wide_nodes(self.tree, device_nodes(self.tree, self.packet))
+            first_copy = TRI_BLOCK * n_triangle_blocks(self._n_copies)
+            records, levels, copies = wide_nodes(self.tree, self.packet, first_copy)
+            tris, ids = triangle_copies(self.tree, copies)
+            ids = np.concatenate([np.full(first_copy - self._n_copies, MISS, np.uint32), ids])
+            n_floats = 9 * TRI_BLOCK * n_triangle_blocks(len(tris))
+            name = self.device.name.strip()
+            total = 4 * (9 * first_copy + n_floats)
+            if total > int(self.device.max_mem_alloc_size):
+                raise DeviceError(f"the tree's triangles with its wide nodes' copies "
+                                  f"({total / 2**20:.0f} MiB) do not fit in one buffer on {name}")
+            added = records.nbytes + 4 * n_floats + ids.nbytes
+            if self.device_bytes + added > int(self.device.global_mem_size):
+                raise DeviceError(f"the tree with its wide nodes needs "
+                                  f"{(self.device_bytes + added) / 2**20:.0f} MiB on {name}")
+            # the k-d part read back and the copies' blocks written after it, in place
+            whole = self._grown(self._tris, 9 * first_copy, n_floats, np.float32)
+            triangle_blocks(tris, out=whole[9 * first_copy:])
+            self._tris = self._buffer(whole, resident="placed")
+            whole = self._grown(self._tri_ids, self._n_copies, len(ids), np.uint32)
+            whole[self._n_copies:] = ids
+            self._tri_ids = self._buffer(whole, resident="placed")
             self._wide_nodes = (self._tree_buffer(records), stack_groups(levels))
-            self.device_bytes += records.nbytes
+            self.device_bytes += added
         return self._wide_nodes
+
+    def _grown(self, buffer, n, more, dtype):
+        """A host array (n + more,) of `dtype` for a tree buffer (`_buffer(...,
+        resident="placed")`), its first n elements read from `buffer` (of that dtype),
+        the rest for the caller to write."""
+        cl = _device._cl()
+        whole = huge_page_empty((n + more,), dtype) if self._zero_copy else np.empty(n + more, dtype)
+        if n:
+            cl.enqueue_copy(self.queue, whole[:n], buffer)
+        return whole
 
     def _built(self, source, defines, kernels):
         """kernels/<source> built with `defines` (dict name -> value or None), once per

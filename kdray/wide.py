@@ -1,73 +1,55 @@
-"""Wide nodes: the k-d tree three levels at a time, for rays that share no path.
+"""Wide nodes: an 8-wide BVH over the tree's triangles, for rays that share no path.
 
 A ray on its own (random origins and directions: inside tests, occlusion, any user's
-rays) spends most of its time in the k-d walk, one dependent load and decision a node
-(BENCHMARKS.md, "Incoherent rays"). Here every interior k-d node whose depth is a
-multiple of 3 (and the root) stands for a wide node: its children are the k-d nodes
-three levels below it, or the leaves met on the way, empty leaves left out, at most
-8. Each child carries the box of its triangles clipped to its cell, so one vector
-step tests a ray against 8 boxes and skips the empty space around the triangles too
-(kernels/wide.cl walks them).
+rays) spends most of its time walking and waiting on memory (BENCHMARKS.md,
+"Incoherent rays"). Here one vector step tests a ray against 8 boxes: the nodes of a
+binary BVH (kdray/builder/bvh.py: surface-area splits at multiples of TRI_BLOCK
+triangles, leaves of at most TRI_BLOCK) three levels at a time, each binary node whose
+depth is a multiple of 3 a wide node whose children are the nodes three levels below
+it, or the leaves met on the way. A leaf's triangles are copies of their own, TRI_BLOCK
+or fewer in a run of the device's triangle buffer (layout.device_triangles' layout,
+after the k-d leaves' copies): a ray reads a leaf's triangles in one or two vector
+loads a number, and each triangle once, where a k-d walk met several leaves holding
+copies of the same triangle and more empty space between them (kernels/wide.cl walks
+them). The k-d tree stays for packets, whose shared walk its cells order exactly.
 
-The children's cells are disjoint k-d cells, so the order in which a ray meets them
-depends only on the signs of its direction: each node stores, for each of the 8
-octants, its slots in that order, and a ray pushes the children it hits with no
-compare.
+A BVH's boxes overlap, so no order of the children is front to back for every ray;
+each node stores, for each of the 8 octants of directions, its slots sorted by their
+boxes' centres along the octant's diagonal (nearest first), which a ray takes with no
+compare. Any order is exact: the walk skips a child only where it enters its box
+beyond the best hit so far.
 
 A record of WIDE_WORDS 32-bit words a node, wide node 0 the root (kernels/wide.cl
 mirrors it):
 
     words  0..47  the children's boxes, 6 rows of 8 float32: min x, min y, min z,
                   max x, max y, max z (+inf and -inf in an empty slot)
-    words 48..55  child: a wide node's index, or a leaf's first triangle as the
-                  kernels read them (layout.device_triangles)
+    words 48..55  child: a wide node's index, or a leaf's first triangle copy as the
+                  kernels read them (after the k-d leaves', `wide_nodes`' first_copy)
     words 56..63  kind: 0 (a wide node), LEAF | n_prims (a leaf) or EMPTY
     words 64..71  per octant o (bit a set: the direction's axis a is negative), the
-                  slots in the order such a ray meets their cells, 3 bits a slot, the
-                  nearest in the lowest bits, empty slots last
+                  slots in the order of their centres along the octant's diagonal, 3
+                  bits a slot, the first in the lowest bits, empty slots last
 
 Every hit is the k-d walk's: kernels/wide.cl tests leaves with the same test, keeps
 the nearest hit in (t, input id) order and skips a child only where its box, widened
-by more than the tests' roundings, starts beyond that hit.
+by more than the tests' roundings, starts beyond that hit; the BVH holds every
+triangle the k-d tree lists, each once.
 """
+import concurrent.futures
+
 import numpy as np
 
 from . import layout
+from .builder.bvh import sah_bvh
 
 WIDTH = 8                  # children a node
-LEVELS = 3                 # k-d levels a node spans: WIDTH = 2 ** LEVELS
+LEVELS = 3                 # binary levels a node spans: WIDTH = 2 ** LEVELS
 WIDE_WORDS = 9 * WIDTH     # 32-bit words a record
 LEAF = 0x80000000
 EMPTY = 0xFFFFFFFF
-
-
-def content_boxes(tree, depth):
-    """(lo, hi) (n_nodes, 3) float32: the box of each node's triangles clipped to its
-    cell (tree.node_boxes), relative to the tree's origin; +inf and -inf where a node
-    holds no triangle. depth: each node's depth (KdTree._topology)."""
-    nodes = tree.nodes
-    n = len(nodes)
-    leaf = layout.is_leaf(nodes)
-    count = layout.n_prims(nodes).astype(np.int64)
-    cells = tree.node_boxes()
-    lo = np.full((n, 3), np.inf, np.float32)
-    hi = np.full((n, 3), -np.inf, np.float32)
-    full = np.flatnonzero(leaf & (count > 0))
-    if len(full):
-        first = layout.leaf_offset(nodes)[full].astype(np.int64)
-        cnt = count[full]
-        starts = np.cumsum(cnt) - cnt
-        entry = np.repeat(first - starts, cnt) + np.arange(int(cnt.sum()))
-        tris = np.asarray(tree.triangles, np.float32)[np.asarray(tree.leaf_tris, np.int64)[entry]]
-        lo[full] = np.maximum(np.minimum.reduceat(tris.min(axis=1), starts), cells[full, 0])
-        hi[full] = np.minimum(np.maximum.reduceat(tris.max(axis=1), starts), cells[full, 1])
-    above = layout.above_child(nodes).astype(np.int64)
-    inner = np.flatnonzero(~leaf)
-    for level in range(int(depth.max(initial=0)) - 1, -1, -1):   # deepest parents first
-        at = inner[depth[inner] == level]
-        lo[at] = np.minimum(lo[at + 1], lo[above[at]])
-        hi[at] = np.maximum(hi[at + 1], hi[above[at]])
-    return lo, hi
+MAX_DEPTH = 48             # the BVH's deepest binary level (kdray/builder/bvh.py)
+ONE_AXIS = 4096           # nodes of more triangles split along one axis (sah_bvh)
 
 
 def stack_groups(levels):
@@ -77,73 +59,78 @@ def stack_groups(levels):
     return levels
 
 
-def wide_nodes(tree, device_nodes):
-    """The wide nodes of `tree`: (records (m, WIDE_WORDS) uint32, levels), the layout
-    above; device_nodes: the nodes as the kernels read them (layout.device_triangles),
-    whose leaves' offsets the records take. levels: the most wide nodes a path from the
-    root passes (its stack needs a group a level, kernels/wide.cl)."""
-    nodes = tree.nodes
-    n = len(nodes)
-    leaf = layout.is_leaf(nodes)
-    count = layout.n_prims(nodes).astype(np.int64)
-    above = layout.above_child(nodes).astype(np.int64)
-    axis = layout.split_axis(nodes).astype(np.int64)
-    depth = tree._topology()[0]
-    lo, hi = content_boxes(tree, depth)
+def binary_bvh(tree):
+    """The binary BVH of the triangles `tree` lists (kdray/builder/bvh.py, sah_bvh):
+    (tris (n,) int64 indices into tree.triangles in leaf order, left, right, first,
+    count, depth (m,) int64, box (m, 6) float32), a node's triangles
+    tris[first:first + count], its box min then max."""
+    listed = np.zeros(len(tree.triangles), bool)
+    listed[np.asarray(tree.leaf_tris, np.intp)] = True
+    listed = np.flatnonzero(listed)
+    t = np.asarray(tree.triangles, np.float32)[listed]
+    boxes = np.concatenate([np.minimum(np.minimum(t[:, 0], t[:, 1]), t[:, 2]),
+                            np.maximum(np.maximum(t[:, 0], t[:, 1]), t[:, 2])], axis=1)
+    centre = boxes[:, :3] + boxes[:, 3:]          # twice the centre, rounded: any order is valid
+    # numpy's sorts release the GIL: the three axes on threads
+    with concurrent.futures.ThreadPoolExecutor(3) as pool:
+        order = np.stack(list(pool.map(lambda a: np.argsort(centre[:, a]), range(3))))
+    order = order.astype(np.int64, copy=False)    # sah_bvh reorders it in place
+    left, right, first, count, depth, box = sah_bvh(boxes, order, layout.TRI_BLOCK, MAX_DEPTH,
+                                                    ONE_AXIS)
+    return listed[order[0]], left, right, first, count, depth, box
 
-    roots = np.flatnonzero(~leaf & (depth % LEVELS == 0))
-    if leaf[0]:
-        roots = np.array([0], np.int64)               # a tree of one leaf
+
+def wide_nodes(tree, run, first_copy):
+    """The tree's wide nodes: (records (m, WIDE_WORDS) uint32, the layout above;
+    levels, the most wide nodes a path from the root passes (its stack needs a group a
+    level, kernels/wide.cl); copies (k,) int64, the leaves' triangles as indices into
+    tree.triangles, each leaf from a multiple of `run` and padded to whole runs with
+    -1). A leaf's child word is first_copy plus its first copy's place in `copies`:
+    first_copy, a multiple of `run`, is where the copies start in the device's buffer."""
+    tris, left, right, first, count, depth, box = binary_bvh(tree)
+    leaf = left < 0
+    # the leaves' copies in leaf order, each from a multiple of run
+    leaves = np.flatnonzero(leaf)
+    leaves = leaves[np.argsort(first[leaves], kind="stable")]
+    size = -(-count[leaves] // run) * run
+    start = np.cumsum(size) - size
+    k = np.arange(int(size.sum())) - np.repeat(start, size)
+    copies = np.where(k < np.repeat(count[leaves], size),
+                      tris[np.minimum(np.repeat(first[leaves], size) + k, len(tris) - 1)], -1)
+    copy_of = np.zeros(len(leaf), np.int64)
+    copy_of[leaves] = first_copy + start
+
+    # wide nodes: the binary nodes at depths 0, 3, 6, ... (the root even as a leaf)
+    roots = np.flatnonzero(~leaf & (depth % LEVELS == 0)) if not leaf[0] else np.array([0])
     m = len(roots)
-    wide_index = np.full(n, -1, np.int64)
+    wide_index = np.full(len(leaf), -1, np.int64)
     wide_index[roots] = np.arange(m)
-
-    # each root's subtree LEVELS levels down: a leaf stays at the first (lowest) of the
-    # positions below it; axes[:, p, l]: the split axis at level l above position p
-    ids = roots[:, None]
-    axes = np.zeros((m, 1, 0), np.int64)
+    kid = roots[:, None]
     for _ in range(LEVELS):
-        safe = np.where(ids >= 0, ids, 0)
-        inner = (ids >= 0) & ~leaf[safe]
-        below = np.where(inner, ids + 1, ids)
-        up = np.where(inner, above[safe], -1)
-        ax = np.where(inner, axis[safe], -1)
-        ids = np.stack([below, up], axis=2).reshape(m, -1)
-        axes = np.concatenate([np.repeat(axes, 2, axis=1), np.repeat(ax, 2, axis=1)[..., None]],
-                              axis=2)
-    safe = np.where(ids >= 0, ids, 0)
-    ids = np.where((ids >= 0) & ~(leaf[safe] & (count[safe] == 0)), ids, -1)
-    valid = ids >= 0
-
-    # slots: the valid positions first, in position order
-    slot_pos = np.argsort(~valid, axis=1, kind="stable")
-    kid = np.take_along_axis(ids, slot_pos, axis=1)
+        safe = np.maximum(kid, 0)
+        inner = (kid >= 0) & ~leaf[safe]
+        kid = np.stack([np.where(inner, left[safe], kid), np.where(inner, right[safe], -1)],
+                       axis=2).reshape(m, -1)
+    kid = np.take_along_axis(kid, np.argsort(kid < 0, axis=1, kind="stable"), axis=1)
     has = kid >= 0
-    safe = np.where(has, kid, 0)
+    safe = np.maximum(kid, 0)
     is_leaf = has & leaf[safe]
 
     records = np.zeros((m, WIDE_WORDS), np.uint32)
-    boxes = records[:, :6 * WIDTH].view(np.float32).reshape(m, 6, WIDTH)
-    boxes[:, :3] = np.where(has[:, None, :], lo[safe].transpose(0, 2, 1), np.inf)
-    boxes[:, 3:] = np.where(has[:, None, :], hi[safe].transpose(0, 2, 1), -np.inf)
-    first = layout.leaf_offset(device_nodes).astype(np.int64)
-    records[:, 6 * WIDTH:7 * WIDTH] = np.where(is_leaf, first[safe],
+    rows = records[:, :6 * WIDTH].view(np.float32).reshape(m, 6, WIDTH)
+    rows[:] = np.where(has[:, None, :], box[safe].transpose(0, 2, 1),
+                       np.float32(np.inf) * np.array([1, 1, 1, -1, -1, -1], np.float32)[:, None])
+    records[:, 6 * WIDTH:7 * WIDTH] = np.where(is_leaf, copy_of[safe],
                                                np.where(has, wide_index[safe], 0))
     records[:, 7 * WIDTH:8 * WIDTH] = np.where(is_leaf, LEAF | count[safe],
                                                np.where(has, 0, EMPTY))
-
-    # the octants' orders: position p's bit at level l (the most significant first),
-    # flipped where the octant goes down that level's axis, orders the cells front to
-    # back; invalid positions after every valid one
-    pos = np.arange(WIDTH)
-    bits = (pos[:, None] >> (LEVELS - 1 - np.arange(LEVELS))) & 1          # (8, 3)
-    weight = 1 << (LEVELS - 1 - np.arange(LEVELS))
-    slot_of_pos = np.argsort(slot_pos, axis=1)
+    # each octant's order: the centres along its diagonal, empty slots last
+    centre = box[safe][:, :, :3].astype(np.float64) + box[safe][:, :, 3:]
+    slot = np.arange(WIDTH)
     for octant in range(8):
-        flip = np.where(axes >= 0, (octant >> np.maximum(axes, 0)) & 1, 0)
-        key = ((bits[None] ^ flip) * weight).sum(axis=2)
-        key = np.where(valid, key, WIDTH + pos)
-        order = np.take_along_axis(slot_of_pos, np.argsort(key, axis=1, kind="stable"), axis=1)
-        records[:, 8 * WIDTH + octant] = (order << (3 * pos)).sum(axis=1)
-    levels = int(depth[roots].max(initial=0)) // LEVELS + 1
-    return records, levels
+        sign = np.array([-1.0 if octant >> a & 1 else 1.0 for a in range(3)])
+        key = np.where(has, centre @ sign, np.inf)
+        order = np.argsort(key, axis=1, kind="stable").astype(np.int64)
+        records[:, 8 * WIDTH + octant] = (order << (3 * slot)).sum(axis=1)
+    levels = int(depth[roots].max()) // LEVELS + 1
+    return records, levels, copies

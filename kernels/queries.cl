@@ -45,8 +45,8 @@
 #ifndef KD_WIDE
 #error "packet programs of the queries walk rays that share no path through wide nodes: KD_WIDE"
 #endif
-/* The fewest rays a work-item's block walks as packets and wide walks (fewer: one by
- * one, kd_walk) */
+/* The fewest rays a work-item's block walks as packets (fewer: all through the wide
+ * nodes) */
 #define KD_PACKET_WALK_MIN 4u
 #endif
 
@@ -414,23 +414,18 @@ float kd_query_far(uint query, const KdQuery *q, float t_max)
 }
 
 /* One entry off a query's wide walk (wide.cl): a leaf handed to kd_query_leaf, or a
- * wide node's children that the ray meets before kd_query_far pushed; leaves counts
- * the leaves walked (more than the tree's nodes: corrupt, as kd_walk_on says). */
+ * wide node's children that the ray meets before kd_query_far pushed. (No fault
+ * check as kd_walk_on's: the wide nodes are made by the Tracer, never read from a
+ * file, and children come after their parents, kdray/wide.py.) */
 KD_INLINE
 void kd_wide_query_step(uint query, KdWideRay *r, KdQuery *q, __global const uint *wide,
-                        uint n_nodes, __global const float *tris, __global const uint *tri_ids,
-                        uint *leaves)
+                        __global const float *tris, __global const uint *tri_ids)
 {
     uint kind, child;
     float far = kd_query_far(query, q, r->t_max);
     if (kd_wide_pop(r, &kind, &child) > far)
         return;
     if (kind & KD_WIDE_LEAF) {
-        if (++*leaves > n_nodes) {
-            q->fault = true;
-            r->top = 0u;
-            return;
-        }
         /* no exit t: a wide walk ends when its stack does (kd_query_far prunes it) */
         if (kd_query_leaf(query, kd_wide_leaf(kind, child), tris, tri_ids, &r->shear, r->o,
                           r->t_min, r->t_max, -INFINITY, q))
@@ -460,9 +455,9 @@ void kd_wide_query_start(KdWideRay *r, KdWideStack *st, __global const float *or
  * ray's range meets, so every hit kd_walk finds, each leaf once; a k-nearest list's
  * walk pruned by its last slot's t. */
 KD_INLINE
-void kd_wide_walks(uint query, __global const uint *wide, uint n_nodes,
-                   __global const float *tris, __global const uint *tri_ids, float3 bmin,
-                   float3 bmax, __global const float *origins, __global const float *directions,
+void kd_wide_walks(uint query, __global const uint *wide, __global const float *tris,
+                   __global const uint *tri_ids, float3 bmin, float3 bmax,
+                   __global const float *origins, __global const float *directions,
                    uint o_step, __global const float *t_mins, __global const float *t_maxs,
                    uint t_step, const uint *ids, const uchar *rays, uint n, KdQuery *q)
 {
@@ -477,12 +472,11 @@ void kd_wide_walks(uint query, __global const uint *wide, uint n_nodes,
         if (i + 1u < n)
             kd_wide_query_start(&b, &sb, origins, directions, o_step, t_mins, t_maxs, t_step,
                                 ids[ib], bmin, bmax, reach);
-        uint leaves_a = 0u, leaves_b = 0u;
         while (a.top | b.top) {
             if (a.top)
-                kd_wide_query_step(query, &a, &q[ia], wide, n_nodes, tris, tri_ids, &leaves_a);
+                kd_wide_query_step(query, &a, &q[ia], wide, tris, tri_ids);
             if (b.top)
-                kd_wide_query_step(query, &b, &q[ib], wide, n_nodes, tris, tri_ids, &leaves_b);
+                kd_wide_query_step(query, &b, &q[ib], wide, tris, tri_ids);
         }
     }
 }
@@ -739,7 +733,7 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                 act = st.need_second;
             } else {
                 if (count == PACKET_STACK_SIZE)
-                    return fallback | live;  /* deeper than a valid tree: kd_walk reports it */
+                    return fallback | live;  /* deeper than a valid tree: the wide walk takes them */
                 stack_node[count] = second_child;
                 stack_t_min[count] = kd_selectP(t_min_cur, t_mid, both);
                 stack_t_max[count] = t_max_cur;
@@ -891,8 +885,7 @@ uint kd_block_rays(uint b0, uint n_rays, uint image_w, __global const uint *orde
 /* Walk rays ids[0 .. n - 1] into q[0 .. n - 1], each started first (kd_query_start,
  * the count's rule when `crossing`; a list's slots, set before, are kept): kd_walk; in
  * packet programs as packets (kd_packet_walk) or through the wide nodes
- * (kd_wide_walks), which
- * give each ray kd_walk's answer. */
+ * (kd_wide_walks), which give each ray kd_walk's answer. */
 KD_INLINE
 void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, uint n,
                    KdQuery *q)
@@ -901,11 +894,15 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
         kd_query_start(&q[l], crossing);
     float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
 #ifdef PACKET
-    if (n >= KD_PACKET_WALK_MIN) {
-        /* packets of rays that share their paths walk as packets, the others (and
-         * the lanes that leave a packet, started again) through the wide nodes */
-        uchar alone[KD_WALK_BLOCK];
-        uint n_alone = 0u;
+    /* packets of rays that share their paths walk as packets, the others (and the
+     * lanes that leave a packet, started again; all of a block too small for
+     * packets) through the wide nodes */
+    uchar alone[KD_WALK_BLOCK];
+    uint n_alone = 0u;
+    if (n < KD_PACKET_WALK_MIN) {
+        for (uint l = 0u; l < n; l++)
+            alone[n_alone++] = (uchar)l;
+    } else {
         for (uint p0 = 0u; p0 < n; p0 += KD_PACKET) {
             uint m = min((uint)KD_PACKET, n - p0);
             KdIP leave;
@@ -919,17 +916,17 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
                 alone[n_alone++] = (uchar)(p0 + l);
             }
         }
-        kd_wide_walks(query, wide, n_nodes, tris, tri_ids, bmin, bmax, origins, directions,
-                      o_step, t_mins, t_maxs, t_step, ids, alone, n_alone, q);
-        return;
     }
-#endif
+    kd_wide_walks(query, wide, tris, tri_ids, bmin, bmax, origins, directions, o_step,
+                  t_mins, t_maxs, t_step, ids, alone, n_alone, q);
+#else
     for (uint l = 0; l < n; l++) {
         uint k = ids[l];
         kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax,
                 kd_load3(origins, (size_t)k * o_step), kd_load3(directions, k),
                 t_mins[k * t_step], t_maxs[k * t_step], &q[l]);
     }
+#endif
 }
 
 #define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes KD_WIDE_PASS, origins,          \

@@ -1,19 +1,21 @@
-/* kernels/wide.cl: rays that share no path through the tree, walked through its wide
- * nodes (kdray/wide.py: the k-d tree three levels at a time, each child's box its
- * triangles' clipped to its cell, and each node's slots in the order a ray of each
- * octant meets them), two rays a work-item taking their steps in turns.
+/* kernels/wide.cl: rays that share no path through the tree, walked through the wide
+ * nodes (kdray/wide.py: an 8-wide BVH over the triangles, each child's box its
+ * triangles', each node's slots in an order for each octant of directions, its leaves'
+ * triangle copies after the k-d leaves' in tris and tri_ids), two rays a work-item
+ * taking their steps in turns.
  *
- * Why: a k-d walk on its own pays a dependent load and a decision at every node (18
- * nodes and 4 leaves a bunny ray from a random point); here one vector step tests a
- * ray against 8 boxes, and it visits about 5 wide nodes and 0.8 leaves. Two rays in
- * turns keep two chains of loads in flight. Each ray's state stays in registers; its
- * stack lives apart (a struct holding the stack arrays would be kept in memory).
+ * Why: a k-d walk on its own pays a dependent load and a decision at every node; here
+ * one vector step tests a ray against 8 boxes, and a leaf holds up to 16 triangles,
+ * each triangle in one leaf. Two rays in turns keep two chains of loads in flight.
+ * Each ray's state stays in registers; its stack lives apart (a struct holding the
+ * stack arrays would be kept in memory).
  *
  * The hits are trace_ray's bit for bit. A hit does not depend on the tree: it is the
- * nearest in (t, input id) order over t_min < t < t_max of the triangle test, and every
- * leaf is tested with kd_ray_leaf (the same arithmetic). A child is skipped only when
- * its box, widened by KD_WIDE_PAD of the ray's reach, is missed or entered beyond the
- * best hit so far (strictly: a tie is still visited). The reach, the scene's largest
+ * nearest in (t, input id) order over t_min < t < t_max of the triangle test, the BVH
+ * holds every triangle the k-d tree lists, and every leaf is tested with kd_ray_leaf
+ * (the same arithmetic), whatever order the walk takes them in. A child is skipped
+ * only when its box, widened by KD_WIDE_PAD of the ray's reach, is missed or entered
+ * beyond the best hit so far (strictly: a tie is still visited). The reach, the scene's largest
  * coordinate plus the origin's, bounds |v - o| for every vertex v, and every rounding
  * of the slab test and of the triangle test is far below 2^-16 of it (traverse.cl's
  * KD_T_SLACK reasoning allows 2^-20): so a triangle hit at t lies in a box the ray

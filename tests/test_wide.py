@@ -1,7 +1,7 @@
-"""Wide nodes (kdray/wide.py) and the walk of rays that share no path through them
-(kernels/wide.cl): the records hold every leaf once with its triangles' box, each
-octant's order is front to back, and the walk's hits are one ray a work-item's bit for
-bit, at any offset and scale, in a t range and for any hit."""
+"""Wide nodes (kdray/wide.py: an 8-wide BVH) and the walk of rays that share no path
+through them (kernels/wide.cl): the records hold every triangle once in boxes that hold
+them, the splits are the cheapest, and the walk's hits are one ray a work-item's bit
+for bit, at any offset and scale, in a t range and for any hit."""
 import numpy as np
 import pytest
 
@@ -9,7 +9,7 @@ import trees
 from helpers import check_hits, grid_cube, icosphere, random_rays, real_mesh_arrays, soup
 from kdray import layout
 from kdray.builder import build
-from kdray.wide import EMPTY, LEAF, WIDE_WORDS, WIDTH, wide_nodes
+from kdray.wide import EMPTY, LEAF, MAX_DEPTH, WIDE_WORDS, WIDTH, wide_nodes
 from small_trees import single_leaf_tree
 
 
@@ -29,6 +29,9 @@ def _tree(name):
             _TREES[name] = build(*grid_cube(3))
         elif name == "one leaf":
             _TREES[name] = single_leaf_tree(np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], float))
+        elif name == "one place":          # every split's cost the same
+            t = np.tile(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), (3000, 1))
+            _TREES[name] = build(t, np.arange(len(t)).reshape(-1, 3))
         else:
             scale, offset = {"far": (1.0, 1e6), "tiny": (1e-6, 0.0), "huge": (1e6, 0.0)}[name]
             v, f = icosphere(2)
@@ -48,68 +51,83 @@ def _unpack(records):
     return boxes, child, kind, orders
 
 
-@pytest.mark.parametrize("name", ["teapot", "soup, median 18 deep", "cube", "one leaf"])
-def test_wide_nodes_hold_each_leaf_once_in_front_to_back_order(name):
-    """Every leaf with triangles is one wide node's child exactly once (empty leaves
-    none's), with the box of its triangles clipped to its cell (recomputed here leaf by
-    leaf); a wide child's box holds its children's; children come after their parent
-    (no cycle) no deeper than `levels`; and each octant's order lists the children
-    first, then the empty slots, each child's cell before the next one's along some
-    axis in the octant's direction (so every ray of the octant meets them in that
-    order)."""
+@pytest.mark.parametrize("name", ["teapot", "soup, median 18 deep", "cube", "one leaf",
+                                  "one place"])
+@pytest.mark.parametrize("run", [8, 16])
+def test_wide_nodes_hold_each_triangle_once_in_boxes_that_hold_them(name, run):
+    """Every triangle the tree lists is copied once into one leaf of at most TRI_BLOCK
+    triangles, which starts on a multiple of `run` after first_copy and is padded to
+    whole runs (-1); a leaf's box is its triangles' box exactly, a wide child's box
+    holds its children's boxes; children come after their parent (no cycle), no deeper
+    than `levels`, within the BVH's depth bound even where every split costs the same
+    (every triangle in one place); empty slots hold an empty box; and each octant's
+    order lists every child once, then the empty slots."""
     tree = _tree(name)
-    dev_nodes = layout.device_nodes(tree, 8)
-    records, levels = wide_nodes(tree, dev_nodes)
+    first_copy = 48
+    records, levels, copies = wide_nodes(tree, run, first_copy)
     assert records.dtype == np.uint32 and records.shape[1] == WIDE_WORDS
     boxes, child, kind, orders = _unpack(records)
-    nodes = tree.nodes
-    leaf = layout.is_leaf(nodes)
-    count = layout.n_prims(nodes)
-    cells = tree.node_boxes().astype(np.float64)
-    # the k-d node each slot stands for: a leaf by its first device triangle, a wide node
-    # by its root (the interior nodes 0, 3, 6, ... levels deep, in index order)
-    by_offset = {int(layout.leaf_offset(dev_nodes)[i]): i for i in np.flatnonzero(leaf & (count > 0))}
-    depth = tree._topology()[0]
-    roots = np.flatnonzero(~leaf & (depth % 3 == 0)) if not leaf[0] else np.array([0])
-    assert len(records) == len(roots)
+    listed = np.unique(tree.leaf_tris)
+    assert sorted(copies[copies >= 0].tolist()) == listed.tolist()       # each once
     is_leaf = (kind & LEAF).astype(bool) & (kind != EMPTY)
     is_node = kind == 0
-    kd = np.where(is_node, roots[np.minimum(child, len(roots) - 1)], -1)
+    tris = tree.triangles.astype(np.float64)
+    covered = np.zeros(len(copies), bool)
     for j, i in zip(*np.nonzero(is_leaf)):
-        kd[j, i] = by_offset[int(child[j, i])]
-    seen = kd[is_leaf]
-    assert sorted(seen.tolist()) == sorted(by_offset.values())        # each leaf once
-    assert np.all(count[seen] == (kind[is_leaf] & ~np.uint32(LEAF)))
-    for j, i in zip(*np.nonzero(is_leaf)):
-        n = kd[j, i]
-        first = layout.leaf_offset(nodes)[n]
-        t = tree.triangles[tree.leaf_tris[first:first + count[n]]].astype(np.float64)
-        lo = np.maximum(t.min(axis=(0, 1)), cells[n, 0])
-        hi = np.minimum(t.max(axis=(0, 1)), cells[n, 1])
-        assert np.array_equal(boxes[j, :3, i], lo) and np.array_equal(boxes[j, 3:, i], hi)
+        at, n = int(child[j, i]) - first_copy, int(kind[j, i] & ~np.uint32(LEAF))
+        assert at % run == 0 and 1 <= n <= layout.TRI_BLOCK
+        assert not covered[at:at + n].any()
+        covered[at:-(-(at + n) // run) * run] = True
+        assert np.all(copies[at:at + n] >= 0)
+        assert np.all(copies[at + n:-(-(at + n) // run) * run] == -1)    # the run's padding
+        t = tris[copies[at:at + n]]
+        assert np.array_equal(boxes[j, :3, i], t.min(axis=(0, 1)))
+        assert np.array_equal(boxes[j, 3:, i], t.max(axis=(0, 1)))
+    assert covered.all()                                                 # no stray copy
     for j, i in zip(*np.nonzero(is_node)):
         c = child[j, i]
         assert c > j
-        inside = (kind[c] != EMPTY) & (boxes[c, 0] <= boxes[c, 3])
+        inside = kind[c] != EMPTY
         assert np.all(boxes[c, :3][:, inside] >= boxes[j, :3, i][:, None])
         assert np.all(boxes[c, 3:][:, inside] <= boxes[j, 3:, i][:, None])
-    assert np.all(np.isposinf(boxes[:, :3][np.broadcast_to((kind == EMPTY)[:, None], (len(kind), 3, WIDTH))]))
+    empty = np.broadcast_to((kind == EMPTY)[:, None], (len(kind), 3, WIDTH))
+    assert np.all(np.isposinf(boxes[:, :3][empty])) and np.all(np.isneginf(boxes[:, 3:][empty]))
     # the wide depth: children after parents, so one pass from the root gives each depth
     wide_depth = np.zeros(len(records), np.int64)
     for j in range(len(records)):
         wide_depth[child[j][is_node[j]]] = wide_depth[j] + 1
-    assert wide_depth.max() + 1 <= levels
+    assert wide_depth.max() + 1 <= levels <= MAX_DEPTH // 3 + 1
     for octant in range(8):
-        up = np.array([not octant >> a & 1 for a in range(3)])
         for j in range(len(records)):
             n_kids = int(np.count_nonzero(kind[j] != EMPTY))
             order = orders[j, octant]
             assert sorted(order.tolist()) == list(range(WIDTH))
             assert set(order[:n_kids].tolist()) == set(np.flatnonzero(kind[j] != EMPTY).tolist())
-            for x in range(n_kids):
-                for y in range(x + 1, n_kids):
-                    a, b = cells[kd[j, order[x]]], cells[kd[j, order[y]]]
-                    assert np.any(np.where(up, a[1] <= b[0], a[0] >= b[1])), (j, octant)
+
+
+def test_bvh_splits_are_the_cheapest_at_block_multiples():
+    """sah_bvh on a row of unit boxes along x, one of them far away: the root's split
+    leaves the far one alone with the blocks it must share (the cost's minimum,
+    computed here), and every left child holds whole blocks."""
+    from kdray.builder.bvh import sah_bvh
+    n, block = 70, 16
+    lo = np.stack([np.arange(n, dtype=np.float32), np.zeros(n, np.float32),
+                   np.zeros(n, np.float32)], 1)
+    lo[-1, 0] = 1000.0
+    boxes = np.concatenate([lo, lo + 1], axis=1)
+    order = np.stack([np.argsort(boxes[:, a] + boxes[:, 3 + a], kind="stable") for a in range(3)])
+    left, right, first, count, depth, box = sah_bvh(boxes, order.astype(np.int64), block, 48, 1 << 30)
+    assert len(left) == 2 * (-(-n // block)) - 1
+    assert np.all(count[left[left >= 0]] % block == 0)
+
+    def cost(k):
+        a = lambda b: (b[3] - b[0]) * (b[4] - b[1]) + (b[4] - b[1]) * (b[5] - b[2]) + (b[5] - b[2]) * (b[3] - b[0])
+        x = np.concatenate([boxes[:k, :3].min(0), boxes[:k, 3:].max(0)])
+        y = np.concatenate([boxes[k:, :3].min(0), boxes[k:, 3:].max(0)])
+        return a(x) * -(-k // block) + a(y) * -(-(n - k) // block)
+    best = min(range(block, n, block), key=cost)
+    assert count[left[0]] == best == 64
+    assert np.array_equal(box[0], np.concatenate([boxes[:, :3].min(0), boxes[:, 3:].max(0)]))
 
 
 @pytest.mark.parametrize("name", ["far", "tiny", "huge"])
@@ -154,8 +172,9 @@ def test_wide_walk_equals_single_rays_at_any_offset_and_scale(name, tracers):
 
 
 def test_wide_nodes_are_made_by_the_first_trace_and_follow_the_tree(tracers):
-    """A render makes no wide nodes; the first trace makes them (their bytes join
-    device_bytes); `with_tree` traces the new tree's, not the old one's."""
+    """A render makes no wide nodes; the first trace makes them, their leaves' copies
+    appended to the triangle buffers (their bytes join device_bytes), and renders
+    after it are the same; `with_tree` traces the new tree's, not the old one's."""
     from kdray import Camera, Tracer
     tree = _tree("teapot")
     other = _tree("soup, median 18 deep")
@@ -165,11 +184,20 @@ def test_wide_nodes_are_made_by_the_first_trace_and_follow_the_tree(tracers):
     tr._alone_spread = -1.0
     before = tr.device_bytes
     lo, hi = tree.world_box()
-    tr.render(Camera.frame(lo, hi, 16, 12), aovs="depth")
+    camera = Camera.frame(lo, hi, 16, 12)
+    image = tr.render(camera, aovs="depth,normal,id")
     assert tr._wide_nodes is None and tr.device_bytes == before
     o, d = random_rays(tree, 301, seed=43)
     tr.trace(o, d)
-    assert tr.device_bytes == before + wide_nodes(tree, layout.device_nodes(tree, tr.packet))[0].nbytes
+    n_kd = layout.n_device_triangles(tree.nodes, tr.packet)
+    first_copy = layout.TRI_BLOCK * layout.n_triangle_blocks(n_kd)
+    records, _, copies = wide_nodes(tree, tr.packet, first_copy)
+    added = (records.nbytes + 36 * layout.TRI_BLOCK * layout.n_triangle_blocks(len(copies))
+             + 4 * (first_copy - n_kd + len(copies)))
+    assert tr.device_bytes == before + added
+    again = tr.render(camera, aovs="depth,normal,id")
+    for name in image:
+        assert np.array_equal(image[name], again[name], equal_nan=True), name
     swapped = tr.with_tree(other)
     o, d = random_rays(other, 301, seed=44)
     want = tracers(other, packet=1).trace(o, d)

@@ -9,7 +9,9 @@ an origin, degenerate ones left out), `events` (one sort of the root's events),
 `sah` (the sweep that picks a plane), `classify` + `clip` (splitting the sorted
 events between the children, re-clipping straddlers), `subdivide` (the depth-first
 loop with an explicit stack; subtrees below the top levels are built on threads);
-`scratch` keeps the events' array for the next build, `threads` the threads.
+`scratch` keeps the events' array for the next build, `threads` the threads. Beside
+them, `bvh`: the binary BVH under a Tracer's wide nodes (kdray/wide.py), built from a
+tree's triangles when rays that share no path first need it.
 
 The build is a pure function: no I/O, and its one global, the kept array, never
 changes a result; the same input gives identical arrays, whatever the number of
@@ -82,8 +84,8 @@ def _whole(value, name):
 def _dispatchers():
     """The builder's numba functions (CPUDispatcher objects) of every module."""
     from numba.core.registry import CPUDispatcher
-    from . import classify, clip, events, sah
-    mods = (classify, clip, events, prepare, sah, subdivide)
+    from . import bvh, classify, clip, events, sah
+    mods = (bvh, classify, clip, events, prepare, sah, subdivide)
     # functions inlined into their callers are never compiled on their own
     return [f for m in mods for f in vars(m).values()
             if isinstance(f, CPUDispatcher) and f.targetoptions.get("inline") != "always"]
@@ -109,13 +111,16 @@ def compile_all():
     `compiled` holds (it checks each one): one build of a single triangle (the
     one-thread path), one of 20,000 (the threaded path), and `events.event_counts`,
     which no build calls (`sorted_root_events` counts with it for a caller that passes
-    no `flat`); left out, every command that builds would warn that it compiles."""
+    no `flat`); left out, every command that builds would warn that it compiles. Also
+    the wide nodes' BVH (`bvh`, kdray/wide.py), which a Tracer's first trace of rays
+    that share no path builds."""
     from . import events
+    from ..wide import binary_bvh
     rng = np.random.default_rng(0)
     one = build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     events.event_counts(one.triangles)
     soup = rng.random((20000, 1, 3)) + 0.01 * rng.random((20000, 3, 3))
-    build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3))
+    binary_bvh(build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3)))
 
 
 MAX_THREADS = 1024
