@@ -3,10 +3,12 @@
 A ray on its own (random origins and directions: inside tests, occlusion, any user's
 rays) spends most of its time walking and waiting on memory (BENCHMARKS.md,
 "Incoherent rays"). Here one vector step tests a ray against 8 boxes: the nodes of a
-binary BVH (kdray/builder/bvh.py: surface-area splits at multiples of TRI_BLOCK
-triangles, leaves of at most TRI_BLOCK) three levels at a time, each binary node whose
-depth is a multiple of 3 a wide node whose children are the nodes three levels below
-it, or the leaves met on the way. A leaf's triangles are copies of their own, TRI_BLOCK
+binary BVH (kdray/builder/bvh.py, sah_bvh: surface-area splits at multiples of
+TRI_BLOCK triangles, leaves of at most TRI_BLOCK) gathered into wide nodes of up to 8
+children (wide_children: the gathering of least total node area, which fills a node's
+free slots with small subtrees where a node of their own would cost more; 6 children
+a node on average on the meshes we measure, where three binary levels a node gave 4
+and traced 1.03-1.12 times as long). A leaf's triangles are copies of their own, TRI_BLOCK
 or fewer in a run of the device's triangle buffer (layout.device_triangles' layout,
 after the k-d leaves' copies): a ray reads a leaf's triangles in one or two vector
 loads a number, and each triangle once, where a k-d walk met several leaves holding
@@ -41,15 +43,14 @@ import concurrent.futures
 import numpy as np
 
 from . import layout
-from .builder.bvh import sah_bvh
+from .builder.bvh import sah_bvh, wide_children
 
 WIDTH = 8                  # children a node
-LEVELS = 3                 # binary levels a node spans: WIDTH = 2 ** LEVELS
 WIDE_WORDS = 9 * WIDTH     # 32-bit words a record
 LEAF = 0x80000000
 EMPTY = 0xFFFFFFFF
 MAX_DEPTH = 48             # the BVH's deepest binary level (kdray/builder/bvh.py)
-ONE_AXIS = 4096           # nodes of more triangles split along one axis (sah_bvh)
+ONE_AXIS = 4096            # nodes of more triangles split along one axis (sah_bvh)
 
 
 def stack_groups(levels):
@@ -100,18 +101,9 @@ def wide_nodes(tree, run, first_copy):
     copy_of = np.zeros(len(leaf), np.int64)
     copy_of[leaves] = first_copy + start
 
-    # wide nodes: the binary nodes at depths 0, 3, 6, ... (the root even as a leaf)
-    roots = np.flatnonzero(~leaf & (depth % LEVELS == 0)) if not leaf[0] else np.array([0])
-    m = len(roots)
-    wide_index = np.full(len(leaf), -1, np.int64)
-    wide_index[roots] = np.arange(m)
-    kid = roots[:, None]
-    for _ in range(LEVELS):
-        safe = np.maximum(kid, 0)
-        inner = (kid >= 0) & ~leaf[safe]
-        kid = np.stack([np.where(inner, left[safe], kid), np.where(inner, right[safe], -1)],
-                       axis=2).reshape(m, -1)
-    kid = np.take_along_axis(kid, np.argsort(kid < 0, axis=1, kind="stable"), axis=1)
+    # wide nodes: up to WIDTH children each, of least total area (wide_children)
+    kid, wide_index, wide_depth = wide_children(left, right, box, WIDTH)
+    m = len(kid)
     has = kid >= 0
     safe = np.maximum(kid, 0)
     is_leaf = has & leaf[safe]
@@ -121,7 +113,7 @@ def wide_nodes(tree, run, first_copy):
     rows[:] = np.where(has[:, None, :], box[safe].transpose(0, 2, 1),
                        np.float32(np.inf) * np.array([1, 1, 1, -1, -1, -1], np.float32)[:, None])
     records[:, 6 * WIDTH:7 * WIDTH] = np.where(is_leaf, copy_of[safe],
-                                               np.where(has, wide_index[safe], 0))
+                                               np.where(has, wide_index, 0))
     records[:, 7 * WIDTH:8 * WIDTH] = np.where(is_leaf, LEAF | count[safe],
                                                np.where(has, 0, EMPTY))
     # each octant's order: the centres along its diagonal, empty slots last
@@ -132,5 +124,5 @@ def wide_nodes(tree, run, first_copy):
         key = np.where(has, centre @ sign, np.inf)
         order = np.argsort(key, axis=1, kind="stable").astype(np.int64)
         records[:, 8 * WIDTH + octant] = (order << (3 * slot)).sum(axis=1)
-    levels = int(depth[roots].max()) // LEVELS + 1
+    levels = int(wide_depth.max()) + 1
     return records, levels, copies

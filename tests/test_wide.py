@@ -96,13 +96,62 @@ def test_wide_nodes_hold_each_triangle_once_in_boxes_that_hold_them(name, run):
     wide_depth = np.zeros(len(records), np.int64)
     for j in range(len(records)):
         wide_depth[child[j][is_node[j]]] = wide_depth[j] + 1
-    assert wide_depth.max() + 1 <= levels <= MAX_DEPTH // 3 + 1
+    assert wide_depth.max() + 1 <= levels <= MAX_DEPTH + 1
     for octant in range(8):
         for j in range(len(records)):
             n_kids = int(np.count_nonzero(kind[j] != EMPTY))
             order = orders[j, octant]
             assert sorted(order.tolist()) == list(range(WIDTH))
             assert set(order[:n_kids].tolist()) == set(np.flatnonzero(kind[j] != EMPTY).tolist())
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_wide_children_gather_at_the_least_area(seed):
+    """wide_children on a binary BVH of 1-triangle leaves over random triangles: every
+    leaf is one node's child once, each node's children are a cut of its binary
+    subtree, and the nodes' total area is the least of every gathering, found here by
+    trying every cut of at most 8 children below every node."""
+    from functools import lru_cache
+    from kdray.builder.bvh import sah_bvh, wide_children
+    rng = np.random.default_rng(seed)
+    t = (rng.random((23, 1, 3)) * 10 + rng.random((23, 3, 3))).astype(np.float32)
+    boxes = np.concatenate([t.min(axis=1), t.max(axis=1)], axis=1)
+    order = np.stack([np.argsort(boxes[:, a] + boxes[:, 3 + a], kind="stable") for a in range(3)])
+    left, right, first, count, depth, box = sah_bvh(boxes, order.astype(np.int64), 1, 48, 1 << 30)
+    kids, wide, wdepth = wide_children(left, right, box, 8)
+    def area(n):
+        e = box[n, 3:].astype(np.float64) - box[n, :3]
+        return float(e[0] * e[1] + e[1] * e[2] + e[2] * e[0])
+
+    def cuts(n):
+        """Every set of at most 8 nodes that n's subtree can be opened into."""
+        out = [(n,)]
+        if left[n] >= 0:
+            out += [a + b for a in cuts(left[n]) for b in cuts(right[n]) if len(a) + len(b) <= 8]
+        return out
+
+    @lru_cache(None)
+    def least(b):
+        """The least total area of the wide nodes of b's subtree, b a node's root."""
+        return area(b) + min(sum(least(c) for c in a + c2 if left[c] >= 0)
+                             for a in cuts(left[b]) for c2 in cuts(right[b]) if len(a) + len(c2) <= 8)
+
+    # the root of each wide node: the binary node whose children's cut its kids are
+    root_of = {0: 0}
+    for w in range(len(kids)):
+        for i in np.flatnonzero(wide[w] >= 0):
+            root_of[int(wide[w, i])] = int(kids[w, i])
+    listed = np.sort(kids[kids >= 0][left[kids[kids >= 0]] < 0])
+    assert listed.tolist() == np.flatnonzero(left < 0).tolist()           # each leaf once
+    for w in range(len(kids)):
+        got = tuple(sorted(kids[w][kids[w] >= 0].tolist()))
+        r = root_of[w]
+        assert got in {tuple(sorted(a + b)) for a in cuts(left[r]) for b in cuts(right[r])
+                       if len(a) + len(b) <= 8}
+        for i in np.flatnonzero(wide[w] >= 0):
+            assert wide[w, i] > w and wdepth[wide[w, i]] == wdepth[w] + 1
+    total = sum(area(root_of[w]) for w in range(len(kids)))
+    assert total == pytest.approx(least(0), rel=1e-12)
 
 
 def test_bvh_splits_are_the_cheapest_at_block_multiples():

@@ -115,12 +115,12 @@ def compile_all():
     the wide nodes' BVH (`bvh`, kdray/wide.py), which a Tracer's first trace of rays
     that share no path builds."""
     from . import events
-    from ..wide import binary_bvh
+    from ..wide import wide_nodes
     rng = np.random.default_rng(0)
     one = build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     events.event_counts(one.triangles)
     soup = rng.random((20000, 1, 3)) + 0.01 * rng.random((20000, 3, 3))
-    binary_bvh(build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3)))
+    wide_nodes(build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3)), 16, 0)
 
 
 MAX_THREADS = 1024

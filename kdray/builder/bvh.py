@@ -213,3 +213,88 @@ def sah_bvh(boxes, order, block, max_depth, one_axis):
         stack[top + 1] = l_node
         top += 2
     return left, right, first, count, depth, box
+
+
+@njit(cache=True)
+def wide_children(left, right, box, width):
+    """The binary BVH (sah_bvh's left, right, box) gathered into wide nodes of up to
+    `width` children, at the least total surface area of the wide nodes (after Ylitie
+    et al. 2017): a ray meets a node's box with a chance in proportion to its area and
+    then pays the node's box tests; every leaf is some node's child whatever the
+    gathering, so only the nodes' areas differ. forest[n, k] is the least area of n's
+    subtree's wide nodes when the subtree is at most k children of one node (n itself,
+    a wide node's root: A(n) + its children's best split into at most `width`; or a
+    split of n's children's forests), so a small subtree fills its parent's free slots
+    where a node of its own would cost more.
+
+    Returns (kids (w, width) int64: each wide node's children, binary node indices,
+    -1 past its last; wide (w, width) int64: where a child is inner, the wide node it
+    starts, else -1; depth (w,) int64: each wide node's depth, the root's 0), wide node
+    0 from the root (holding the root alone if it is a leaf), in breadth-first order:
+    children after their parent."""
+    m = len(left)
+    forest = np.empty((m, width + 1))    # forest[n, k]: n's subtree as <= k children
+    cut = np.zeros((m, width + 1), np.int64)   # the k that left takes (0: n alone)
+    for n in range(m - 1, -1, -1):       # children after their parent: theirs first
+        l, r = left[n], right[n]
+        if l < 0:
+            forest[n, :] = 0.0
+            continue
+        alone = np.inf
+        for j in range(1, width):
+            alone = min(alone, forest[l, j] + forest[r, width - j])
+        alone += _area(box[n, 0], box[n, 1], box[n, 2], box[n, 3], box[n, 4], box[n, 5])
+        forest[n, 1] = alone
+        for k in range(2, width + 1):
+            forest[n, k] = alone
+            cut[n, k] = 0
+            for j in range(1, k):
+                c = forest[l, j] + forest[r, k - j]
+                if c < forest[n, k]:
+                    forest[n, k] = c
+                    cut[n, k] = j
+    kids = np.full((m, width), -1, np.int64)
+    wide = np.full((m, width), -1, np.int64)
+    depth = np.zeros(m, np.int64)
+    queue = np.empty(m, np.int64)
+    todo_n = np.empty(2 * width, np.int64)
+    todo_k = np.empty(2 * width, np.int64)
+    queue[0] = 0
+    tail = 1
+    head = 0
+    while head < tail:
+        w = head
+        b = queue[head]
+        head += 1
+        if left[b] < 0:
+            kids[w, 0] = b
+            continue
+        # the root's best split into at most `width`, each part unfolded by its cut
+        best = np.inf
+        split = 1
+        for j in range(1, width):
+            c = forest[left[b], j] + forest[right[b], width - j]
+            if c < best:
+                best = c
+                split = j
+        top = 2
+        todo_n[0], todo_k[0] = left[b], split
+        todo_n[1], todo_k[1] = right[b], width - split
+        count = 0
+        while top > 0:
+            top -= 1
+            n, k = todo_n[top], todo_k[top]
+            j = cut[n, k] if left[n] >= 0 else 0
+            if j == 0:
+                kids[w, count] = n
+                if left[n] >= 0:
+                    queue[tail] = n
+                    wide[w, count] = tail
+                    depth[tail] = depth[w] + 1
+                    tail += 1
+                count += 1
+            else:
+                todo_n[top], todo_k[top] = right[n], k - j
+                todo_n[top + 1], todo_k[top + 1] = left[n], j
+                top += 2
+    return kids[:tail], wide[:tail], depth[:tail]
