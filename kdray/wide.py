@@ -21,15 +21,17 @@ boxes' centres along the octant's diagonal (nearest first), which a ray takes wi
 compare. Any order is exact: the walk skips a child only where it enters its box
 beyond the best hit so far.
 
-A record of WIDE_WORDS 32-bit words a node, wide node 0 the root (kernels/wide.cl
-mirrors it):
+A record of WIDE_WORDS 32-bit words a node, 256 bytes (four cache lines, each record
+on its own: the buffer starts on a page), wide node 0 the root (kernels/wide.cl mirrors
+it):
 
     words  0..47  the children's boxes, 6 rows of 8 float32: min x, min y, min z,
                   max x, max y, max z (+inf and -inf in an empty slot)
-    words 48..55  child: a wide node's index, or a leaf's first triangle copy as the
-                  kernels read them (after the k-d leaves', `wide_nodes`' first_copy)
-    words 56..63  kind: 0 (a wide node), LEAF | n_prims (a leaf) or EMPTY
-    words 64..71  per octant o (bit a set: the direction's axis a is negative), the
+    words 48..55  child: a wide node's index (below LEAF), LEAF | (n - 1) << 27 |
+                  first / 8 for a leaf of n <= TRI_BLOCK triangle copies from `first`
+                  (a multiple of LEAF_ALIGN, as the kernels read them, after the k-d
+                  leaves': `wide_nodes`' first_copy), or EMPTY
+    words 56..63  per octant o (bit a set: the direction's axis a is negative), the
                   slots in the order of their centres along the octant's diagonal, 3
                   bits a slot, the first in the lowest bits, empty slots last
 
@@ -46,9 +48,11 @@ from . import layout
 from .builder.bvh import sah_bvh, wide_children
 
 WIDTH = 8                  # children a node
-WIDE_WORDS = 9 * WIDTH     # 32-bit words a record
+WIDE_WORDS = 8 * WIDTH     # 32-bit words a record
 LEAF = 0x80000000
 EMPTY = 0xFFFFFFFF
+LEAF_ALIGN = 8             # a leaf's first copy is a multiple: first / 8 in its child word
+MAX_COPIES = LEAF_ALIGN * ((1 << 27) - 1)   # the child word's reach (an EMPTY's below)
 MAX_DEPTH = 48             # the BVH's deepest binary level (kdray/builder/bvh.py)
 ONE_AXIS = 4096            # nodes of more triangles split along one axis (sah_bvh)
 
@@ -85,21 +89,26 @@ def wide_nodes(tree, run, first_copy):
     """The tree's wide nodes: (records (m, WIDE_WORDS) uint32, the layout above;
     levels, the most wide nodes a path from the root passes (its stack needs a group a
     level, kernels/wide.cl); copies (k,) int64, the leaves' triangles as indices into
-    tree.triangles, each leaf from a multiple of `run` and padded to whole runs with
-    -1). A leaf's child word is first_copy plus its first copy's place in `copies`:
-    first_copy, a multiple of `run`, is where the copies start in the device's buffer."""
+    tree.triangles, each leaf from a multiple of `run` and of LEAF_ALIGN, padded to
+    whole runs with -1). A leaf's first copy is first_copy plus its first copy's place
+    in `copies`: first_copy, a multiple of both, is where the copies start in the
+    device's buffer. ValueError when the copies reach past MAX_COPIES."""
     tris, left, right, first, count, depth, box = binary_bvh(tree)
     leaf = left < 0
-    # the leaves' copies in leaf order, each from a multiple of run
+    # the leaves' copies in leaf order, each from a multiple of run and of LEAF_ALIGN
     leaves = np.flatnonzero(leaf)
     leaves = leaves[np.argsort(first[leaves], kind="stable")]
-    size = -(-count[leaves] // run) * run
+    align = max(run, LEAF_ALIGN)
+    size = -(-count[leaves] // align) * align
     start = np.cumsum(size) - size
     k = np.arange(int(size.sum())) - np.repeat(start, size)
     copies = np.where(k < np.repeat(count[leaves], size),
                       tris[np.minimum(np.repeat(first[leaves], size) + k, len(tris) - 1)], -1)
     copy_of = np.zeros(len(leaf), np.int64)
     copy_of[leaves] = first_copy + start
+    if first_copy % LEAF_ALIGN or first_copy + len(copies) > MAX_COPIES:
+        raise ValueError(f"wide leaves' copies from {first_copy} to {first_copy + len(copies)} "
+                         f"do not fit the child word (multiples of {LEAF_ALIGN} below {MAX_COPIES})")
 
     # wide nodes: up to WIDTH children each, of least total area (wide_children)
     kid, wide_index, wide_depth = wide_children(left, right, box, WIDTH)
@@ -112,10 +121,9 @@ def wide_nodes(tree, run, first_copy):
     rows = records[:, :6 * WIDTH].view(np.float32).reshape(m, 6, WIDTH)
     rows[:] = np.where(has[:, None, :], box[safe].transpose(0, 2, 1),
                        np.float32(np.inf) * np.array([1, 1, 1, -1, -1, -1], np.float32)[:, None])
-    records[:, 6 * WIDTH:7 * WIDTH] = np.where(is_leaf, copy_of[safe],
-                                               np.where(has, wide_index, 0))
-    records[:, 7 * WIDTH:8 * WIDTH] = np.where(is_leaf, LEAF | count[safe],
-                                               np.where(has, 0, EMPTY))
+    leaf_word = LEAF | (count[safe] - 1) << 27 | copy_of[safe] // LEAF_ALIGN
+    records[:, 6 * WIDTH:7 * WIDTH] = np.where(is_leaf, leaf_word,
+                                               np.where(has, wide_index, EMPTY))
     # each octant's order: the centres along its diagonal, empty slots last
     centre = box[safe][:, :, :3].astype(np.float64) + box[safe][:, :, 3:]
     slot = np.arange(WIDTH)
@@ -123,6 +131,6 @@ def wide_nodes(tree, run, first_copy):
         sign = np.array([-1.0 if octant >> a & 1 else 1.0 for a in range(3)])
         key = np.where(has, centre @ sign, np.inf)
         order = np.argsort(key, axis=1, kind="stable").astype(np.int64)
-        records[:, 8 * WIDTH + octant] = (order << (3 * slot)).sum(axis=1)
+        records[:, 7 * WIDTH + octant] = (order << (3 * slot)).sum(axis=1)
     levels = int(wide_depth.max()) + 1
     return records, levels, copies

@@ -421,13 +421,13 @@ KD_INLINE
 void kd_wide_query_step(uint query, KdWideRay *r, KdQuery *q, __global const uint *wide,
                         __global const float *tris, __global const uint *tri_ids)
 {
-    uint kind, child;
+    uint child;
     float far = kd_query_far(query, q, r->t_max);
-    if (kd_wide_pop(r, &kind, &child) > far)
+    if (kd_wide_pop(r, &child) > far)
         return;
-    if (kind & KD_WIDE_LEAF) {
+    if (child & KD_WIDE_LEAF) {
         /* no exit t: a wide walk ends when its stack does (kd_query_far prunes it) */
-        if (kd_query_leaf(query, kd_wide_leaf(kind, child), tris, tri_ids, &r->shear, r->o,
+        if (kd_query_leaf(query, kd_wide_leaf(child), tris, tri_ids, &r->shear, r->o,
                           r->t_min, r->t_max, -INFINITY, q))
             r->top = 0u;
         return;

@@ -49,24 +49,25 @@
 
 #pragma OPENCL FP_CONTRACT OFF
 
-/* a record (kdray/wide.py): 6 rows of 8 box planes, 8 children, 8 kinds, 8 orders */
-#define KD_WIDE_WORDS 72u
+/* a record (kdray/wide.py): 6 rows of 8 box planes, 8 children, 8 orders; a child
+ * word is a wide node's index, or KD_WIDE_LEAF | (n - 1) << 27 | first / 8 for a leaf
+ * of n triangle copies from `first` */
+#define KD_WIDE_WORDS 64u
 #define KD_WIDE_CHILD 48u
-#define KD_WIDE_KIND 56u
-#define KD_WIDE_ORDER 64u
+#define KD_WIDE_ORDER 56u
 #define KD_WIDE_LEAF 0x80000000u
 #define KD_WIDE_PAD 0x1p-16f
 
 /* A ray's stack: a group for each wide node whose children it has still to take (at
  * most one a level, WIDE_STACK levels), group g the node's 8 slots copied as they lie
- * (kind, child and where the ray enters the slot's box, t) at 8 g .. 8 g + 7, with its
- * mask (bit k: the slot k-th nearest in the ray's octant is still to take) and that
+ * (the child word and where the ray enters the slot's box, t) at 8 g .. 8 g + 7, with
+ * its mask (bit k: the slot k-th in the ray's octant's order is still to take) and that
  * order (the node's word for the octant). The top group's mask and order are in the
  * ray (KdWideRay); a group below keeps them at mask[g + 1], order[g + 1] (written by
- * the push above it), and mask[0] is 0 for the pop that ends the walk. A push is three
+ * the push above it), and mask[0] is 0 for the pop that ends the walk. A push is two
  * vector copies and a mask, not a store a child. */
 typedef struct {
-    uint kind[8 * WIDE_STACK], child[8 * WIDE_STACK];
+    uint child[8 * WIDE_STACK];
     float t[8 * WIDE_STACK];
     uint mask[WIDE_STACK], order[WIDE_STACK];
 } KdWideStack;
@@ -102,7 +103,6 @@ void kd_wide_start(KdWideRay *r, KdWideStack *stack, float3 o, float3 d, float t
     r->hit.tri = KD_NO_HIT;
     r->stack = stack;
     /* the root, a group of one slot */
-    stack->kind[0] = 0u;
     stack->child[0] = 0u;
     stack->t[0] = t_min;
     stack->mask[0] = 0u;
@@ -176,23 +176,21 @@ void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
     st->mask[g] = r->mask;                /* the group below's (at 0: the 0 of none) */
     st->order[g] = r->order;
     vstore8(tn, g, st->t);
-    vstore8(vload8(0, w + KD_WIDE_KIND), g, st->kind);
     vstore8(vload8(0, w + KD_WIDE_CHILD), g, st->child);
     r->top = g + 1u;
     r->mask = mask;
     r->order = order;
 }
 
-/* The nearest slot of the top group (r->top > 0) off the stack: its kind and child,
- * and where the ray enters its box (returned). */
+/* The nearest slot of the top group (r->top > 0) off the stack: its child word, and
+ * where the ray enters its box (returned). */
 KD_INLINE
-float kd_wide_pop(KdWideRay *r, uint *kind, uint *child)
+float kd_wide_pop(KdWideRay *r, uint *child)
 {
     KdWideStack *st = r->stack;
     uint m = r->mask, g = r->top - 1u;
     uint k = 31u - clz(m & (0u - m));
     uint e = 8u * g + ((r->order >> (3u * k)) & 7u);
-    *kind = st->kind[e];
     *child = st->child[e];
     m &= m - 1u;
     if (m == 0u) {
@@ -205,13 +203,13 @@ float kd_wide_pop(KdWideRay *r, uint *kind, uint *child)
     return st->t[e];
 }
 
-/* The leaf a stack entry (kind, child) names, as a k-d leaf node */
+/* The leaf a child word (KD_WIDE_LEAF set) names, as a k-d leaf node */
 KD_INLINE
-KdNode kd_wide_leaf(uint kind, uint child)
+KdNode kd_wide_leaf(uint child)
 {
     KdNode leaf;
-    leaf.flags = ((kind & ~KD_WIDE_LEAF) << 2) | KD_LEAF;
-    leaf.data = child;
+    leaf.flags = ((((child >> 27) & 15u) + 1u) << 2) | KD_LEAF;
+    leaf.data = (child & 0x07FFFFFFu) << 3;
     return leaf;
 }
 
@@ -221,11 +219,11 @@ KD_INLINE
 void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float *tris,
                   __global const uint *tri_ids)
 {
-    uint kind, child;
-    if (kd_wide_pop(r, &kind, &child) > r->hit.t)
+    uint child;
+    if (kd_wide_pop(r, &child) > r->hit.t)
         return;                           /* entered beyond the best hit */
-    if (kind & KD_WIDE_LEAF) {
-        kd_ray_leaf(kd_wide_leaf(kind, child), tris, tri_ids, &r->shear, r->o, r->t_min,
+    if (child & KD_WIDE_LEAF) {
+        kd_ray_leaf(kd_wide_leaf(child), tris, tri_ids, &r->shear, r->o, r->t_min,
                     r->t_max, &r->hit);
 #ifdef ANY_HIT
         if (r->hit.tri != KD_NO_HIT)

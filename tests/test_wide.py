@@ -9,7 +9,7 @@ import trees
 from helpers import check_hits, grid_cube, icosphere, random_rays, real_mesh_arrays, soup
 from kdray import layout
 from kdray.builder import build
-from kdray.wide import EMPTY, LEAF, MAX_DEPTH, WIDE_WORDS, WIDTH, wide_nodes
+from kdray.wide import EMPTY, LEAF, LEAF_ALIGN, MAX_DEPTH, WIDE_WORDS, WIDTH, wide_nodes
 from small_trees import single_leaf_tree
 
 
@@ -41,29 +41,34 @@ def _tree(name):
 
 
 def _unpack(records):
-    """(boxes (m, 6, 8) float32, child (m, 8), kind (m, 8), orders (m, 8, 8) slots)."""
+    """(boxes (m, 6, 8) float32, child (m, 8): a wide node's index or a leaf's first
+    copy, kind (m, 8): 0 (a wide node), LEAF | n_prims (a leaf) or EMPTY, orders (m, 8,
+    8) slots), decoding the child words."""
     m = len(records)
     boxes = records[:, :6 * WIDTH].view(np.float32).reshape(m, 6, WIDTH)
-    child = records[:, 6 * WIDTH:7 * WIDTH].astype(np.int64)
-    kind = records[:, 7 * WIDTH:8 * WIDTH]
-    words = records[:, 8 * WIDTH:].astype(np.int64)
+    word = records[:, 6 * WIDTH:7 * WIDTH].astype(np.int64)
+    leaf = (word & LEAF != 0) & (word != EMPTY)
+    child = np.where(leaf, (word & ((1 << 27) - 1)) * LEAF_ALIGN, word)
+    kind = np.where(word == EMPTY, EMPTY, np.where(leaf, LEAF | ((word >> 27 & 15) + 1), 0))
+    words = records[:, 7 * WIDTH:].astype(np.int64)
     orders = (words[:, :, None] >> (3 * np.arange(WIDTH))) & 7
-    return boxes, child, kind, orders
+    return boxes, child, kind.astype(np.uint32), orders
 
 
 @pytest.mark.parametrize("name", ["teapot", "soup, median 18 deep", "cube", "one leaf",
                                   "one place"])
-@pytest.mark.parametrize("run", [8, 16])
+@pytest.mark.parametrize("run", [4, 8, 16])
 def test_wide_nodes_hold_each_triangle_once_in_boxes_that_hold_them(name, run):
     """Every triangle the tree lists is copied once into one leaf of at most TRI_BLOCK
-    triangles, which starts on a multiple of `run` after first_copy and is padded to
-    whole runs (-1); a leaf's box is its triangles' box exactly, a wide child's box
+    triangles, which starts on a multiple of `run` and of LEAF_ALIGN after first_copy
+    and is padded to the next such multiple (-1); a leaf's box is its triangles' box exactly, a wide child's box
     holds its children's boxes; children come after their parent (no cycle), no deeper
     than `levels`, within the BVH's depth bound even where every split costs the same
     (every triangle in one place); empty slots hold an empty box; and each octant's
     order lists every child once, then the empty slots."""
     tree = _tree(name)
     first_copy = 48
+    align = max(run, LEAF_ALIGN)         # a leaf's start and padding
     records, levels, copies = wide_nodes(tree, run, first_copy)
     assert records.dtype == np.uint32 and records.shape[1] == WIDE_WORDS
     boxes, child, kind, orders = _unpack(records)
@@ -75,11 +80,12 @@ def test_wide_nodes_hold_each_triangle_once_in_boxes_that_hold_them(name, run):
     covered = np.zeros(len(copies), bool)
     for j, i in zip(*np.nonzero(is_leaf)):
         at, n = int(child[j, i]) - first_copy, int(kind[j, i] & ~np.uint32(LEAF))
-        assert at % run == 0 and 1 <= n <= layout.TRI_BLOCK
+        assert at % run == 0 and (at + first_copy) % LEAF_ALIGN == 0 and 1 <= n <= layout.TRI_BLOCK
         assert not covered[at:at + n].any()
-        covered[at:-(-(at + n) // run) * run] = True
+        end = -(-(at + n) // align) * align
+        covered[at:end] = True
         assert np.all(copies[at:at + n] >= 0)
-        assert np.all(copies[at + n:-(-(at + n) // run) * run] == -1)    # the run's padding
+        assert np.all(copies[at + n:end] == -1)                         # the padding
         t = tris[copies[at:at + n]]
         assert np.array_equal(boxes[j, :3, i], t.min(axis=(0, 1)))
         assert np.array_equal(boxes[j, 3:, i], t.max(axis=(0, 1)))
