@@ -499,7 +499,8 @@ def contains(tracer, points):
 def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     """(Intersections, more) of `rays` (their float32 t, u, v) with at most caps[i]
     hits of ray i ((N,) int64; at least its distinct hits for every hit; or an int,
-    the same for all), its nearest in (t, input id) order: the kernel fills each ray's
+    the same for all; crossing: its crossings, the count's rule, not every hit), its
+    nearest in (t, input id) order: the kernel fills each ray's
     slots, then the slots left empty are dropped. more: (N,) bool, the rays that had
     more hits than caps[i]. nearest_k: the caps are the nearest hits wanted (max_hits,
     or a ray's exact count), not whether there are more: a ray's walk ends once its

@@ -45,6 +45,7 @@ import concurrent.futures
 import numpy as np
 
 from . import layout
+from .errors import KdrayError
 from .builder.bvh import sah_bvh, wide_children
 
 WIDTH = 8                  # children a node
@@ -92,7 +93,7 @@ def wide_nodes(tree, run, first_copy):
     tree.triangles, each leaf from a multiple of `run` and of LEAF_ALIGN, padded to
     whole runs with -1). A leaf's first copy is first_copy plus its first copy's place
     in `copies`: first_copy, a multiple of both, is where the copies start in the
-    device's buffer. ValueError when the copies reach past MAX_COPIES."""
+    device's buffer. KdrayError when the copies reach past MAX_COPIES."""
     tris, left, right, first, count, depth, box = binary_bvh(tree)
     leaf = left < 0
     # the leaves' copies in leaf order, each from a multiple of run and of LEAF_ALIGN
@@ -107,8 +108,9 @@ def wide_nodes(tree, run, first_copy):
     copy_of = np.zeros(len(leaf), np.int64)
     copy_of[leaves] = first_copy + start
     if first_copy % LEAF_ALIGN or first_copy + len(copies) > MAX_COPIES:
-        raise ValueError(f"wide leaves' copies from {first_copy} to {first_copy + len(copies)} "
-                         f"do not fit the child word (multiples of {LEAF_ALIGN} below {MAX_COPIES})")
+        raise KdrayError(f"the wide nodes' triangle copies ({first_copy:,} to "
+                         f"{first_copy + len(copies):,}) do not fit their child words (below "
+                         f"{MAX_COPIES:,}, from a multiple of {LEAF_ALIGN})")
 
     # wide nodes: up to WIDTH children each, of least total area (wide_children)
     kid, wide_index, wide_depth = wide_children(left, right, box, WIDTH)

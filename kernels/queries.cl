@@ -3,7 +3,9 @@
  *   count_rays     how many triangles the ray hits: with `crossing`, how many times
  *                  it crosses the surface (triangle.cl, kd_tie: a shared edge or
  *                  vertex counts once); else every triangle hit, for list_rays' sizes
- *   list_rays      every hit, into the ray's own slots, sorted by (t, input id)
+ *   list_rays      every hit, into the ray's own slots, sorted by (t, input id); with
+ *                  `crossing`, every crossing (the count's rule: what count_rays
+ *                  counts, for the rays whose crossings it could not tell apart)
  *
  * (Any hit and the nearest hit, with a t range a ray too, are trace_rays': render.cl,
  * with ANY_HIT for any.)
@@ -241,7 +243,7 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
     uint count = kd_n_prims(leaf);
     uint first = kd_leaf_offset(leaf);
 #ifdef PACKET
-    if (!(query == KD_COUNT && q->crossing)) {
+    if (!q->crossing) {
         /* every hit of the nearest hit's rule: the block test's lanes (kd_ray_block_all
          * with no best hit yet), each as kd_query_leaf's loop below takes it */
         for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
@@ -281,23 +283,27 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
         for (uint j = 0; j < m; j++) {
             uint tri = first + i0 + j;
             float t, u, v;
-            if (c.s[j] && intersect_triangle(shear, o, kd_vertex(tris, tri, 0),
-                                             kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2),
-                                             tri, t_min, t_max, t_max, KD_NO_HIT, tri_ids, true,
-                                             &t, &u, &v))
+            if (!c.s[j] || !intersect_triangle(shear, o, kd_vertex(tris, tri, 0),
+                                               kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2),
+                                               tri, t_min, t_max, t_max, KD_NO_HIT, tri_ids,
+                                               true, &t, &u, &v))
+                continue;
+            if (query == KD_COUNT)
                 kd_count_hit(q, tri_ids[tri],
                              kd_facing(shear, o, kd_vertex(tris, tri, 0),
                                        kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2)));
+            else
+                kd_list_hit(q, tri, t, u, v, tri_ids);
         }
     }
-    return false;
+    return query == KD_LIST && kd_list_done(q, t_exit);
 #endif
     for (uint i = 0; i < count; i++) {
         uint tri = first + i;
         float t, u, v;
         if (!intersect_triangle(shear, o, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
                                 kd_vertex(tris, tri, 2), tri, t_min, t_max, t_max, KD_NO_HIT,
-                                tri_ids, query == KD_COUNT && q->crossing, &t, &u, &v))
+                                tri_ids, q->crossing, &t, &u, &v))
             continue;
         if (query == KD_COUNT)
             kd_count_hit(q, tri_ids[tri],
@@ -565,7 +571,7 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
     kd_lane_vertices(r, p, P);
     KdIP c;
     KdFP t, V, W, det;
-    if (query == KD_COUNT && crossing) {
+    if (crossing) {
         c.v = kd_crossing_pairs(P, r->okx, r->oky, r->okz, r->Sx, r->Sy, act);
     } else {
         KdPairs src;
@@ -582,17 +588,22 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
     float3 p0 = kd_base_vertex(p, 0), p1 = kd_base_vertex(p, 1), p2 = kd_base_vertex(p, 2);
     do {
         uint l = kd_take_lane(&lanes);
-        if (query == KD_LIST) {
-            kd_list_hit(&q[l], tri, t.s[l], V.s[l] / det.s[l], W.s[l] / det.s[l], tri_ids);
-        } else if (!crossing) {
-            kd_count_hit(&q[l], id, 0);
+        if (!crossing) {
+            if (query == KD_LIST)
+                kd_list_hit(&q[l], tri, t.s[l], V.s[l] / det.s[l], W.s[l] / det.s[l], tri_ids);
+            else
+                kd_count_hit(&q[l], id, 0);
         } else {
             RayShear sl;
             float3 ol;
             kd_lane_shear(r, l, &sl, &ol);
             float th, u, v;
-            if (intersect_triangle(&sl, ol, p0, p1, p2, tri, t_min->s[l], t_max->s[l],
-                                   t_max->s[l], KD_NO_HIT, tri_ids, true, &th, &u, &v))
+            if (!intersect_triangle(&sl, ol, p0, p1, p2, tri, t_min->s[l], t_max->s[l],
+                                    t_max->s[l], KD_NO_HIT, tri_ids, true, &th, &u, &v))
+                continue;
+            if (query == KD_LIST)
+                kd_list_hit(&q[l], tri, th, u, v, tri_ids);
+            else
                 kd_count_hit(&q[l], id, kd_facing(&sl, ol, p0, p1, p2));
         }
     } while (lanes);
@@ -950,9 +961,9 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
     }
 }
 
-/* Ray k's hits into slots offsets[k] .. offsets[k] + caps[k] - 1 (hit_t, hit_uv two
- * floats a slot, hit_id the input id), its count into out_n[k] (KD_WALK_FAULT on a
- * fault): with caps[k] at least its distinct hits, every hit, else the caps[k] first
+/* Ray k's hits (crossing: its crossings, the count's rule) into slots offsets[k] ..
+ * offsets[k] + caps[k] - 1 (hit_t, hit_uv two floats a slot, hit_id the input id), its
+ * count into out_n[k] (KD_WALK_FAULT on a fault): with caps[k] at least its distinct hits, every hit, else the caps[k] first
  * in (t, input id) order, the count then marked KD_LIST_MORE. Sorted by (t, input id),
  * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
  * k * cap (a first pass's guess: no arrays to make and copy). nearest_k: the slots

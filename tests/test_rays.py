@@ -500,6 +500,36 @@ def test_many_hits_a_ray_are_counted_exactly(tracers):
     assert hits.prim[:k].tolist() == list(range(k))
 
 
+@pytest.mark.parametrize("packet", [1, None], ids=["one ray", "lanes"])
+def test_more_crossings_than_kept_ids_count_by_the_crossing_rule(tracers, packet):
+    """A ray with more crossings than count_rays keeps ids of (KD_SEEN) is counted by
+    listing its crossings, under the count's rule: through 20 nested grid cubes along
+    an axis, each face crossed at a vertex that 4 to 6 triangles share (and on the
+    diagonal, at edges two share), 40 crossings, where every triangle hit would be
+    many more; as few as 10 cubes (20 crossings, no listing) agree. The listing lists
+    crossings however many slots it has."""
+    v, f = grid_cube(1)
+    vs, fs = [], []
+    for k in range(1, 21):
+        fs.append(f + len(v) * len(vs))
+        vs.append(v * k)
+    tracer = tracers(build(np.concatenate(vs), np.concatenate(fs)), packet=packet)
+    tracer._alone_spread = -1.0               # lanes: the wide walk
+    o = np.array([[-50.0, 0.0, 0.0], [0.0, -50.0, 0.0], [-50.0, -50.0, 0.0], [0.0, 0.0, 0.0]])
+    d = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    assert tracer.count(o, d).tolist() == [40, 40, 40, 20]
+    assert tracer.count(o, d, t_max=np.array([50.0, 50.0, 50.0, 10.5])).tolist() == [20, 20, 20, 10]
+    hits = tracer.intersections(o, d)
+    assert np.all(np.diff(hits.offsets)[:3] > 40)    # every triangle hit: more
+    # the listing that mends such counts lists crossings, whatever room it is given
+    # (the count's first pass may find a triangle once a leaf that holds a copy)
+    rays = krays._Rays(tracer, o, d, 0.0, np.inf)
+    for caps in (60, 200):
+        crossed, _ = krays._list(tracer, rays, caps, crossing=True)
+        assert np.diff(crossed.offsets).tolist() == [40, 40, 40, 20]
+        assert np.all(np.isin(crossed.prim, hits.prim))
+
+
 def test_double_precision_and_scale(tracers):
     """Far from the origin and at tiny scales the queries answer as at home."""
     v, f = icosphere(1)
