@@ -41,6 +41,7 @@ by more than the tests' roundings, starts beyond that hit; the BVH holds every
 triangle the k-d tree lists, each once.
 """
 import concurrent.futures
+import os
 
 import numpy as np
 
@@ -66,7 +67,8 @@ def stack_groups(levels):
 
 
 def binary_bvh(tree):
-    """The binary BVH of the triangles `tree` lists (kdray/builder/bvh.py, sah_bvh):
+    """The binary BVH of the triangles `tree` lists (kdray/builder/bvh.py, sah_bvh, its
+    subtrees on as many threads as the process may run on, as a build's):
     (tris (n,) int64 indices into tree.triangles in leaf order, left, right, first,
     count, depth (m,) int64, box (m, 6) float32), a node's triangles
     tris[first:first + count], its box min then max."""
@@ -81,8 +83,9 @@ def binary_bvh(tree):
     with concurrent.futures.ThreadPoolExecutor(3) as pool:
         order = np.stack(list(pool.map(lambda a: np.argsort(centre[:, a]), range(3))))
     order = order.astype(np.int64, copy=False)    # sah_bvh reorders it in place
+    threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     left, right, first, count, depth, box = sah_bvh(boxes, order, layout.TRI_BLOCK, MAX_DEPTH,
-                                                    ONE_AXIS)
+                                                    ONE_AXIS, threads)
     return listed[order[0]], left, right, first, count, depth, box
 
 

@@ -160,6 +160,38 @@ def test_wide_children_gather_at_the_least_area(seed):
     assert total == pytest.approx(least(0), rel=1e-12)
 
 
+@pytest.mark.parametrize("name", ["teapot", "soup, median 18 deep", "one place"])
+def test_bvh_subtrees_on_threads_are_the_one_thread_build(name, monkeypatch):
+    """sah_bvh with its subtrees on 2 and 3 threads (from any size here) gives the one
+    thread's arrays, node for node, and its triangles in the same order; and the same
+    BVH, numbered otherwise, as the build of one pass (each node's triangles and box)."""
+    from kdray.builder import bvh
+    monkeypatch.setattr(bvh, "PARALLEL_FROM", 0)
+    tree = _tree(name)
+    t = tree.triangles.astype(np.float32)
+    boxes = np.concatenate([t.min(axis=1), t.max(axis=1)], axis=1)
+    start = np.stack([np.argsort(boxes[:, a] + boxes[:, 3 + a], kind="stable")
+                      for a in range(3)]).astype(np.int64)
+    got = {}
+    for threads in (1, 2, 3):
+        order = start.copy()
+        got[threads] = (order, bvh.sah_bvh(boxes, order, 16, MAX_DEPTH, 512, threads))
+    for threads in (2, 3):
+        assert np.array_equal(got[threads][0], got[1][0])
+        for a, b in zip(got[threads][1], got[1][1]):
+            assert np.array_equal(a, b)
+    monkeypatch.setattr(bvh, "PARALLEL_FROM", 1 << 40)
+    order = start.copy()
+    one = bvh.sah_bvh(boxes, order, 16, MAX_DEPTH, 512, 2)
+    assert np.array_equal(order, got[1][0])
+
+    def nodes(arrays):
+        left, right, first, count, depth, box = arrays
+        return sorted((int(f), int(c), int(d), tuple(b.tolist()))
+                      for f, c, d, b in zip(first, count, depth, box))
+    assert nodes(one) == nodes(got[1][1])
+
+
 def test_bvh_splits_are_the_cheapest_at_block_multiples():
     """sah_bvh on a row of unit boxes along x, one of them far away: the root's split
     leaves the far one alone with the blocks it must share (the cost's minimum,

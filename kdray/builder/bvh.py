@@ -92,24 +92,70 @@ def _sweep(ids, a, n, boxes, block, suffix, best, box_l, box_r):
             box_r[:] = r
 
 
-@njit(cache=True)
-def sah_bvh(boxes, order, block, max_depth, one_axis):
+def sah_bvh(boxes, order, block, max_depth, one_axis, threads=1):
     """A binary BVH over n triangles (the module's docstring).
 
     boxes  : (n, 6) float32, each triangle's box, min x y z then max x y z (one row
              one read: the sweeps read them in the axes' orders, at random).
-    order  : (3, n) int64, the triangles sorted by their boxes' centres along x, y, z
-             (ties in index order); reordered in place, so that each node's triangles
-             are order[0][first:first + count] (every row holds the same sets).
+    order  : (3, n) int64, the triangles sorted by their boxes' centres along x, y, z;
+             reordered in place, so that each node's triangles are
+             order[0][first:first + count] (every row holds the same sets).
     block  : the leaves' largest size, and what the splits are multiples of.
     max_depth : the deepest a node may lie (the root at 0); at least ceil(log2(
              ceil(n / block))).
     one_axis : nodes of more triangles are split along their centres' longest axis
              only (the three sweeps cost 3 times one).
+    threads : the subtrees below the top split on this many threads. From
+             PARALLEL_FROM triangles the top is split first, down to nodes of at most
+             n / SUBTREES triangles, then each of those nodes' subtrees is built into
+             its own range of node indices (2 ceil(count / block) - 2 of them, in the
+             order the top found them), so the result does not depend on threads.
 
     Returns (left, right, first, count, depth (m,) int64, box (m, 6) float32 its
     triangles' box, min then max), m = 2 ceil(n / block) - 1 nodes (0 when n is 0), the
     root 0 and children after their parent; left and right are -1 at a leaf."""
+    n = order.shape[1]
+    nodes, side, tmp = _start(boxes, order, block)
+    if len(nodes[0]) == 0:
+        return nodes
+    args = (boxes, order, block, max_depth, one_axis, *nodes, side, tmp)
+    if n < PARALLEL_FROM:
+        _split_subtree(0, 1, 0, np.empty(0, np.int64), *args)
+        return nodes
+    pending = np.empty(2 * ((n + block - 1) // block), np.int64)
+    made, n_pending = _split_subtree(0, 1, n // SUBTREES, pending, *args)
+    roots = pending[:n_pending]
+    count = nodes[3]
+    size = 2 * ((count[roots] + block - 1) // block) - 2
+    base = made + np.cumsum(size) - size
+    from .threads import kept_pool
+    pool = kept_pool(threads)
+    none = np.empty(0, np.int64)
+    # the largest first, so that the threads end together
+    jobs = [(int(roots[i]), int(base[i])) for i in np.argsort(-count[roots], kind="stable")]
+    if pool is None:
+        for root, at in jobs:
+            _split_subtree(root, at, 0, none, *args)
+    else:
+        for job in [pool.submit(_split_subtree, root, at, 0, none, *args) for root, at in jobs]:
+            job.result()
+    return nodes
+
+
+PARALLEL_FROM = 1 << 18
+"""Triangles from which `sah_bvh` builds its top first and the subtrees below it on
+threads: below, a build takes milliseconds."""
+
+SUBTREES = 16
+"""The top's split ends at nodes of n / SUBTREES triangles or fewer: about as many
+subtrees, enough for the threads to end together."""
+
+
+@njit(cache=True)
+def _start(boxes, order, block):
+    """(nodes, side, tmp): sah_bvh's node arrays (left, right, first, count, depth,
+    box) for n triangles with the root (node 0, all of them, their box) set, and the
+    partition's scratch (n,) arrays."""
     n = order.shape[1]
     leaves = (n + block - 1) // block
     m = max(2 * leaves - 1, 0)
@@ -119,28 +165,41 @@ def sah_bvh(boxes, order, block, max_depth, one_axis):
     count = np.zeros(m, np.int64)
     depth = np.zeros(m, np.int64)
     box = np.zeros((m, 6), np.float32)
-    if m == 0:
-        return left, right, first, count, depth, box
-    suffix = np.empty((leaves + 1, 6), np.float32)
-    side = np.zeros(n, np.uint8)
-    tmp = np.empty(n, np.int64)
+    if m:
+        whole = np.empty(6)
+        _box(order[0], 0, n, boxes, whole)
+        box[0, :] = whole
+        count[0] = n
+    return (left, right, first, count, depth, box), np.zeros(n, np.uint8), np.empty(n, np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _split_subtree(root, made, stop, pending, boxes, order, block, max_depth, one_axis, left, right,
+          first, count, depth, box, side, tmp):
+    """Split the subtree of node `root` depth-first, numbering new nodes from `made`;
+    nodes of more than `block` and at most `stop` triangles are left unsplit and listed
+    in `pending`. Writes only the subtree's nodes and its triangles' places in order,
+    side and tmp, so that disjoint subtrees may grow on threads at once (no GIL).
+    Returns (the next free node index, the number of pending nodes)."""
+    c0 = count[root]
+    suffix = np.empty(((c0 + block - 1) // block + 1, 6), np.float32)
+    stack = np.empty(2 * ((c0 + block - 1) // block) + 1, np.int64)
     best = np.empty(2)
     box_l = np.empty(6)
     box_r = np.empty(6)
-    whole = np.empty(6)
-    _box(order[0], 0, n, boxes, whole)
-    box[0, :] = whole
-    count[0] = n
-    stack = np.empty(m, np.int64)
     top = 1
-    stack[0] = 0
-    made = 1
+    stack[0] = root
+    n_pending = 0
     while top > 0:
         top -= 1
         node = stack[top]
         a = first[node]
         c = count[node]
         if c <= block:
+            continue
+        if c <= stop:
+            pending[n_pending] = node
+            n_pending += 1
             continue
         blocks = (c + block - 1) // block
         halvings = 0
@@ -185,7 +244,7 @@ def sah_bvh(boxes, order, block, max_depth, one_axis):
                 continue
             row = order[ax]
             lft = a
-            rgt = 0
+            rgt = a
             for i in range(a, a + c):
                 t = row[i]
                 if side[t] == 0:
@@ -194,8 +253,8 @@ def sah_bvh(boxes, order, block, max_depth, one_axis):
                 else:
                     tmp[rgt] = t
                     rgt += 1
-            for i in range(rgt):
-                row[lft + i] = tmp[i]
+            for i in range(a, rgt):
+                row[lft + i - a] = tmp[i]
         l_node = made
         r_node = made + 1
         made += 2
@@ -212,7 +271,7 @@ def sah_bvh(boxes, order, block, max_depth, one_axis):
         stack[top] = r_node
         stack[top + 1] = l_node
         top += 2
-    return left, right, first, count, depth, box
+    return made, n_pending
 
 
 @njit(cache=True)
