@@ -406,7 +406,8 @@ class Tracer:
         resident="placed")`), its first n elements read from `buffer` (of that dtype),
         the rest for the caller to write."""
         cl = _device._cl()
-        whole = huge_page_empty((n + more,), dtype) if self._zero_copy else np.empty(n + more, dtype)
+        whole = (huge_page_empty((n + more,), dtype) if self._zero_copy
+                 else np.empty(n + more, dtype))
         if n:
             cl.enqueue_copy(self.queue, whole[:n], buffer)
         return whole

@@ -6,10 +6,10 @@ rays) spends most of its time walking and waiting on memory (BENCHMARKS.md,
 binary BVH (kdray/builder/bvh.py, sah_bvh: surface-area splits at multiples of
 TRI_BLOCK triangles, leaves of at most TRI_BLOCK) gathered into wide nodes of up to 8
 children (wide_children: the gathering of least total node area, which fills a node's
-free slots with small subtrees where a node of their own would cost more; 6 children
-a node on average on the meshes we measure, where three binary levels a node gave 4
-and traced 1.03-1.12 times as long). A leaf's triangles are copies of their own, TRI_BLOCK
-or fewer in a run of the device's triangle buffer (layout.device_triangles' layout,
+free slots with small subtrees where a node of their own would cost more: fuller
+nodes than three binary levels a node, and fewer of them; BENCHMARKS.md, "Incoherent
+rays"). A leaf's triangles are copies of their own, TRI_BLOCK or fewer in a run of the
+device's triangle buffer (layout.device_triangles' layout,
 after the k-d leaves' copies): a ray reads a leaf's triangles in one or two vector
 loads a number, and each triangle once, where a k-d walk met several leaves holding
 copies of the same triangle and more empty space between them (kernels/wide.cl walks

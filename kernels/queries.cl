@@ -963,8 +963,9 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 
 /* Ray k's hits (crossing: its crossings, the count's rule) into slots offsets[k] ..
  * offsets[k] + caps[k] - 1 (hit_t, hit_uv two floats a slot, hit_id the input id), its
- * count into out_n[k] (KD_WALK_FAULT on a fault): with caps[k] at least its distinct hits, every hit, else the caps[k] first
- * in (t, input id) order, the count then marked KD_LIST_MORE. Sorted by (t, input id),
+ * count into out_n[k] (KD_WALK_FAULT on a fault): with caps[k] at least its distinct
+ * hits, every hit, else the caps[k] first in (t, input id) order, the count then
+ * marked KD_LIST_MORE. Sorted by (t, input id),
  * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
  * k * cap (a first pass's guess: no arrays to make and copy). nearest_k: the slots
  * are the nearest hits wanted, not whether there are more (a k-nearest query, or

@@ -477,8 +477,10 @@ def test_a_corrupt_tree_is_reported_not_walked_on(runtime, teapot_tree, packet):
         o1 = np.broadcast_to(o[0], o.shape)
         d1 = d[0] + 0.01 * d
         for oo, dd in ((o, d), (o1, d1)):
-            assert np.array_equal(tracer.count(oo, dd, t_max=t_max), sound.count(oo, dd, t_max=t_max))
-            a, b = tracer.intersections(oo, dd, t_max=t_max), sound.intersections(oo, dd, t_max=t_max)
+            assert np.array_equal(tracer.count(oo, dd, t_max=t_max),
+                                  sound.count(oo, dd, t_max=t_max))
+            a = tracer.intersections(oo, dd, t_max=t_max)
+            b = sound.intersections(oo, dd, t_max=t_max)
             assert np.array_equal(a.counts, b.counts) and np.array_equal(a.prim, b.prim)
 
 

@@ -61,11 +61,11 @@ def _unpack(records):
 def test_wide_nodes_hold_each_triangle_once_in_boxes_that_hold_them(name, run):
     """Every triangle the tree lists is copied once into one leaf of at most TRI_BLOCK
     triangles, which starts on a multiple of `run` and of LEAF_ALIGN after first_copy
-    and is padded to the next such multiple (-1); a leaf's box is its triangles' box exactly, a wide child's box
-    holds its children's boxes; children come after their parent (no cycle), no deeper
-    than `levels`, within the BVH's depth bound even where every split costs the same
-    (every triangle in one place); empty slots hold an empty box; and each octant's
-    order lists every child once, then the empty slots."""
+    and is padded to the next such multiple (-1); a leaf's box is its triangles' box
+    exactly, a wide child's box holds its children's boxes; children come after their
+    parent (no cycle), no deeper than `levels`, within the BVH's depth bound even where
+    every split costs the same (every triangle in one place); empty slots hold an empty
+    box; and each octant's order lists every child once, then the empty slots."""
     tree = _tree(name)
     first_copy = 48
     align = max(run, LEAF_ALIGN)         # a leaf's start and padding
@@ -140,7 +140,8 @@ def test_wide_children_gather_at_the_least_area(seed):
     def least(b):
         """The least total area of the wide nodes of b's subtree, b a node's root."""
         return area(b) + min(sum(least(c) for c in a + c2 if left[c] >= 0)
-                             for a in cuts(left[b]) for c2 in cuts(right[b]) if len(a) + len(c2) <= 8)
+                             for a in cuts(left[b]) for c2 in cuts(right[b])
+                             if len(a) + len(c2) <= 8)
 
     # the root of each wide node: the binary node whose children's cut its kids are
     root_of = {0: 0}
@@ -203,12 +204,15 @@ def test_bvh_splits_are_the_cheapest_at_block_multiples():
     lo[-1, 0] = 1000.0
     boxes = np.concatenate([lo, lo + 1], axis=1)
     order = np.stack([np.argsort(boxes[:, a] + boxes[:, 3 + a], kind="stable") for a in range(3)])
-    left, right, first, count, depth, box = sah_bvh(boxes, order.astype(np.int64), block, 48, 1 << 30)
+    left, right, first, count, depth, box = sah_bvh(boxes, order.astype(np.int64), block, 48,
+                                                    1 << 30)
     assert len(left) == 2 * (-(-n // block)) - 1
     assert np.all(count[left[left >= 0]] % block == 0)
 
     def cost(k):
-        a = lambda b: (b[3] - b[0]) * (b[4] - b[1]) + (b[4] - b[1]) * (b[5] - b[2]) + (b[5] - b[2]) * (b[3] - b[0])
+        def a(b):
+            e = b[3:] - b[:3]
+            return e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
         x = np.concatenate([boxes[:k, :3].min(0), boxes[:k, 3:].max(0)])
         y = np.concatenate([boxes[k:, :3].min(0), boxes[k:, 3:].max(0)])
         return a(x) * -(-k // block) + a(y) * -(-(n - k) // block)
