@@ -393,14 +393,22 @@ def device_triangles(tree, run=1):
     (kd_before) and a hit does not depend on the copy found."""
     if run < 1 or TRI_BLOCK % run:
         raise ValueError(f"run must divide {TRI_BLOCK}, got {run}")
-    nodes, first, count, padded, start = _device_leaves(tree, run)
-    # each copy's place k in its leaf: entry first + k of leaf_tris, or padding from
-    # k = count on (given entry 0, then cleared)
+    nodes, first, count, padded, _ = _device_leaves(tree, run)
+    return (nodes, *triangle_copies(tree, padded_entries(tree.leaf_tris, first, count, padded)))
+
+
+def padded_entries(refs, first, count, padded):
+    """(padded.sum(),) intp: leaf after leaf, refs[first[i]:first[i] + count[i]] then
+    -1 up to padded[i] entries (first, count, padded (L,) integers): the triangles
+    `triangle_copies` copies for leaves of padded runs, leaf i's from
+    (cumsum(padded) - padded)[i]."""
+    padded = np.asarray(padded, dtype=np.intp)
+    start = np.cumsum(padded) - padded
+    # each copy's place k in its leaf: entry first + k of refs, or padding from k = count
     k = np.arange(int(padded.sum())) - np.repeat(start, padded)
     pad = k >= np.repeat(count, padded)
     entry = np.where(pad, 0, np.repeat(first, padded) + k)
-    tri = np.where(pad, -1, np.asarray(tree.leaf_tris, dtype=np.intp)[entry])
-    return (nodes, *triangle_copies(tree, tri))
+    return np.where(pad, -1, np.asarray(refs, dtype=np.intp)[entry])
 
 
 def triangle_copies(tree, tri):

@@ -253,15 +253,14 @@ class Tracer:
         device copy."""
         return self._buffer(array, resident=True)
 
-    def _check_fits(self, tree):
-        """The tree's device buffers' bytes (`device_sizes`, leaves in runs of a
-        packet); DeviceError when the tree cannot live on the device: one buffer larger
-        than the device's largest allocation, or all of them with one ray's launch
-        buffers more than its global memory. Launches are sized to what is left
-        (`_launch_size`)."""
+    def _check_fits(self, sizes):
+        """sizes ({what: bytes} of the tree's device buffers: `device_sizes`, leaves in
+        runs of a packet, and the wide nodes' once made) after DeviceError when the
+        tree cannot live on the device: one buffer larger than the device's largest
+        allocation, or all of them with one ray's launch buffers more than its global
+        memory. Launches are sized to what is left (`_launch_size`)."""
         name = self.device.name.strip()
         largest = int(self.device.max_mem_alloc_size)
-        sizes = device_sizes(tree, self.packet)
         for what, nbytes in sizes.items():
             if nbytes > largest:
                 raise DeviceError(f"the tree's {what} ({nbytes / 2**20:.0f} MiB) do not fit in "
@@ -299,7 +298,7 @@ class Tracer:
 
     def _upload(self, tree):
         cl = _device._cl()
-        self.device_bytes = sum(self._check_fits(tree).values())
+        self.device_bytes = sum(self._check_fits(device_sizes(tree, self.packet)).values())
         self._n_nodes = len(tree.nodes)
         # packets read a leaf's triangles a packet's width at a time (kd_gather_tris)
         nodes, tris, tri_ids = device_triangles(tree, self.packet)
@@ -374,22 +373,17 @@ class Tracer:
         them. Their leaves' triangle copies follow the k-d leaves' (from the next
         TRI_BLOCK on) in the triangle buffers, which are made again with them (the k-d
         part unchanged, so that every kernel reads either); their bytes join
-        device_bytes. DeviceError when they do not fit (as `_check_fits`)."""
+        device_bytes. DeviceError when they do not fit (`_check_fits`)."""
         if self._wide_nodes is None:
             first_copy = TRI_BLOCK * n_triangle_blocks(self._n_copies)
             records, levels, copies = wide_nodes(self.tree, self.packet, first_copy)
             tris, ids = triangle_copies(self.tree, copies)
             ids = np.concatenate([np.full(first_copy - self._n_copies, MISS, np.uint32), ids])
             n_floats = 9 * TRI_BLOCK * n_triangle_blocks(len(tris))
-            name = self.device.name.strip()
-            total = 4 * (9 * first_copy + n_floats)
-            if total > int(self.device.max_mem_alloc_size):
-                raise DeviceError(f"the tree's triangles with its wide nodes' copies "
-                                  f"({total / 2**20:.0f} MiB) do not fit in one buffer on {name}")
-            added = records.nbytes + 4 * n_floats + ids.nbytes
-            if self.device_bytes + added > int(self.device.global_mem_size):
-                raise DeviceError(f"the tree with its wide nodes needs "
-                                  f"{(self.device_bytes + added) / 2**20:.0f} MiB on {name}")
+            sizes = self._check_fits({
+                "nodes": int(self.tree.nodes.nbytes), "wide nodes": records.nbytes,
+                "triangles with the wide nodes' copies": 4 * (9 * first_copy + n_floats),
+                "triangle ids with the wide nodes' copies": 4 * (self._n_copies + len(ids))})
             # the k-d part read back and the copies' blocks written after it, in place
             whole = self._grown(self._tris, 9 * first_copy, n_floats, np.float32)
             triangle_blocks(tris, out=whole[9 * first_copy:])
@@ -398,7 +392,7 @@ class Tracer:
             whole[self._n_copies:] = ids
             self._tri_ids = self._buffer(whole, resident="placed")
             self._wide_nodes = (self._tree_buffer(records), stack_groups(levels))
-            self.device_bytes += added
+            self.device_bytes = sum(sizes.values())
         return self._wide_nodes
 
     def _grown(self, buffer, n, more, dtype):

@@ -104,10 +104,8 @@ def wide_nodes(tree, run, first_copy):
     leaves = leaves[np.argsort(first[leaves], kind="stable")]
     align = max(run, LEAF_ALIGN)
     size = -(-count[leaves] // align) * align
+    copies = layout.padded_entries(tris, first[leaves], count[leaves], size)
     start = np.cumsum(size) - size
-    k = np.arange(int(size.sum())) - np.repeat(start, size)
-    copies = np.where(k < np.repeat(count[leaves], size),
-                      tris[np.minimum(np.repeat(first[leaves], size) + k, len(tris) - 1)], -1)
     copy_of = np.zeros(len(leaf), np.int64)
     copy_of[leaves] = first_copy + start
     if first_copy % LEAF_ALIGN or first_copy + len(copies) > MAX_COPIES:

@@ -147,7 +147,7 @@ uint kd_bits8(uint8 b)
 }
 
 /* Push the children of wide node w (its record) that the ray meets over [t_min, far],
- * each with where the ray enters its box, as a group that gives the nearest first
+ * each with where the ray enters its box, as a group taken in the octant's order
  * (KdWideStack). */
 KD_INLINE
 void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
@@ -182,7 +182,7 @@ void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
     r->order = order;
 }
 
-/* The nearest slot of the top group (r->top > 0) off the stack: its child word, and
+/* The next slot of the top group (r->top > 0) off the stack: its child word, and
  * where the ray enters its box (returned). */
 KD_INLINE
 float kd_wide_pop(KdWideRay *r, uint *child)
