@@ -184,16 +184,10 @@ void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const
  * of their exact values wherever KD_EDGE_SURE holds; a triangle with one surely
  * positive and one surely negative is crossed under no rule, and every other lane
  * (NaN included) is left to intersect_triangle, which decides it exactly. So the
- * lanes kept hold every crossing, and the count is the scalar loop's.
- *
- * *sure: the lanes whose three edge functions are all sure. There intersect_triangle
- * keeps the float U, V, W (none is 0), so its crossing rule is the nearest hit's rule
- * and the block and packet tests (kd_test_pairs, the same arithmetic) decide the
- * crossing as it does; and the exact signs are the float ones, so kd_facing is -1
- * where U > 0 (*front), else 1. */
+ * lanes kept hold every crossing, and the count is the scalar loop's. */
 KD_INLINE
 intP kd_crossing_pairs(const floatP *P, floatP okx, floatP oky, floatP okz, floatP Sx,
-                       floatP Sy, intP valid, intP *sure, intP *front)
+                       floatP Sy, intP valid)
 {
     floatP Az = P[2] - okz, Bz = P[5] - okz, Cz = P[8] - okz;
     floatP Ax = (P[0] - okx) - Sx * Az, Ay = (P[1] - oky) - Sy * Az;
@@ -208,16 +202,13 @@ intP kd_crossing_pairs(const floatP *P, floatP okx, floatP oky, floatP okz, floa
     floatP zero = (floatP)(0.0f);
     intP pos = (sure_u & (U > zero)) | (sure_v & (V > zero)) | (sure_w & (W > zero));
     intP neg = (sure_u & (U < zero)) | (sure_v & (V < zero)) | (sure_w & (W < zero));
-    *sure = sure_u & sure_v & sure_w;
-    *front = U > zero;
     return valid & ~(pos & neg);
 }
 
 /* kd_crossing_pairs for one ray (shear s, origin o) and a run of KD_PACKET triangles
  * (q: kd_gather_tris' 9 vectors). */
 KD_INLINE
-intP kd_crossing_lanes(const RayShear *s, float3 o, const KdFP *q, intP valid, intP *sure,
-                       intP *front)
+intP kd_crossing_lanes(const RayShear *s, float3 o, const KdFP *q, intP valid)
 {
     uint kx = s->kx, ky = s->ky, kz = s->kz;
     floatP P[9];
@@ -227,8 +218,7 @@ intP kd_crossing_lanes(const RayShear *s, float3 o, const KdFP *q, intP valid, i
         P[3u * i + 2u] = q[3u * i + kz].v;
     }
     return kd_crossing_pairs(P, (floatP)(kd_comp(o, kx)), (floatP)(kd_comp(o, ky)),
-                             (floatP)(kd_comp(o, kz)), (floatP)(s->Sx), (floatP)(s->Sy), valid,
-                             sure, front);
+                             (floatP)(kd_comp(o, kz)), (floatP)(s->Sx), (floatP)(s->Sy), valid);
 }
 #endif
 
@@ -280,37 +270,19 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
         }
         return query == KD_LIST && kd_list_done(q, t_exit);
     }
-    /* the count's crossing rule: the lanes that may be crossed, those whose edge
-     * functions are all sure decided by the block test (kd_crossing_pairs says why),
-     * the others by intersect_triangle as the loop below decides them */
+    /* the count's crossing rule: the lanes that may be crossed, each then decided by
+     * intersect_triangle as the loop below decides it */
     for (uint i0 = 0; i0 < count; i0 += KD_PACKET) {
         KdFP qv[9];
         kd_gather_tris(tris, first + i0, qv);
         uint m = count - i0 < KD_PACKET ? count - i0 : KD_PACKET;
-        KdIP c, sure, front, hit;
-        KdFP t_b, V, W, det;
-        c.v = kd_crossing_lanes(shear, o, qv, KD_LANE_INDEX < (intP)((int)m), &sure.v,
-                                &front.v);
+        KdIP c;
+        c.v = kd_crossing_lanes(shear, o, qv, KD_LANE_INDEX < (intP)((int)m));
         if (!kd_anyP(c.v))
             continue;
-        hit.v = (intP)(0);
-        if (kd_anyP(c.v & sure.v))
-            hit.v = kd_ray_block_all(shear, o, t_min, t_max, t_max, KD_NO_HIT, qv,
-                                     (uintP)(first + i0) + KD_LANE_INDEX_U, c.v & sure.v,
-                                     tri_ids, &t_b.v, &V.v, &W.v, &det.v);
         for (uint j = 0; j < m; j++) {
             uint tri = first + i0 + j;
             float t, u, v;
-            if (c.s[j] && sure.s[j]) {
-                if (!hit.s[j])
-                    continue;
-                if (query == KD_COUNT)
-                    kd_count_hit(q, tri_ids[tri], front.s[j] ? -1 : 1);
-                else
-                    kd_list_hit(q, tri, t_b.s[j], V.s[j] / det.s[j], W.s[j] / det.s[j],
-                                tri_ids);
-                continue;
-            }
             if (!c.s[j] || !intersect_triangle(shear, o, kd_vertex(tris, tri, 0),
                                                kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2),
                                                tri, t_min, t_max, t_max, KD_NO_HIT, tri_ids,
@@ -597,29 +569,18 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
     __global const float *p = kd_tri_base(tris, tri);
     floatP P[9];
     kd_lane_vertices(r, p, P);
-    KdIP c, sure, front, hit;
+    KdIP c;
     KdFP t, V, W, det;
-    intP test = act;
-    sure.v = (intP)(0);
     if (crossing) {
-        c.v = kd_crossing_pairs(P, r->okx, r->oky, r->okz, r->Sx, r->Sy, act, &sure.v,
-                                &front.v);
-        sure.v &= c.v;
-        test = sure.v;
-    }
-    hit.v = (intP)(0);
-    if (kd_anyP(test)) {
-        /* every lane's hit by the nearest hit's rule; with crossing, the lanes whose
-         * edge functions are all sure, which it decides as the crossing rule does */
+        c.v = kd_crossing_pairs(P, r->okx, r->oky, r->okz, r->Sx, r->Sy, act);
+    } else {
         KdPairs src;
         src.r = r; src.p = p;
-        hit.v = kd_test_pairs(P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7], P[8],
-                              r->okx, r->oky, r->okz, r->Sx, r->Sy, r->Sz, t_min->v,
-                              t_max->v, t_max->v, (uintP)(KD_NO_HIT), (uintP)(tri), tri_ids,
-                              test, &src, &t.v, &V.v, &W.v, &det.v);
+        c.v = kd_test_pairs(P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7], P[8],
+                            r->okx, r->oky, r->okz, r->Sx, r->Sy, r->Sz, t_min->v,
+                            t_max->v, t_max->v, (uintP)(KD_NO_HIT), (uintP)(tri), tri_ids,
+                            act, &src, &t.v, &V.v, &W.v, &det.v);
     }
-    if (!crossing)
-        c.v = hit.v;
     uint lanes = kd_bitsP(c.v);
     if (lanes == 0u)
         return;
@@ -627,13 +588,11 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
     float3 p0 = kd_base_vertex(p, 0), p1 = kd_base_vertex(p, 1), p2 = kd_base_vertex(p, 2);
     do {
         uint l = kd_take_lane(&lanes);
-        if (!crossing || sure.s[l]) {
-            if (!hit.s[l])
-                continue;
+        if (!crossing) {
             if (query == KD_LIST)
                 kd_list_hit(&q[l], tri, t.s[l], V.s[l] / det.s[l], W.s[l] / det.s[l], tri_ids);
             else
-                kd_count_hit(&q[l], id, !crossing ? 0 : front.s[l] ? -1 : 1);
+                kd_count_hit(&q[l], id, 0);
         } else {
             RayShear sl;
             float3 ol;
