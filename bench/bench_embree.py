@@ -13,12 +13,15 @@ Ray kinds (seeded, float64, world coordinates):
             diagonal along the ray (AO_OFFSET): the same rays for every method, Open3D
             and Mitsuba taking no t_min
   camera    the framing camera's size x size rays (kdray.Camera.frame)
-Methods, timed in turns (timing.round_robin, every call 0.1 s after the one before):
+Methods, timed in turns (timing.round_robin, every call 0.1 s after the one before),
+each up to its caster's own outputs (t, and prim or the id image, as numpy arrays; in
+C++ for Embree): misses are made -1 for the accuracy columns after the timing.
   kdray trace        Tracer.trace(o, d, outputs=()): t and prim, numpy to numpy
-  kdray render       (camera) Tracer.render(camera, ["depth"]): rays made on the device
+  kdray render       (camera) Tracer.render(camera, ["depth", "id"]): rays made on the
+                     device
   embree1            rtcIntersect1 over TBB's parallel_for, from C++ (no Python inside)
   embree16           (camera) rtcIntersect16 on 4 x 4 tiles, coherent context
-  open3d             RaycastingScene.cast_rays, numpy to numpy
+  open3d             RaycastingScene.cast_rays, numpy to numpy (t_hit, primitive_ids)
   mitsuba            ray_intersect_preliminary (coherent only for the camera), numpy
                      to numpy
 Printed per mesh and kind: median seconds, Mrays/s, and errors on --sample rays
@@ -38,7 +41,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_trace import accuracy, cpu_model, peer_versions  # noqa: E402
 from embree_anchor import EmbreeAnchor, anchor_missing  # noqa: E402
 from meshes import mesh as bench_mesh  # noqa: E402
-from peers import mitsuba_cast, mitsuba_scene, open3d_cast, open3d_scene  # noqa: E402
+from peers import hit_prims, mitsuba_cast, mitsuba_scene, open3d_arrays, open3d_scene  # noqa: E402
 from timing import median_ratio, round_robin  # noqa: E402
 
 import kdray  # noqa: E402
@@ -131,25 +134,28 @@ def main():
                 rng = np.random.default_rng(1)
                 o, d, camera = rays_of(kind, m, tree, args, rng)
                 n = len(d)
-                calls = {"kdray trace": lambda: tuple(
-                    (h.t, np.where(h.hit, h.prim.astype(np.int64), -1))
-                    for h in [tracer.trace(o, d, outputs=())])[0]}
+                # each call ends at its caster's numpy outputs (Embree's, in C++, at its
+                # t and prim arrays); `finish` makes them (t, prim int64 -1 on a miss)
+                # for the accuracy columns after the timing, as the anchor's hits() does
+                calls = {"kdray trace": lambda: tracer.trace(o, d, outputs=())}
+                finish = {"kdray trace": lambda h: (h.t, np.where(h.hit, h.prim.astype(np.int64), -1))}
                 if camera is not None:
-                    def render():
-                        img = tracer.render(camera, aovs=("depth", "id"))
-                        t = img["depth"].ravel()           # t: the rays' camera z is 1
-                        return t, np.where(np.isfinite(t), img["id"].ravel().astype(np.int64), -1)
-                    calls["kdray render"] = render
+                    calls["kdray render"] = lambda: tracer.render(camera, aovs=("depth", "id"))
+                    # t: the rays' camera z is 1
+                    finish["kdray render"] = lambda img: (img["depth"].ravel(), hit_prims(
+                        img["depth"].ravel(), img["id"].ravel()))
                 if anchor is not None:
                     anchor.rays(o, d)
                     calls["embree1"] = lambda: anchor.trace1()
                     if camera is not None:
                         calls["embree16"] = lambda: anchor.trace16(args.size, args.size)
                 if o3d_scene is not None:
-                    calls["open3d"] = lambda: open3d_cast(o3d_scene, o, d)[:2]
+                    calls["open3d"] = lambda: open3d_arrays(o3d_scene, o, d)
+                    finish["open3d"] = lambda r: (r[0], hit_prims(*r))
                 if mi_scene is not None:
                     calls["mitsuba"] = lambda: mitsuba_cast(mi_scene, o, d, coherent=camera is not None)
                 wall, _, results = round_robin(calls, args.repeat)
+                results = {k: finish.get(k, lambda r: r)(r) for k, r in results.items()}
                 sample = np.random.default_rng(2).choice(n, size=min(args.sample, n), replace=False)
                 ref = reference.traverse(tree, o[sample], d[sample], triangles64=m.triangles)
                 ref_prim = np.where(ref.hit, ref.prim, -1)

@@ -28,13 +28,23 @@ def open3d_scene(mesh):
     return scene, time.perf_counter() - t0
 
 
-def open3d_cast(scene, o, d):
-    """numpy rays -> Open3D -> numpy (t, prim with -1 on a miss, normal)."""
+def open3d_arrays(scene, o, d, keys=("t_hit", "primitive_ids")):
+    """numpy rays -> Open3D's cast_rays -> the numpy arrays of its result's `keys` (t_hit
+    +inf on a miss, primitive_ids Open3D's invalid id there)."""
     import open3d as o3d
     r = scene.cast_rays(o3d.core.Tensor(np.concatenate([o, d], axis=1).astype(np.float32)))
-    t = r["t_hit"].numpy()
-    prim = np.where(np.isfinite(t), r["primitive_ids"].numpy().astype(np.int64), -1)
-    return t, prim, r["primitive_normals"].numpy()
+    return tuple(r[k].numpy() for k in keys)
+
+
+def hit_prims(t, prim):
+    """(N,) int64: prim where t is finite (a hit), else -1."""
+    return np.where(np.isfinite(t), prim.astype(np.int64), -1)
+
+
+def open3d_cast(scene, o, d):
+    """numpy rays -> Open3D -> numpy (t, prim with -1 on a miss, normal)."""
+    t, prim, normal = open3d_arrays(scene, o, d, ("t_hit", "primitive_ids", "primitive_normals"))
+    return t, hit_prims(t, prim), normal
 
 
 def open3d_hits(mesh, o, d, repeat):
