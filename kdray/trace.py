@@ -56,7 +56,7 @@ from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import object_ids
 from .validate import check_float32, whole_or_none
-from .wide import stack_groups, wide_nodes
+from .wide import wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
                          default_stack_size, default_work_sizes, max_local_size,
                          pocl_item_bytes, thread_stack_bytes)
@@ -255,10 +255,11 @@ class Tracer:
 
     def _check_fits(self, sizes):
         """sizes ({what: bytes} of the tree's device buffers: `device_sizes`, leaves in
-        runs of a packet, and the wide nodes' once made) after DeviceError when the
-        tree cannot live on the device: one buffer larger than the device's largest
-        allocation, or all of them with one ray's launch buffers more than its global
-        memory. Launches are sized to what is left (`_launch_size`)."""
+        runs of a packet, and the wide nodes' once made), returned once checked:
+        DeviceError when the tree cannot live on the device, one buffer being larger
+        than the device's largest allocation, or all of them with one ray's launch
+        buffers more than its global memory. Launches are sized to what is left
+        (`_launch_size`)."""
         name = self.device.name.strip()
         largest = int(self.device.max_mem_alloc_size)
         for what, nbytes in sizes.items():
@@ -391,7 +392,9 @@ class Tracer:
             whole = self._grown(self._tri_ids, self._n_copies, len(ids), np.uint32)
             whole[self._n_copies:] = ids
             self._tri_ids = self._buffer(whole, resident="placed")
-            self._wide_nodes = (self._tree_buffer(records), stack_groups(levels))
+            # a node's stack group stays until its last child is taken: the groups
+            # belong to nodes on one path from the root, one a level at most
+            self._wide_nodes = (self._tree_buffer(records), levels)
             self.device_bytes = sum(sizes.values())
         return self._wide_nodes
 

@@ -59,13 +59,6 @@ MAX_DEPTH = 48             # the BVH's deepest binary level (kdray/builder/bvh.p
 ONE_AXIS = 4096            # nodes of more triangles split along one axis (sah_bvh)
 
 
-def stack_groups(levels):
-    """A wide walk's stack groups (kernels/wide.cl, WIDE_STACK) for a tree of `levels`
-    wide levels: a node's group stays until its last child is taken, so the groups
-    belong to nodes on one path from the root, at most one a level."""
-    return levels
-
-
 def binary_bvh(tree):
     """The binary BVH of the triangles `tree` lists (kdray/builder/bvh.py, sah_bvh, its
     subtrees on as many threads as the process may run on, as a build's):

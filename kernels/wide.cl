@@ -24,7 +24,7 @@
  *
  * Options (-D): KD_WIDE (the program takes the wide records after n_nodes),
  * WIDE_STACK (groups a ray's stack: the levels of wide nodes, kdray/wide.py
- * stack_groups). Not with STATS (such programs trace these rays
+ * wide_nodes). Not with STATS (such programs trace these rays
  * one by one, trace_ray counting them).
  */
 #ifndef KDRAY_WIDE_CL

@@ -174,8 +174,8 @@ def _start(boxes, order, block):
 
 
 @njit(cache=True, nogil=True)
-def _split_subtree(root, made, stop, pending, boxes, order, block, max_depth, one_axis, left, right,
-          first, count, depth, box, side, tmp):
+def _split_subtree(root, made, stop, pending, boxes, order, block, max_depth, one_axis,
+                   left, right, first, count, depth, box, side, tmp):
     """Split the subtree of node `root` depth-first, numbering new nodes from `made`;
     nodes of more than `block` and at most `stop` triangles are left unsplit and listed
     in `pending`. Writes only the subtree's nodes and its triangles' places in order,
@@ -294,6 +294,7 @@ def wide_children(left, right, box, width):
     m = len(left)
     forest = np.empty((m, width + 1))    # forest[n, k]: n's subtree as <= k children
     cut = np.zeros((m, width + 1), np.int64)   # the k that left takes (0: n alone)
+    split = np.ones(m, np.int64)         # n a wide node: the children left's part takes
     for n in range(m - 1, -1, -1):       # children after their parent: theirs first
         l, r = left[n], right[n]
         if l < 0:
@@ -301,7 +302,10 @@ def wide_children(left, right, box, width):
             continue
         alone = np.inf
         for j in range(1, width):
-            alone = min(alone, forest[l, j] + forest[r, width - j])
+            c = forest[l, j] + forest[r, width - j]
+            if c < alone:
+                alone = c
+                split[n] = j
         alone += _area(box[n, 0], box[n, 1], box[n, 2], box[n, 3], box[n, 4], box[n, 5])
         forest[n, 1] = alone
         for k in range(2, width + 1):
@@ -328,17 +332,10 @@ def wide_children(left, right, box, width):
         if left[b] < 0:
             kids[w, 0] = b
             continue
-        # the root's best split into at most `width`, each part unfolded by its cut
-        best = np.inf
-        split = 1
-        for j in range(1, width):
-            c = forest[left[b], j] + forest[right[b], width - j]
-            if c < best:
-                best = c
-                split = j
+        # b's own split into at most `width`, each part unfolded by its cut
         top = 2
-        todo_n[0], todo_k[0] = left[b], split
-        todo_n[1], todo_k[1] = right[b], width - split
+        todo_n[0], todo_k[0] = left[b], split[b]
+        todo_n[1], todo_k[1] = right[b], width - split[b]
         count = 0
         while top > 0:
             top -= 1
