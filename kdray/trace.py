@@ -158,7 +158,8 @@ class Tracer:
         Only on devices with cl_khr_fp64; `self.refine` says whether it is on.
 
     device_bytes : bytes of the tree on the device (`device_sizes`), and of its wide
-        nodes (kdray.wide, about a tenth more) once a trace or query has made them.
+        nodes (kdray.wide, about a tenth more) once a trace, query or render with
+        packets has made them.
     """
 
     def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
@@ -370,8 +371,8 @@ class Tracer:
 
     def _wide(self):
         """(buffer, stack groups): the tree's wide nodes on the device (kdray.wide) and
-        the stack a walk of them needs, made at the first trace or query that needs
-        them. Their leaves' triangle copies follow the k-d leaves' (from the next
+        the stack a walk of them needs, made at the first trace, query or render that
+        needs them. Their leaves' triangle copies follow the k-d leaves' (from the next
         TRI_BLOCK on) in the triangle buffers, which are made again with them (the k-d
         part unchanged, so that every kernel reads either); their bytes join
         device_bytes. DeviceError when they do not fit (`_check_fits`)."""
@@ -456,7 +457,8 @@ class Tracer:
         out = {k: page_aligned_empty(shape, dtype)
                for k, (shape, dtype) in _render.output_shapes(1, outputs).items()}
         self._launch("render_camera", outputs, _render.tile_slots(1, 1),
-                     (camera_buf, None, np.uint32(1), np.uint32(0), np.uint32(1)), out)
+                     (camera_buf, None, np.uint32(1), np.uint32(0), np.uint32(1)), out,
+                     wide=self.packet > 1)
         if trace:
             for dtype in (np.float64, np.float32):
                 self._trace(np.zeros((1, 3), dtype), np.zeros((1, 3), dtype))
@@ -845,6 +847,11 @@ class Tracer:
         (`program`; map_buf: the ray map of rays="map", else None), writing `out` (dict
         output -> (h*w, ...) host array): as many whole rows a launch as fit on the
         device, MAX_RAYS_PER_LAUNCH pixels or one row at most."""
+        # packets walk the wide nodes (render.cl, trace_packet), made before a
+        # launch's size, which their bytes bound
+        wide = self.packet > 1
+        if wide:
+            self._wide()
         rows_per_launch = self._launch_size([w * OUTPUT_WIDTH[k][0] * 4 for k in outputs],
                                             what=f"row of {w} pixels",
                                             cap=max(1, MAX_RAYS_PER_LAUNCH // w))
@@ -853,7 +860,7 @@ class Tracer:
             start, stop = row0 * w, (row0 + n_rows) * w
             self._launch("render_camera", outputs, _render.tile_slots(w, n_rows),
                          (camera_buf, map_buf, np.uint32(w), np.uint32(row0), np.uint32(n_rows)),
-                         {k: v[start:stop] for k, v in out.items()}, rays=rays)
+                         {k: v[start:stop] for k, v in out.items()}, rays=rays, wide=wide)
 
     def _ray_map(self, camera):
         """(map32 (H*W, 3) float32, its device buffer, valid (H*W,) bool) of a camera of

@@ -1020,6 +1020,15 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
         fallback.v = on;                 /* traced ray by ray below: no packet set up */
     } else {
         kd_packet_shear(&r, on, first, ox, oy, oz, dx, dy, dz, t_min, t_max);
+#ifdef KD_WIDE
+        /* a packet whose directions share an octant walks the wide nodes (wide.cl),
+         * others (a block across an axis of the view) the k-d tree */
+        uint octant;
+        if (kd_packet_octant(&r, on, first, &octant))
+            kd_packet_wide_traverse(wide, tris, tri_ids, &r, on, octant,
+                                    kd_wide_reach(bmin, bmax), &h);
+        else
+#endif
         kd_packet_traverse(nodes, 2u * n_nodes + 2u, tris, tri_ids, &r, on, t_enter, t_exit,
                            &h, &fallback.v KD_PSTATS_ARG);
     }

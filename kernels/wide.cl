@@ -285,5 +285,155 @@ void kd_wide_trace(__global const uint *wide, __global const float *tris,
     }
 }
 
+
+#ifdef KDRAY_PACKET_CL
+/* Packets through the wide nodes (packet programs: packet.cl includes this file after
+ * its packets' types). A packet of rays that share their paths (a camera's block of
+ * pixels) whose lanes' directions share one octant walks the wide nodes as one, as
+ * Embree's packets walk its BVH: at a node, each slot's box against all its lanes in
+ * one vector step; the slots some lane meets are taken in the octant's order, each
+ * with the lanes that meet it and where each enters its box; a lane is carried into
+ * a child only while that entry is not beyond its best hit (strictly, as
+ * kd_wide_step). A lane's slab test is kd_wide_push's arithmetic for its ray (the same
+ * pad, planes and roundings), so it skips a child only where its own walk may, and
+ * leaves are kd_packet_leaf's: every lane's hit is the single ray's bit for bit.
+ *
+ * Why: the k-d packet walk (packet.cl) visits the union of its lanes' cells, one plane
+ * a step, a packet's longest path (55 steps of 16 lanes against 22 a ray, bunny) with
+ * most lanes idle; here a ray's walk is a few wide nodes deep, each slot tested for
+ * all lanes at once, and a triangle lies in one leaf (BENCHMARKS.md, "Camera rays"). */
+
+/* A packet stack's entries: a child word and each lane's entry t (NaN: the lane does
+ * not meet the child's box), at most 7 a level below the root. */
+#define KD_PACKET_WIDE_STACK (7u * WIDE_STACK + 1u)
+#define KD_WIDE_EMPTY 0xFFFFFFFFu
+
+/* The octant of the lanes in `on` of packet r (first: the first of them), in *octant,
+ * when they share one (bit a: the direction is negative along axis a, as
+ * kd_wide_start's, from 1 / d: -0 is negative). */
+KD_INLINE
+bool kd_packet_octant(const KdPacket *r, intP on, uint first, uint *octant)
+{
+    intP down_x = r->d_inv[0] < 0.0f, down_y = r->d_inv[1] < 0.0f, down_z = r->d_inv[2] < 0.0f;
+    KdIP x, y, z;
+    x.v = down_x; y.v = down_y; z.v = down_z;
+    *octant = (x.s[first] ? 1u : 0u) | (y.s[first] ? 2u : 0u) | (z.s[first] ? 4u : 0u);
+    return !kd_anyP(on & ((down_x != (intP)(x.s[first])) | (down_y != (intP)(y.s[first]))
+                          | (down_z != (intP)(z.s[first]))));
+}
+
+/* Nearest hits (with ANY_HIT: any hit) into h of the lanes in `act` of packet r, whose
+ * directions all lie in `octant` (kd_packet_octant), through the wide nodes; reach: the
+ * scene box's largest |coordinate| (kd_wide_reach). */
+KD_INLINE
+void kd_packet_wide_traverse(__global const uint *wide, __global const float *tris,
+                             __global const uint *tri_ids, const KdPacket *r, intP act,
+                             uint octant, float reach, KdPacketHit *h)
+{
+    uint stack_child[KD_PACKET_WIDE_STACK];
+    floatP stack_t[KD_PACKET_WIDE_STACK];
+    uint count = 0u;
+    /* kd_wide_start's rows and plane offsets, each lane's (and with one origin, one
+     * number for all: the same values) */
+    bool down_x = (octant & 1u) != 0u, down_y = (octant & 2u) != 0u,
+         down_z = (octant & 4u) != 0u;
+    uint nx = down_x ? 3u : 0u, ny = down_y ? 4u : 1u, nz = down_z ? 5u : 2u;
+    uint fx = 3u - nx, fy = 5u - ny, fz = 7u - nz;
+    floatP ix = r->d_inv[0], iy = r->d_inv[1], iz = r->d_inv[2];
+    floatP a = kd_maxP(kd_maxP(kd_absP(r->o[0]), kd_absP(r->o[1])), kd_absP(r->o[2]));
+    floatP pad = (a + reach) * KD_WIDE_PAD + 0x1p-120f;
+    floatP px = down_x ? pad : -pad, py = down_y ? pad : -pad, pz = down_z ? pad : -pad;
+    floatP cnx = px - r->o[0], cny = py - r->o[1], cnz = pz - r->o[2];
+    floatP cfx = -px - r->o[0], cfy = -py - r->o[1], cfz = -pz - r->o[2];
+    bool shared = r->shared_o;
+    float sa = kd_max(kd_max(kd_abs(r->uo[0]), kd_abs(r->uo[1])), kd_abs(r->uo[2]));
+    float spad = (sa + reach) * KD_WIDE_PAD + 0x1p-120f;
+    float spx = down_x ? spad : -spad, spy = down_y ? spad : -spad, spz = down_z ? spad : -spad;
+    float snx = spx - r->uo[0], sny = spy - r->uo[1], snz = spz - r->uo[2];
+    float sfx = -spx - r->uo[0], sfy = -spy - r->uo[1], sfz = -spz - r->uo[2];
+    floatP t_min = r->t_min;
+    intP live = act;                     /* with ANY_HIT: lanes with no hit yet */
+    uint child = 0u;                     /* the root, with the lanes in act */
+    for (;;) {
+        if (child & KD_WIDE_LEAF) {
+            kd_packet_leaf(kd_wide_leaf(child), tris, tri_ids, r, act, h);
+#ifdef ANY_HIT
+            live &= ~(act & as_intP(h->tri != (uintP)(KD_NO_HIT)));
+#endif
+        } else {
+            __global const uint *w = wide + (size_t)child * KD_WIDE_WORDS;
+            __global const float *rows = (__global const float *)w;
+            uint order = w[KD_WIDE_ORDER + octant];
+            floatP far = h->t;
+            uint met_child[8];
+            floatP met_t[8];
+            /* lane l of acc: bit j where lane l meets the j-th slot in the order */
+            uintP acc = (uintP)(0u);
+            for (uint j = 0u; j < 8u; j++) {
+                uint k = (order >> (3u * j)) & 7u;
+                uint c = w[KD_WIDE_CHILD + k];
+                if (c == KD_WIDE_EMPTY)
+                    break;                   /* empty slots come last in every order */
+                /* kd_wide_push's slab test, a lane each */
+                floatP tn = t_min, tf = far, s;
+                if (shared) {
+                    s = (rows[8u * nz + k] + snz) * iz; tn = s > tn ? s : tn;
+                    s = (rows[8u * ny + k] + sny) * iy; tn = s > tn ? s : tn;
+                    s = (rows[8u * nx + k] + snx) * ix; tn = s > tn ? s : tn;
+                    s = (rows[8u * fz + k] + sfz) * iz; tf = s < tf ? s : tf;
+                    s = (rows[8u * fy + k] + sfy) * iy; tf = s < tf ? s : tf;
+                    s = (rows[8u * fx + k] + sfx) * ix; tf = s < tf ? s : tf;
+                } else {
+                    s = (rows[8u * nz + k] + cnz) * iz; tn = s > tn ? s : tn;
+                    s = (rows[8u * ny + k] + cny) * iy; tn = s > tn ? s : tn;
+                    s = (rows[8u * nx + k] + cnx) * ix; tn = s > tn ? s : tn;
+                    s = (rows[8u * fz + k] + cfz) * iz; tf = s < tf ? s : tf;
+                    s = (rows[8u * fy + k] + cfy) * iy; tf = s < tf ? s : tf;
+                    s = (rows[8u * fx + k] + cfx) * ix; tf = s < tf ? s : tf;
+                }
+                intP m = act & (tn <= tf);
+                acc |= as_uintP(m) & (uintP)(1u << j);
+                met_child[j] = c;
+                met_t[j] = kd_selectP((floatP)(NAN), tn, m);
+            }
+            /* the slots some lane meets: the lanes or-ed together once, not a test a
+             * slot */
+#if KD_PACKET == 16
+            uint8 e8 = acc.lo | acc.hi;
+#else
+            uint8 e8 = acc;
+#endif
+            uint4 e4 = e8.lo | e8.hi;
+            uint2 e2 = e4.lo | e4.hi;
+            uint bits = e2.x | e2.y;
+            if (bits != 0u) {
+                /* the first in the order taken now, the others pushed last first */
+                uint j0 = 31u - clz(bits & (0u - bits));
+                bits &= bits - 1u;
+                while (bits != 0u) {
+                    uint j = 31u - clz(bits);
+                    bits &= ~(1u << j);
+                    stack_child[count] = met_child[j];
+                    stack_t[count] = met_t[j];
+                    count++;
+                }
+                child = met_child[j0];
+                act = met_t[j0] <= h->t;     /* (h->t has not moved since) */
+                continue;
+            }
+        }
+        /* the next entry that a live lane enters at or before its best hit */
+        act = (intP)(0);
+        while (count > 0u && !kd_anyP(act)) {
+            count--;
+            child = stack_child[count];
+            act = live & (stack_t[count] <= h->t);
+        }
+        if (!kd_anyP(act))
+            return;
+    }
+}
+#endif
+
 #endif
 #endif

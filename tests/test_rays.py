@@ -424,18 +424,20 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
 def test_packet_walks_on_every_runtime(runtime):
     """The queries' packet walks (kd_packet_walk, an image's blocks, the cull) and wide
     walks (kd_wide_walks: rays from scattered points in all directions, a k-nearest
-    list pruned by its last slot) at packets of 8 on every runtime, a simulator's
-    included (a small image of the sphere, a few scattered rays): the answers of one
-    ray at a time, bit for bit."""
+    list pruned by its last slot), and a render's packets through the wide nodes, at
+    packets of 8 on every runtime, a simulator's included (a small image of the sphere, a few scattered rays): the
+    answers of one ray at a time, bit for bit."""
     mesh = load(SCENES / "sphere.obj")
     tree = build(mesh.vertices, mesh.faces)
     one = Tracer(tree, device=runtime.spec, packet=1)
-    o, d = one.camera_rays(camera_for(tree, 16, 12))
+    camera = camera_for(tree, 16, 12)
+    o, d = one.camera_rays(camera)
     d = d.reshape(12, 16, 3)
     lo, hi = ranges(np.random.default_rng(14), d.size // 3, 3.0)
     o_s, d_s = random_rays(tree, runtime.small(997, 45), seed=15, inside=0.6)
 
     def answers(tracer):
+        image = tracer.render(camera, aovs="depth,id")
         listed = tracer.intersections(o[0], d)
         near = tracer.trace(o[0], d, lo, hi)
         scattered = tracer.intersections(o_s, d_s)
@@ -443,7 +445,7 @@ def test_packet_walks_on_every_runtime(runtime):
         return (tracer.count(o[0], d), tracer.occluded(o[0], d, lo, hi), listed.offsets,
                 listed.prim, listed.t, near.t, near.prim, tracer.count(o_s, d_s),
                 scattered.offsets, scattered.prim, scattered.t, nearest.offsets,
-                nearest.prim, tracer.contains(o_s))
+                nearest.prim, tracer.contains(o_s), image["depth"], image["id"])
 
     want = answers(one)
     assert want[0].sum() > 50 and want[7].sum() > 10

@@ -262,36 +262,108 @@ def test_wide_walk_equals_single_rays_at_any_offset_and_scale(name, tracers):
     assert np.array_equal(raw.trace(o, d).prim, c.prim)
 
 
-def test_wide_nodes_are_made_by_the_first_trace_and_follow_the_tree(tracers):
-    """A render makes no wide nodes; the first trace makes them, their leaves' copies
-    appended to the triangle buffers (their bytes join device_bytes), and renders
-    after it are the same; `with_tree` traces the new tree's, not the old one's."""
+def test_wide_nodes_are_made_by_the_first_call_and_follow_the_tree(tracers):
+    """A Tracer with packets makes no wide nodes until its first render, trace or
+    query, which makes them, their leaves' copies appended to the triangle buffers
+    (their bytes join device_bytes); images and hits are one ray a work-item's;
+    `with_tree` traces the new tree's, not the old one's."""
     from kdray import Camera, Tracer
     tree = _tree("teapot")
     other = _tree("soup, median 18 deep")
-    tr = Tracer(tree)
-    if tr.packet == 1:
-        pytest.skip("no packets on this device")
-    tr._alone_spread = -1.0
-    before = tr.device_bytes
     lo, hi = tree.world_box()
     camera = Camera.frame(lo, hi, 16, 12)
-    image = tr.render(camera, aovs="depth,normal,id")
-    assert tr._wide_nodes is None and tr.device_bytes == before
     o, d = random_rays(tree, 301, seed=43)
-    tr.trace(o, d)
-    n_kd = layout.n_device_triangles(tree.nodes, tr.packet)
-    first_copy = layout.TRI_BLOCK * layout.n_triangle_blocks(n_kd)
-    records, _, copies = wide_nodes(tree, tr.packet, first_copy)
-    added = (records.nbytes + 36 * layout.TRI_BLOCK * layout.n_triangle_blocks(len(copies))
-             + 4 * (first_copy - n_kd + len(copies)))
-    assert tr.device_bytes == before + added
-    again = tr.render(camera, aovs="depth,normal,id")
-    for name in image:
-        assert np.array_equal(image[name], again[name], equal_nan=True), name
+    want_image = tracers(tree, packet=1).render(camera, aovs="depth,normal,id")
+    want_hits = tracers(tree, packet=1).trace(o, d)
+    for call in ("render", "trace"):
+        tr = Tracer(tree)
+        if tr.packet == 1:
+            pytest.skip("no packets on this device")
+        tr._alone_spread = -1.0
+        before = tr.device_bytes
+        assert tr._wide_nodes is None
+        image = tr.render(camera, aovs="depth,normal,id") if call == "render" else None
+        assert (tr._wide_nodes is not None) == (call == "render")
+        hits = tr.trace(o, d)
+        n_kd = layout.n_device_triangles(tree.nodes, tr.packet)
+        first_copy = layout.TRI_BLOCK * layout.n_triangle_blocks(n_kd)
+        records, _, copies = wide_nodes(tree, tr.packet, first_copy)
+        added = (records.nbytes + 36 * layout.TRI_BLOCK * layout.n_triangle_blocks(len(copies))
+                 + 4 * (first_copy - n_kd + len(copies)))
+        assert tr.device_bytes == before + added
+        image = tr.render(camera, aovs="depth,normal,id") if image is None else image
+        for name in want_image:
+            assert np.array_equal(image[name], want_image[name], equal_nan=True), name
+        for field in ("t", "prim", "u", "v"):
+            assert np.array_equal(getattr(want_hits, field), getattr(hits, field)), field
     swapped = tr.with_tree(other)
     o, d = random_rays(other, 301, seed=44)
     want = tracers(other, packet=1).trace(o, d)
     got = swapped.trace(o, d)
     for field in ("t", "prim", "u", "v"):
         assert np.array_equal(getattr(want, field), getattr(got, field)), field
+
+
+def _blocks_in_one_octant(d, packet):
+    """(one, mixed): how many of an (H, W, 3) image's packets of 4 x packet / 4 pixels
+    have directions in one octant, and how many do not (the k-d walk's)."""
+    h, w = d.shape[:2]
+    rows = packet // 4
+    s = np.signbit(d[: h - h % rows, : w - w % 4])
+    s = s.reshape(h // rows, rows, w // 4, 4, 3)
+    one = (s == s[:, :1, :, :1]).all(axis=(1, 3, 4))
+    return int(one.sum()), int((~one).sum())
+
+
+@pytest.mark.parametrize("name", ["teapot", "cube", "far", "tiny"])
+def test_packets_of_one_octant_walk_the_wide_nodes_as_their_rays_alone(name, tracers):
+    """Packets of an image's pixels whose directions share an octant walk the wide nodes
+    as one (wide.cl, kd_packet_wide_traverse), the others the k-d tree: every hit is one
+    ray a work-item's bit for bit, for a camera's rays from one eye (blocks on the
+    view's axes mixed), from an eye spread over a lens, through every vertex of a cube
+    whose vertices lie on its split planes, in t ranges as numbers and a ray each,
+    without refinement, for any hit; at any offset and scale; and a render's."""
+    from kdray import Camera
+    tree = _tree(name)
+    tree = tree[0] if isinstance(tree, tuple) else tree
+    lo, hi = tree.world_box()
+    c, size = 0.5 * (lo + hi), np.max(hi - lo)
+    if name == "cube":
+        # a pinhole on the z axis through the grid points of the front face (z = 3):
+        # pixel (i, j) aims at (i / 8 - 3, j / 8 - 3, 3), every vertex a pixel's
+        g = np.arange(49) / 8.0 - 3.0
+        target = np.stack(np.meshgrid(g, g, [3.0], indexing="ij"), -1)[:, :, 0]
+        eye = np.array([0.3, 0.55, 11.0])
+        o, d = eye, target - eye
+    else:
+        # the view's axes through the box's centre: blocks there are mixed
+        camera = Camera.look_at(c + np.array([0.0, 0.0, 1.2 * size]), c, up=(0, 1, 0),
+                                fov_deg=50, width=97, height=81)
+        o, d = camera.rays()
+        o, d = o[0], d.reshape(81, 97, 3)
+    single = tracers(tree, packet=1)
+    packed = tracers(tree)
+    if packed.packet == 1:
+        pytest.skip("no packets on this device")
+    one, mixed = _blocks_in_one_octant(d, packed.packet)
+    assert one > 3 * mixed > 0, (one, mixed)
+    rng = np.random.default_rng(47)
+    lens = o + 1e-4 * size * rng.uniform(-1, 1, d.shape)      # origins spread a little
+    t_lo = rng.uniform(0, 1.5, d.size // 3) * size
+    t_hi = t_lo + rng.uniform(0, 2, d.size // 3) * size
+    packed._poison_outputs = True
+    for oo in (o, lens):
+        for t_min, t_max in ((0.0, np.inf), (0.2 * size, 1.1 * size), (t_lo, t_hi)):
+            a = single.trace(oo, d, t_min=t_min, t_max=t_max)
+            b = packed.trace(oo, d, t_min=t_min, t_max=t_max)
+            for field in ("t", "prim", "u", "v", "normal"):
+                assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+            assert np.array_equal(packed.occluded(oo, d, t_min=t_min, t_max=t_max), a.hit)
+    assert 0.1 * a.hit.size < np.count_nonzero(single.trace(o, d).hit)
+    raw = tracers(tree, refine=False)
+    assert np.array_equal(raw.trace(o, d).prim, tracers(tree, packet=1, refine=False).trace(o, d).prim)
+    if name != "cube":
+        image = packed.render(camera, aovs="depth,normal,id,bary")
+        want = single.render(camera, aovs="depth,normal,id,bary")
+        for k in want:
+            assert np.array_equal(image[k], want[k], equal_nan=True), k
