@@ -24,8 +24,9 @@
  *
  * Options (-D): KD_WIDE (the program takes the wide records after n_nodes),
  * WIDE_STACK (groups a ray's stack: the levels of wide nodes, kdray/wide.py
- * wide_nodes). Not with STATS (such programs trace these rays
- * one by one, trace_ray counting them).
+ * wide_nodes), KD_PREFETCH_LEAVES (packets fetch the triangles of the leaves they push:
+ * for trees the caches do not hold, kdray/trace.py). Not with STATS (such programs
+ * trace these rays one by one, trace_ray counting them).
  */
 #ifndef KDRAY_WIDE_CL
 #define KDRAY_WIDE_CL
@@ -413,6 +414,14 @@ void kd_packet_wide_traverse(__global const uint *wide, __global const float *tr
                 while (bits != 0u) {
                     uint j = 31u - clz(bits);
                     bits &= ~(1u << j);
+#ifdef KD_PREFETCH_LEAVES
+                    /* a leaf's 9 rows, fetched while the nearer children are walked (a
+                     * leaf's first row is where a packet waits most on a large tree;
+                     * on one the caches hold, the prefetches cost more than they hide) */
+                    if (met_child[j] & KD_WIDE_LEAF)
+                        prefetch(kd_tri_base(tris, kd_leaf_offset(kd_wide_leaf(met_child[j]))),
+                                 9 * KD_TRI_BLOCK);
+#endif
                     stack_child[count] = met_child[j];
                     stack_t[count] = met_t[j];
                     count++;
