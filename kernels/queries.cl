@@ -641,9 +641,103 @@ void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const
                             q);
 }
 
+/* Leaf `leaf` of the walks of the packet's lanes in `act` (r, b: kd_packet_query_leaf's;
+ * lo, hi: each lane's range; t_exit: where each leaves the leaf, -inf where a walk's
+ * stack alone ends it): with many lanes a triangle against all of them at a time,
+ * else lane by lane kd_query_leaf's blocks. Returns the lanes whose walk may stop
+ * (kd_list_done). */
+KD_INLINE
+intP kd_packet_walk_leaf(uint query, bool crossing, KdNode leaf, __global const float *tris,
+                         __global const uint *tri_ids, const KdPacket *r,
+                         const KdLaneBounds *b, intP act, const KdFP *lo, const KdFP *hi,
+                         floatP t_exit, KdQuery *q)
+{
+    uint at_leaf = kd_bitsP(act), done = 0u;
+    uint tests = kd_n_prims(leaf);
+    KdFP t_exit_l;
+    t_exit_l.v = t_exit;
+    if ((float)(popcount(at_leaf) * ((tests + KD_PACKET - 1) / KD_PACKET))
+           >= (KD_CULLS(r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO) * (float)tests) {
+        /* many lanes: a triangle against all of them at a time */
+        kd_packet_query_leaf(query, crossing, leaf, tris, tri_ids, r, b, act, lo, hi, q);
+        for (uint at = query == KD_LIST ? at_leaf : 0u; at;) {
+            uint l = kd_take_lane(&at);
+            if (kd_list_done(&q[l], t_exit_l.s[l]))
+                done |= 1u << l;
+        }
+        return kd_maskP(done);
+    }
+    while (at_leaf) {
+        uint l = kd_take_lane(&at_leaf);
+        RayShear sl;             /* the lane's shear and origin, kd_walk's bit for bit */
+        float3 ol;
+        kd_lane_shear(r, l, &sl, &ol);
+        if (kd_query_leaf(query, leaf, tris, tri_ids, &sl, ol, lo->s[l], hi->s[l],
+                          t_exit_l.s[l], &q[l]))
+            done |= 1u << l;
+    }
+    return kd_maskP(done);
+}
+
+/* The walks of the packet's lanes in `act` (r, b: kd_packet_query_leaf's; lo, hi: each
+ * lane's range), whose directions all lie in `octant`, through the wide nodes as one
+ * (wide.cl, kd_packet_wide_node: each lane's slab test kd_wide_push's): every leaf
+ * whose box a lane's range meets, for that lane, each once, as kd_wide_walks visits
+ * them; a k-nearest list's lane pruned by its last slot's t (kd_query_far). */
+KD_INLINE
+void kd_packet_wide_walk(uint query, bool crossing, __global const uint *wide,
+                         __global const float *tris, __global const uint *tri_ids,
+                         const KdPacket *r, const KdLaneBounds *b, intP act, uint octant,
+                         float reach, const KdFP *lo, const KdFP *hi, KdQuery *q)
+{
+    uint stack_child[KD_PACKET_WIDE_STACK];
+    floatP stack_t[KD_PACKET_WIDE_STACK];
+    uint count = 0u;
+    KdPacketWide p;
+    kd_packet_wide_start(&p, r, octant, reach, lo->v);
+    KdFP far;                            /* each lane's kd_query_far */
+    far.v = hi->v;
+    uint child = 0u;                     /* the root, with the lanes in act */
+    for (;;) {
+        if (child & KD_WIDE_LEAF) {
+            /* no exit t: a walk ends when its stack does (kd_query_far prunes it) */
+            kd_packet_walk_leaf(query, crossing, kd_wide_leaf(child), tris, tri_ids, r, b, act,
+                                lo, hi, (floatP)(-INFINITY), q);
+            if (query == KD_LIST) {
+                for (uint at = kd_bitsP(act); at;) {
+                    uint l = kd_take_lane(&at);
+                    far.s[l] = kd_query_far(query, &q[l], hi->s[l]);
+                }
+            }
+        } else {
+            uint met_child[8];
+            floatP met_t[8];
+            uint bits = kd_packet_wide_node(&p, wide + (size_t)child * KD_WIDE_WORDS, act,
+                                            far.v, met_child, met_t);
+            if (bits != 0u) {
+                uint j0 = kd_packet_wide_push(bits, met_child, met_t, stack_child, stack_t,
+                                              &count, tris);
+                child = met_child[j0];
+                act = met_t[j0] <= far.v;    /* (far has not moved since) */
+                continue;
+            }
+        }
+        /* the next entry that a lane enters at or before its far */
+        act = (intP)(0);
+        while (count > 0u && !kd_anyP(act)) {
+            count--;
+            child = stack_child[count];
+            act = stack_t[count] <= far.v;
+        }
+        if (!kd_anyP(act))
+            return;
+    }
+}
+
 /* The walks of the packet of rays ids[0 .. m - 1] (m <= KD_PACKET) into q[0 .. m - 1]
- * on one path, as trace_packet traverses rays that share their paths (packet.cl): one
- * node step for all the lanes, each taking the children it needs (kd_packet_step:
+ * on one path, as trace_packet traverses rays that share their paths (packet.cl): where
+ * their directions share an octant, through the wide nodes (kd_packet_wide_walk); else
+ * through the k-d tree, one node step for all the lanes, each taking the children it needs (kd_packet_step:
  * traverse.cl's rules and slack), and every leaf a lane's range reaches handed to
  * kd_query_leaf for that lane, until it says stop. Returns the lanes to be walked on
  * their own from their start: every lane of rays that share no path (kd_alone), else
@@ -654,6 +748,7 @@ void kd_packet_query_leaf(uint query, bool crossing, KdNode leaf, __global const
  * hits depend on the ray and the triangles only: each ray's answer is its kd_walk's. */
 KD_INLINE
 intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
+                    __global const uint *wide,
                     __global const float *tris, __global const uint *tri_ids, float3 bmin,
                     float3 bmax, __global const float *origins, __global const float *directions,
                     uint o_step, __global const float *t_mins, __global const float *t_maxs,
@@ -696,6 +791,13 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
         bounds = &lane_bounds;
     }
 #endif
+    uint octant;
+    if (kd_packet_octant(&r, on, first, &octant)) {
+        /* directions in one octant: through the wide nodes as one (no lane leaves) */
+        kd_packet_wide_walk(query, crossing, wide, tris, tri_ids, &r, bounds, on, octant,
+                            kd_wide_reach(bmin, bmax), &lo, &hi, q);
+        return (intP)(0);
+    }
 
     uint stack_node[PACKET_STACK_SIZE];
     floatP stack_t_min[PACKET_STACK_SIZE];
@@ -761,31 +863,8 @@ intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
         if (kd_anyP(act)) {
             if (++leaves > 2u * n_nodes + 2u)
                 return fallback | live;      /* more leaves than a valid tree has */
-            uint at_leaf = kd_bitsP(act);
-            uint tests = kd_n_prims(n);
-            KdFP t_exit_l;
-            t_exit_l.v = t_max_cur;
-            if ((float)(popcount(at_leaf) * ((tests + KD_PACKET - 1) / KD_PACKET))
-                   >= (KD_CULLS(&r) ? KD_CULL_LANE_RATIO : KD_LANE_RATIO) * (float)tests) {
-                /* many lanes: a triangle against all of them at a time */
-                kd_packet_query_leaf(query, crossing, n, tris, tri_ids, &r, bounds, act,
-                                     &lo, &hi, q);
-                for (uint done = query == KD_LIST ? at_leaf : 0u; done;) {
-                    uint l = kd_take_lane(&done);
-                    if (kd_list_done(&q[l], t_exit_l.s[l]))
-                        live &= ~kd_maskP(1u << l);
-                }
-                at_leaf = 0u;
-            }
-            while (at_leaf) {
-                uint l = kd_take_lane(&at_leaf);
-                RayShear sl;         /* the lane's shear and origin, kd_walk's bit for bit */
-                float3 ol;
-                kd_lane_shear(&r, l, &sl, &ol);
-                if (kd_query_leaf(query, n, tris, tri_ids, &sl, ol, lo.s[l], hi.s[l],
-                                  t_exit_l.s[l], &q[l]))
-                    live &= ~kd_maskP(1u << l);
-            }
+            live &= ~kd_packet_walk_leaf(query, crossing, n, tris, tri_ids, &r, bounds, act,
+                                         &lo, &hi, t_max_cur, q);
         }
 
         /* the next entry with a lane whose walk goes on */
@@ -917,9 +996,9 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
         for (uint p0 = 0u; p0 < n; p0 += KD_PACKET) {
             uint m = min((uint)KD_PACKET, n - p0);
             KdIP leave;
-            leave.v = kd_packet_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, origins,
-                                     directions, o_step, t_mins, t_maxs, t_step, ids + p0, m,
-                                     crossing, q + p0);
+            leave.v = kd_packet_walk(query, nodes, n_nodes, wide, tris, tri_ids, bmin, bmax,
+                                     origins, directions, o_step, t_mins, t_maxs, t_step,
+                                     ids + p0, m, crossing, q + p0);
             for (uint l = 0u; l < m; l++) {
                 if (!leave.s[l])
                     continue;

@@ -323,6 +323,124 @@ bool kd_packet_octant(const KdPacket *r, intP on, uint first, uint *octant)
                           | (down_z != (intP)(z.s[first]))));
 }
 
+/* A packet's walk of the wide nodes: its octant's rows (kd_wide_start's: near and
+ * far planes), each lane's 1 / d and plane offsets c (the pad outwards, minus the
+ * origin), with one origin (shared) also as one number each (the same values), and
+ * each lane's t_min. */
+typedef struct {
+    uint octant, nx, ny, nz, fx, fy, fz;
+    bool shared;
+    floatP ix, iy, iz, cnx, cny, cnz, cfx, cfy, cfz, t_min;
+    float snx, sny, snz, sfx, sfy, sfz;
+} KdPacketWide;
+
+KD_INLINE
+void kd_packet_wide_start(KdPacketWide *p, const KdPacket *r, uint octant, float reach,
+                          floatP t_min)
+{
+    bool down_x = (octant & 1u) != 0u, down_y = (octant & 2u) != 0u,
+         down_z = (octant & 4u) != 0u;
+    p->octant = octant;
+    p->nx = down_x ? 3u : 0u;
+    p->ny = down_y ? 4u : 1u;
+    p->nz = down_z ? 5u : 2u;
+    p->fx = 3u - p->nx;
+    p->fy = 5u - p->ny;
+    p->fz = 7u - p->nz;
+    p->ix = r->d_inv[0];
+    p->iy = r->d_inv[1];
+    p->iz = r->d_inv[2];
+    floatP a = kd_maxP(kd_maxP(kd_absP(r->o[0]), kd_absP(r->o[1])), kd_absP(r->o[2]));
+    floatP pad = (a + reach) * KD_WIDE_PAD + 0x1p-120f;
+    floatP px = down_x ? pad : -pad, py = down_y ? pad : -pad, pz = down_z ? pad : -pad;
+    p->cnx = px - r->o[0]; p->cny = py - r->o[1]; p->cnz = pz - r->o[2];
+    p->cfx = -px - r->o[0]; p->cfy = -py - r->o[1]; p->cfz = -pz - r->o[2];
+    p->shared = r->shared_o;
+    float sa = kd_max(kd_max(kd_abs(r->uo[0]), kd_abs(r->uo[1])), kd_abs(r->uo[2]));
+    float spad = (sa + reach) * KD_WIDE_PAD + 0x1p-120f;
+    float spx = down_x ? spad : -spad, spy = down_y ? spad : -spad, spz = down_z ? spad : -spad;
+    p->snx = spx - r->uo[0]; p->sny = spy - r->uo[1]; p->snz = spz - r->uo[2];
+    p->sfx = -spx - r->uo[0]; p->sfy = -spy - r->uo[1]; p->sfz = -spz - r->uo[2];
+    p->t_min = t_min;
+}
+
+/* Wide node w's slots (its record) against the lanes in `act` over [t_min, far] (each
+ * lane's): returns the slots some lane meets, bit j the j-th in the octant's order,
+ * with met_child[j] its child word and met_t[j] where each lane enters its box (NaN
+ * where the lane does not meet it). kd_wide_push's slab test, a lane each. */
+KD_INLINE
+uint kd_packet_wide_node(const KdPacketWide *p, __global const uint *w, intP act, floatP far,
+                         uint *met_child, floatP *met_t)
+{
+    __global const float *rows = (__global const float *)w;
+    uint order = w[KD_WIDE_ORDER + p->octant];
+    /* lane l of acc: bit j where lane l meets the j-th slot in the order */
+    uintP acc = (uintP)(0u);
+    for (uint j = 0u; j < 8u; j++) {
+        uint k = (order >> (3u * j)) & 7u;
+        uint c = w[KD_WIDE_CHILD + k];
+        if (c == KD_WIDE_EMPTY)
+            break;                       /* empty slots come last in every order */
+        floatP tn = p->t_min, tf = far, s;
+        if (p->shared) {
+            s = (rows[8u * p->nz + k] + p->snz) * p->iz; tn = s > tn ? s : tn;
+            s = (rows[8u * p->ny + k] + p->sny) * p->iy; tn = s > tn ? s : tn;
+            s = (rows[8u * p->nx + k] + p->snx) * p->ix; tn = s > tn ? s : tn;
+            s = (rows[8u * p->fz + k] + p->sfz) * p->iz; tf = s < tf ? s : tf;
+            s = (rows[8u * p->fy + k] + p->sfy) * p->iy; tf = s < tf ? s : tf;
+            s = (rows[8u * p->fx + k] + p->sfx) * p->ix; tf = s < tf ? s : tf;
+        } else {
+            s = (rows[8u * p->nz + k] + p->cnz) * p->iz; tn = s > tn ? s : tn;
+            s = (rows[8u * p->ny + k] + p->cny) * p->iy; tn = s > tn ? s : tn;
+            s = (rows[8u * p->nx + k] + p->cnx) * p->ix; tn = s > tn ? s : tn;
+            s = (rows[8u * p->fz + k] + p->cfz) * p->iz; tf = s < tf ? s : tf;
+            s = (rows[8u * p->fy + k] + p->cfy) * p->iy; tf = s < tf ? s : tf;
+            s = (rows[8u * p->fx + k] + p->cfx) * p->ix; tf = s < tf ? s : tf;
+        }
+        intP m = act & (tn <= tf);
+        acc |= as_uintP(m) & (uintP)(1u << j);
+        met_child[j] = c;
+        met_t[j] = kd_selectP((floatP)(NAN), tn, m);
+    }
+    /* the lanes or-ed together once, not a test a slot */
+#if KD_PACKET == 16
+    uint8 e8 = acc.lo | acc.hi;
+#else
+    uint8 e8 = acc;
+#endif
+    uint4 e4 = e8.lo | e8.hi;
+    uint2 e2 = e4.lo | e4.hi;
+    return e2.x | e2.y;
+}
+
+/* The slots in `bits` (not 0; kd_packet_wide_node's) but the first pushed onto a
+ * packet's stack (stack_child, stack_t; *count entries), the last first so that the
+ * next pop is the next in the order; returns the first's j. */
+KD_INLINE
+uint kd_packet_wide_push(uint bits, const uint *met_child, const floatP *met_t,
+                         uint *stack_child, floatP *stack_t, uint *count,
+                         __global const float *tris)
+{
+    uint j0 = 31u - clz(bits & (0u - bits));
+    bits &= bits - 1u;
+    while (bits != 0u) {
+        uint j = 31u - clz(bits);
+        bits &= ~(1u << j);
+#ifdef KD_PREFETCH_LEAVES
+        /* a leaf's 9 rows, fetched while the nearer children are walked (a leaf's
+         * first row is where a packet waits most on a large tree; on one the caches
+         * hold, the prefetches cost more than they hide) */
+        if (met_child[j] & KD_WIDE_LEAF)
+            prefetch(kd_tri_base(tris, kd_leaf_offset(kd_wide_leaf(met_child[j]))),
+                     9 * KD_TRI_BLOCK);
+#endif
+        stack_child[*count] = met_child[j];
+        stack_t[*count] = met_t[j];
+        (*count)++;
+    }
+    return j0;
+}
+
 /* Nearest hits (with ANY_HIT: any hit) into h of the lanes in `act` of packet r, whose
  * directions all lie in `octant` (kd_packet_octant), through the wide nodes; reach: the
  * scene box's largest |coordinate| (kd_wide_reach). */
@@ -334,25 +452,8 @@ void kd_packet_wide_traverse(__global const uint *wide, __global const float *tr
     uint stack_child[KD_PACKET_WIDE_STACK];
     floatP stack_t[KD_PACKET_WIDE_STACK];
     uint count = 0u;
-    /* kd_wide_start's rows and plane offsets, each lane's (and with one origin, one
-     * number for all: the same values) */
-    bool down_x = (octant & 1u) != 0u, down_y = (octant & 2u) != 0u,
-         down_z = (octant & 4u) != 0u;
-    uint nx = down_x ? 3u : 0u, ny = down_y ? 4u : 1u, nz = down_z ? 5u : 2u;
-    uint fx = 3u - nx, fy = 5u - ny, fz = 7u - nz;
-    floatP ix = r->d_inv[0], iy = r->d_inv[1], iz = r->d_inv[2];
-    floatP a = kd_maxP(kd_maxP(kd_absP(r->o[0]), kd_absP(r->o[1])), kd_absP(r->o[2]));
-    floatP pad = (a + reach) * KD_WIDE_PAD + 0x1p-120f;
-    floatP px = down_x ? pad : -pad, py = down_y ? pad : -pad, pz = down_z ? pad : -pad;
-    floatP cnx = px - r->o[0], cny = py - r->o[1], cnz = pz - r->o[2];
-    floatP cfx = -px - r->o[0], cfy = -py - r->o[1], cfz = -pz - r->o[2];
-    bool shared = r->shared_o;
-    float sa = kd_max(kd_max(kd_abs(r->uo[0]), kd_abs(r->uo[1])), kd_abs(r->uo[2]));
-    float spad = (sa + reach) * KD_WIDE_PAD + 0x1p-120f;
-    float spx = down_x ? spad : -spad, spy = down_y ? spad : -spad, spz = down_z ? spad : -spad;
-    float snx = spx - r->uo[0], sny = spy - r->uo[1], snz = spz - r->uo[2];
-    float sfx = -spx - r->uo[0], sfy = -spy - r->uo[1], sfz = -spz - r->uo[2];
-    floatP t_min = r->t_min;
+    KdPacketWide p;
+    kd_packet_wide_start(&p, r, octant, reach, r->t_min);
     intP live = act;                     /* with ANY_HIT: lanes with no hit yet */
     uint child = 0u;                     /* the root, with the lanes in act */
     for (;;) {
@@ -362,70 +463,13 @@ void kd_packet_wide_traverse(__global const uint *wide, __global const float *tr
             live &= ~(act & as_intP(h->tri != (uintP)(KD_NO_HIT)));
 #endif
         } else {
-            __global const uint *w = wide + (size_t)child * KD_WIDE_WORDS;
-            __global const float *rows = (__global const float *)w;
-            uint order = w[KD_WIDE_ORDER + octant];
-            floatP far = h->t;
             uint met_child[8];
             floatP met_t[8];
-            /* lane l of acc: bit j where lane l meets the j-th slot in the order */
-            uintP acc = (uintP)(0u);
-            for (uint j = 0u; j < 8u; j++) {
-                uint k = (order >> (3u * j)) & 7u;
-                uint c = w[KD_WIDE_CHILD + k];
-                if (c == KD_WIDE_EMPTY)
-                    break;                   /* empty slots come last in every order */
-                /* kd_wide_push's slab test, a lane each */
-                floatP tn = t_min, tf = far, s;
-                if (shared) {
-                    s = (rows[8u * nz + k] + snz) * iz; tn = s > tn ? s : tn;
-                    s = (rows[8u * ny + k] + sny) * iy; tn = s > tn ? s : tn;
-                    s = (rows[8u * nx + k] + snx) * ix; tn = s > tn ? s : tn;
-                    s = (rows[8u * fz + k] + sfz) * iz; tf = s < tf ? s : tf;
-                    s = (rows[8u * fy + k] + sfy) * iy; tf = s < tf ? s : tf;
-                    s = (rows[8u * fx + k] + sfx) * ix; tf = s < tf ? s : tf;
-                } else {
-                    s = (rows[8u * nz + k] + cnz) * iz; tn = s > tn ? s : tn;
-                    s = (rows[8u * ny + k] + cny) * iy; tn = s > tn ? s : tn;
-                    s = (rows[8u * nx + k] + cnx) * ix; tn = s > tn ? s : tn;
-                    s = (rows[8u * fz + k] + cfz) * iz; tf = s < tf ? s : tf;
-                    s = (rows[8u * fy + k] + cfy) * iy; tf = s < tf ? s : tf;
-                    s = (rows[8u * fx + k] + cfx) * ix; tf = s < tf ? s : tf;
-                }
-                intP m = act & (tn <= tf);
-                acc |= as_uintP(m) & (uintP)(1u << j);
-                met_child[j] = c;
-                met_t[j] = kd_selectP((floatP)(NAN), tn, m);
-            }
-            /* the slots some lane meets: the lanes or-ed together once, not a test a
-             * slot */
-#if KD_PACKET == 16
-            uint8 e8 = acc.lo | acc.hi;
-#else
-            uint8 e8 = acc;
-#endif
-            uint4 e4 = e8.lo | e8.hi;
-            uint2 e2 = e4.lo | e4.hi;
-            uint bits = e2.x | e2.y;
+            uint bits = kd_packet_wide_node(&p, wide + (size_t)child * KD_WIDE_WORDS, act,
+                                            h->t, met_child, met_t);
             if (bits != 0u) {
-                /* the first in the order taken now, the others pushed last first */
-                uint j0 = 31u - clz(bits & (0u - bits));
-                bits &= bits - 1u;
-                while (bits != 0u) {
-                    uint j = 31u - clz(bits);
-                    bits &= ~(1u << j);
-#ifdef KD_PREFETCH_LEAVES
-                    /* a leaf's 9 rows, fetched while the nearer children are walked (a
-                     * leaf's first row is where a packet waits most on a large tree;
-                     * on one the caches hold, the prefetches cost more than they hide) */
-                    if (met_child[j] & KD_WIDE_LEAF)
-                        prefetch(kd_tri_base(tris, kd_leaf_offset(kd_wide_leaf(met_child[j]))),
-                                 9 * KD_TRI_BLOCK);
-#endif
-                    stack_child[count] = met_child[j];
-                    stack_t[count] = met_t[j];
-                    count++;
-                }
+                uint j0 = kd_packet_wide_push(bits, met_child, met_t, stack_child, stack_t,
+                                              &count, tris);
                 child = met_child[j0];
                 act = met_t[j0] <= h->t;     /* (h->t has not moved since) */
                 continue;
