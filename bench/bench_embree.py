@@ -4,6 +4,7 @@ Mitsuba 3, on the same rays in turns: incoherent rays and camera rays.
 usage: python bench/bench_embree.py [--meshes bunny,bunny-1.6M] [--rays 1048576]
                                     [--size 1024] [--repeat 5] [--sample 20000]
                                     [--kinds uniform,centre,ao,camera] [--device SPEC]
+                                    [--occluded]
 
 Ray kinds (seeded, float64, world coordinates):
   uniform   origins uniform in the mesh's box, directions uniform on the sphere
@@ -12,6 +13,8 @@ Ray kinds (seeded, float64, world coordinates):
             cosine-weighted about the face's normal, origins moved 1e-5 of the box's
             diagonal along the ray (AO_OFFSET): the same rays for every method, Open3D
             and Mitsuba taking no t_min
+  aimed     (not in the default kinds) rays that mostly hit, from a sphere around the
+            mesh to random points on its surface (bench_queries.py's)
   camera    the framing camera's size x size rays (kdray.Camera.frame)
 Methods, timed in turns (timing.round_robin, every call 0.1 s after the one before),
 each up to its caster's own outputs (t, and prim or the id image, as numpy arrays; in
@@ -24,6 +27,9 @@ C++ for Embree): misses are made -1 for the accuracy columns after the timing.
   open3d             RaycastingScene.cast_rays, numpy to numpy (t_hit, primitive_ids)
   mitsuba            ray_intersect_preliminary (coherent only for the camera), numpy
                      to numpy
+  kdray occluded,    (--occluded) Tracer.occluded(o, d) and rtcOccluded1 (incoherent
+  embree occluded1   context): any hit; then each one's speed against its own nearest
+                     hit's (the issue's bar: occluded 1.5x trace on rays that hit)
 Printed per mesh and kind: median seconds, Mrays/s, and errors on --sample rays
 against the float64 reference (reference.traverse over the input mesh in float64):
 hit/miss disagreements, different triangles, relative t error (99th percentile, max);
@@ -92,6 +98,9 @@ def rays_of(kind, mesh, tree, args, rng):
         return np.tile(0.5 * (lo + hi), (args.rays, 1)), unit(rng, args.rays), None
     if kind == "ao":
         return (*ao_rays(mesh, args.rays, rng, AO_OFFSET * np.linalg.norm(hi - lo)), None)
+    if kind == "aimed":
+        from bench_queries import aimed
+        return (*aimed(mesh, tree, args.rays), None)
     camera = kdray.Camera.frame(lo, hi, args.size, args.size)
     o, d = camera.rays()
     return o, d, camera
@@ -106,6 +115,8 @@ def main():
     ap.add_argument("--sample", type=int, default=20000)
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--device", default=None)
+    ap.add_argument("--occluded", action="store_true",
+                    help="also time any-hit queries (kdray occluded, Embree rtcOccluded1)")
     args = ap.parse_args()
     # kdray's device first: Open3D imported before it used to leave Intel's runtime
     # without its TBB (and it costs nothing now)
@@ -154,7 +165,14 @@ def main():
                     finish["open3d"] = lambda r: (r[0], hit_prims(*r))
                 if mi_scene is not None:
                     calls["mitsuba"] = lambda: mitsuba_cast(mi_scene, o, d, coherent=camera is not None)
+                if args.occluded:
+                    calls["kdray occluded"] = lambda: tracer.occluded(o, d)
+                    if anchor is not None:
+                        calls["embree occluded1"] = lambda: anchor.occluded1()
                 wall, _, results = round_robin(calls, args.repeat)
+                # any-hit answers: a hit fraction (and kdray's against the reference's)
+                occluded = {k: results.pop(k) for k in ("kdray occluded", "embree occluded1")
+                            if k in results}
                 results = {k: finish.get(k, lambda r: r)(r) for k, r in results.items()}
                 sample = np.random.default_rng(2).choice(n, size=min(args.sample, n), replace=False)
                 ref = reference.traverse(tree, o[sample], d[sample], triangles64=m.triangles)
@@ -162,6 +180,15 @@ def main():
                 if anchor is not None:
                     results["embree1"] = results["embree16"] = anchor.hits()   # the last call's
                 for method, s in wall.items():
+                    ms = 1e3 * float(np.median(s))
+                    if method in occluded:
+                        r = occluded[method]
+                        hit = r.mean() if method == "kdray occluded" else r[1] / n
+                        wrong = (np.count_nonzero(r[sample] != ref.hit)
+                                 if method == "kdray occluded" else "-")
+                        print(f"{name:<11} {kind:<8} {method:<13} {ms:>8.1f} {n / ms / 1e3:>8.2f} "
+                              f"{hit:>5.2f} {wrong:>8}", flush=True)
+                        continue
                     t, prim = results[method]
                     acc = accuracy(t, prim, ref.t, ref_prim, sample)
                     ms = 1e3 * float(np.median(s))
@@ -171,7 +198,13 @@ def main():
                 ours = [k for k in wall if k.startswith("kdray")]
                 for peer in [k for k in wall if not k.startswith("kdray")]:
                     print(f"{'':<11} {kind:<8} " + ", ".join(
-                        f"{k} / {peer} {median_ratio(wall[peer], wall[k]):.2f}x" for k in ours))
+                        f"{k} / {peer} {median_ratio(wall[peer], wall[k]):.2f}x" for k in ours
+                        if (k == "kdray occluded") == (peer == "embree occluded1")))
+                for any_hit, nearest in (("kdray occluded", "kdray trace"),
+                                         ("embree occluded1", "embree1")):
+                    if any_hit in wall and nearest in wall:
+                        print(f"{'':<11} {kind:<8} {any_hit} / {nearest}: "
+                              f"{median_ratio(wall[nearest], wall[any_hit]):.2f}x its speed")
         finally:
             if anchor is not None:
                 anchor.close()

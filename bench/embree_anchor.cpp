@@ -14,6 +14,9 @@
 //   trace16 W H                the rays as an H x W image in rows: rtcIntersect16 on
 //                              4 x 4 tiles (coherent context; W and H multiples of 4).
 //                              Prints "ok S".
+//   occluded1                  rtcOccluded1 on every ray, as trace1 (its answers kept
+//                              apart: dump writes the last trace's). Prints "ok S N",
+//                              N the rays occluded.
 //   dump PATH                  writes the last trace's hits: float32 t (N,) (+inf on a
 //                              miss), then int32 prim (N,) (-1 on a miss). Prints "ok".
 //   quit
@@ -89,6 +92,7 @@ int main(int argc, char **argv)
     std::vector<float> rays;          // (N, 8)
     std::vector<float> t_out;
     std::vector<int32_t> prim_out;
+    std::vector<uint8_t> occluded_out;
     size_t n = 0;
     std::string cmd;
     while (std::cin >> cmd) {
@@ -105,6 +109,7 @@ int main(int argc, char **argv)
             std::memcpy(rays.data(), bytes.data(), bytes.size());
             t_out.assign(n, 0.0f);
             prim_out.assign(n, -1);
+            occluded_out.assign(n, 0);
             std::printf("ok\n");
         } else if (cmd == "trace1") {
             double s = now();
@@ -133,6 +138,33 @@ int main(int argc, char **argv)
                 }
             });
             std::printf("ok %.9f\n", now() - s);
+        } else if (cmd == "occluded1") {
+            double s = now();
+            tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 64),
+                              [&](const tbb::blocked_range<size_t> &r) {
+                RTCIntersectContext context;
+                rtcInitIntersectContext(&context);
+                context.flags = RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
+                for (size_t i = r.begin(); i < r.end(); i++) {
+                    const float *q = &rays[8 * i];
+                    RTCRay ray;
+                    ray.org_x = q[0]; ray.org_y = q[1]; ray.org_z = q[2];
+                    ray.tnear = q[3];
+                    ray.dir_x = q[4]; ray.dir_y = q[5]; ray.dir_z = q[6];
+                    ray.tfar = q[7];
+                    ray.time = 0.0f;
+                    ray.mask = 0xFFFFFFFFu;
+                    ray.id = 0;
+                    ray.flags = 0;
+                    rtcOccluded1(scene, &context, &ray);
+                    occluded_out[i] = ray.tfar < 0.0f;    // -inf where occluded
+                }
+            });
+            double seconds = now() - s;
+            size_t count = 0;
+            for (size_t i = 0; i < n; i++)
+                count += occluded_out[i];
+            std::printf("ok %.9f %zu\n", seconds, count);
         } else if (cmd == "trace16") {
             size_t w, h;
             std::cin >> w >> h;

@@ -6,6 +6,7 @@ compiled here with the system's g++ against Debian's libembree-dev and libtbb-de
     anchor.rays(o, d, t_min, t_max)       # float32 copies, written once
     anchor.trace1()                       # rtcIntersect1, TBB's threads: seconds
     anchor.trace16(w, h)                  # rtcIntersect16 on 4 x 4 tiles: seconds
+    anchor.occluded1()                    # rtcOccluded1: (seconds, rays occluded)
     t, prim = anchor.hits()               # float32 t (+inf miss), int64 prim (-1)
 
 The program is compiled once per source and CPU (-O3 -march=native) into
@@ -96,6 +97,12 @@ class EmbreeAnchor:
     def trace1(self):
         """rtcIntersect1 on every ray; its seconds (no Python inside)."""
         return float(self._ask("trace1")[0])
+
+    def occluded1(self):
+        """rtcOccluded1 on every ray: (seconds, rays occluded); the hits() of the last
+        trace are left as they are."""
+        seconds, count = self._ask("occluded1")
+        return float(seconds), int(count)
 
     def trace16(self, width, height):
         """rtcIntersect16 on the rays as a height x width image in 4 x 4 tiles; seconds."""
