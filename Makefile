@@ -79,7 +79,7 @@ bench-deps: $(STAMP)
 # kdray's settings and the peers; then bench/bench_queries.py: the ray queries beside
 # Open3D's and trimesh+embreex's, and their wrong answers; then bench/bench_embree.py:
 # incoherent, ambient-occlusion and camera rays against Embree's own C++ API (compiled
-# here), beside Open3D and Mitsuba.
+# here), beside Open3D and Mitsuba, with any-hit queries against rtcOccluded1.
 BENCH_MESHES ?= bunny,bunny-1.6M
 bench-trace: bench-deps
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
@@ -89,7 +89,7 @@ bench: bench-deps
 	$(BIN)/python bench/bench_trace.py --meshes $(BENCH_MESHES)
 	$(BIN)/python bench/bench_error.py --plot $(OUT)/bench.png --csv $(OUT)/bench.csv
 	$(BIN)/python bench/bench_queries.py --meshes $(BENCH_MESHES)
-	$(BIN)/python bench/bench_embree.py --meshes $(BENCH_MESHES)
+	$(BIN)/python bench/bench_embree.py --meshes $(BENCH_MESHES) --occluded
 
 # Everything in BENCHMARKS.md: the above, the stiff cases beside Open3D and embreex,
 # build scaling to 6M triangles, what leaving out saves, the cold start, and datasets
