@@ -36,6 +36,19 @@
 #include <string>
 #include <vector>
 
+// ray q of the rays (8 floats: origin, tnear, direction, tfar) into an RTCRay
+static void set_ray(RTCRay &ray, const float *q)
+{
+    ray.org_x = q[0]; ray.org_y = q[1]; ray.org_z = q[2];
+    ray.tnear = q[3];
+    ray.dir_x = q[4]; ray.dir_y = q[5]; ray.dir_z = q[6];
+    ray.tfar = q[7];
+    ray.time = 0.0f;
+    ray.mask = 0xFFFFFFFFu;
+    ray.id = 0;
+    ray.flags = 0;
+}
+
 static double now()
 {
     return std::chrono::duration<double>(
@@ -119,16 +132,8 @@ int main(int argc, char **argv)
                 rtcInitIntersectContext(&context);
                 context.flags = RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
                 for (size_t i = r.begin(); i < r.end(); i++) {
-                    const float *q = &rays[8 * i];
                     RTCRayHit rh;
-                    rh.ray.org_x = q[0]; rh.ray.org_y = q[1]; rh.ray.org_z = q[2];
-                    rh.ray.tnear = q[3];
-                    rh.ray.dir_x = q[4]; rh.ray.dir_y = q[5]; rh.ray.dir_z = q[6];
-                    rh.ray.tfar = q[7];
-                    rh.ray.time = 0.0f;
-                    rh.ray.mask = 0xFFFFFFFFu;
-                    rh.ray.id = 0;
-                    rh.ray.flags = 0;
+                    set_ray(rh.ray, &rays[8 * i]);
                     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
                     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
                     rtcIntersect1(scene, &context, &rh);
@@ -146,16 +151,8 @@ int main(int argc, char **argv)
                 rtcInitIntersectContext(&context);
                 context.flags = RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
                 for (size_t i = r.begin(); i < r.end(); i++) {
-                    const float *q = &rays[8 * i];
                     RTCRay ray;
-                    ray.org_x = q[0]; ray.org_y = q[1]; ray.org_z = q[2];
-                    ray.tnear = q[3];
-                    ray.dir_x = q[4]; ray.dir_y = q[5]; ray.dir_z = q[6];
-                    ray.tfar = q[7];
-                    ray.time = 0.0f;
-                    ray.mask = 0xFFFFFFFFu;
-                    ray.id = 0;
-                    ray.flags = 0;
+                    set_ray(ray, &rays[8 * i]);
                     rtcOccluded1(scene, &context, &ray);
                     occluded_out[i] = ray.tfar < 0.0f;    // -inf where occluded
                 }

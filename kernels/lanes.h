@@ -95,18 +95,25 @@ KD_INLINE floatP kd_maxP(floatP a, floatP b) { return kd_selectP(b, a, a > b); }
 KD_INLINE floatP kd_minP(floatP a, floatP b) { return kd_selectP(b, a, a < b); }
 KD_INLINE floatP kd_clampP(floatP x, floatP lo, floatP hi) { return kd_minP(kd_maxP(x, lo), hi); }
 
-/* some lane of mask m is set: halves or-ed down to 2 lanes */
+/* The lanes of x or-ed together: halves or-ed down to one lane */
+KD_INLINE
+uint kd_orP(uintP x)
+{
+#if KD_PACKET == 16
+    uint8 e = x.lo | x.hi;
+#else
+    uint8 e = x;
+#endif
+    uint4 a = e.lo | e.hi;
+    uint2 c = a.lo | a.hi;
+    return c.x | c.y;
+}
+
+/* some lane of mask m is set */
 KD_INLINE
 bool kd_anyP(intP m)
 {
-#if KD_PACKET == 16
-    int8 e = m.lo | m.hi;
-#else
-    int8 e = m;
-#endif
-    int4 a = e.lo | e.hi;
-    int2 b = a.lo | a.hi;
-    return (b.x | b.y) != 0;
+    return kd_orP(as_uintP(m)) != 0u;
 }
 
 /* Lane bits of mask m: bit l set where lane l is. */
@@ -116,15 +123,10 @@ uint kd_bitsP(intP m)
 #if KD_PACKET == 16
     uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u, 4096u,
                       8192u, 16384u, 32768u);
-    uintP b = as_uintP(m) & w;
-    uint8 e = b.lo | b.hi;
 #else
     uintP w = (uintP)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u);
-    uint8 e = as_uintP(m) & w;
 #endif
-    uint4 a = e.lo | e.hi;
-    uint2 c = a.lo | a.hi;
-    return c.x | c.y;
+    return kd_orP(as_uintP(m) & w);
 }
 
 /* The lowest lane set in *bits (lane l: bit l, at least one set), cleared there. */

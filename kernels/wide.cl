@@ -402,15 +402,7 @@ uint kd_packet_wide_node(const KdPacketWide *p, __global const uint *w, intP act
         met_child[j] = c;
         met_t[j] = kd_selectP((floatP)(NAN), tn, m);
     }
-    /* the lanes or-ed together once, not a test a slot */
-#if KD_PACKET == 16
-    uint8 e8 = acc.lo | acc.hi;
-#else
-    uint8 e8 = acc;
-#endif
-    uint4 e4 = e8.lo | e8.hi;
-    uint2 e2 = e4.lo | e4.hi;
-    return e2.x | e2.y;
+    return kd_orP(acc);                  /* the lanes or-ed once, not a test a slot */
 }
 
 /* The slots in `bits` (not 0; kd_packet_wide_node's) but the first pushed onto a
