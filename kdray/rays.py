@@ -145,12 +145,17 @@ class Intersections:
         return self.t[a:b], self.prim[a:b]
 
 
-def check_t(t, name):
+def check_t(t, name, shape=None):
     """t_min or t_max as a float64 array (0-d for a number): a real number or an array
-    of numbers (strings and bools refused, not converted; ray_input.numbers)."""
+    of numbers (strings and bools refused, not converted; ray_input.numbers). shape:
+    the rays' shape less its last axis (ray_input.flat_rays'): an array of that shape,
+    one value a ray as the rays lie (an (H, W) range for (H, W, 3) rays), is made flat."""
     if isinstance(t, (bool, str, bytes)) or t is None:
         raise KdrayError(f"{name} must be a number or an array of one a ray, got {t!r:.80}")
-    return ray_input.numbers(name, t).astype(np.float64, copy=False)
+    t = ray_input.numbers(name, t).astype(np.float64, copy=False)
+    if shape is not None and t.ndim > 1 and t.shape == tuple(shape):
+        t = t.reshape(-1)
+    return t
 
 
 def _checked_ranges(t_min, t_max, n):
@@ -161,7 +166,8 @@ def _checked_ranges(t_min, t_max, n):
     for name, a in (("t_min", lo), ("t_max", hi)):
         if a.ndim > 1 or (a.ndim == 1 and len(a) != n):
             raise KdrayError(f"{name} must be a number or an array of one value a ray "
-                             f"({n}), got shape {a.shape}")
+                             f"({n}, or shaped as the rays less their last axis), got "
+                             f"shape {a.shape}")
     if np.isnan(lo).any() or np.isnan(hi).any():
         raise KdrayError("t_min and t_max must not be NaN")
     if not (lo >= 0).all():
@@ -212,6 +218,7 @@ class _Rays:
         self.image_w = 0
         self.o, self.d = ray_input.rays32(o, d, self.o_step, tracer._origin, tracer._scale)
         self._given = (o, d)                     # as the caller gave them (`exact`)
+        t_min, t_max = check_t(t_min, "t_min", self.shape), check_t(t_max, "t_max", self.shape)
         self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
 
     @classmethod
@@ -391,8 +398,8 @@ def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     t_max, the same answers as `trace(...).hit`: `trace`'s traversal (render.cl,
     trace_rays with ANY_HIT), each ray over its own range, stopped at the first hit it
     finds; rays that share no path walk the wide nodes (kernels/wide.cl)."""
-    t_min, t_max = check_t(t_min, "t_min"), check_t(t_max, "t_max")
     o, d, shape = ray_input.flat_rays(origins, directions)
+    t_min, t_max = check_t(t_min, "t_min", shape), check_t(t_max, "t_max", shape)
     hits = tracer._trace_rays(o, d, shape, t_min, t_max, (), any_hit=True)
     return hits.hit.reshape(shape)
 

@@ -601,7 +601,7 @@ class Tracer:
         if double:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
         origins, directions, shape = ray_input.flat_rays(origins, directions)
-        t_min, t_max = _rays.check_t(t_min, "t_min"), _rays.check_t(t_max, "t_max")
+        t_min, t_max = _rays.check_t(t_min, "t_min", shape), _rays.check_t(t_max, "t_max", shape)
         hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
         if double:
             hits = self._double_hits(hits, origins, directions)

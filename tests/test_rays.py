@@ -739,5 +739,19 @@ def test_trace_takes_a_t_range_a_ray(runtime, teapot_tree):
     assert few.u is None and few.normal is None and np.array_equal(few.prim, got.prim)
     shaped = tracer.trace(o[:20].reshape(4, 5, 3), d[:20].reshape(4, 5, 3), lo[:20], hi[:20])
     assert shaped.t.shape == (4, 5) and np.array_equal(shaped.prim.ravel(), got.prim[:20])
+    # ranges shaped as the rays less their last axis: the same as flat
+    o45, d45, lo45, hi45 = (a[:20].reshape(4, 5, -1).squeeze(-1) if a.ndim == 1
+                            else a[:20].reshape(4, 5, 3) for a in (o, d, lo, hi))
+    grid = tracer.trace(o45, d45, lo45, hi45)
+    assert np.array_equal(grid.t, shaped.t) and np.array_equal(grid.prim, shaped.prim)
+    assert np.array_equal(tracer.occluded(o45, d45, lo45, hi45), shaped.hit)
+    assert np.array_equal(tracer.count(o45, d45, lo45, hi45),
+                          tracer.count(o[:20], d[:20], lo[:20], hi[:20]).reshape(4, 5))
+    listed = tracer.intersections(o45, d45, lo45, hi45)
+    assert np.array_equal(listed.prim, tracer.intersections(o[:20], d[:20], lo[:20], hi[:20]).prim)
     with pytest.raises(KdrayError):
         tracer.trace(o, d, lo[:-1], hi)
+    for wrong in (lo45.T, lo[:20].reshape(2, 10), lo[:20].reshape(4, 5, 1)):
+        for query in (tracer.trace, tracer.occluded, tracer.count, tracer.intersections):
+            with pytest.raises(KdrayError):
+                query(o45, d45, wrong, hi45)
