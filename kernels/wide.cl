@@ -4,6 +4,10 @@
  * triangle copies after the k-d leaves' in tris and tri_ids), two rays a work-item
  * taking their steps in turns.
  *
+ * In packet programs, packets of rays that share their paths and an octant walk the
+ * same nodes as one (kd_packet_wide_traverse for trace, queries.cl's
+ * kd_packet_wide_walk; the section at the end).
+ *
  * Why: a k-d walk on its own pays a dependent load and a decision at every node; here
  * one vector step tests a ray against 8 boxes, and a leaf holds up to 16 triangles,
  * each triangle in one leaf. Two rays in turns keep two chains of loads in flight.
