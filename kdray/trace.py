@@ -52,7 +52,7 @@ from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BL
                      device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
                      triangle_copies)
 from .ray_grid import grid_width
-from .ray_order import ORDER_TREE_BYTES, ray_order
+from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import object_ids
 from .validate import check_float32, whole_or_none
@@ -361,10 +361,6 @@ class Tracer:
             if wide and not stats:
                 defines["KD_WIDE"] = None
                 defines["WIDE_STACK"] = self._wide()[1]
-                if self.device_bytes >= ORDER_TREE_BYTES:
-                    # a tree the caches do not hold: packets fetch the leaves they
-                    # will visit (wide.cl, KD_PREFETCH_LEAVES)
-                    defines["KD_PREFETCH_LEAVES"] = None
         for name in outputs:
             defines[f"OUT_{name}"] = None
         if stats:

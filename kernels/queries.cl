@@ -716,7 +716,7 @@ void kd_packet_wide_walk(uint query, bool crossing, __global const uint *wide,
                                             far.v, met_child, met_t);
             if (bits != 0u) {
                 uint j0 = kd_packet_wide_push(bits, met_child, met_t, stack_child, stack_t,
-                                              &count, tris);
+                                              &count);
                 child = met_child[j0];
                 act = met_t[j0] <= far.v;    /* (far has not moved since) */
                 continue;

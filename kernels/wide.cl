@@ -28,9 +28,8 @@
  *
  * Options (-D): KD_WIDE (the program takes the wide records after n_nodes),
  * WIDE_STACK (groups a ray's stack: the levels of wide nodes, kdray/wide.py
- * wide_nodes), KD_PREFETCH_LEAVES (packets fetch the triangles of the leaves they push:
- * for trees the caches do not hold, kdray/trace.py). Not with STATS (such programs
- * trace these rays one by one, trace_ray counting them).
+ * wide_nodes). Not with STATS (such programs trace these rays one by one, trace_ray
+ * counting them).
  */
 #ifndef KDRAY_WIDE_CL
 #define KDRAY_WIDE_CL
@@ -414,22 +413,13 @@ uint kd_packet_wide_node(const KdPacketWide *p, __global const uint *w, intP act
  * next pop is the next in the order; returns the first's j. */
 KD_INLINE
 uint kd_packet_wide_push(uint bits, const uint *met_child, const floatP *met_t,
-                         uint *stack_child, floatP *stack_t, uint *count,
-                         __global const float *tris)
+                         uint *stack_child, floatP *stack_t, uint *count)
 {
     uint j0 = 31u - clz(bits & (0u - bits));
     bits &= bits - 1u;
     while (bits != 0u) {
         uint j = 31u - clz(bits);
         bits &= ~(1u << j);
-#ifdef KD_PREFETCH_LEAVES
-        /* a leaf's 9 rows, fetched while the nearer children are walked (a leaf's
-         * first row is where a packet waits most on a large tree; on one the caches
-         * hold, the prefetches cost more than they hide) */
-        if (met_child[j] & KD_WIDE_LEAF)
-            prefetch(kd_tri_base(tris, kd_leaf_offset(kd_wide_leaf(met_child[j]))),
-                     9 * KD_TRI_BLOCK);
-#endif
         stack_child[*count] = met_child[j];
         stack_t[*count] = met_t[j];
         (*count)++;
@@ -465,7 +455,7 @@ void kd_packet_wide_traverse(__global const uint *wide, __global const float *tr
                                             h->t, met_child, met_t);
             if (bits != 0u) {
                 uint j0 = kd_packet_wide_push(bits, met_child, met_t, stack_child, stack_t,
-                                              &count, tris);
+                                              &count);
                 child = met_child[j0];
                 act = met_t[j0] <= h->t;     /* (h->t has not moved since) */
                 continue;

@@ -368,23 +368,3 @@ def test_packets_of_one_octant_walk_the_wide_nodes_as_their_rays_alone(name, tra
         for k in want:
             assert np.array_equal(image[k], want[k], equal_nan=True), k
 
-
-def test_packets_that_prefetch_leaves_find_the_same_hits(tracers, monkeypatch):
-    """Trees the caches do not hold (ORDER_TREE_BYTES and up, here made 0) have their
-    packets fetch the leaves they push (KD_PREFETCH_LEAVES): the same hits."""
-    from kdray import Camera, Tracer
-    import kdray.trace
-    tree = _tree("teapot")
-    lo, hi = tree.world_box()
-    camera = Camera.frame(lo, hi, 64, 48)
-    o, d = camera.rays()
-    o, d = o[0], d.reshape(48, 64, 3)
-    monkeypatch.setattr(kdray.trace, "ORDER_TREE_BYTES", 0)
-    tr = Tracer(tree)
-    if tr.packet == 1:
-        pytest.skip("no packets on this device")
-    a, b = tracers(tree, packet=1).trace(o, d), tr.trace(o, d)
-    assert any("KD_PREFETCH_LEAVES" in dict(key) for key in tr._programs)
-    for field in ("t", "prim", "u", "v", "normal"):
-        assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
-    assert np.count_nonzero(a.hit) > 300
