@@ -305,7 +305,8 @@ void kd_wide_trace(__global const uint *wide, __global const float *tris,
  * Why: the k-d packet walk (packet.cl) visits the union of its lanes' cells, one plane
  * a step, a packet's longest path (55 steps of 16 lanes against 22 a ray, bunny) with
  * most lanes idle; here a ray's walk is a few wide nodes deep, each slot tested for
- * all lanes at once, and a triangle lies in one leaf (BENCHMARKS.md, "Camera rays"). */
+ * all lanes at once, and a triangle lies in one leaf (BENCHMARKS.md, "Incoherent
+ * rays": wide nodes). */
 
 /* A packet stack's entries: a child word and each lane's entry t (NaN: the lane does
  * not meet the child's box), at most 7 a level below the root. */
