@@ -311,6 +311,7 @@ class Tracer:
         self._bounds = self._buffer(np.asarray(tree.bounds, dtype=np.float32).reshape(6))
         self._counter = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, 4)
         self._wide_nodes = None               # (buffer, stack), made when needed (`_wide`)
+        self._wide_unfit = False              # they did not fit (`_wide_fits`)
         self._origin = np.asarray(tree.origin, dtype=np.float64)
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
 
@@ -399,6 +400,19 @@ class Tracer:
             self.device_bytes = sum(sizes.values())
         return self._wide_nodes
 
+    def _wide_fits(self):
+        """Whether the tree's wide nodes are on the device: made now if need be
+        (`_wide`). False where they do not fit beside the tree (its DeviceError, made
+        before any buffer changes), remembered: renders then keep to the k-d tree's
+        packets, which give the same images; traces and queries with packets need them
+        and raise the DeviceError."""
+        if self._wide_nodes is None and not self._wide_unfit:
+            try:
+                self._wide()
+            except DeviceError:
+                self._wide_unfit = True
+        return self._wide_nodes is not None
+
     def _grown(self, buffer, n, more, dtype):
         """A host array (n + more,) of `dtype` for a tree buffer (`_buffer(...,
         resident="placed")`), its first n elements read from `buffer` (of that dtype),
@@ -458,7 +472,7 @@ class Tracer:
                for k, (shape, dtype) in _render.output_shapes(1, outputs).items()}
         self._launch("render_camera", outputs, _render.tile_slots(1, 1),
                      (camera_buf, None, np.uint32(1), np.uint32(0), np.uint32(1)), out,
-                     wide=self.packet > 1)
+                     wide=self.packet > 1 and self._wide_fits())
         if trace:
             for dtype in (np.float64, np.float32):
                 self._trace(np.zeros((1, 3), dtype), np.zeros((1, 3), dtype))
@@ -849,9 +863,7 @@ class Tracer:
         device, MAX_RAYS_PER_LAUNCH pixels or one row at most."""
         # packets walk the wide nodes (render.cl, trace_packet), made before a
         # launch's size, which their bytes bound
-        wide = self.packet > 1
-        if wide:
-            self._wide()
+        wide = self.packet > 1 and self._wide_fits()
         rows_per_launch = self._launch_size([w * OUTPUT_WIDTH[k][0] * 4 for k in outputs],
                                             what=f"row of {w} pixels",
                                             cap=max(1, MAX_RAYS_PER_LAUNCH // w))

@@ -368,3 +368,38 @@ def test_packets_of_one_octant_walk_the_wide_nodes_as_their_rays_alone(name, tra
         for k in want:
             assert np.array_equal(image[k], want[k], equal_nan=True), k
 
+
+
+def test_renders_keep_to_the_k_d_tree_where_the_wide_nodes_do_not_fit(tracers, monkeypatch):
+    """Where the wide nodes do not fit beside the tree (DeviceError from the size check,
+    made before any buffer changes), renders keep to the k-d tree's packets, with the
+    same images, and do not try again; traces with packets, which need them, raise."""
+    from kdray import Camera, Tracer
+    from kdray.errors import DeviceError
+    tree = _tree("teapot")
+    tr = Tracer(tree)
+    if tr.packet == 1:
+        pytest.skip("no packets on this device")
+    check = tr._check_fits
+    tried = []
+
+    def no_room(sizes):
+        if "wide nodes" in sizes:
+            tried.append(1)
+            raise DeviceError("the wide nodes do not fit (test)")
+        return check(sizes)
+
+    monkeypatch.setattr(tr, "_check_fits", no_room)
+    before = tr.device_bytes
+    lo, hi = tree.world_box()
+    camera = Camera.frame(lo, hi, 40, 30)
+    want = tracers(tree, packet=1).render(camera, aovs="depth,normal,id")
+    for _ in range(2):
+        image = tr.render(camera, aovs="depth,normal,id")
+        for k in want:
+            assert np.array_equal(image[k], want[k], equal_nan=True), k
+    assert tr._wide_nodes is None and tr.device_bytes == before and len(tried) == 1
+    assert tr.compile(("depth",)) is tr
+    o, d = random_rays(tree, 101, seed=45)
+    with pytest.raises(DeviceError):
+        tr.trace(o, d)
