@@ -690,9 +690,8 @@ void kd_packet_wide_walk(uint query, bool crossing, __global const uint *wide,
                          const KdPacket *r, const KdLaneBounds *b, intP act, uint octant,
                          float reach, const KdFP *lo, const KdFP *hi, KdQuery *q)
 {
-    uint stack_child[KD_PACKET_WIDE_STACK];
-    floatP stack_t[KD_PACKET_WIDE_STACK];
-    uint count = 0u;
+    KdPacketWideStack st;
+    st.count = 0u;
     KdPacketWide p;
     kd_packet_wide_start(&p, r, octant, reach, lo->v);
     KdFP far;                            /* each lane's kd_query_far */
@@ -709,27 +708,11 @@ void kd_packet_wide_walk(uint query, bool crossing, __global const uint *wide,
                     far.s[l] = kd_query_far(query, &q[l], hi->s[l]);
                 }
             }
-        } else {
-            uint met_child[8];
-            floatP met_t[8];
-            uint bits = kd_packet_wide_node(&p, wide + (size_t)child * KD_WIDE_WORDS, act,
-                                            far.v, met_child, met_t);
-            if (bits != 0u) {
-                uint j0 = kd_packet_wide_push(bits, met_child, met_t, stack_child, stack_t,
-                                              &count);
-                child = met_child[j0];
-                act = met_t[j0] <= far.v;    /* (far has not moved since) */
-                continue;
-            }
+        } else if (kd_packet_wide_step(&p, wide, &child, &act, far.v, &st)) {
+            continue;
         }
         /* the next entry that a lane enters at or before its far */
-        act = (intP)(0);
-        while (count > 0u && !kd_anyP(act)) {
-            count--;
-            child = stack_child[count];
-            act = stack_t[count] <= far.v;
-        }
-        if (!kd_anyP(act))
+        if (!kd_packet_wide_pop(&st, (intP)(-1), far.v, &child, &act))
             return;
     }
 }

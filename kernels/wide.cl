@@ -308,8 +308,7 @@ void kd_wide_trace(__global const uint *wide, __global const float *tris,
  * all lanes at once, and a triangle lies in one leaf (BENCHMARKS.md, "Incoherent
  * rays": wide nodes). */
 
-/* A packet stack's entries: a child word and each lane's entry t (NaN: the lane does
- * not meet the child's box), at most 7 a level below the root. */
+/* A packet stack's entries (KdPacketWideStack): at most 7 a level below the root */
 #define KD_PACKET_WIDE_STACK (7u * WIDE_STACK + 1u)
 #define KD_WIDE_EMPTY 0xFFFFFFFFu
 
@@ -329,13 +328,10 @@ bool kd_packet_octant(const KdPacket *r, intP on, uint first, uint *octant)
 
 /* A packet's walk of the wide nodes: its octant's rows (kd_wide_start's: near and
  * far planes), each lane's 1 / d and plane offsets c (the pad outwards, minus the
- * origin), with one origin (shared) also as one number each (the same values), and
- * each lane's t_min. */
+ * origin), and each lane's t_min. */
 typedef struct {
     uint octant, nx, ny, nz, fx, fy, fz;
-    bool shared;
     floatP ix, iy, iz, cnx, cny, cnz, cfx, cfy, cfz, t_min;
-    float snx, sny, snz, sfx, sfy, sfz;
 } KdPacketWide;
 
 KD_INLINE
@@ -359,12 +355,6 @@ void kd_packet_wide_start(KdPacketWide *p, const KdPacket *r, uint octant, float
     floatP px = down_x ? pad : -pad, py = down_y ? pad : -pad, pz = down_z ? pad : -pad;
     p->cnx = px - r->o[0]; p->cny = py - r->o[1]; p->cnz = pz - r->o[2];
     p->cfx = -px - r->o[0]; p->cfy = -py - r->o[1]; p->cfz = -pz - r->o[2];
-    p->shared = r->shared_o;
-    float sa = kd_max(kd_max(kd_abs(r->uo[0]), kd_abs(r->uo[1])), kd_abs(r->uo[2]));
-    float spad = (sa + reach) * KD_WIDE_PAD + 0x1p-120f;
-    float spx = down_x ? spad : -spad, spy = down_y ? spad : -spad, spz = down_z ? spad : -spad;
-    p->snx = spx - r->uo[0]; p->sny = spy - r->uo[1]; p->snz = spz - r->uo[2];
-    p->sfx = -spx - r->uo[0]; p->sfy = -spy - r->uo[1]; p->sfz = -spz - r->uo[2];
     p->t_min = t_min;
 }
 
@@ -386,21 +376,12 @@ uint kd_packet_wide_node(const KdPacketWide *p, __global const uint *w, intP act
         if (c == KD_WIDE_EMPTY)
             break;                       /* empty slots come last in every order */
         floatP tn = p->t_min, tf = far, s;
-        if (p->shared) {
-            s = (rows[8u * p->nz + k] + p->snz) * p->iz; tn = s > tn ? s : tn;
-            s = (rows[8u * p->ny + k] + p->sny) * p->iy; tn = s > tn ? s : tn;
-            s = (rows[8u * p->nx + k] + p->snx) * p->ix; tn = s > tn ? s : tn;
-            s = (rows[8u * p->fz + k] + p->sfz) * p->iz; tf = s < tf ? s : tf;
-            s = (rows[8u * p->fy + k] + p->sfy) * p->iy; tf = s < tf ? s : tf;
-            s = (rows[8u * p->fx + k] + p->sfx) * p->ix; tf = s < tf ? s : tf;
-        } else {
-            s = (rows[8u * p->nz + k] + p->cnz) * p->iz; tn = s > tn ? s : tn;
-            s = (rows[8u * p->ny + k] + p->cny) * p->iy; tn = s > tn ? s : tn;
-            s = (rows[8u * p->nx + k] + p->cnx) * p->ix; tn = s > tn ? s : tn;
-            s = (rows[8u * p->fz + k] + p->cfz) * p->iz; tf = s < tf ? s : tf;
-            s = (rows[8u * p->fy + k] + p->cfy) * p->iy; tf = s < tf ? s : tf;
-            s = (rows[8u * p->fx + k] + p->cfx) * p->ix; tf = s < tf ? s : tf;
-        }
+        s = (rows[8u * p->nz + k] + p->cnz) * p->iz; tn = s > tn ? s : tn;
+        s = (rows[8u * p->ny + k] + p->cny) * p->iy; tn = s > tn ? s : tn;
+        s = (rows[8u * p->nx + k] + p->cnx) * p->ix; tn = s > tn ? s : tn;
+        s = (rows[8u * p->fz + k] + p->cfz) * p->iz; tf = s < tf ? s : tf;
+        s = (rows[8u * p->fy + k] + p->cfy) * p->iy; tf = s < tf ? s : tf;
+        s = (rows[8u * p->fx + k] + p->cfx) * p->ix; tf = s < tf ? s : tf;
         intP m = act & (tn <= tf);
         acc |= as_uintP(m) & (uintP)(1u << j);
         met_child[j] = c;
@@ -409,23 +390,55 @@ uint kd_packet_wide_node(const KdPacketWide *p, __global const uint *w, intP act
     return kd_orP(acc);                  /* the lanes or-ed once, not a test a slot */
 }
 
-/* The slots in `bits` (not 0; kd_packet_wide_node's) but the first pushed onto a
- * packet's stack (stack_child, stack_t; *count entries), the last first so that the
- * next pop is the next in the order; returns the first's j. */
+/* A packet's stack: a child word and each lane's entry t an entry (NaN: the lane does
+ * not meet the child's box; KD_PACKET_WIDE_STACK of them), count in use. */
+typedef struct {
+    uint child[KD_PACKET_WIDE_STACK];
+    floatP t[KD_PACKET_WIDE_STACK];
+    uint count;
+} KdPacketWideStack;
+
+/* Wide node *child's step for the lanes in *act over [t_min, far]
+ * (kd_packet_wide_node): the slots some lane meets but the first pushed onto st, the
+ * last first so that the next pop is the next in the order, and the first taken now
+ * (*child, *act: the lanes that meet it). False where no lane meets any slot. */
 KD_INLINE
-uint kd_packet_wide_push(uint bits, const uint *met_child, const floatP *met_t,
-                         uint *stack_child, floatP *stack_t, uint *count)
+bool kd_packet_wide_step(const KdPacketWide *p, __global const uint *wide, uint *child,
+                         intP *act, floatP far, KdPacketWideStack *st)
 {
+    uint met_child[8];
+    floatP met_t[8];
+    uint bits = kd_packet_wide_node(p, wide + (size_t)*child * KD_WIDE_WORDS, *act, far,
+                                    met_child, met_t);
+    if (bits == 0u)
+        return false;
     uint j0 = 31u - clz(bits & (0u - bits));
     bits &= bits - 1u;
     while (bits != 0u) {
         uint j = 31u - clz(bits);
         bits &= ~(1u << j);
-        stack_child[*count] = met_child[j];
-        stack_t[*count] = met_t[j];
-        (*count)++;
+        st->child[st->count] = met_child[j];
+        st->t[st->count] = met_t[j];
+        st->count++;
     }
-    return j0;
+    *child = met_child[j0];
+    *act = met_t[j0] <= far;
+    return true;
+}
+
+/* The next entry off st that a lane in `live` enters at or before its far, into
+ * *child and *act (the lanes that go on there); false when none is left. */
+KD_INLINE
+bool kd_packet_wide_pop(KdPacketWideStack *st, intP live, floatP far, uint *child, intP *act)
+{
+    while (st->count > 0u) {
+        st->count--;
+        *child = st->child[st->count];
+        *act = live & (st->t[st->count] <= far);
+        if (kd_anyP(*act))
+            return true;
+    }
+    return false;
 }
 
 /* Nearest hits (with ANY_HIT: any hit) into h of the lanes in `act` of packet r, whose
@@ -436,9 +449,8 @@ void kd_packet_wide_traverse(__global const uint *wide, __global const float *tr
                              __global const uint *tri_ids, const KdPacket *r, intP act,
                              uint octant, float reach, KdPacketHit *h)
 {
-    uint stack_child[KD_PACKET_WIDE_STACK];
-    floatP stack_t[KD_PACKET_WIDE_STACK];
-    uint count = 0u;
+    KdPacketWideStack st;
+    st.count = 0u;
     KdPacketWide p;
     kd_packet_wide_start(&p, r, octant, reach, r->t_min);
     intP live = act;                     /* with ANY_HIT: lanes with no hit yet */
@@ -449,27 +461,11 @@ void kd_packet_wide_traverse(__global const uint *wide, __global const float *tr
 #ifdef ANY_HIT
             live &= ~(act & as_intP(h->tri != (uintP)(KD_NO_HIT)));
 #endif
-        } else {
-            uint met_child[8];
-            floatP met_t[8];
-            uint bits = kd_packet_wide_node(&p, wide + (size_t)child * KD_WIDE_WORDS, act,
-                                            h->t, met_child, met_t);
-            if (bits != 0u) {
-                uint j0 = kd_packet_wide_push(bits, met_child, met_t, stack_child, stack_t,
-                                              &count);
-                child = met_child[j0];
-                act = met_t[j0] <= h->t;     /* (h->t has not moved since) */
-                continue;
-            }
+        } else if (kd_packet_wide_step(&p, wide, &child, &act, h->t, &st)) {
+            continue;
         }
         /* the next entry that a live lane enters at or before its best hit */
-        act = (intP)(0);
-        while (count > 0u && !kd_anyP(act)) {
-            count--;
-            child = stack_child[count];
-            act = live & (stack_t[count] <= h->t);
-        }
-        if (!kd_anyP(act))
+        if (!kd_packet_wide_pop(&st, live, h->t, &child, &act))
             return;
     }
 }
