@@ -49,6 +49,21 @@ static void set_ray(RTCRay &ray, const float *q)
     ray.flags = 0;
 }
 
+// f(context, i) for rays i < n, over TBB's parallel_for in blocks of 64 rays, each
+// block with its own incoherent context (single rays in no order)
+template <class F>
+static void each_ray(size_t n, F f)
+{
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 64),
+                      [&](const tbb::blocked_range<size_t> &r) {
+        RTCIntersectContext context;
+        rtcInitIntersectContext(&context);
+        context.flags = RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
+        for (size_t i = r.begin(); i < r.end(); i++)
+            f(context, i);
+    });
+}
+
 static double now()
 {
     return std::chrono::duration<double>(
@@ -126,36 +141,24 @@ int main(int argc, char **argv)
             std::printf("ok\n");
         } else if (cmd == "trace1") {
             double s = now();
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 64),
-                              [&](const tbb::blocked_range<size_t> &r) {
-                RTCIntersectContext context;
-                rtcInitIntersectContext(&context);
-                context.flags = RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
-                for (size_t i = r.begin(); i < r.end(); i++) {
-                    RTCRayHit rh;
-                    set_ray(rh.ray, &rays[8 * i]);
-                    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-                    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-                    rtcIntersect1(scene, &context, &rh);
-                    bool hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
-                    t_out[i] = hit ? rh.ray.tfar : std::numeric_limits<float>::infinity();
-                    prim_out[i] = hit ? (int32_t)rh.hit.primID : -1;
-                }
+            each_ray(n, [&](RTCIntersectContext &context, size_t i) {
+                RTCRayHit rh;
+                set_ray(rh.ray, &rays[8 * i]);
+                rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+                rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+                rtcIntersect1(scene, &context, &rh);
+                bool hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+                t_out[i] = hit ? rh.ray.tfar : std::numeric_limits<float>::infinity();
+                prim_out[i] = hit ? (int32_t)rh.hit.primID : -1;
             });
             std::printf("ok %.9f\n", now() - s);
         } else if (cmd == "occluded1") {
             double s = now();
-            tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 64),
-                              [&](const tbb::blocked_range<size_t> &r) {
-                RTCIntersectContext context;
-                rtcInitIntersectContext(&context);
-                context.flags = RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
-                for (size_t i = r.begin(); i < r.end(); i++) {
-                    RTCRay ray;
-                    set_ray(ray, &rays[8 * i]);
-                    rtcOccluded1(scene, &context, &ray);
-                    occluded_out[i] = ray.tfar < 0.0f;    // -inf where occluded
-                }
+            each_ray(n, [&](RTCIntersectContext &context, size_t i) {
+                RTCRay ray;
+                set_ray(ray, &rays[8 * i]);
+                rtcOccluded1(scene, &context, &ray);
+                occluded_out[i] = ray.tfar < 0.0f;    // -inf where occluded
             });
             double seconds = now() - s;
             size_t count = 0;
