@@ -149,7 +149,7 @@ def main():
                 # t and prim arrays); `finish` makes them (t, prim int64 -1 on a miss)
                 # for the accuracy columns after the timing, as the anchor's hits() does
                 calls = {"kdray trace": lambda: tracer.trace(o, d, outputs=())}
-                finish = {"kdray trace": lambda h: (h.t, np.where(h.hit, h.prim.astype(np.int64), -1))}
+                finish = {"kdray trace": lambda h: (h.t, hit_prims(h.t, h.prim))}
                 if camera is not None:
                     calls["kdray render"] = lambda: tracer.render(camera, aovs=("depth", "id"))
                     # t: the rays' camera z is 1
@@ -191,7 +191,6 @@ def main():
                         continue
                     t, prim = results[method]
                     acc = accuracy(t, prim, ref.t, ref_prim, sample)
-                    ms = 1e3 * float(np.median(s))
                     print(f"{name:<11} {kind:<8} {method:<13} {ms:>8.1f} {n / ms / 1e3:>8.2f} "
                           f"{np.isfinite(np.asarray(t)).mean():>5.2f} {acc['disagree']:>8} "
                           f"{acc['prim_diff']:>6} {acc['p99']:>9.1e} {acc['max']:>9.1e}", flush=True)

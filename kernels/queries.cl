@@ -720,8 +720,8 @@ void kd_packet_wide_walk(uint query, bool crossing, __global const uint *wide,
 /* The walks of the packet of rays ids[0 .. m - 1] (m <= KD_PACKET) into q[0 .. m - 1]
  * on one path, as trace_packet traverses rays that share their paths (packet.cl): where
  * their directions share an octant, through the wide nodes (kd_packet_wide_walk); else
- * through the k-d tree, one node step for all the lanes, each taking the children it needs (kd_packet_step:
- * traverse.cl's rules and slack), and every leaf a lane's range reaches handed to
+ * through the k-d tree, one node step for all the lanes, each taking the children it
+ * needs (kd_packet_step: traverse.cl's rules and slack), and every leaf a lane's range reaches handed to
  * kd_query_leaf for that lane, until it says stop. Returns the lanes to be walked on
  * their own from their start: every lane of rays that share no path (kd_alone), else
  * those that cannot follow the packet (a ray in a node's plane, or needing both

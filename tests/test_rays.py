@@ -425,8 +425,8 @@ def test_packet_walks_on_every_runtime(runtime):
     """The queries' packet walks (kd_packet_walk, an image's blocks, the cull) and wide
     walks (kd_wide_walks: rays from scattered points in all directions, a k-nearest
     list pruned by its last slot), and a render's packets through the wide nodes, at
-    packets of 8 on every runtime, a simulator's included (a small image of the sphere, a few scattered rays): the
-    answers of one ray at a time, bit for bit."""
+    packets of 8 on every runtime, a simulator's included (a small image of the
+    sphere, a few scattered rays): the answers of one ray at a time, bit for bit."""
     mesh = load(SCENES / "sphere.obj")
     tree = build(mesh.vertices, mesh.faces)
     one = Tracer(tree, device=runtime.spec, packet=1)
@@ -748,7 +748,8 @@ def test_trace_takes_a_t_range_a_ray(runtime, teapot_tree):
     assert np.array_equal(tracer.count(o45, d45, lo45, hi45),
                           tracer.count(o[:20], d[:20], lo[:20], hi[:20]).reshape(4, 5))
     listed = tracer.intersections(o45, d45, lo45, hi45)
-    assert np.array_equal(listed.prim, tracer.intersections(o[:20], d[:20], lo[:20], hi[:20]).prim)
+    flat = tracer.intersections(o[:20], d[:20], lo[:20], hi[:20])
+    assert np.array_equal(listed.prim, flat.prim)
     with pytest.raises(KdrayError):
         tracer.trace(o, d, lo[:-1], hi)
     for wrong in (lo45.T, lo[:20].reshape(2, 10), lo[:20].reshape(4, 5, 1)):

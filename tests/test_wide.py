@@ -357,17 +357,18 @@ def test_packets_of_one_octant_walk_the_wide_nodes_as_their_rays_alone(name, tra
             a = single.trace(oo, d, t_min=t_min, t_max=t_max)
             b = packed.trace(oo, d, t_min=t_min, t_max=t_max)
             for field in ("t", "prim", "u", "v", "normal"):
-                assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+                assert np.array_equal(getattr(a, field), getattr(b, field),
+                                  equal_nan=True), field
             assert np.array_equal(packed.occluded(oo, d, t_min=t_min, t_max=t_max), a.hit)
     assert 0.1 * a.hit.size < np.count_nonzero(single.trace(o, d).hit)
     raw = tracers(tree, refine=False)
-    assert np.array_equal(raw.trace(o, d).prim, tracers(tree, packet=1, refine=False).trace(o, d).prim)
+    one_raw = tracers(tree, packet=1, refine=False)
+    assert np.array_equal(raw.trace(o, d).prim, one_raw.trace(o, d).prim)
     if name != "cube":
         image = packed.render(camera, aovs="depth,normal,id,bary")
         want = single.render(camera, aovs="depth,normal,id,bary")
         for k in want:
             assert np.array_equal(image[k], want[k], equal_nan=True), k
-
 
 
 def test_renders_keep_to_the_k_d_tree_where_the_wide_nodes_do_not_fit(tracers, monkeypatch):
