@@ -1,6 +1,6 @@
 """Rays taken in kdray.ray_order's order against the same rays as they come, in turns:
 what the order gains or costs, mesh by mesh and ray kind by ray kind, and where its
-thresholds (ORDER_TREE_BYTES, ORDER_FROM) lie.
+thresholds (ORDER_TREE_BYTES, ORDER_FROM, DIRECTION_ORDER_FROM) lie.
 
 usage: python bench/ab_order.py [--meshes bunny,bunny-x4,bunny-1.6M]
                                 [--kinds uniform,centre,ao,aimed] [--rays 1048576]
@@ -55,6 +55,7 @@ def main():
     args = ap.parse_args()
     ordered, as_they_come = ray_order.ray_order, (lambda *a: None)
     ray_order.ORDER_TREE_BYTES, ray_order.ORDER_FROM = 0, 1     # forced: a ray_order per call
+    ray_order.DIRECTION_ORDER_FROM = 1
     print(f"# {args.rays} rays, best of {args.rounds} rounds in turns; ms ordered / as they come")
     for name in args.meshes.split(","):
         m = bench_mesh(name)

@@ -9,6 +9,15 @@ the cell of a 16^3 grid over the scene's box where they enter it (kernels/ray_or
 neighbouring rays enter close together and head the same way: their walks share nodes
 and triangles in the caches, and more packets are traced as packets.
 
+Rays from one point (or from points within one such cell: a light's or a sensor's
+position, a visibility test from a viewpoint) all enter in one cell, and that key
+leaves them as they come. They are taken in the order of their directions instead
+(`direction_keys`: a Morton order over the octahedral map of directions), so that
+neighbouring rays point alike, as a camera's neighbouring pixels do, and a packet of
+them walks the tree as one (kernels/packet.cl, kd_alone), at any size of tree: 2^20
+rays from the bunny's centre in random directions, taken so, trace in 0.59x the time,
+from a 1.6M-triangle scan's in 0.46x (BENCHMARKS.md, "Incoherent rays").
+
 `ray_order` decides from a sample whether the rays are in no such order already (a
 camera's rows, a lidar's sweep, rays from one point in turn are), and gives the order
 or None. The kernels read slot j's ray through order[j] and write its outputs at its
@@ -23,6 +32,12 @@ from .ray_input import C_TYPES
 ORDER_FROM = 1 << 17
 """Rays from which a trace considers ordering them: fewer share too few nodes for the
 order to pay (`bench/ab_order.py --rays N`; BENCHMARKS.md, "Incoherent rays")."""
+
+DIRECTION_ORDER_FROM = 1 << 15
+"""Rays from about one point (`concentrated`) from which a trace considers ordering them
+by direction: from 2^15 rays the packets that the order makes pay for it (`python
+bench/ab_order.py --kinds centre --rays N`: trace 0.91-1.00 of the time at 2^15, 0.78
+at 2^16, 1.47 at 2^12; count 0.79-0.81 at 2^15; BENCHMARKS.md, "Incoherent rays")."""
 
 ORIGIN_BITS = 4
 """A side of the entry points' grid: 2^ORIGIN_BITS cells (kernels/ray_order.cl has 16),
@@ -72,43 +87,97 @@ def ray_keys(origins, directions, lo, hi, o_step=1):
     return key
 
 
-def unordered(origins, directions, lo, hi, o_step=1):
-    """Whether the rays (as `ray_keys` takes them) are in no order of their own: in more
-    than UNORDERED_SHARE of the sample's neighbouring rays, the key falls."""
-    n = len(directions)
-    if n < max(ORDER_FROM, SAMPLE_RUN):
-        return False
+def direction_keys(directions):
+    """(N,) uint16, in numpy (float64): kernels/ray_order.cl's direction keys
+    (`device_keys` with by_direction) of directions (N, 3): the Morton code of each
+    one's cell in a 256 x 256 grid over the octahedral map of directions (bit 2 b: bit b
+    of the cell's column u, bit 2 b + 1: of its row v). The kernel computes in float: a
+    key may differ where the direction lies within rounding of a cell's side."""
+    d = np.asarray(directions, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = d / np.abs(d).sum(axis=1)[:, None]
+    u, v = p[:, 0], p[:, 1]
+    low = p[:, 2] < 0                        # the lower half, folded over the corners
+    u, v = (np.where(low, (1 - np.abs(v)) * np.where(u < 0, -1.0, 1.0), u),
+            np.where(low, (1 - np.abs(u)) * np.where(v < 0, -1.0, 1.0), v))
+    key = np.zeros(len(d), dtype=np.uint16)
+    for shift, x in ((0, u), (1, v)):
+        c = (x + 1) * 128
+        cell = np.where(c >= 255, 255, np.where(c > 0, c, 0)).astype(np.uint16)
+        for b in range(8):
+            key |= ((cell >> np.uint16(b)) & np.uint16(1)) << np.uint16(2 * b + shift)
+    return key
+
+
+def _sample_rows(n):
+    """(SAMPLE_RUNS * SAMPLE_RUN,) int64: the rows of n rays that `unordered` and
+    `concentrated` look at (SAMPLE_RUNS runs of SAMPLE_RUN, spread evenly)."""
     starts = np.linspace(0, n - SAMPLE_RUN, SAMPLE_RUNS).astype(np.int64)
-    rows = (starts[:, None] + np.arange(SAMPLE_RUN)).reshape(-1)
-    o = origins[rows] if o_step else origins
-    keys = ray_keys(o, directions[rows], lo, hi, o_step).reshape(SAMPLE_RUNS, SAMPLE_RUN)
+    return (starts[:, None] + np.arange(SAMPLE_RUN)).reshape(-1)
+
+
+def concentrated(origins, directions, lo, hi, o_step=1):
+    """Whether the rays (as `ray_keys` takes them) leave from about one point: one origin
+    (o_step 0), or the sample's finite origins within 1 / 2^ORIGIN_BITS of the box's
+    longest side on every axis (one cell of `ray_keys`' grid: every such ray enters in
+    one cell or two, and that key tells them apart by octant only)."""
+    if not o_step:
+        return True
+    n = len(directions)
+    if n < SAMPLE_RUN:
+        return False
+    o = np.asarray(origins[_sample_rows(n)], dtype=np.float64)
+    o = o[np.isfinite(o).all(axis=1)]
+    side = float(np.max(np.asarray(hi, np.float64) - np.asarray(lo, np.float64)))
+    return len(o) > 0 and float(np.ptp(o, axis=0).max()) <= side / (1 << ORIGIN_BITS)
+
+
+def unordered(origins, directions, lo, hi, o_step=1, by_direction=False):
+    """Whether the rays (as `ray_keys` takes them) are in no order of their own: in more
+    than UNORDERED_SHARE of the sample's neighbouring rays, the key (by_direction:
+    `direction_keys`, else `ray_keys`) falls."""
+    n = len(directions)
+    if n < max(DIRECTION_ORDER_FROM if by_direction else ORDER_FROM, SAMPLE_RUN):
+        return False
+    rows = _sample_rows(n)
+    if by_direction:
+        keys = direction_keys(directions[rows])
+    else:
+        keys = ray_keys(origins[rows] if o_step else origins, directions[rows], lo, hi, o_step)
+    keys = keys.reshape(SAMPLE_RUNS, SAMPLE_RUN)
     return float(np.mean(keys[:, 1:] < keys[:, :-1])) > UNORDERED_SHARE
 
 
-def device_keys(tracer, origins, directions, lo, hi, o_step=1, buffers=None):
-    """(N,) uint16: `ray_keys` of the rays, computed on the tracer's device
-    (kernels/ray_order.cl): origins (M, 3) and directions (N, 3), float32 or float64
-    arrays as the kernels read them, read in place on a CPU. buffers: None, or the
-    device buffers the caller already holds them in, ((o_buf, o_offset), (d_buf,
-    d_offset)) in elements, so that a GPU is not sent them twice."""
+def device_keys(tracer, origins, directions, lo, hi, o_step=1, buffers=None,
+                by_direction=False):
+    """(N,) uint16: `ray_keys` of the rays (by_direction: `direction_keys` of their
+    directions), computed on the tracer's device (kernels/ray_order.cl): origins (M, 3)
+    and directions (N, 3), float32 or float64 arrays as the kernels read them, read in
+    place on a CPU. buffers: None, or the device buffers the caller already holds them
+    in, ((o_buf, o_offset), (d_buf, d_offset)) in elements, so that a GPU is not sent
+    them twice."""
     n = len(directions)
     types = {"ORIGIN_T": C_TYPES[np.dtype(origins.dtype)],
              "DIRECTION_T": C_TYPES[np.dtype(directions.dtype)]}
-    entry = tracer._built("ray_order.cl", types, ("ray_keys",))
+    entry = tracer._built("ray_order.cl", types, ("ray_keys", "direction_keys"))
     keys = page_aligned_empty((n,), np.uint16)
     if buffers is None:
         buffers = (tracer._input_buffer(np.ascontiguousarray(origins)),
                    tracer._input_buffer(np.ascontiguousarray(directions)))
     (o_buf, o_at), (d_buf, d_at) = buffers
     out = {"keys": tracer._output_buffer(keys)}
-    lo = np.asarray(lo, dtype=np.float64)
-    size = np.asarray(hi, dtype=np.float64) - lo
     local = min(KEYS_LOCAL, int(tracer.device.max_work_group_size))
     items = -(-n // local) * local
-    tracer._enqueue(entry, "ray_keys", items, local,
-                    (o_buf, d_buf, np.uint32(o_at), np.uint32(d_at), np.uint32(o_step),
-                     np.uint32(n), *lo.astype(np.float32), *size.astype(np.float32),
-                     out["keys"]))
+    if by_direction:
+        tracer._enqueue(entry, "direction_keys", items, local,
+                        (d_buf, np.uint32(d_at), np.uint32(n), out["keys"]))
+    else:
+        lo = np.asarray(lo, dtype=np.float64)
+        size = np.asarray(hi, dtype=np.float64) - lo
+        tracer._enqueue(entry, "ray_keys", items, local,
+                        (o_buf, d_buf, np.uint32(o_at), np.uint32(d_at), np.uint32(o_step),
+                         np.uint32(n), *lo.astype(np.float32), *size.astype(np.float32),
+                         out["keys"]))
     tracer._read_outputs(out, {"keys": keys})
     return keys
 
@@ -120,14 +189,17 @@ KEYS_LOCAL = 64
 def ray_order(tracer, origins, directions, lo, hi, o_step=1, buffers=None):
     """None, or the (N,) uint32 order in which to trace rays (origins (M, 3),
     directions (N, 3), as the kernels read them, in the frame of the box lo .. hi)
-    that are in no order of their own (`unordered`) through the tracer's tree, when
-    it takes ORDER_TREE_BYTES or more on the device (`Tracer.device_bytes`): by their
-    keys (`device_keys`, buffers as it takes them), stable (numpy's radix sort of
-    16-bit keys)."""
-    if tracer.device_bytes < ORDER_TREE_BYTES or not unordered(origins, directions, lo, hi,
-                                                               o_step):
+    that are in no order of their own (`unordered`): rays from about one point
+    (`concentrated`) by their directions through any tree, others by where they enter
+    the box through a tree that takes ORDER_TREE_BYTES or more on the device
+    (`Tracer.device_bytes`); by their keys (`device_keys`, buffers as it takes them),
+    stable (numpy's radix sort of 16-bit keys)."""
+    by_direction = concentrated(origins, directions, lo, hi, o_step)
+    if not by_direction and tracer.device_bytes < ORDER_TREE_BYTES:
         return None
-    key = device_keys(tracer, origins, directions, lo, hi, o_step, buffers)
+    if not unordered(origins, directions, lo, hi, o_step, by_direction):
+        return None
+    key = device_keys(tracer, origins, directions, lo, hi, o_step, buffers, by_direction)
     order = page_aligned_empty((len(key),), np.uint32)    # read in place (trace.py)
     order[:] = np.argsort(key, kind="stable")
     return order

@@ -902,15 +902,32 @@ void kd_packet_shear(KdPacket *r, intP on, uint first, floatP ox, floatP oy, flo
 #define KD_ALONE_TURN 0.5f
 #endif
 
+/* Whether directions (x, y, z), one a lane, span more than KD_ALONE_TURN of their
+ * largest magnitude on some axis. */
+KD_INLINE
+bool kd_turn_wide(floatP x, floatP y, floatP z)
+{
+    float lo_x, hi_x, lo_y, hi_y, lo_z, hi_z;
+    kd_rangeP(x, &lo_x, &hi_x);
+    kd_rangeP(y, &lo_y, &hi_y);
+    kd_rangeP(z, &lo_z, &hi_z);
+    float big = kd_max(kd_max(kd_max(-lo_x, hi_x), kd_max(-lo_y, hi_y)), kd_max(-lo_z, hi_z));
+    float span = kd_max(hi_x - lo_x, kd_max(hi_y - lo_y, hi_z - lo_z));
+    return span > KD_ALONE_TURN * big;
+}
+
 /* Whether the lanes in `on` (origins ox, oy, oz, directions dx, dy, dz; r: their
  * packet) are better traced each on its own path (trace_packet: wide.cl's walk; their
  * leaves KD_PACKET triangles at a time: kd_ray_leaf) than as a packet: their
  * origins span more than KD_ALONE_SPREAD of the scene box's longest side on some axis,
- * or their directions more than KD_ALONE_TURN. Rays that far apart or that diverge
- * share few nodes below the top of the tree, and the union of their paths, each node a
- * vector step, costs more than their own paths; rays from one point or a small patch
- * pointing alike (cameras, lidars, a projector's pixels) share most nodes
- * (BENCHMARKS.md, "Incoherent rays"). Either way every lane's hit is the same. */
+ * or their directions more than KD_ALONE_TURN, as they are and scaled each to a
+ * largest component of 1 (rays that point alike with other lengths: a user's rays from
+ * one point, taken in the order of their directions, kdray/ray_order.py). Rays that
+ * far apart or that diverge share few nodes below the top of the tree, and the union
+ * of their paths, each node a vector step, costs more than their own paths; rays from
+ * one point or a small patch pointing alike (cameras, lidars, a projector's pixels)
+ * share most nodes (BENCHMARKS.md, "Incoherent rays"). Either way every lane's hit is
+ * the same. */
 KD_INLINE
 bool kd_alone(const KdPacket *r, intP on, bool camera, floatP ox, floatP oy, floatP oz,
               floatP dx, floatP dy, floatP dz, float3 bmin, float3 bmax)
@@ -939,13 +956,13 @@ bool kd_alone(const KdPacket *r, intP on, bool camera, floatP ox, floatP oy, flo
     x = kd_selectP((floatP)(a.s[l0]), dx, on);
     y = kd_selectP((floatP)(b.s[l0]), dy, on);
     z = kd_selectP((floatP)(c.s[l0]), dz, on);
-    float lo_x, hi_x, lo_y, hi_y, lo_z, hi_z;
-    kd_rangeP(x, &lo_x, &hi_x);
-    kd_rangeP(y, &lo_y, &hi_y);
-    kd_rangeP(z, &lo_z, &hi_z);
-    float big = kd_max(kd_max(kd_max(-lo_x, hi_x), kd_max(-lo_y, hi_y)), kd_max(-lo_z, hi_z));
-    float span = kd_max(hi_x - lo_x, kd_max(hi_y - lo_y, hi_z - lo_z));
-    return span > KD_ALONE_TURN * big;
+    if (!kd_turn_wide(x, y, z))
+        return false;
+    /* scaled (a zero direction left as it is): only where they span too much as they
+     * are, so that rays of one length (a camera's, a lidar's) pay nothing for it */
+    floatP m = kd_maxP(kd_absP(x), kd_maxP(kd_absP(y), kd_absP(z)));
+    m = kd_selectP((floatP)(1.0f), m, m > 0.0f);
+    return kd_turn_wide(x / m, y / m, z / m);
 }
 
 #include "wide.cl"

@@ -1,10 +1,15 @@
-/* kernels/ray_order.cl: the key kdray/ray_order.py sorts rays in no order of their own
+/* kernels/ray_order.cl: the keys kdray/ray_order.py sorts rays in no order of their own
  * by, so that neighbouring rays enter the scene close together and head the same way.
  *
- *   ray_keys  each ray's 15-bit key: the octant of its direction (bit 12 + k: component
- *             k negative) over the Morton code of the cell of a 16^3 grid over the
- *             scene's box where the ray enters it (bit 3 b + k: bit b of the cell's
- *             index on axis k)
+ *   ray_keys        each ray's 15-bit key: the octant of its direction (bit 12 + k:
+ *                   component k negative) over the Morton code of the cell of a 16^3
+ *                   grid over the scene's box where the ray enters it (bit 3 b + k: bit
+ *                   b of the cell's index on axis k)
+ *   direction_keys  for rays from one point (or a few close together): each ray's
+ *                   16-bit key, the Morton code of its direction's cell in a 256 x 256
+ *                   grid over the octahedral map of directions (bit 2 b: bit b of the
+ *                   cell's column, bit 2 b + 1: of its row), so that rays taken in key
+ *                   order point alike, as a camera's neighbouring pixels do
  *
  * The entry point is o + t d at the largest of 0 and the three near slab planes' t:
  * the origin itself for a ray that starts in the box, else where a ray from outside
@@ -72,5 +77,49 @@ __kernel void ray_keys(__global const ORIGIN_T *origins, __global const DIRECTIO
             key |= (d[a] < 0.0f ? 1u : 0u) << (12u + a);
         }
         keys[k] = (ushort)key;
+    }
+}
+
+/* bits 0..7 of c spread to the even bits 0, 2, .., 14 */
+KD_INLINE
+uint kd_spread8(uint c)
+{
+    c = (c | (c << 4)) & 0x0F0Fu;
+    c = (c | (c << 2)) & 0x3333u;
+    return (c | (c << 1)) & 0x5555u;
+}
+
+/* The cell (0..255) of x in [-1, 1] on a side of 256 cells: NaN and anything beyond
+ * go to the nearest end. */
+KD_INLINE
+uint kd_cell256(float x)
+{
+    float c = (x + 1.0f) * 128.0f;
+    return c >= 255.0f ? 255u : (c > 0.0f ? (uint)c : 0u);
+}
+
+/* keys[k] for rays k = 0 .. n - 1: direction k from element d_offset of its buffer.
+ * The octahedral map: d / (|x| + |y| + |z|) has (u, v) = (x, y) on the upper half
+ * (z >= 0); the lower half is folded out over the square's corners, (u, v) = ((1 -
+ * |y|) sign x, (1 - |x|) sign y). Neighbouring directions have neighbouring cells (but
+ * across the fold), and the cells' sides lie on the planes x = 0 and y = 0, so a cell
+ * holds one octant's directions but along the fold. A zero or non-finite direction
+ * gets a clamped cell: any key is a right one. */
+__kernel void direction_keys(__global const DIRECTION_T *directions, uint d_offset, uint n,
+                             __global ushort *keys)
+{
+    directions += d_offset;
+    uint k = (uint)get_global_id(0);
+    if (k < n) {
+        float x = (float)directions[3 * (size_t)k], y = (float)directions[3 * (size_t)k + 1],
+              z = (float)directions[3 * (size_t)k + 2];
+        float s = fabs(x) + fabs(y) + fabs(z);
+        float u = x / s, v = y / s;
+        if (z < 0.0f) {
+            float fu = (1.0f - fabs(v)) * (u < 0.0f ? -1.0f : 1.0f);
+            v = (1.0f - fabs(u)) * (v < 0.0f ? -1.0f : 1.0f);
+            u = fu;
+        }
+        keys[k] = (ushort)(kd_spread8(kd_cell256(u)) | (kd_spread8(kd_cell256(v)) << 1));
     }
 }

@@ -504,7 +504,8 @@ def test_rays_taken_in_an_order_give_the_same_hits(runtime, monkeypatch, packet)
     """Rays in no order of their own, traced in an order (kdray.ray_order: trace_rays
     reads each ray and writes its outputs through it), give bit for bit the hits of
     the same rays taken as they come, in packets and one a work-item, at a count that
-    leaves a packet short; and the order is taken, by the keys numpy computes."""
+    leaves a packet short, rays from one point (taken by direction) too; and the order
+    is taken, by the keys numpy computes."""
     import kdray.ray_order as ray_order
     import kdray.trace as trace
     tree = scene_tree("soup")
@@ -514,11 +515,20 @@ def test_rays_taken_in_an_order_give_the_same_hits(runtime, monkeypatch, packet)
     tr = Tracer(tree, device=runtime.spec, packet=packet)
     tr._poison_outputs = True
     base = tr.trace(o, d)
+    # rays from one point, of many lengths, taken by direction (ray_order.direction_keys)
+    lo, hi = tree.world_box()
+    centre = 0.5 * (lo + hi)
+    one_d = d * np.random.default_rng(25).uniform(0.1, 10.0, size=(len(d), 1))
+    one_base = tr.trace(centre, one_d)
     taken = force_ray_order(monkeypatch, trace)
     same_hits(tr.trace(o, d), base)
-    assert len(taken) == 1 and taken[0] is not None
-    assert np.array_equal(np.sort(taken[0]), np.arange(len(o)))
+    same_hits(tr.trace(centre, one_d), one_base)
+    assert len(taken) == 2 and all(t is not None for t in taken)
+    for t in taken:
+        assert np.array_equal(np.sort(t), np.arange(len(o)))
     # its keys (kernels/ray_order.cl) are numpy's but where float rounds otherwise
-    lo, hi = tree.world_box()
     keys = ray_order.device_keys(tr, o, d, lo, hi)
     assert np.mean(keys == ray_order.ray_keys(o, d, lo, hi)) > 0.99
+    keys = ray_order.device_keys(tr, centre[None], one_d, lo, hi, 0, by_direction=True)
+    assert np.mean(keys == ray_order.direction_keys(one_d)) > 0.99
+    assert np.array_equal(taken[1], np.argsort(keys, kind="stable"))

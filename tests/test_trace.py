@@ -458,6 +458,65 @@ def test_which_rays_are_put_in_order(tracers):
         ro.ORDER_TREE_BYTES = keep
 
 
+def test_rays_from_one_point_are_put_in_order_of_direction(tracers):
+    """kdray.ray_order: rays from one point, or from points within one cell of the
+    entry keys' grid, are sorted by their directions' keys at any size of tree (from
+    DIRECTION_ORDER_FROM rays): each key names a cell of a 256 x 256 grid over the
+    octahedral map whose centre, mapped back to the sphere, lies within the cell's
+    reach of the direction; a direction and its multiples share a key; the device's
+    keys are numpy's but where a direction lies within float rounding of a cell's
+    side. Rays from spread points keep the entry keys (and the tree-size rule), and a
+    sweep from one point, already in order, is left as it comes."""
+    import kdray.ray_order as ro
+    tree = mesh_tree("teapot.obj", "sah")
+    tr = tracers(tree)
+    lo, hi = tree.world_box()
+    rng = np.random.default_rng(47)
+    n = ro.DIRECTION_ORDER_FROM + 77
+    d = rng.normal(size=(n, 3))
+    d[:6] = [[0, 0, 1], [0, 0, -1], [1, 0, 0], [0, -1, 0], [0, 0, 0], [np.nan, 0, 1]]
+    key = ro.direction_keys(d)
+    assert key.dtype == np.uint16
+    assert np.array_equal(ro.direction_keys(d * rng.uniform(1e-3, 1e3, size=(n, 1))), key)
+    # the key's cell (bits 2 b: column, 2 b + 1: row) mapped back by the inverse
+    # octahedral map: its centre's direction is within the cell's reach of d's
+    col = sum(((key.astype(np.int64) >> (2 * b)) & 1) << b for b in range(8))
+    row = sum(((key.astype(np.int64) >> (2 * b + 1)) & 1) << b for b in range(8))
+    u, v = (col + 0.5) / 128 - 1, (row + 0.5) / 128 - 1
+    w = 1 - np.abs(u) - np.abs(v)
+    back = np.stack([np.where(w < 0, (1 - np.abs(v)) * np.sign(u), u),
+                     np.where(w < 0, (1 - np.abs(u)) * np.sign(v), v), w], axis=1)
+    back /= np.linalg.norm(back, axis=1)[:, None]
+    unit = d[6:] / np.linalg.norm(d[6:], axis=1)[:, None]
+    angle = np.arccos(np.clip(np.sum(unit * back[6:], axis=1), -1, 1))
+    assert angle.max() < 0.03                     # a cell spans at most ~0.017 rad
+    # +z at the map's centre (cell 128, 128), -z folded to its corner (255, 255), +x at
+    # the middle of its right side (255, 128), -y of its bottom (128, 0)
+    assert list(key[:4]) == [0xC000, 0xFFFF, 0xD555, 0x4000]
+    # on the device, from float64 and float32 arrays
+    for a in (d, d.astype(np.float32)):
+        got = ro.device_keys(tr, lo[None], a, lo, hi, 0, by_direction=True)
+        assert got.dtype == np.uint16 and np.mean(got == key) > 0.999
+    # one origin, or origins within a cell: ordered by direction, though the tree is small
+    centre = 0.5 * (lo + hi)
+    near = centre + (hi - lo).max() / 64 * rng.uniform(-1, 1, size=(n, 3))
+    assert tr.device_bytes < ro.ORDER_TREE_BYTES
+    for o, step in ((centre[None], 0), (np.tile(centre, (n, 1)), 1), (near, 1)):
+        assert ro.concentrated(o, d, lo, hi, step)
+        order = ro.ray_order(tr, o, d, lo, hi, step)
+        assert order is not None and np.array_equal(np.sort(order), np.arange(n))
+        got = ro.device_keys(tr, o, d, lo, hi, step, by_direction=True)
+        assert np.all(np.diff(got[order].astype(np.int64)) >= 0)
+        assert ro.ray_order(tr, o[:1] if step == 0 else o[:n - 100], d[:n - 100], lo, hi,
+                            step) is None                     # too few
+    spread = lo + (hi - lo) * rng.random((n, 3))
+    assert not ro.concentrated(spread, d, lo, hi)
+    assert ro.ray_order(tr, spread, d, lo, hi) is None        # small tree: as they come
+    angle = np.linspace(0, 2 * np.pi, n)
+    sweep = np.stack([np.cos(angle), np.sin(angle), 0.1 * np.ones(n)], axis=1)
+    assert ro.ray_order(tr, centre[None], sweep, lo, hi, 0) is None
+
+
 def reversed_leaves(tree):
     """The same tree with every leaf's triangle list reversed (a valid tree, the same
     hits): the device's copies of each leaf then come in the other order."""
