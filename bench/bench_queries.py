@@ -6,10 +6,11 @@ usage: python bench/bench_queries.py [--meshes bunny,bunny-1.6M] [--rays 1048576
                                      [--grid 64] [--random-points 1000000]
 
 Speed, for each mesh (numpy in and numpy out, round_robin in turns, best and median):
-three ray sets, the framing camera's 1024 x 1024 rays, `--rays` incoherent rays (from
-random points in the tree's box in random directions) and as many rays that mostly hit
-(`aimed`: from a sphere around the mesh to random points on its surface), and as many
-random points in the box for the inside tests:
+four ray sets, the framing camera's 1024 x 1024 rays, `--rays` incoherent rays (from
+random points in the tree's box in random directions), as many rays that mostly hit
+(`aimed`: from a sphere around the mesh to random points on its surface) and as many
+from one point (`centre`: the box's centre, random directions, as (N, 3) rows: a
+viewpoint's visibility), and as many random points in the box for the inside tests:
 - kdray: `trace` (t and prim), `occluded`, `count`, `intersections`, `contains`,
   `trace` and `occluded` with t_max an (N,) array (a range a ray, each inf), and
   `intersections` with max_hits=1 (the nearest hit as a k-nearest list);
@@ -80,6 +81,14 @@ def aimed(mesh, tree, n, seed=3):
     return o, target - o
 
 
+def centre(tree, n, seed=4):
+    """(origins, directions) (n, 3) float64: rays from the centre of the tree's box (one
+    origin, repeated in every row) in random directions."""
+    lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
+    rng = np.random.default_rng(seed)
+    return np.tile(0.5 * (lo + hi), (n, 1)), rng.normal(size=(n, 3))
+
+
 def mitsuba_calls(mesh, o, d, coherent):
     """{name: call} of Mitsuba 3's any-hit test, numpy to numpy."""
     from peers import mitsuba_module, mitsuba_rays, mitsuba_scene
@@ -122,7 +131,8 @@ def speed(name, args):
     for label, (o, d) in (("camera rays, 1024 x 1024", (co, cd)),
                           (f"{args.rays:,} incoherent rays", (io, idir)),
                           (f"{args.rays:,} rays aimed at the surface from around it",
-                           aimed(m, tree, args.rays))):
+                           aimed(m, tree, args.rays)),
+                          (f"{args.rays:,} rays from the box's centre", centre(tree, args.rays))):
         points = io                     # random points in the box
         t_ray = np.full(len(d), np.inf)  # a range a ray
         calls = {"kdray trace": lambda: tracer.trace(o, d, outputs=()),
