@@ -9,7 +9,7 @@ the cell of a 16^3 grid over the scene's box where they enter it (kernels/ray_or
 neighbouring rays enter close together and head the same way: their walks share nodes
 and triangles in the caches, and more packets are traced as packets.
 
-Rays from one point (or from points within one such cell: a light's or a sensor's
+Rays from one point (or from points within 1/64 of the box: a light's or a sensor's
 position, a visibility test from a viewpoint) all enter in one cell, and that key
 leaves them as they come. They are taken in the order of their directions instead
 (`direction_keys`: a Morton order over the octahedral map of directions), so that
@@ -38,6 +38,15 @@ DIRECTION_ORDER_FROM = 1 << 15
 by direction: from 2^15 rays the packets that the order makes pay for it (`python
 bench/ab_order.py --kinds centre --rays N`: trace 0.91-1.00 of the time at 2^15, 0.78
 at 2^16, 1.47 at 2^12; count 0.79-0.81 at 2^15; BENCHMARKS.md, "Incoherent rays")."""
+
+CONCENTRATED = 1.0 / 64
+"""The share of the box's longest side within which a sample's origins count as one
+point (`concentrated`). 2^20 rays from one point (as (N, 3) rows) taken by direction
+trace in 0.70x the time of their own order on the bunny (bunny-1.6M: 0.60x that of
+the entry keys' order); from origins spread over 1/64 of the side, 0.92x (0.84x);
+over 1/16, 1.14x on the bunny: packets of rays from origins that far apart share too
+few nodes (`kd_alone` lets them walk as one), and direction keys then cost more than
+they save (ad hoc, 2026-12-06; BENCHMARKS.md, "Incoherent rays")."""
 
 ORIGIN_BITS = 4
 """A side of the entry points' grid: 2^ORIGIN_BITS cells (kernels/ray_order.cl has 16),
@@ -118,9 +127,9 @@ def _sample_rows(n):
 
 def concentrated(origins, directions, lo, hi, o_step=1):
     """Whether the rays (as `ray_keys` takes them) leave from about one point: one origin
-    (o_step 0), or the sample's finite origins within 1 / 2^ORIGIN_BITS of the box's
-    longest side on every axis (one cell of `ray_keys`' grid: every such ray enters in
-    one cell or two, and that key tells them apart by octant only)."""
+    (o_step 0), or the sample's finite origins within CONCENTRATED of the box's longest
+    side on every axis (within one cell of `ray_keys`' grid, which then tells the rays
+    apart by octant only)."""
     if not o_step:
         return True
     n = len(directions)
@@ -129,7 +138,7 @@ def concentrated(origins, directions, lo, hi, o_step=1):
     o = np.asarray(origins[_sample_rows(n)], dtype=np.float64)
     o = o[np.isfinite(o).all(axis=1)]
     side = float(np.max(np.asarray(hi, np.float64) - np.asarray(lo, np.float64)))
-    return len(o) > 0 and float(np.ptp(o, axis=0).max()) <= side / (1 << ORIGIN_BITS)
+    return len(o) > 0 and float(np.ptp(o, axis=0).max()) <= CONCENTRATED * side
 
 
 def unordered(origins, directions, lo, hi, o_step=1, by_direction=False):

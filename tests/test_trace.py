@@ -459,8 +459,8 @@ def test_which_rays_are_put_in_order(tracers):
 
 
 def test_rays_from_one_point_are_put_in_order_of_direction(tracers):
-    """kdray.ray_order: rays from one point, or from points within one cell of the
-    entry keys' grid, are sorted by their directions' keys at any size of tree (from
+    """kdray.ray_order: rays from one point, or from points within CONCENTRATED of the
+    box's longest side, are sorted by their directions' keys at any size of tree (from
     DIRECTION_ORDER_FROM rays): each key names a cell of a 256 x 256 grid over the
     octahedral map whose centre, mapped back to the sphere, lies within the cell's
     reach of the direction; a direction and its multiples share a key; the device's
@@ -499,7 +499,7 @@ def test_rays_from_one_point_are_put_in_order_of_direction(tracers):
         assert got.dtype == np.uint16 and np.mean(got == key) > 0.999
     # one origin, or origins within a cell: ordered by direction, though the tree is small
     centre = 0.5 * (lo + hi)
-    near = centre + (hi - lo).max() / 64 * rng.uniform(-1, 1, size=(n, 3))
+    near = centre + (hi - lo).max() * ro.CONCENTRATED / 2 * rng.uniform(-1, 1, size=(n, 3))
     assert tr.device_bytes < ro.ORDER_TREE_BYTES
     for o, step in ((centre[None], 0), (np.tile(centre, (n, 1)), 1), (near, 1)):
         assert ro.concentrated(o, d, lo, hi, step)
@@ -511,6 +511,7 @@ def test_rays_from_one_point_are_put_in_order_of_direction(tracers):
                             step) is None                     # too few
     spread = lo + (hi - lo) * rng.random((n, 3))
     assert not ro.concentrated(spread, d, lo, hi)
+    assert not ro.concentrated(centre + 2 * (near - centre), d, lo, hi)   # twice as far
     assert ro.ray_order(tr, spread, d, lo, hi) is None        # small tree: as they come
     angle = np.linspace(0, 2 * np.pi, n)
     sweep = np.stack([np.cos(angle), np.sin(angle), 0.1 * np.ones(n)], axis=1)
