@@ -721,8 +721,8 @@ void kd_packet_wide_walk(uint query, bool crossing, __global const uint *wide,
  * on one path, as trace_packet traverses rays that share their paths (packet.cl): where
  * their directions share an octant, through the wide nodes (kd_packet_wide_walk); else
  * through the k-d tree, one node step for all the lanes, each taking the children it
- * needs (kd_packet_step: traverse.cl's rules and slack), and every leaf a lane's range reaches handed to
- * kd_query_leaf for that lane, until it says stop. Returns the lanes to be walked on
+ * needs (kd_packet_step: traverse.cl's rules and slack), and every leaf a lane's range
+ * reaches handed to kd_query_leaf for that lane, until it says stop. Returns the lanes to be walked on
  * their own from their start: every lane of rays that share no path (kd_alone), else
  * those that cannot follow the packet (a ray in a node's plane, or needing both
  * children in the other order), and on a stack or leaf bound exceeded (a corrupt

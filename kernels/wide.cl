@@ -76,17 +76,38 @@ typedef struct {
     uint mask[WIDE_STACK], order[WIDE_STACK];
 } KdWideStack;
 
+/* An octant of directions (bit a: going down axis a) and, in a record, the rows of
+ * each slab's near and far planes for it (near: the min going up an axis, the max
+ * going down): what a ray's or a packet's box test reads. */
+typedef struct {
+    uint octant, nx, ny, nz, fx, fy, fz;
+} KdWidePlanes;
+
+KD_INLINE
+KdWidePlanes kd_wide_planes(uint octant)
+{
+    KdWidePlanes p;
+    p.octant = octant;
+    p.nx = (octant & 1u) ? 3u : 0u;
+    p.ny = (octant & 2u) ? 4u : 1u;
+    p.nz = (octant & 4u) ? 5u : 2u;
+    p.fx = 3u - p.nx;
+    p.fy = 5u - p.ny;
+    p.fz = 7u - p.nz;
+    return p;
+}
+
 /* A ray's walk: the ray relative to the tree, its range, its best hit, its stack's
  * groups (top; 0: the walk is over) and the top group's mask and order, and for the
- * box test its octant, the rows of each slab's near and far planes (near: the min
- * going up an axis, the max going down) and each plane's offset c (the pad outwards,
- * minus the origin): the plane's t is (plane + c) / d. */
+ * box test its octant's planes (KdWidePlanes) and each plane's offset c (the pad
+ * outwards, minus the origin): the plane's t is (plane + c) / d. */
 typedef struct {
     float3 o;
     RayShear shear;
     float t_min, t_max;
     Hit hit;
-    uint top, mask, order, octant, nx, ny, nz, fx, fy, fz;
+    uint top, mask, order;
+    KdWidePlanes planes;
     float8 ix, iy, iz, cnx, cny, cnz, cfx, cfy, cfz;
     KdWideStack *stack;
 } KdWideRay;
@@ -117,13 +138,7 @@ void kd_wide_start(KdWideRay *r, KdWideStack *stack, float3 o, float3 d, float t
     float3 inv = (float3)(1.0f) / d;
     /* going down an axis: inv < 0 (d = -0 gives -inf) */
     bool down_x = inv.x < 0.0f, down_y = inv.y < 0.0f, down_z = inv.z < 0.0f;
-    r->octant = (down_x ? 1u : 0u) | (down_y ? 2u : 0u) | (down_z ? 4u : 0u);
-    r->nx = down_x ? 3u : 0u;
-    r->ny = down_y ? 4u : 1u;
-    r->nz = down_z ? 5u : 2u;
-    r->fx = 3u - r->nx;
-    r->fy = 5u - r->ny;
-    r->fz = 7u - r->nz;
+    r->planes = kd_wide_planes((down_x ? 1u : 0u) | (down_y ? 2u : 0u) | (down_z ? 4u : 0u));
     r->ix = (float8)(inv.x);
     r->iy = (float8)(inv.y);
     r->iz = (float8)(inv.z);
@@ -160,19 +175,19 @@ void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
     /* the slabs' entries and exits as selects with the slab's value first: a NaN
      * loses the compare (as fmax and fmin ignore it), one vmaxps or vminps each */
     float8 tn = (float8)(r->t_min), tf = (float8)(far), s;
-    s = (vload8(r->nz, rows) + r->cnz) * r->iz; tn = s > tn ? s : tn;
-    s = (vload8(r->ny, rows) + r->cny) * r->iy; tn = s > tn ? s : tn;
-    s = (vload8(r->nx, rows) + r->cnx) * r->ix; tn = s > tn ? s : tn;
-    s = (vload8(r->fz, rows) + r->cfz) * r->iz; tf = s < tf ? s : tf;
-    s = (vload8(r->fy, rows) + r->cfy) * r->iy; tf = s < tf ? s : tf;
-    s = (vload8(r->fx, rows) + r->cfx) * r->ix; tf = s < tf ? s : tf;
+    s = (vload8(r->planes.nz, rows) + r->cnz) * r->iz; tn = s > tn ? s : tn;
+    s = (vload8(r->planes.ny, rows) + r->cny) * r->iy; tn = s > tn ? s : tn;
+    s = (vload8(r->planes.nx, rows) + r->cnx) * r->ix; tn = s > tn ? s : tn;
+    s = (vload8(r->planes.fz, rows) + r->cfz) * r->iz; tf = s < tf ? s : tf;
+    s = (vload8(r->planes.fy, rows) + r->cfy) * r->iy; tf = s < tf ? s : tf;
+    s = (vload8(r->planes.fx, rows) + r->cfx) * r->ix; tf = s < tf ? s : tf;
     /* the slots met (an empty slot enters at +inf and leaves at -inf: never met) */
     const uint8 lane = (uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u);
     uint met = kd_bits8(as_uint8(tn <= tf) & ((uint8)(1u) << lane));
     if (met == 0u)
         return;
     /* bit k of the mask: whether the k-th slot in the octant's order is met */
-    uint order = w[KD_WIDE_ORDER + r->octant];
+    uint order = w[KD_WIDE_ORDER + r->planes.octant];
     uint8 slot = ((uint8)(order) >> ((uint8)(3u) * lane)) & (uint8)(7u);
     uint mask = kd_bits8((((uint8)(met) >> slot) & (uint8)(1u)) << lane);
     KdWideStack *st = r->stack;
@@ -326,11 +341,11 @@ bool kd_packet_octant(const KdPacket *r, intP on, uint first, uint *octant)
                           | (down_z != (intP)(z.s[first]))));
 }
 
-/* A packet's walk of the wide nodes: its octant's rows (kd_wide_start's: near and
- * far planes), each lane's 1 / d and plane offsets c (the pad outwards, minus the
- * origin), and each lane's t_min. */
+/* A packet's walk of the wide nodes: its octant's planes (KdWidePlanes, as a ray's),
+ * each lane's 1 / d and plane offsets c (the pad outwards, minus the origin), and each
+ * lane's t_min. */
 typedef struct {
-    uint octant, nx, ny, nz, fx, fy, fz;
+    KdWidePlanes planes;
     floatP ix, iy, iz, cnx, cny, cnz, cfx, cfy, cfz, t_min;
 } KdPacketWide;
 
@@ -340,13 +355,7 @@ void kd_packet_wide_start(KdPacketWide *p, const KdPacket *r, uint octant, float
 {
     bool down_x = (octant & 1u) != 0u, down_y = (octant & 2u) != 0u,
          down_z = (octant & 4u) != 0u;
-    p->octant = octant;
-    p->nx = down_x ? 3u : 0u;
-    p->ny = down_y ? 4u : 1u;
-    p->nz = down_z ? 5u : 2u;
-    p->fx = 3u - p->nx;
-    p->fy = 5u - p->ny;
-    p->fz = 7u - p->nz;
+    p->planes = kd_wide_planes(octant);
     p->ix = r->d_inv[0];
     p->iy = r->d_inv[1];
     p->iz = r->d_inv[2];
@@ -367,7 +376,7 @@ uint kd_packet_wide_node(const KdPacketWide *p, __global const uint *w, intP act
                          uint *met_child, floatP *met_t)
 {
     __global const float *rows = (__global const float *)w;
-    uint order = w[KD_WIDE_ORDER + p->octant];
+    uint order = w[KD_WIDE_ORDER + p->planes.octant];
     /* lane l of acc: bit j where lane l meets the j-th slot in the order */
     uintP acc = (uintP)(0u);
     for (uint j = 0u; j < 8u; j++) {
@@ -376,12 +385,12 @@ uint kd_packet_wide_node(const KdPacketWide *p, __global const uint *w, intP act
         if (c == KD_WIDE_EMPTY)
             break;                       /* empty slots come last in every order */
         floatP tn = p->t_min, tf = far, s;
-        s = (rows[8u * p->nz + k] + p->cnz) * p->iz; tn = s > tn ? s : tn;
-        s = (rows[8u * p->ny + k] + p->cny) * p->iy; tn = s > tn ? s : tn;
-        s = (rows[8u * p->nx + k] + p->cnx) * p->ix; tn = s > tn ? s : tn;
-        s = (rows[8u * p->fz + k] + p->cfz) * p->iz; tf = s < tf ? s : tf;
-        s = (rows[8u * p->fy + k] + p->cfy) * p->iy; tf = s < tf ? s : tf;
-        s = (rows[8u * p->fx + k] + p->cfx) * p->ix; tf = s < tf ? s : tf;
+        s = (rows[8u * p->planes.nz + k] + p->cnz) * p->iz; tn = s > tn ? s : tn;
+        s = (rows[8u * p->planes.ny + k] + p->cny) * p->iy; tn = s > tn ? s : tn;
+        s = (rows[8u * p->planes.nx + k] + p->cnx) * p->ix; tn = s > tn ? s : tn;
+        s = (rows[8u * p->planes.fz + k] + p->cfz) * p->iz; tf = s < tf ? s : tf;
+        s = (rows[8u * p->planes.fy + k] + p->cfy) * p->iy; tf = s < tf ? s : tf;
+        s = (rows[8u * p->planes.fx + k] + p->cfx) * p->ix; tf = s < tf ? s : tf;
         intP m = act & (tn <= tf);
         acc |= as_uintP(m) & (uintP)(1u << j);
         met_child[j] = c;
