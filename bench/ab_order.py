@@ -4,15 +4,23 @@ thresholds (ORDER_TREE_BYTES, ORDER_FROM, DIRECTION_ORDER_FROM) lie.
 
 usage: python bench/ab_order.py [--meshes bunny,bunny-x4,bunny-1.6M]
                                 [--kinds uniform,centre,ao,aimed] [--rays 1048576]
-                                [--calls trace] [--rounds 3]
+                                [--calls trace] [--rounds 3] [--keys auto]
+                                [--presorted]
 
 Rays: bench_embree.py's `uniform`, `centre` (one (3,) origin) and `ao`, and
 bench_queries.py's `aimed` (from a sphere around the mesh to points on its surface),
-float64. Calls: `trace` (t and prim), and any of `occluded`, `count`, `intersections`.
+and `spread=S`: random directions from origins uniform in a cube of side S times the
+box's longest side about its centre, in (N, 3) rows (where ray_order.CONCENTRATED
+lies); float64. --keys: `auto` (ray_order's choice), or `direction` or `entry` for
+every kind (ray_order.concentrated answering so). Calls: `trace` (t and prim), and any
+of `occluded`, `count`, `intersections`.
 Each round times each call once ordered (the order forced for every tree size and
 ray count: the keys on the device and their sort included) and once as the rays come
 (ray_order answering None), in turns; prints the best of the rounds and their ratio
 (ordered / as they come: < 1, the order pays), and checks the two gave the same hits.
+With --presorted, also the same rays put in that order on the host beforehand (untimed)
+and taken as they come: what the order would gain if its keys, sort and the kernel's
+reads out of memory order cost nothing (ms, and / as they come).
 """
 import argparse
 import os
@@ -52,7 +60,11 @@ def main():
     ap.add_argument("--rays", type=int, default=1 << 20)
     ap.add_argument("--calls", default="trace")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--keys", default="auto", choices=("auto", "direction", "entry"))
+    ap.add_argument("--presorted", action="store_true")
     args = ap.parse_args()
+    if args.keys != "auto":
+        ray_order.concentrated = lambda *a, **k: args.keys == "direction"
     ordered, as_they_come = ray_order.ray_order, (lambda *a: None)
     ray_order.ORDER_TREE_BYTES, ray_order.ORDER_FROM = 0, 1     # forced: a ray_order per call
     ray_order.DIRECTION_ORDER_FROM = 1
@@ -69,26 +81,41 @@ def main():
         for kind in args.kinds.split(","):
             if kind == "aimed":
                 o, d = aimed(m, tree, args.rays)
+            elif kind.startswith("spread="):
+                lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
+                side = float(kind.split("=")[1]) * np.max(hi - lo)
+                o = 0.5 * (lo + hi) + side * (rng.random((args.rays, 3)) - 0.5)
+                d = rng.normal(size=(args.rays, 3))
             else:
                 o, d, _ = rays_of(kind, m, tree, Args, rng)
                 if kind == "centre":
                     o = o[0]
+            ways = [("ordered", ordered, o, d), ("as they come", as_they_come, o, d)]
+            if args.presorted:
+                lo, hi = tracer.tree.world_box()
+                order = ordered(tracer, o.reshape(-1, 3), d, lo, hi, int(o.ndim == 2))
+                if order is not None:
+                    ways.append(("presorted", as_they_come,
+                                 np.ascontiguousarray(o[order]) if o.ndim == 2 else o,
+                                 np.ascontiguousarray(d[order])))
             for call in args.calls.split(","):
                 best = {}
                 got = {}
                 for _ in range(args.rounds):
-                    for way, fn in (("ordered", ordered), ("as they come", as_they_come)):
+                    for way, fn, oo, dd in ways:
                         ktrace.ray_order = krays.ray_order = fn
-                        got[way] = answer(tracer, call, o, d)        # warm, and kept
+                        got[way] = answer(tracer, call, oo, dd)      # warm, and kept
                         start = time.perf_counter()
-                        answer(tracer, call, o, d)
+                        answer(tracer, call, oo, dd)
                         best[way] = min(best.get(way, np.inf), time.perf_counter() - start)
                 same = all(np.array_equal(a, b, equal_nan=True)
                            for a, b in zip(got["ordered"], got["as they come"]))
                 a, b = best["ordered"] * 1e3, best["as they come"] * 1e3
-                print(f"{name:<11} {tracer.device_bytes / 2**20:6.1f} MB {kind:<8} {call:<13} "
-                      f"{a:8.1f} / {b:8.1f} = {a / b:.2f}  {'same' if same else 'DIFFERENT'}",
-                      flush=True)
+                pre = (f"  presorted {best['presorted'] * 1e3:8.1f} = "
+                       f"{best['presorted'] * 1e3 / b:.2f}" if "presorted" in best else "")
+                print(f"{name:<11} {tracer.device_bytes / 2**20:6.1f} MB {kind:<13} {call:<13} "
+                      f"{a:8.1f} / {b:8.1f} = {a / b:.2f}  {'same' if same else 'DIFFERENT'}"
+                      + pre, flush=True)
         ktrace.ray_order = krays.ray_order = ordered
 
 

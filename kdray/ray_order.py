@@ -41,12 +41,13 @@ at 2^16, 1.47 at 2^12; count 0.79-0.81 at 2^15; BENCHMARKS.md, "Incoherent rays"
 
 CONCENTRATED = 1.0 / 64
 """The share of the box's longest side within which a sample's origins count as one
-point (`concentrated`). 2^20 rays from one point (as (N, 3) rows) taken by direction
-trace in 0.70x the time of their own order on the bunny (bunny-1.6M: 0.60x that of
-the entry keys' order); from origins spread over 1/64 of the side, 0.92x (0.84x);
-over 1/16, 1.14x on the bunny: packets of rays from origins that far apart share too
-few nodes (`kd_alone` lets them walk as one), and direction keys then cost more than
-they save (ad hoc, 2026-12-06; BENCHMARKS.md, "Incoherent rays")."""
+point (`concentrated`). 2^20 rays in random directions from origins spread over a cube
+of side s of it, taken by direction, trace in 0.67x the time of their own order at s =
+0 on the bunny, 0.87x at 1/64 and 1.22x at 1/16; on bunny-1.6M in 0.65x the time of
+the entry keys' order at 0, 0.83x at 1/64, 0.94x at 1/32 (`python bench/ab_order.py
+--kinds spread=S --keys direction|entry`): packets of rays from origins that far apart
+share too few nodes (`kd_alone` lets them walk as one), and direction keys then cost
+more than they save (BENCHMARKS.md, "Incoherent rays")."""
 
 ORIGIN_BITS = 4
 """A side of the entry points' grid: 2^ORIGIN_BITS cells (kernels/ray_order.cl has 16),
