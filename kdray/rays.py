@@ -81,13 +81,20 @@ LIST_MORE = 0x20000000
 """list_rays marks the count of a ray that had more hits than slots (kernels/queries.cl)."""
 
 GUESS_HITS = 4
-"""Slots a ray gets in `intersections`' first pass, which lists every hit of the rays
-that have no more (most rays: 0.4-0.7 hits a ray for a camera's or random rays); only
-the others are counted, then listed again with their own number of slots."""
+"""Slots a ray gets in `intersections`' first pass (at most LIST_SLOTS), which lists
+every hit of the rays that have no more (most rays: 0.4-0.7 hits a ray for a camera's
+or random rays); only the others are counted, then listed again with their own number
+of slots."""
+
+LIST_SLOTS = 4
+"""The slots a ray keeps in private memory in a first pass (kernels/queries.cl,
+list_first, built with LIST_SLOTS), which writes only the hits it finds, one after
+another: writing every ray's slots, mostly empty and fresh memory at each call, took
+about a third of the pass's time."""
 
 GUESS_CHUNK = 1 << 20
 """Rays `intersections` takes through its first pass at once: their slots (GUESS_HITS
-a ray, 80 bytes) take at most 80 MB beside the hits listed."""
+a ray, 64 bytes) are reserved, and only their hits' pages are written."""
 
 RUN_CPU = 64
 """Consecutive rays a work-item takes on a CPU device (one per work-item on a GPU). In
@@ -294,9 +301,11 @@ def _image(tracer, rays, origins, directions):
     return rays
 
 
-def _program(tracer):
+def _program(tracer, first=False):
     """queries.cl built for the tracer's device and tree (kept with its other programs):
-    {"program": Program, kernel name: Kernel, "run": rays a work-item}."""
+    {"program": Program, kernel name: Kernel, "run": rays a work-item}; first: the
+    program of the first pass's kernel, list_first (LIST_SLOTS slots a ray in private
+    memory), instead of count_rays and list_rays."""
     run = RUN_CPU if _device.is_cpu(tracer.device) else 1
     local = tracer.local_size if _device.is_cpu(tracer.device) else min(
         64, int(tracer.device.max_work_group_size))
@@ -313,28 +322,30 @@ def _program(tracer):
         # rays that share no path walk the tree's wide nodes (kernels/wide.cl)
         defines["KD_WIDE"] = None
         defines["WIDE_STACK"] = tracer._wide()[1]
+    if first:
+        defines["LIST_SLOTS"] = LIST_SLOTS
     entry = tracer._built("queries.cl", defines,
-                          ("count_rays", "list_rays"))
+                          ("list_first",) if first else ("count_rays", "list_rays"))
     entry["run"], entry["local"] = run, local
     return entry
 
 
 def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False):
     """Run `kernel_name` on rays start .. stop - 1: extra (the kernel's arguments after
-    the rays: numpy scalars, or host arrays it reads, or None for NULL), then with
-    `exact` the float64 rays as given (KD_EXACT_RAY_ARGS: `_Rays.exact`, the tree's
-    origin and scale), and outputs (dict name -> host array it writes, in argument
-    order)."""
+    the rays: numpy scalars, or host arrays it reads, or None for NULL, or a device
+    buffer as it is), then with `exact` the float64 rays as given (KD_EXACT_RAY_ARGS:
+    `_Rays.exact`, the tree's origin and scale), and outputs (dict name -> host array it
+    writes, in argument order)."""
     cl = _device._cl()
     n = stop - start
     if n == 0:
         return
-    entry = _program(tracer)
+    entry = _program(tracer, first=kernel_name == "list_first")
     o, d, t_mins, t_maxs = rays.part(start, stop)
     keep = []                                    # the host arrays the buffers use
 
     def inp(array):
-        if array is None or isinstance(array, np.generic):
+        if array is None or isinstance(array, (np.generic, cl.MemoryObject)):
             return array                         # None: NULL
         array = np.ascontiguousarray(array)
         keep.append(array)
@@ -514,6 +525,9 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     slots are taken and the last hit is final (queries.cl, kd_list_done), and `more`
     is then not known."""
     cap = int(caps) if np.ndim(caps) == 0 else None      # the same for every ray
+    if cap is not None and cap <= LIST_SLOTS:
+        n_found, more, first, slots = _first_pass(tracer, rays, cap, crossing, nearest_k)
+        return _gathered(tracer, _offsets(n_found), first, slots), more
     caps = np.broadcast_to(np.asarray(caps, dtype=np.int64), (rays.n,))
     total = rays.n * cap if cap is not None else int(caps.sum())
     check_host_memory(total * (HIT_BYTES + 4) + rays.n * 12,
@@ -554,49 +568,80 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
                  "prim": prim[a:b] if b > a else np.empty(1, np.uint32),
                  "found": found[start:stop]}, exact=tracer.refine)
         start = stop
-    # one pass finds the marked rays (LIST_MORE, WALK_FAULT), then only they are read
-    marked = np.flatnonzero(found >= np.uint32(LIST_MORE))
-    _check_fault(found[marked] == WALK_FAULT, "intersections")
-    more = np.zeros(rays.n, dtype=bool)
-    more[marked] = True
-    n_found = found.astype(np.int64)
-    n_found[marked] &= ~LIST_MORE
+    n_found, more = _found(found)
     if (n_found == caps).all():
         return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1],
                              object_table=tracer.tree.objects), more
-    new_offsets = np.zeros(rays.n + 1, dtype=np.int64)
-    np.cumsum(n_found, out=new_offsets[1:])
+    return _gathered(tracer, _offsets(n_found), offsets[:-1], (t, uv, prim)), more
+
+
+def _offsets(counts):
+    """(N + 1,) int64: the compressed rows' offsets of (N,) counts."""
+    offsets = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    return offsets
+
+
+def _found(found):
+    """(n, more) of list_rays' or list_first's counts (found: (N,) uint32): each ray's
+    hits listed ((N,) int64) and whether it had more (LIST_MORE); DeviceError where a
+    walk met a corrupt tree."""
+    # one pass finds the marked rays (LIST_MORE, WALK_FAULT), then only they are read
+    marked = np.flatnonzero(found >= np.uint32(LIST_MORE))
+    _check_fault(found[marked] == WALK_FAULT, "intersections")
+    more = np.zeros(len(found), dtype=bool)
+    more[marked] = True
+    n_found = found.astype(np.int64)
+    n_found[marked] &= ~LIST_MORE
+    return n_found, more
+
+
+def _gathered(tracer, offsets, first, slots):
+    """An Intersections of the hits listed in slots (t, uv, prim: (S,), (S, 2), (S,)):
+    ray i's hits, offsets[i + 1] - offsets[i] of them ((N + 1,) int64), from slot
+    first[i] on ((N,) ints). A run that reaches past the slots written takes what is
+    there (the last slot past the end): its caller puts those rays' hits in place."""
     # each hit's slot: its ray's first slot plus its rank in the ray (one index for the
     # three gathers, made over the hits, not over every slot: most slots are empty)
-    keep = np.arange(new_offsets[-1]) + np.repeat(offsets[:-1] - new_offsets[:-1], n_found)
-    uv = take_rows(uv, keep)
-    return Intersections(new_offsets, np.take(t, keep), np.take(prim, keep), uv[:, 0],
-                         uv[:, 1], object_table=tracer.tree.objects), more
+    keep = np.arange(offsets[-1]) + np.repeat(first - offsets[:-1], np.diff(offsets))
+    t, uv, prim = slots
+    uv = np.take(uv, keep, axis=0, mode="clip")
+    return Intersections(offsets, np.take(t, keep, mode="clip"), np.take(prim, keep, mode="clip"),
+                         uv[:, 0], uv[:, 1], object_table=tracer.tree.objects)
 
 
-def _replace_rows(hits, rows, other):
-    """`hits` (an Intersections of N rays) with the hits of rays `rows` ((k,) int64,
-    ascending, each with at least one hit) replaced by those of `other` (an
-    Intersections of the k rays, in that order)."""
-    counts = np.diff(hits.offsets)
-    other_counts = np.diff(other.offsets)
-    new_counts = counts.copy()
-    new_counts[rows] = other_counts
-    offsets = np.zeros(len(counts) + 1, dtype=np.int64)
-    np.cumsum(new_counts, out=offsets[1:])
-    # the hits of the other rays kept in order: +1 where a run of `rows` starts, -1
-    # where it ends (the runs are distinct and not empty), summed
-    start, stop = hits.offsets[rows], hits.offsets[rows + 1]
-    ends = np.zeros(len(hits.t) + 1, dtype=np.int32)
-    ends[start] += 1
-    ends[stop] -= 1
-    mine = np.cumsum(ends[:-1]) == 0
-    # each of rows' new hits goes in before the kept hits of the rays after its own
-    dropped = counts[rows]
-    at = np.repeat(start - (np.cumsum(dropped) - dropped), other_counts)
-    out = {name: np.insert(getattr(hits, name)[mine], at, getattr(other, name))
-           for name in ("t", "prim", "u", "v")}
-    return Intersections(offsets, object_table=hits.object_table, **out)
+def _first_pass(tracer, rays, cap, crossing, nearest_k):
+    """(n, more, first, slots): `_list`'s pass over `rays` with the same cap <=
+    LIST_SLOTS for all, by list_first, which writes each work-item's hits one after
+    another, so that only the slots of hits are written (the arrays' other pages are
+    never touched): ray i's n[i] hits ((N,) int64) from slot first[i] on ((N,)
+    uint32) of slots (t (S,) float32, uv (S, 2) float32, prim (S,) uint32), in (t,
+    input id) order; more as `_list`'s."""
+    cl = _device._cl()
+    total = rays.n * cap
+    check_host_memory(total * HIT_BYTES + rays.n * 24, f"the {total} hits of {rays.n} rays")
+    t = page_aligned_empty((total,), np.float32)
+    uv = page_aligned_empty((total, 2), np.float32)
+    prim = page_aligned_empty((total,), np.uint32)
+    found = page_aligned_empty((rays.n,), np.uint32)
+    first = page_aligned_empty((rays.n,), np.uint32)
+    # (the float32 rays, their float64 copies, t ranges, count, first slot, slots)
+    widths = [36 * rays.o_step, 36, 8 * rays.t_step, 8, HIT_BYTES * cap]
+    step = min(tracer._launch_size(widths), int(tracer.device.max_mem_alloc_size) // (8 * cap))
+    for start in range(0, rays.n, step):
+        stop = min(rays.n, start + step)
+        a, b = start * cap, stop * cap
+        # where the launch's next hits go: a counter the work-items add to
+        next_hit = cl.Buffer(tracer.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
+                             hostbuf=np.zeros(1, dtype=np.uint32))
+        _launch(tracer, "list_first", rays, start, stop,
+                (np.uint32(crossing), np.uint32(cap), np.uint32(nearest_k), next_hit),
+                {"t": t[a:b], "uv": uv[a:b], "prim": prim[a:b], "found": found[start:stop],
+                 "first": first[start:stop]}, exact=tracer.refine)
+        if start:
+            first[start:stop] += np.uint32(a)    # the slots' total fits (memory)
+    n_found, more = _found(found)
+    return n_found, more, first, (t, uv, prim)
 
 
 def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits=None,
@@ -632,20 +677,34 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
 def _listed(tracer, rays, max_hits):
     """`intersections`' hits of `rays` (float32, in the tree's units): every ray's
     GUESS_HITS nearest (its max_hits when fewer), then the rays that had more counted
-    and listed again in full."""
-    guess = GUESS_HITS if max_hits is None else min(GUESS_HITS, int(max_hits))
+    and listed again in full, each ray's hits put in place once."""
+    guess = min(GUESS_HITS, LIST_SLOTS, max_hits or LIST_SLOTS)
     # max_hits within the guess: the first pass is a k-nearest query, its walks ending
     # at the k-th hit's leaf; else it must see whether a ray has more
     final = max_hits is not None and max_hits <= guess
-    hits, more = _list(tracer, rays, guess, nearest_k=final)
+    n, more, first, slots = _first_pass(tracer, rays, guess, False, final)
     redo = () if final else np.flatnonzero(more)
-    if len(redo):
-        sub = rays.subset(redo)
-        caps = _counts(tracer, sub, False).astype(np.int64)
-        if max_hits is not None:
-            np.minimum(caps, int(max_hits), out=caps)
-        hits = _replace_rows(hits, redo, _list(tracer, sub, caps, nearest_k=True)[0])
+    if not len(redo):
+        return _gathered(tracer, _offsets(n), first, slots)
+    # the rays with more: their whole lists in their places
+    again = _relisted(tracer, rays, redo, max_hits)
+    n[redo] = np.diff(again.offsets)
+    hits = _gathered(tracer, _offsets(n), first, slots)
+    at = np.arange(len(again.t)) + np.repeat(hits.offsets[redo] - again.offsets[:-1],
+                                             np.diff(again.offsets))
+    for name in ("t", "prim", "u", "v"):
+        getattr(hits, name)[at] = getattr(again, name)
     return hits
+
+
+def _relisted(tracer, rays, redo, max_hits):
+    """The Intersections of rays `redo` ((k,) int64) in full (their max_hits nearest):
+    counted, then listed with as many slots."""
+    sub = rays.subset(redo)
+    caps = _counts(tracer, sub, False).astype(np.int64)
+    if max_hits is not None:
+        np.minimum(caps, int(max_hits), out=caps)
+    return _list(tracer, sub, caps, nearest_k=True)[0]
 
 
 def _concatenated(parts):

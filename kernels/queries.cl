@@ -6,6 +6,9 @@
  *   list_rays      every hit, into the ray's own slots, sorted by (t, input id); with
  *                  `crossing`, every crossing (the count's rule: what count_rays
  *                  counts, for the rays whose crossings it could not tell apart)
+ *   list_first     (a program built with LIST_SLOTS) a first pass of list_rays with
+ *                  at most LIST_SLOTS slots a ray, kept in private memory, the hits
+ *                  written packed
  *
  * (Any hit and the nearest hit, with a t range a ray too, are trace_rays': render.cl,
  * with ANY_HIT for any.)
@@ -32,9 +35,11 @@
  * Options (-D): STACK_SIZE (at least the tree's depth + 1), LOCAL_SIZE, RUN (rays a
  * work-item takes: consecutive, or a band of an image's pixels, kd_block_rays), REFINE
  * (list_rays' t, u, v recomputed in double, triangle.cl,
- * kd_refine_hit, from the caller's rays in double). Rays are float32, relative to the
- * tree's origin in its units; t_min, t_max per ray (t_step 1) or one pair for all
- * (t_step 0), in the same units. Outputs are in those units too: the host scales t.
+ * kd_refine_hit, from the caller's rays in double), LIST_SLOTS (list_first's program:
+ * KdQuery's slots private, LIST_SLOTS of them; count_rays and list_rays are left out).
+ * Rays are float32, relative to the tree's origin in its units; t_min, t_max per ray
+ * (t_step 1) or one pair for all (t_step 0), in the same units. Outputs are in those
+ * units too: the host scales t.
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"
@@ -88,10 +93,17 @@ typedef struct {
                                           * 1 when a hit found no slot */
     int winding;                         /* count: the crossings' facings summed */
     uint seen[KD_SEEN];                  /* count: the input ids counted */
-    /* list: the ray's slots, cap of them, n used, sorted by (t, input id) */
+    /* list: the ray's slots, cap of them, n used, sorted by (t, input id): in the
+     * caller's buffers, or with LIST_SLOTS in private memory (list_first) */
+#ifdef LIST_SLOTS
+    float t[LIST_SLOTS];
+    float uv[2 * LIST_SLOTS];
+    uint tri[LIST_SLOTS];                /* the device's triangle copy (layout.h) */
+#else
     __global float *t;
     __global float *uv;
-    __global uint *tri;                  /* the device's triangle copy (layout.h) */
+    __global uint *tri;
+#endif
     uint cap;
 } KdQuery;
 
@@ -1005,6 +1017,7 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
 #define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes KD_WIDE_PASS, origins,          \
     directions, o_step, t_mins, t_maxs, t_step, n_rays, image_w, order
 
+#ifndef LIST_SLOTS
 /* out[k]: the number of distinct triangles ray k hits (crossing 1: under the count's
  * rule), or every hit found | KD_COUNT_RAW when they were more than KD_SEEN, or
  * KD_WALK_FAULT. crossing 2 (KD_WINDING): the crossings' facings summed (kd_facing), an
@@ -1022,17 +1035,8 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
                         : (q[l].n > KD_SEEN ? q[l].raw | KD_COUNT_RAW : q[l].n);
     }
 }
+#endif
 
-/* Ray k's hits (crossing: its crossings, the count's rule) into slots offsets[k] ..
- * offsets[k] + caps[k] - 1 (hit_t, hit_uv two floats a slot, hit_id the input id), its
- * count into out_n[k] (KD_WALK_FAULT on a fault): with caps[k] at least its distinct
- * hits, every hit, else the caps[k] first in (t, input id) order, the count then
- * marked KD_LIST_MORE. Sorted by (t, input id),
- * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
- * k * cap (a first pass's guess: no arrays to make and copy). nearest_k: the slots
- * are the nearest hits wanted, not whether there are more (a k-nearest query, or
- * caps[k] the ray's exact count): a walk ends once they are taken and the last is
- * final (kd_list_done), its KD_LIST_MORE then unknown. */
 #if defined(REFINE) && defined(cl_khr_fp64)
 /* the caller's rays in double as given, in world coordinates (origins o_step apart, as
  * `origins`), from element exact_o_offset and exact_d_offset on (the host's arrays,
@@ -1050,10 +1054,51 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
     ((vload3((size_t)(k) * o_step, exact_o + exact_o_offset)                              \
       - (double3)(exact_origin_x, exact_origin_y, exact_origin_z)) * exact_scale_inv)
 #define kd_exact_direction(k) vload3((k), exact_d + exact_d_offset)
+#define KD_EXACT_RAY_PASS , exact_o, exact_d, exact_o_offset, exact_d_offset,               \
+    exact_origin_x, exact_origin_y, exact_origin_z, exact_scale_inv
 #else
 #define KD_EXACT_RAY_ARGS
+#define KD_EXACT_RAY_PASS
 #endif
 
+/* A list's hits (q, ray k's, walked) made final: each hit's t, u, v from double with
+ * REFINE (kd_refine_hit, from the caller's ray as given), then in order again (the
+ * refined t moves by its float rounding at most, so this is a few swaps), and each
+ * slot's triangle copy made its input id. */
+KD_INLINE
+void kd_list_finish(KdQuery *q, uint k, __global const float *tris,
+                    __global const uint *tri_ids, __global const float *t_mins,
+                    __global const float *t_maxs, uint t_step, uint o_step KD_EXACT_RAY_ARGS)
+{
+#if defined(REFINE) && defined(cl_khr_fp64)
+    double3 o = kd_exact_origin(k);
+    double3 d = kd_exact_direction(k);
+    float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
+    for (uint j = 0; j < q->n; j++) {
+        uint tri = q->tri[j];
+        float t = q->t[j], u = q->uv[2u * j], v = q->uv[2u * j + 1u];
+        kd_refine_hit(o, d, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
+                      kd_vertex(tris, tri, 2), t_min, t_max, &t, &u, &v);
+        kd_slot_insert(q, j, t, u, v, tri, tri_ids);
+    }
+#endif
+    for (uint j = 0; j < q->n; j++)
+        q->tri[j] = tri_ids[q->tri[j]];
+}
+
+#define KD_FINISH_ARGS tris, tri_ids, t_mins, t_maxs, t_step, o_step KD_EXACT_RAY_PASS
+
+#ifndef LIST_SLOTS
+/* Ray k's hits (crossing: its crossings, the count's rule) into slots offsets[k] ..
+ * offsets[k] + caps[k] - 1 (hit_t, hit_uv two floats a slot, hit_id the input id), its
+ * count into out_n[k] (KD_WALK_FAULT on a fault): with caps[k] at least its distinct
+ * hits, every hit, else the caps[k] first in (t, input id) order, the count then
+ * marked KD_LIST_MORE. Sorted by (t, input id),
+ * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
+ * k * cap (a first pass's guess: no arrays to make and copy). nearest_k: the slots
+ * are the nearest hits wanted, not whether there are more (a k-nearest query, or
+ * caps[k] the ray's exact count): a walk ends once they are taken and the last is
+ * final (kd_list_done), its KD_LIST_MORE then unknown. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, uint nearest_k,
                __global const ulong *offsets,
@@ -1080,24 +1125,59 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, uint nearest_k,
                 out_n[k] = KD_WALK_FAULT;
                 continue;
             }
-#if defined(REFINE) && defined(cl_khr_fp64)
-            /* each hit's t, u, v from double (kd_refine_hit), then in order again: the
-             * refined t moves by its float rounding at most, so this is a few swaps */
-            double3 o = kd_exact_origin(k);
-            double3 d = kd_exact_direction(k);
-            float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step];
-            for (uint j = 0; j < q->n; j++) {
-                uint tri = q->tri[j];
-                float t = q->t[j], u = q->uv[2u * j], v = q->uv[2u * j + 1u];
-                kd_refine_hit(o, d, kd_vertex(tris, tri, 0),
-                              kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2), t_min, t_max,
-                              &t, &u, &v);
-                kd_slot_insert(q, j, t, u, v, tri, tri_ids);
-            }
-#endif
-            for (uint j = 0; j < q->n; j++)
-                q->tri[j] = tri_ids[q->tri[j]];
+            kd_list_finish(q, k, KD_FINISH_ARGS);
             out_n[k] = q->n | (q->raw ? KD_LIST_MORE : 0u);
         }
     }
 }
+#else
+/* list_rays' first pass (cap <= LIST_SLOTS slots a ray, in private memory): each
+ * work-item's hits, its rays' in the order it took them, each ray's in (t, input id)
+ * order, written one after another from where an atomic add on *next puts them
+ * (hit_t, hit_uv, hit_id), so that only as many slots are written as there are hits
+ * (a first pass's slots are mostly empty: writing them all, fresh memory each call,
+ * cost as much as the walk's leaves); out_n[k] as list_rays', out_at[k] where ray k's
+ * hits start. Which work-item takes which place varies from run to run; each ray's
+ * hits and count do not. */
+__kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
+void list_first(KD_QUERY_ARGS, uint crossing, uint cap, uint nearest_k,
+                volatile __global uint *next KD_EXACT_RAY_ARGS, __global float *hit_t,
+                __global float *hit_uv, __global uint *hit_id, __global uint *out_n,
+                __global uint *out_at)
+{
+    KD_FOR_ITEM_BLOCKS(ids, m) {
+        KdQuery qs[KD_WALK_BLOCK];
+        for (uint l = 0; l < m; l++) {
+            qs[l].cap = min(cap, (uint)LIST_SLOTS);
+            qs[l].nearest_k = nearest_k != 0u;
+        }
+        kd_walk_block(KD_LIST, crossing != 0u, KD_WALK_ARGS, ids, m, qs);
+        uint total = 0u;
+        for (uint l = 0; l < m; l++) {
+            KdQuery *q = &qs[l];
+            if (q->fault)
+                continue;
+            kd_list_finish(q, ids[l], KD_FINISH_ARGS);
+            total += q->n;
+        }
+        uint at = total ? atomic_add(next, total) : 0u;
+        for (uint l = 0; l < m; l++) {
+            KdQuery *q = &qs[l];
+            uint k = ids[l];
+            out_at[k] = at;
+            if (q->fault) {
+                out_n[k] = KD_WALK_FAULT;
+                continue;
+            }
+            for (uint j = 0; j < q->n; j++) {
+                hit_t[at + j] = q->t[j];
+                vstore2((float2)(q->uv[2u * j], q->uv[2u * j + 1u]), at + j, hit_uv);
+                hit_id[at + j] = q->tri[j];
+            }
+            at += q->n;
+            out_n[k] = q->n | (q->raw ? KD_LIST_MORE : 0u);
+        }
+    }
+}
+
+#endif

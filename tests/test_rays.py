@@ -135,12 +135,15 @@ def test_intersections_match_brute_force(runtime, teapot_tree, monkeypatch):
     assert (first.prim == nearest.prim[nearest.hit]).all()
     assert (first.t == nearest.t[nearest.hit]).all()
 
-    # the first pass's slots a ray (the rays with more listed again) and the rays it
-    # takes at once change nothing
+    # the first pass's slots a ray (the rays with more listed again), the rays it
+    # takes at once and the rays a launch takes (each launch's hits written from its
+    # own counter, list_first) change nothing
     assert (hits.counts > 1).any()
-    for guess, chunk in ((1, 1 << 20), (2, 97)):
+    for guess, chunk, launch in ((1, 1 << 20, None), (2, 97, None), (4, 1 << 20, 37)):
         monkeypatch.setattr(krays, "GUESS_HITS", guess)
         monkeypatch.setattr(krays, "GUESS_CHUNK", chunk)       # in parts of 97 rays
+        if launch:
+            monkeypatch.setattr(tracer, "_launch_size", lambda widths, *a, **k: launch)
         again = tracer.intersections(o, d)
         for name in ("offsets", "t", "prim", "u", "v"):
             assert np.array_equal(getattr(again, name), getattr(hits, name)), (guess, name)
