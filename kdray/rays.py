@@ -527,7 +527,7 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     cap = int(caps) if np.ndim(caps) == 0 else None      # the same for every ray
     if cap is not None and cap <= LIST_SLOTS:
         n_found, more, first, slots = _first_pass(tracer, rays, cap, crossing, nearest_k)
-        return _gathered(tracer, _offsets(n_found), first, slots), more
+        return _gathered(tracer, n_found, first, slots), more
     caps = np.broadcast_to(np.asarray(caps, dtype=np.int64), (rays.n,))
     total = rays.n * cap if cap is not None else int(caps.sum())
     check_host_memory(total * (HIT_BYTES + 4) + rays.n * 12,
@@ -572,7 +572,7 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     if (n_found == caps).all():
         return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1],
                              object_table=tracer.tree.objects), more
-    return _gathered(tracer, _offsets(n_found), offsets[:-1], (t, uv, prim)), more
+    return _gathered(tracer, n_found, offsets[:-1], (t, uv, prim)), more
 
 
 def _offsets(counts):
@@ -596,14 +596,15 @@ def _found(found):
     return n_found, more
 
 
-def _gathered(tracer, offsets, first, slots):
+def _gathered(tracer, counts, first, slots):
     """An Intersections of the hits listed in slots (t, uv, prim: (S,), (S, 2), (S,)):
-    ray i's hits, offsets[i + 1] - offsets[i] of them ((N + 1,) int64), from slot
-    first[i] on ((N,) ints). A run that reaches past the slots written takes what is
-    there (the last slot past the end): its caller puts those rays' hits in place."""
+    ray i's counts[i] hits ((N,) int64) from slot first[i] on ((N,) ints). A run that
+    reaches past the slots written takes what is there (the last slot past the end):
+    its caller puts those rays' hits in place."""
+    offsets = _offsets(counts)
     # each hit's slot: its ray's first slot plus its rank in the ray (one index for the
     # three gathers, made over the hits, not over every slot: most slots are empty)
-    keep = np.arange(offsets[-1]) + np.repeat(first - offsets[:-1], np.diff(offsets))
+    keep = np.arange(offsets[-1]) + np.repeat(first - offsets[:-1], counts)
     t, uv, prim = slots
     uv = np.take(uv, keep, axis=0, mode="clip")
     return Intersections(offsets, np.take(t, keep, mode="clip"), np.take(prim, keep, mode="clip"),
@@ -685,11 +686,11 @@ def _listed(tracer, rays, max_hits):
     n, more, first, slots = _first_pass(tracer, rays, guess, False, final)
     redo = () if final else np.flatnonzero(more)
     if not len(redo):
-        return _gathered(tracer, _offsets(n), first, slots)
+        return _gathered(tracer, n, first, slots)
     # the rays with more: their whole lists in their places
     again = _relisted(tracer, rays, redo, max_hits)
     n[redo] = np.diff(again.offsets)
-    hits = _gathered(tracer, _offsets(n), first, slots)
+    hits = _gathered(tracer, n, first, slots)
     at = np.arange(len(again.t)) + np.repeat(hits.offsets[redo] - again.offsets[:-1],
                                              np.diff(again.offsets))
     for name in ("t", "prim", "u", "v"):
