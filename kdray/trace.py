@@ -51,7 +51,7 @@ from .host import PAGE, check_host_memory, huge_page_copy, huge_page_empty, page
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BLOCK,
                      device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
                      triangle_copies)
-from .ray_grid import grid_width
+from .ray_grid import grid_width, rows_coherent
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import object_ids
@@ -689,8 +689,12 @@ class Tracer:
         mostly passes the same camera's: the width found for the last rays of that count
         is used at once, and the search runs while the kernel works, its answer kept for
         the next call. A stale width never changes a hit (packets do not: tested), only
-        the time of that call."""
+        the time of that call. Rays that fail ray_grid.rows_coherent's quick check
+        (random rays, say, between two calls of a camera's of the same count) are rows
+        at once, and leave the width kept for the count as it was."""
         n = len(directions)
+        if not rows_coherent(origins, directions):
+            return 0, None
 
         def search():
             self._widths.pop(n, None)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from kdray import Camera
-from kdray.ray_grid import MIN_WIDTH, grid_width
+from kdray.ray_grid import MIN_WIDTH, grid_width, rows_coherent
 
 BOX = (np.zeros(3), np.ones(3))
 
@@ -63,3 +63,27 @@ def test_not_an_image():
     assert grid_width(o, d[:65521]) == 0
     # an image's rays in random order: not rows
     assert grid_width(o, d[rng.permutation(len(d))]) == 0
+
+
+def test_rows_coherent_tells_images_from_rays_in_no_order():
+    """The quick check before a width kept for a count is used: every image that
+    grid_width finds passes it (one origin or per-ray origins, float32, holes, an
+    orthographic grid of origins); random rays, an image's rays shuffled and too few
+    rays fail it."""
+    rng = np.random.default_rng(2)
+    for w, h in [(1024, 768), (64, 7), (17, 100), (9, 40)]:
+        o, d = Camera.frame(*BOX, w, h).rays()
+        assert rows_coherent(o, d) and rows_coherent(o[0], d.astype(np.float32)), (w, h)
+        assert not rows_coherent(o, d[rng.permutation(len(d))]), (w, h)
+    o, d = Camera.frame(*BOX, 320, 240).rays()
+    holes = d.copy()
+    holes[::7] = np.nan
+    assert rows_coherent(o[0], holes)
+    y, x = np.mgrid[0:240, 0:320]
+    origins = np.stack([x, y, np.zeros_like(x)], axis=-1).reshape(-1, 3) * 0.01
+    assert rows_coherent(origins, np.broadcast_to([0.0, 0.0, 1.0], origins.shape))
+    n = 1 << 16
+    assert not rows_coherent(rng.normal(size=(n, 3)), rng.normal(size=(n, 3)))
+    assert not rows_coherent(np.zeros(3), rng.normal(size=(n, 3)))
+    assert not rows_coherent(np.zeros(3), np.broadcast_to([0.0, 0.0, 1.0], (n, 3)))
+    assert not rows_coherent(o, d[:31])

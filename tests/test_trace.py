@@ -995,8 +995,11 @@ def test_rows_of_an_image_are_traced_in_blocks(monkeypatch, packet, tracers):
 def test_a_stale_image_width_changes_no_hit(monkeypatch, packet):
     """(N, 3) rays of a count traced before are traced at once as the image width
     found for that count, and searched for again while the kernel runs (trace.py,
-    _image_width): an image of another width with the same count, and random rays,
-    give the hits of rows bit for bit, and the next call of each uses its own width."""
+    _image_width): an image of another width with the same count gives the hits of
+    rows bit for bit, and the next call uses its own width. Random rays fail the quick
+    check (ray_grid.rows_coherent) and are rows at once, the width kept for the count
+    left as it was, so that a camera's rays traced between random ones of the same
+    count keep theirs."""
     tree = mesh_tree("spot.obj", "sah")
     tr = Tracer(tree, packet=packet)
     monkeypatch.setattr(ktrace, "IMAGE_SEARCH_MIN_RAYS", 0)
@@ -1005,12 +1008,12 @@ def test_a_stale_image_width_changes_no_hit(monkeypatch, packet):
     wide = tr.camera_rays(camera_for(tree, 64, 30))
     narrow = tr.camera_rays(camera_for(tree, 48, 40))              # 1,920 rays each
     o, d = random_rays(tree, 1920, seed=8)
-    for rays, stale, found in [(wide, None, 64), (narrow, 64, 48), (narrow, 48, 48),
-                               ((o, d), 48, 0), ((o, d), 0, 0), (wide, 0, 64)]:
+    for rays, used, kept in [(wide, 64, 64), (narrow, 64, 48), (narrow, 48, 48),
+                             ((o, d), 0, 48), (narrow, 48, 48), ((o, d), 0, 48),
+                             (wide, 48, 64), (wide, 64, 64)]:
         hits = tr.trace(*rays)
-        used = widths[-1]
-        assert used == (found if stale is None else stale)
-        assert tr._widths[1920] == found
+        assert widths[-1] == used
+        assert tr._widths[1920] == kept
         rows, _ = real_trace(*rays)
         for field in ("t", "prim", "u", "v", "normal"):
             assert np.array_equal(getattr(hits, field), getattr(rows, field), equal_nan=True)
