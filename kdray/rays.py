@@ -331,16 +331,18 @@ def _program(tracer, first=False):
     return entry
 
 
-def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False):
+def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False, read=True):
     """Run `kernel_name` on rays start .. stop - 1: extra (the kernel's arguments after
     the rays: numpy scalars, or host arrays it reads, or None for NULL, or a device
     buffer as it is), then with `exact` the float64 rays as given (KD_EXACT_RAY_ARGS:
     `_Rays.exact`, the tree's origin and scale), and outputs (dict name -> host array it
-    writes, in argument order)."""
+    writes, in argument order). read False: the outputs are left on the device, their
+    buffers returned (name -> buffer) once the kernel has run, for the caller to read
+    (Tracer._read_outputs) as much of them as it needs."""
     cl = _device._cl()
     n = stop - start
     if n == 0:
-        return
+        return {}
     entry = _program(tracer, first=kernel_name == "list_first")
     o, d, t_mins, t_maxs = rays.part(start, stop)
     keep = []                                    # the host arrays the buffers use
@@ -388,6 +390,9 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False)
         items = -(-image_w // band_w) * -(-(n // image_w) // rows)
     local = entry["local"]
     tracer._enqueue(entry, kernel_name, -(-items // local) * local, local, args)
+    if not read:
+        tracer.queue.finish()                    # the inputs in `keep` are read by now
+        return device_out
     tracer._read_outputs({k: v for k, v in device_out.items() if v is not None}, outputs)
 
 
@@ -636,10 +641,18 @@ def _first_pass(tracer, rays, cap, crossing, nearest_k):
         # where the launch's next hits go: a counter the work-items add to
         next_hit = cl.Buffer(tracer.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
                              hostbuf=np.zeros(1, dtype=np.uint32))
-        _launch(tracer, "list_first", rays, start, stop,
-                (np.uint32(crossing), np.uint32(cap), np.uint32(nearest_k), next_hit),
-                {"t": t[a:b], "uv": uv[a:b], "prim": prim[a:b], "found": found[start:stop],
-                 "first": first[start:stop]}, exact=tracer.refine)
+        out = {"t": t[a:b], "uv": uv[a:b], "prim": prim[a:b], "found": found[start:stop],
+               "first": first[start:stop]}
+        device_out = _launch(tracer, "list_first", rays, start, stop,
+                             (np.uint32(crossing), np.uint32(cap), np.uint32(nearest_k), next_hit),
+                             out, exact=tracer.refine, read=False)
+        # the slots as far as the hits go (a device other than a CPU copies no more)
+        hits = np.zeros(1, dtype=np.uint32)
+        cl.enqueue_copy(tracer.queue, hits, next_hit)
+        used = {name: a[:int(hits[0])] if name in ("t", "uv", "prim") else a
+                for name, a in out.items()}
+        used = {name: a for name, a in used.items() if a.size}     # none of 0 bytes
+        tracer._read_outputs({name: device_out[name] for name in used}, used)
         if start:
             first[start:stop] += np.uint32(a)    # the slots' total fits (memory)
     n_found, more = _found(found)

@@ -135,6 +135,11 @@ def test_intersections_match_brute_force(runtime, teapot_tree, monkeypatch):
     assert (first.prim == nearest.prim[nearest.hit]).all()
     assert (first.t == nearest.t[nearest.hit]).all()
 
+    # rays that all miss: no hit, nothing read back (the slots are read as far as the
+    # first pass's hits go)
+    away = tracer.intersections(o + 1e3 * d, d)
+    assert away.offsets.tolist() == [0] * (n + 1) and len(away.t) == 0 and len(away) == n
+
     # the first pass's slots a ray (the rays with more listed again), the rays it
     # takes at once and the rays a launch takes (each launch's hits written from its
     # own counter, list_first) change nothing
