@@ -649,9 +649,9 @@ def _first_pass(tracer, rays, cap, crossing, nearest_k):
         # the slots as far as the hits go (a device other than a CPU copies no more)
         hits = np.zeros(1, dtype=np.uint32)
         cl.enqueue_copy(tracer.queue, hits, next_hit)
-        used = {name: a[:int(hits[0])] if name in ("t", "uv", "prim") else a
-                for name, a in out.items()}
-        used = {name: a for name, a in used.items() if a.size}     # none of 0 bytes
+        used = {name: array[:int(hits[0])] if name in ("t", "uv", "prim") else array
+                for name, array in out.items()}
+        used = {name: array for name, array in used.items() if array.size}   # no 0 bytes
         tracer._read_outputs({name: device_out[name] for name in used}, used)
         if start:
             first[start:stop] += np.uint32(a)    # the slots' total fits (memory)

@@ -1095,7 +1095,7 @@ void kd_list_finish(KdQuery *q, uint k, __global const float *tris,
  * hits, every hit, else the caps[k] first in (t, input id) order, the count then
  * marked KD_LIST_MORE. Sorted by (t, input id),
  * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
- * k * cap (a first pass's guess: no arrays to make and copy). nearest_k: the slots
+ * k * cap (the same for all: no arrays to make and copy). nearest_k: the slots
  * are the nearest hits wanted, not whether there are more (a k-nearest query, or
  * caps[k] the ray's exact count): a walk ends once they are taken and the last is
  * final (kd_list_done), its KD_LIST_MORE then unknown. */
@@ -1136,7 +1136,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, uint nearest_k,
  * order, written one after another from where an atomic add on *next puts them
  * (hit_t, hit_uv, hit_id), so that only as many slots are written as there are hits
  * (a first pass's slots are mostly empty: writing them all, fresh memory each call,
- * cost as much as the walk's leaves); out_n[k] as list_rays', out_at[k] where ray k's
+ * cost up to a third of the pass); out_n[k] as list_rays', out_at[k] where ray k's
  * hits start. Which work-item takes which place varies from run to run; each ray's
  * hits and count do not. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
