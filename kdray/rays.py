@@ -289,7 +289,7 @@ def _image(tracer, rays, origins, directions):
     walk them in blocks of 4 x packet / 4 pixels (kernels/queries.cl, kd_block_rays),
     which share more of the tree than a row's; the answers are the same."""
     from .trace import IMAGE_SEARCH_MIN_RAYS
-    if tracer.packet == 1 or _program(tracer)["run"] % tracer.packet:
+    if tracer.packet == 1 or _run(tracer) % tracer.packet:
         return rays
     if len(rays.shape) >= 2:
         rays.image_w = rays.shape[-1]
@@ -302,12 +302,17 @@ def _image(tracer, rays, origins, directions):
     return rays
 
 
+def _run(tracer):
+    """Rays a work-item of queries.cl takes on the tracer's device (its RUN)."""
+    return RUN_CPU if _device.is_cpu(tracer.device) else 1
+
+
 def _program(tracer, first=False):
     """queries.cl built for the tracer's device and tree (kept with its other programs):
     {"program": Program, kernel name: Kernel, "run": rays a work-item}; first: the
     program of the first pass's kernel, list_first (LIST_SLOTS slots a ray in private
     memory), instead of count_rays and list_rays."""
-    run = RUN_CPU if _device.is_cpu(tracer.device) else 1
+    run = _run(tracer)
     local = tracer.local_size if _device.is_cpu(tracer.device) else min(
         64, int(tracer.device.max_work_group_size))
     defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local, "RUN": run}
