@@ -540,6 +540,14 @@ def test_more_crossings_than_kept_ids_count_by_the_crossing_rule(tracers, packet
         crossed, _ = krays._list(tracer, rays, caps, crossing=True)
         assert np.diff(crossed.offsets).tolist() == [40, 40, 40, 20]
         assert np.all(np.isin(crossed.prim, hits.prim))
+    # a first pass's few private slots (list_first) keep the nearest crossings, and
+    # mark every ray as having more
+    few, more = krays._list(tracer, rays, krays.LIST_SLOTS, crossing=True)
+    k = krays.LIST_SLOTS
+    assert np.diff(few.offsets).tolist() == [k] * 4 and more.all()
+    for i in range(4):
+        t, prim = crossed.of(i)
+        assert np.array_equal(few.of(i)[1], prim[:k]) and np.array_equal(few.of(i)[0], t[:k])
 
 
 def test_double_precision_and_scale(tracers):
