@@ -4,6 +4,7 @@
     t = huge_page_copy(tris)                       # a copy in huge pages where it can be
     check_host_memory(nbytes, "a 4096x4096 render of depth")   # KdrayError if too much
 """
+import concurrent.futures
 import mmap
 import os
 
@@ -25,6 +26,48 @@ def page_aligned_empty(shape, dtype):
     raw = np.empty(nbytes + PAGE, dtype=np.uint8)
     start = -raw.ctypes.data % PAGE
     return raw[start:start + nbytes].view(dtype).reshape(shape)
+
+
+_POOL = (None, None)
+"""(process id, ThreadPoolExecutor) of `threads`."""
+
+
+def threads():
+    """Threads for large numpy passes over host arrays (numpy releases the GIL in them),
+    one a CPU: started once a process and kept (a pool started at each call took about
+    1.7 ms more of a 2^20-ray conversion, median), a new one in a process forked after
+    it was made (whose threads the fork did not copy)."""
+    global _POOL
+    pid, pool = _POOL
+    if pool is None or pid != os.getpid():
+        pool = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1,
+                                                     thread_name_prefix="kdray-host")
+        _POOL = (os.getpid(), pool)
+    return pool
+
+
+TAKE_CHUNK = 1 << 16
+"""The fewest rows `take_rows` gives a thread."""
+
+
+def take_rows(a, index, out=None, mode="wrap"):
+    """a[index] for an (N, ...) array a and an (M,) int index (each in 0 .. N - 1, or
+    as `mode` takes one that is not: np.take's "wrap" or "clip"), into `out` (an (M,
+    ...) array of a's dtype, C-contiguous) or a new array: np.take along the first
+    axis, which gathers the rows of an (N, 3) float64 array 3x as fast as a[index], in
+    parts on `threads` (a gather at random waits on memory: 2^20 rows of three float32
+    in 8.4 ms on 2 threads against 16.5 on one)."""
+    index = np.asarray(index)
+    if out is None:
+        out = np.empty((len(index),) + a.shape[1:], dtype=a.dtype)
+    parts = min(os.cpu_count() or 1, len(index) // TAKE_CHUNK)
+    if parts < 2:
+        return np.take(a, index, axis=0, out=out, mode=mode)
+    bounds = np.linspace(0, len(index), parts + 1).astype(np.int64)
+    list(threads().map(lambda k: np.take(a, index[bounds[k]:bounds[k + 1]], axis=0,
+                                         out=out[bounds[k]:bounds[k + 1]], mode=mode),
+                       range(parts)))
+    return out
 
 
 HUGE_PAGE = 2 << 20

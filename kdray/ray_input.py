@@ -11,13 +11,10 @@ Precision: an origin is taken relative to the tree's float64 `origin`, in units 
 far from 0 or at any scale traces as accurately as one at 0 and 1 across
 (docs/conventions.md). Directions are not scaled: t stays in units of |direction|.
 """
-import concurrent.futures
-import os
-
 import numpy as np
 
 from .errors import KdrayError
-from .host import check_host_memory, page_aligned_empty
+from .host import check_host_memory, page_aligned_empty, threads
 
 CONVERT_CHUNK = 1 << 18
 """Rays per chunk when large ray arrays are converted to float32 on threads."""
@@ -27,24 +24,6 @@ RAY_BYTES = {"float": 12, "double": 24}
 
 C_TYPES = {np.dtype(np.float32): "float", np.dtype(np.float64): "double"}
 """The ray arrays trace_rays reads as they are (RAYS_WORLD): numpy dtype -> C type."""
-
-_POOL = (None, None)
-"""(process id, ThreadPoolExecutor) of `_threads`."""
-
-
-def _threads():
-    """The threads that convert large ray arrays, one a CPU: started once a process and
-    kept (a pool started at each call took about 1.7 ms more of a 2^20-ray conversion,
-    median), a new one in a process forked after it was made (whose threads the fork
-    did not copy)."""
-    global _POOL
-    pid, pool = _POOL
-    if pool is None or pid != os.getpid():
-        pool = concurrent.futures.ThreadPoolExecutor(os.cpu_count() or 1,
-                                                     thread_name_prefix="kdray-rays")
-        _POOL = (os.getpid(), pool)
-    return pool
-
 
 RAY_HOST_BYTES = 80
 """Host bytes a ray needs at most while it is traced: its float32 origin and direction
@@ -130,7 +109,7 @@ def rays32(o, d, o_step, origin, scale):
             np.copyto(o32, (o - origin) / scale, casting="unsafe")
     chunks = [slice(i, i + CONVERT_CHUNK) for i in range(0, len(d), CONVERT_CHUNK)]
     if len(chunks) > 1:
-        list(_threads().map(convert, chunks))
+        list(threads().map(convert, chunks))
     elif chunks:
         convert(chunks[0])
     return o32, d32

@@ -34,8 +34,8 @@ from . import device as _device
 from . import ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
-from .host import PAGE, check_host_memory, page_aligned_empty
-from .points import SORT_FROM, check_points, spatial_order, take_rows
+from .host import PAGE, check_host_memory, page_aligned_empty, take_rows
+from .points import SORT_FROM, check_points, spatial_order
 from .ray_order import ray_order
 from .tree import object_ids
 
@@ -479,7 +479,7 @@ def _contains_rays(tracer, p):
     # the bytes of float64 rows to gather (the same numbers either way)
     o32, d32 = ray_input.rays32(p, d, 1, tracer._origin, tracer._scale)
     ordered = page_aligned_empty(p.shape, np.float32)
-    np.take(o32, order, axis=0, out=ordered, mode="wrap")     # unbuffered
+    take_rows(o32, order, out=ordered)
     return _Rays.relative(tracer, ordered, d32, lambda: (take_rows(p, order), d)), order
 
 
@@ -616,10 +616,8 @@ def _gathered(tracer, counts, first, slots):
     # each hit's slot: its ray's first slot plus its rank in the ray (one index for the
     # three gathers, made over the hits, not over every slot: most slots are empty)
     keep = np.arange(offsets[-1]) + np.repeat(first - offsets[:-1], counts)
-    t, uv, prim = slots
-    uv = np.take(uv, keep, axis=0, mode="clip")
-    return Intersections(offsets, np.take(t, keep, mode="clip"), np.take(prim, keep, mode="clip"),
-                         uv[:, 0], uv[:, 1], object_table=tracer.tree.objects)
+    t, uv, prim = (np.take(a, keep, axis=0, mode="clip") for a in slots)
+    return Intersections(offsets, t, prim, uv[:, 0], uv[:, 1], object_table=tracer.tree.objects)
 
 
 def _first_pass(tracer, rays, cap, crossing, nearest_k):

@@ -1,0 +1,38 @@
+"""kdray.host: the threads kept for numpy passes, and row gathers in parts on them."""
+import os
+
+import numpy as np
+
+from kdray import host
+
+
+def test_take_rows_in_parts_is_numpys_take():
+    """Rows gathered in parts on threads (from 2 * TAKE_CHUNK rows) equal np.take's,
+    for rows of three float32 (contains' points), float64 rows and 1-D arrays, into a
+    new array or a given one; "clip" takes the last row for an index past the end."""
+    rng = np.random.default_rng(3)
+    n = 3 * host.TAKE_CHUNK + 17
+    index = rng.permutation(n)
+    for a in (rng.random((n, 3)).astype(np.float32), rng.random((n, 3)), rng.random(n)):
+        want = np.take(a, index, axis=0)
+        assert np.array_equal(host.take_rows(a, index), want)
+        out = host.page_aligned_empty(want.shape, a.dtype)
+        assert host.take_rows(a, index, out=out) is out
+        assert np.array_equal(out, want)
+        few = index[:5]                       # one part
+        assert np.array_equal(host.take_rows(a, few), a[few])
+    past = np.array([0, n - 1, n, n + 5] * host.TAKE_CHUNK)
+    a = np.arange(n)
+    assert np.array_equal(host.take_rows(a, past, mode="clip"), np.minimum(past, n - 1))
+
+
+def test_threads_are_kept_and_made_again_after_a_fork(monkeypatch):
+    """One pool a process: the same one at every call, a new one where the process id
+    has changed (a fork copies no threads)."""
+    pool = host.threads()
+    assert host.threads() is pool
+    assert list(pool.map(lambda x: x + 1, range(3))) == [1, 2, 3]
+    pid = os.getpid()
+    monkeypatch.setattr(os, "getpid", lambda: pid + 1)
+    other = host.threads()
+    assert other is not pool and host.threads() is other
