@@ -51,7 +51,7 @@ from .host import PAGE, check_host_memory, huge_page_copy, huge_page_empty, page
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BLOCK,
                      device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
                      triangle_copies)
-from .ray_grid import grid_width, rows_coherent
+from .ray_grid import ImageWidths
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import object_ids
@@ -77,9 +77,6 @@ this many rays on: the search costs about 1 ms whatever N, and tracing in blocks
 a few % of the kernel's time, which repays it from about 2^17 rays of a simple mesh
 (BENCHMARKS.md, "(N, 3) rays traced as the image they are"). Image-shaped rays are traced in blocks at
 any size."""
-
-IMAGE_WIDTHS_KEPT = 8
-"""Ray counts whose image width a Tracer remembers (`Tracer._image_width`)."""
 
 _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
@@ -200,7 +197,7 @@ class Tracer:
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")
         self._programs = {}
         self._maps = {}                       # camera models' ray maps (`_ray_map`)
-        self._widths = {}                     # N -> image width found (`_image_width`)
+        self._widths = ImageWidths()          # the image widths found (`_image_width`)
         self._poison_outputs = False
         # packets: how a leaf is tested (kernels/packet.cl, kd_packet_leaf): None = by
         # the kernel's rule; tests set 0 (triangle by triangle) or inf (ray by ray)
@@ -681,31 +678,9 @@ class Tracer:
         return _points.occupancy(self, points, sign)
 
     def _image_width(self, origins, directions):
-        """(width, search) for (N, 3) rays: the width of the image they are to be traced
-        as (0: rows), and None or the search to run while the kernel traces them.
-
-        The search (ray_grid.grid_width) takes about 0.5 ms after an idle moment, 3-4 %
-        of a 2^20-ray trace of a small mesh. A caller tracing rays of the same count again
-        mostly passes the same camera's: the width found for the last rays of that count
-        is used at once, and the search runs while the kernel works, its answer kept for
-        the next call. A stale width never changes a hit (packets do not: tested), only
-        the time of that call. Rays that fail ray_grid.rows_coherent's quick check
-        (random rays, say, between two calls of a camera's of the same count) are rows
-        at once, and leave the width kept for the count as it was."""
-        n = len(directions)
-        if not rows_coherent(origins, directions):
-            return 0, None
-
-        def search():
-            self._widths.pop(n, None)
-            self._widths[n] = grid_width(origins, directions, min_rows=self.packet // 4)
-            while len(self._widths) > IMAGE_WIDTHS_KEPT:
-                self._widths.pop(next(iter(self._widths)))     # the oldest count
-
-        if n in self._widths:
-            return self._widths[n], search
-        search()
-        return self._widths[n], None
+        """(width, search) for (N, 3) rays: ray_grid.ImageWidths.width, a packet's
+        block of 4 x packet / 4 pixels the fewest rows."""
+        return self._widths.width(origins, directions, min_rows=self.packet // 4)
 
     def _double_hits(self, hits, origins, directions):
         """`hits` with t, u, v (float64) recomputed from the float64 triangles."""
