@@ -529,8 +529,9 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     """(Intersections, more) of `rays` (their float32 t, u, v) with at most caps[i]
     hits of ray i ((N,) int64; at least its distinct hits for every hit; or an int,
     the same for all; crossing: its crossings, the count's rule, not every hit), its
-    nearest in (t, input id) order: the kernel fills each ray's
-    slots, then the slots left empty are dropped. more: (N,) bool, the rays that had
+    nearest in (t, input id) order: the kernel fills each ray's slots (list_rays; a cap
+    of at most LIST_SLOTS for all, `_first_pass`), then the slots left empty are
+    dropped. more: (N,) bool, the rays that had
     more hits than caps[i]. nearest_k: the caps are the nearest hits wanted (max_hits,
     or a ray's exact count), not whether there are more: a ray's walk ends once its
     slots are taken and the last hit is final (queries.cl, kd_list_done), and `more`
@@ -540,14 +541,10 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
         n_found, more, first, slots = _first_pass(tracer, rays, cap, crossing, nearest_k)
         return _gathered(tracer, n_found, first, slots), more
     caps = np.broadcast_to(np.asarray(caps, dtype=np.int64), (rays.n,))
-    total = rays.n * cap if cap is not None else int(caps.sum())
+    offsets = _offsets(caps)
+    total = int(offsets[-1])
     check_host_memory(total * (HIT_BYTES + 4) + rays.n * 12,
                       f"the {total} hits of {rays.n} rays")
-    if cap is not None:
-        offsets = np.arange(rays.n + 1, dtype=np.int64) * cap
-    else:
-        offsets = np.zeros(rays.n + 1, dtype=np.int64)
-        np.cumsum(caps, out=offsets[1:])
     t = page_aligned_empty((total,), np.float32)
     uv = page_aligned_empty((total, 2), np.float32)
     prim = page_aligned_empty((total,), np.uint32)
@@ -567,12 +564,8 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
         if b - a > limit:
             raise DeviceError(f"ray {start}'s {b - a} hits do not fit in one buffer on "
                               f"{tracer.device.name.strip()}: ask for fewer (max_hits)")
-        if cap is None:
-            extra = (np.uint32(crossing), np.uint32(0), np.uint32(nearest_k),
-                     (offsets[start:stop] - a).astype(np.uint64),
-                     caps[start:stop].astype(np.uint32))
-        else:
-            extra = (np.uint32(crossing), np.uint32(cap), np.uint32(nearest_k), None, None)
+        extra = (np.uint32(crossing), np.uint32(nearest_k),
+                 (offsets[start:stop] - a).astype(np.uint64), caps[start:stop].astype(np.uint32))
         _launch(tracer, "list_rays", rays, start, stop, extra,
                 {"t": t[a:b] if b > a else np.empty(1, np.float32),
                  "uv": uv[a:b] if b > a else np.empty((1, 2), np.float32),
@@ -706,10 +699,9 @@ def _listed(tracer, rays, max_hits):
         return _gathered(tracer, n, first, slots)
     # the rays with more: their whole lists in their places
     again = _relisted(tracer, rays, redo, max_hits)
-    n[redo] = np.diff(again.offsets)
+    n[redo] = again.counts
     hits = _gathered(tracer, n, first, slots)
-    at = np.arange(len(again.t)) + np.repeat(hits.offsets[redo] - again.offsets[:-1],
-                                             np.diff(again.offsets))
+    at = np.arange(len(again.t)) + np.repeat(hits.offsets[redo] - again.offsets[:-1], n[redo])
     for name in ("t", "prim", "u", "v"):
         getattr(hits, name)[at] = getattr(again, name)
     return hits

@@ -1093,15 +1093,12 @@ void kd_list_finish(KdQuery *q, uint k, __global const float *tris,
  * offsets[k] + caps[k] - 1 (hit_t, hit_uv two floats a slot, hit_id the input id), its
  * count into out_n[k] (KD_WALK_FAULT on a fault): with caps[k] at least its distinct
  * hits, every hit, else the caps[k] first in (t, input id) order, the count then
- * marked KD_LIST_MORE. Sorted by (t, input id),
- * as refined with REFINE. offsets and caps NULL: `cap` slots a ray, ray k's from
- * k * cap (the same for all: no arrays to make and copy). nearest_k: the slots
- * are the nearest hits wanted, not whether there are more (a k-nearest query, or
+ * marked KD_LIST_MORE. Sorted by (t, input id), as refined with REFINE. nearest_k:
+ * the slots are the nearest hits wanted, not whether there are more (a k-nearest query, or
  * caps[k] the ray's exact count): a walk ends once they are taken and the last is
  * final (kd_list_done), its KD_LIST_MORE then unknown. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
-void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, uint nearest_k,
-               __global const ulong *offsets,
+void list_rays(KD_QUERY_ARGS, uint crossing, uint nearest_k, __global const ulong *offsets,
                __global const uint *caps KD_EXACT_RAY_ARGS, __global float *hit_t,
                __global float *hit_uv, __global uint *hit_id, __global uint *out_n)
 {
@@ -1110,11 +1107,11 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint cap, uint nearest_k,
         for (uint l = 0; l < m; l++) {
             KdQuery *q = &qs[l];
             uint k = ids[l];
-            ulong at = offsets ? offsets[k] : (ulong)k * cap;
+            ulong at = offsets[k];
             q->t = hit_t + at;
             q->uv = hit_uv + 2u * at;
             q->tri = hit_id + at;            /* copies while walking, input ids at the end */
-            q->cap = caps ? caps[k] : cap;
+            q->cap = caps[k];
             q->nearest_k = nearest_k != 0u;
         }
         kd_walk_block(KD_LIST, crossing != 0u, KD_WALK_ARGS, ids, m, qs);
