@@ -3,10 +3,13 @@
 // part). A server on stdin/stdout, so that a Python script can time it in turns with
 // the other ray casters on the same machine state:
 //
-//   embree_anchor SCENE        SCENE: uint32 nv, nf; float32 vertices (nv, 3);
+//   embree_anchor SCENE [CONFIG]
+//                              SCENE: uint32 nv, nf; float32 vertices (nv, 3);
 //                              uint32 faces (nf, 3). Builds the scene (default flags
 //                              and build quality, as Embree's users get them), then
-//                              prints "ready BUILD_SECONDS".
+//                              prints "ready BUILD_SECONDS". CONFIG: rtcNewDevice's
+//                              string ("verbose=3": the tree's statistics, which
+//                              Embree prints on std::cout, sent to stderr).
 //   rays PATH N                reads N rays, float32 (N, 8): origin, tnear, direction,
 //                              tfar. Prints "ok".
 //   trace1                     rtcIntersect1 on every ray, TBB's parallel_for over
@@ -85,8 +88,8 @@ static bool read_file(const std::string &path, std::vector<char> &out)
 
 int main(int argc, char **argv)
 {
-    if (argc != 2) {
-        std::fprintf(stderr, "usage: embree_anchor SCENE\n");
+    if (argc != 2 && argc != 3) {
+        std::fprintf(stderr, "usage: embree_anchor SCENE [CONFIG]\n");
         return 2;
     }
     std::vector<char> scene_bytes;
@@ -100,7 +103,8 @@ int main(int argc, char **argv)
     const float *vertices = (const float *)(scene_bytes.data() + 8);
     const uint32_t *faces = (const uint32_t *)(scene_bytes.data() + 8 + 12 * (size_t)nv);
 
-    RTCDevice device = rtcNewDevice(nullptr);
+    std::cout.rdbuf(std::cerr.rdbuf());   // stdout is the protocol's (printf)
+    RTCDevice device = rtcNewDevice(argc == 3 ? argv[2] : nullptr);
     double t0 = now();
     RTCScene scene = rtcNewScene(device);
     RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);

@@ -12,6 +12,11 @@ compiled here with the system's g++ against Debian's libembree-dev and libtbb-de
 The program is compiled once per source and CPU (-O3 -march=native) into
 ~/.cache/kdray-bench. Embree is left at its defaults (scene flags, build quality,
 every core), as its users get it.
+
+    python bench/embree_anchor.py --meshes bunny,bunny-1.6M,spot
+
+prints Embree's statistics of the tree it builds over each mesh (rtcNewDevice's
+"verbose=3": its kind, nodes, leaves, SAH; BENCHMARKS.md, "Incoherent rays").
 """
 import hashlib
 import os
@@ -57,9 +62,10 @@ class EmbreeAnchor:
         self.n = 0
 
     @classmethod
-    def start(cls, mesh):
+    def start(cls, mesh, config=None):
         """The anchor over mesh (.vertices (V, 3), .faces (F, 3)), its scene built; None
-        when it cannot run here (anchor_missing says why)."""
+        when it cannot run here (anchor_missing says why). config: Embree's device
+        string (its messages go to this process's stderr)."""
         if anchor_missing():
             return None
         folder = Path(tempfile.mkdtemp(prefix="kdray-embree-"))
@@ -67,7 +73,8 @@ class EmbreeAnchor:
         v = np.ascontiguousarray(mesh.vertices, np.float32)
         f = np.ascontiguousarray(mesh.faces, np.uint32)
         scene.write_bytes(np.array([len(v), len(f)], np.uint32).tobytes() + v.tobytes() + f.tobytes())
-        proc = subprocess.Popen([str(_binary()), str(scene)], stdin=subprocess.PIPE,
+        proc = subprocess.Popen([str(_binary()), str(scene), *([config] if config else [])],
+                                stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE, text=True, bufsize=1)
         ready = proc.stdout.readline().split()
         if ready[:1] != ["ready"]:
@@ -128,3 +135,35 @@ class EmbreeAnchor:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def main():
+    import argparse
+    import re
+    import sys
+    sys.path.insert(0, str(Path(__file__).parent))
+    from meshes import mesh
+    ap = argparse.ArgumentParser(description="Embree's statistics of its tree over meshes")
+    ap.add_argument("--meshes", default="bunny,bunny-1.6M,spot")
+    args = ap.parse_args()
+    if anchor_missing():
+        sys.exit(f"embree_anchor: {anchor_missing()}")
+    for name in args.meshes.split(","):
+        print(f"== {name}", flush=True)
+        with tempfile.TemporaryFile("w+") as log:
+            err = os.dup(2)
+            os.dup2(log.fileno(), 2)            # the child's stderr: Embree's statistics
+            try:
+                EmbreeAnchor.start(mesh(name), config="verbose=3").close()
+            finally:
+                os.dup2(err, 2)
+                os.close(err)
+            log.seek(0)
+            for line in log:
+                if re.match(r"\s*(building|finished|primitives|total +: sah|getAABBNodes|leaves |"
+                            r"histogram|intersector1)", line):
+                    print(line.rstrip())
+
+
+if __name__ == "__main__":
+    main()

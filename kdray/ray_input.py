@@ -25,6 +25,7 @@ RAY_BYTES = {"float": 12, "double": 24}
 C_TYPES = {np.dtype(np.float32): "float", np.dtype(np.float64): "double"}
 """The ray arrays trace_rays reads as they are (RAYS_WORLD): numpy dtype -> C type."""
 
+
 RAY_HOST_BYTES = 80
 """Host bytes a ray needs at most while it is traced: its float32 origin and direction
 (24), the nearest hit's outputs (t, prim, u, v, normal: 28), for rays taken in an order
