@@ -31,7 +31,7 @@ import functools
 import numpy as np
 
 from . import device as _device
-from . import ray_input
+from . import point_order, ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .host import PAGE, check_host_memory, page_aligned_empty, take_rows
@@ -60,13 +60,19 @@ def contains_directions(tracer, points):
 def _sides(tracer, points):
     """(N,) uint8: bit k set where the point (points (N, 3) float64, world coordinates)
     is at or above the middle of the tree's box on axis k: its octant of the box."""
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
-    c = 0.5 * (lo + hi)
+    c = _middle(tracer)
     # column by column, in uint8: 3x as fast as comparing the (N, 3) array with c
     sides = (points[:, 0] >= c[0]).view(np.uint8)
     for k in (1, 2):
         sides |= (points[:, k] >= c[k]).view(np.uint8) << k
     return sides
+
+
+def _middle(tracer):
+    """(3,) float64: the middle of the tree's box in world coordinates, whose sides
+    `_sides` tells."""
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
+    return 0.5 * (lo + hi)
 
 
 _OCTANT_DIRECTIONS = np.where((np.arange(8)[:, None] >> np.arange(3)) & 1 == 1,
@@ -472,8 +478,14 @@ def _contains_rays(tracer, p):
     directions `contains_directions`), which changes no answer."""
     if len(p) < SORT_FROM:
         return _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf), None
+    lo, hi = tracer.tree.world_box()
+    if point_order.available(tracer):
+        # the keys, the gather and the rounding on the device (kdray.point_order)
+        order, o32, d32 = point_order.contains_rays(tracer, p, _middle(tracer),
+                                                    _OCTANT_DIRECTIONS)
+        return _Rays.relative(tracer, o32, d32, lambda: (take_rows(p, order), d32)), order
     sides = _sides(tracer, p)
-    order = spatial_order(p, *tracer.tree.world_box(), sides)
+    order = spatial_order(p, lo, hi, sides)
     d = np.repeat(_OCTANT_DIRECTIONS, np.bincount(sides, minlength=8), axis=0)
     # the points made float32 and relative to the tree first, then put in order: half
     # the bytes of float64 rows to gather (the same numbers either way)
