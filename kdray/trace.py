@@ -700,7 +700,9 @@ class Tracer:
         traced in packets of blocks of pixels (render.cl, trace_rays).
         while_running: None or a function called once while the first launch runs.
         any_hit: each ray's first hit found, not its nearest (`program`)."""
-        outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | {"T", "ID"})
+        # any_hit (occluded) stores no t: its hit is the triangle's id alone
+        always = {"ID"} if any_hit else {"T", "ID"}
+        outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | always)
         o, d, o_step, rays_world = self._rays(origins, directions)
         n = len(d)
         t_ranges, t_step = _rays.range_pairs(t_min, t_max, n, self._scale)
@@ -753,7 +755,7 @@ class Tracer:
             while_running = None
         # u and v are views of the kernel's interleaved (N, 2) output: no copies
         uv = out.get("UV")
-        hits = Hits(t=out["T"], prim=out["ID"], u=None if uv is None else uv[:, 0],
+        hits = Hits(t=out.get("T"), prim=out["ID"], u=None if uv is None else uv[:, 0],
                     v=None if uv is None else uv[:, 1], normal=out.get("NORMAL"),
                     object_table=self.tree.objects)
         return hits, out.get("STATS")
