@@ -88,6 +88,33 @@ def test_occluded_stops_at_any_hit_in_packets_and_lanes(runtime, teapot_tree):
         assert tracer.occluded(eye, image).any()
 
 
+def test_hit_rows_on_the_device_are_numpys(runtime, teapot_tree):
+    """intersections' rows gathered from the first pass's slots by kernels/hit_rows.cl
+    equal numpy's take: rays with no hit, with several, runs that reach past the slots
+    (read as the last one, as numpy's "clip"), first as uint32 (list_first's) and as an
+    int64 view that does not start on a page (list_rays' offsets), counts that are not
+    multiples of the work size; poisoned outputs."""
+    tracer = Tracer(teapot_tree, device=runtime.spec)
+    tracer._poison_outputs = True
+    rng = np.random.default_rng(41)
+    n, n_slots = runtime.small(5003, 77), runtime.small(9000, 150)
+    counts = np.where(rng.random(n) < 0.6, 0, rng.integers(1, 6, n)).astype(np.int64)
+    first = rng.integers(0, n_slots, n).astype(np.uint32)
+    first[-3:] = n_slots - 2                   # runs past the end
+    counts[-3:] = 5
+    slots = (rng.random(n_slots).astype(np.float32), rng.random((n_slots, 2)).astype(np.float32),
+             rng.integers(0, 1 << 30, n_slots).astype(np.uint32))
+    offsets = krays._offsets(counts)
+    wide = np.concatenate([[7], first.astype(np.int64)])
+    for f in (first, wide[1:]):
+        got = krays._rows_on_device(tracer, counts, offsets, f, slots)
+        want = krays._rows_on_host(tracer, counts, offsets, f, slots)
+        assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    none = np.zeros(n, np.int64)
+    assert [len(a) for a in krays._rows_on_device(tracer, none, krays._offsets(none), first,
+                                                  slots)] == [0, 0, 0]
+
+
 def test_intersections_match_brute_force(runtime, teapot_tree, monkeypatch):
     tree = teapot_tree
     n = runtime.small(2003, 41)
