@@ -65,7 +65,8 @@ def child(args):
             "trace": trace, "trace-miss": trace, "trace-uniform": trace,
             "count": lambda: tracer.count(o, d), "count-uniform": lambda: tracer.count(o, d),
             "occluded-uniform": lambda: tracer.occluded(o, d),
-            "contains-uniform": lambda: tracer.contains(o)}[args.call]
+            "contains-uniform": lambda: tracer.contains(o),
+            "intersections": lambda: tracer.intersections(o, d)}[args.call]
     call()
     call()
     start, calls = time.perf_counter(), 0
@@ -138,7 +139,7 @@ def main():
     p.add_argument("--mesh", default="bunny")
     p.add_argument("--call", default="render", choices=("render", "render-default", "trace", "trace-miss",
                                                     "trace-uniform", "count", "count-uniform",
-                                                    "occluded-uniform", "contains-uniform"))
+                                                    "occluded-uniform", "contains-uniform", "intersections"))
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--seconds", type=float, default=8.0)
     p.add_argument("--out", default="/tmp/kdray-profile")
