@@ -496,10 +496,13 @@ def _contains_rays(tracer, p):
 
 
 def _unsorted(a, order):
-    """a ((N,), in the order of `_contains_rays`' rays) in the points' order."""
-    if order is not None:
-        a[order] = a.copy()
-    return a
+    """a ((N,), in the order of `_contains_rays`' rays) in the points' order: a new
+    array, scattered once."""
+    if order is None:
+        return a
+    out = np.empty_like(a)
+    out[order] = a
+    return out
 
 
 def crossing_windings(tracer, points):
@@ -534,7 +537,11 @@ def contains(tracer, points):
     if len(p) == 0:
         return np.zeros(shape, dtype=bool)
     rays, order = _contains_rays(tracer, p)
-    return _unsorted(_counts(tracer, rays, True) % 2 == 1, order).reshape(shape)
+    # the parity from each count's low byte (a cast, one byte a point from there on):
+    # half the time of `% 2 == 1` and a copy before the scatter
+    parity = _counts(tracer, rays, True).astype(np.uint8)
+    parity &= 1
+    return _unsorted(parity.view(bool), order).reshape(shape)
 
 
 def _list(tracer, rays, caps, crossing=False, nearest_k=False):
