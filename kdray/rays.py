@@ -478,14 +478,13 @@ def _contains_rays(tracer, p):
     directions `contains_directions`), which changes no answer."""
     if len(p) < SORT_FROM:
         return _Rays(tracer, p, contains_directions(tracer, p), 0.0, np.inf), None
-    lo, hi = tracer.tree.world_box()
     if point_order.available(tracer):
         # the keys, the gather and the rounding on the device (kdray.point_order)
         order, o32, d32 = point_order.contains_rays(tracer, p, _middle(tracer),
                                                     _OCTANT_DIRECTIONS)
         return _Rays.relative(tracer, o32, d32, lambda: (take_rows(p, order), d32)), order
     sides = _sides(tracer, p)
-    order = spatial_order(p, lo, hi, sides)
+    order = spatial_order(p, *tracer.tree.world_box(), sides)
     d = np.repeat(_OCTANT_DIRECTIONS, np.bincount(sides, minlength=8), axis=0)
     # the points made float32 and relative to the tree first, then put in order: half
     # the bytes of float64 rows to gather (the same numbers either way)
@@ -641,8 +640,8 @@ def _rows_on_host(tracer, counts, offsets, first, slots):
 
 def _rows_on_device(tracer, counts, offsets, first, slots):
     """(t, uv, prim) of `_gathered`'s rows (counts (N,), offsets (N + 1,) int64), copied by
-    kernels/hit_rows.cl, a ray a work-item: on a CPU about half numpy's time, which
-    made an index over the hits and took three times with it on one thread."""
+    kernels/hit_rows.cl, a ray a work-item: on a CPU about a quarter of numpy's time,
+    which made an index over the hits and took three times with it on one thread."""
     n, total = len(offsets) - 1, int(offsets[-1])
     t = page_aligned_empty((total,), np.float32)
     uv = page_aligned_empty((total, 2), np.float32)
