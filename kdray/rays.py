@@ -222,16 +222,21 @@ def range_pairs(t_min, t_max, n, scale):
 
 class _Rays:
     """The rays of one query as queries.cl reads them: float32, relative to the tree's
-    origin in its units (kdray.ray_input.rays32), with their t ranges (`_ranges`), and
-    image_w: the width of the row-major image they are (0: none known; `_image`)."""
+    origin in its units (kdray.ray_input.rays32, made when first needed), or where
+    `world` is set (an image's rays on a CPU: `_image`) the caller's arrays as they are,
+    which the kernels convert to the same numbers as they read them (RAYS_WORLD); with
+    their t ranges (`_ranges`), and image_w: the width of the row-major image they are
+    (0: none known; `_image`)."""
 
     def __init__(self, tracer, origins, directions, t_min, t_max):
         o, d, self.shape = ray_input.flat_rays(origins, directions)
         o, d, self.o_step = ray_input.origin_rows(o, d)
         self.n = len(d)
         self.image_w = 0
-        self.o, self.d = ray_input.rays32(o, d, self.o_step, tracer._origin, tracer._scale)
+        self.world = None                        # or the (origin, direction) C types
+        self._frame = (tracer._origin, tracer._scale)
         self._given = (o, d)                     # as the caller gave them (`exact`)
+        self._relative = None
         t_min, t_max = check_t(t_min, "t_min", self.shape), check_t(t_max, "t_max", self.shape)
         self.t_mins, self.t_maxs, self.t_step = _ranges(t_min, t_max, self.n, tracer._scale)
 
@@ -243,10 +248,28 @@ class _Rays:
         they are needed (`exact`, `subset`)."""
         rays = object.__new__(cls)
         rays.n = len(d32)
-        rays.shape, rays.image_w, rays.o_step = (rays.n,), 0, 1
-        rays.o, rays.d, rays._given = o32, d32, given
+        rays.shape, rays.image_w, rays.o_step, rays.world = (rays.n,), 0, 1, None
+        rays._frame = (tracer._origin, tracer._scale)
+        rays._relative, rays._given = (o32, d32), given
         rays.t_mins, rays.t_maxs, rays.t_step = _ranges(0.0, np.inf, rays.n, tracer._scale)
         return rays
+
+    @property
+    def o(self):
+        """Origins as float32 relative to the tree (made on first use)."""
+        return self._rays32()[0]
+
+    @property
+    def d(self):
+        """Directions as float32 (made on first use)."""
+        return self._rays32()[1]
+
+    def _rays32(self):
+        """(o32, d32): the float32 rays relative to the tree (ray_input.rays32)."""
+        if self._relative is None:
+            o, d = self.given()
+            self._relative = ray_input.rays32(o, d, self.o_step, *self._frame)
+        return self._relative
 
     def given(self):
         """(o, d): the rays as the caller gave them (made on first use where `relative`
@@ -267,25 +290,36 @@ class _Rays:
         o, d = self._exact
         return (o[start:stop] if self.o_step else o), d[start:stop]
 
+    def ray_bytes(self):
+        """(origin, direction) bytes of a ray as the kernels read them."""
+        if self.world:
+            return tuple(ray_input.RAY_BYTES[t] for t in self.world)
+        return 12, 12
+
     def part(self, start, stop):
-        """(o, d, t_mins, t_maxs) of rays start .. stop - 1."""
-        o = self.o[start:stop] if self.o_step else self.o
+        """(o, d, t_mins, t_maxs) of rays start .. stop - 1, as the kernels read them
+        (the caller's arrays where `world`)."""
+        o, d = (np.ascontiguousarray(a) for a in self.given()) if self.world else self._rays32()
+        o = o[start:stop] if self.o_step else o
         t = slice(start, stop) if self.t_step else slice(None)
-        return o, self.d[start:stop], self.t_mins[t], self.t_maxs[t]
+        return o, d[start:stop], self.t_mins[t], self.t_maxs[t]
 
     def subset(self, index):
-        """A _Rays of the rays `index` ((k,) int array, or a slice: views, no copies)
-        only."""
+        """A _Rays of the rays `index` ((k,) int array, or a slice) only, read as float32
+        (views of those made already, else made for them alone)."""
         other = object.__new__(_Rays)
-        other.n = len(self.d[index])
-        other.shape, other.image_w = (other.n,), 0
+        o, d = self.given()
+        other.n = len(d[index])
+        other.shape, other.image_w, other.world = (other.n,), 0, None
         other.o_step, other.t_step = self.o_step, self.t_step
-        other.o = self.o[index] if self.o_step else self.o
-        other.d = self.d[index]
+        other._frame = self._frame
+        other._given = (o[index] if self.o_step else o, d[index])
+        other._relative = None
+        if self._relative is not None:
+            o32, d32 = self._relative
+            other._relative = (o32[index] if self.o_step else o32, d32[index])
         other.t_mins = self.t_mins[index] if self.t_step else self.t_mins
         other.t_maxs = self.t_maxs[index] if self.t_step else self.t_maxs
-        o, d = self.given()
-        other._given = (o[index] if self.o_step else o, d[index])
         return other
 
 
@@ -305,6 +339,11 @@ def _image(tracer, rays, origins, directions):
         if search is not None:
             search()                             # keeps the width for the next call
             rays.image_w = tracer._image_width(o, d)[0]
+    o, d = rays.given()
+    if rays.image_w and tracer._rays_in_kernel and {o.dtype, d.dtype} <= set(ray_input.C_TYPES):
+        # an image's rays are read as given, in order: no float32 copy made on the host
+        # (a sixth of a camera's count), the same numbers
+        rays.world = (ray_input.C_TYPES[o.dtype], ray_input.C_TYPES[d.dtype])
     return rays
 
 
@@ -313,11 +352,12 @@ def _run(tracer):
     return RUN_CPU if _device.is_cpu(tracer.device) else 1
 
 
-def _program(tracer, first=False):
+def _program(tracer, first=False, world=None):
     """queries.cl built for the tracer's device and tree (kept with its other programs):
     {"program": Program, kernel name: Kernel, "run": rays a work-item}; first: the
     program of the first pass's kernel, list_first (LIST_SLOTS slots a ray in private
-    memory), instead of count_rays and list_rays."""
+    memory), instead of count_rays and list_rays; world: None, or the (origin,
+    direction) C types of rays read as given (RAYS_WORLD, `_Rays.world`)."""
     run = _run(tracer)
     local = tracer.local_size if _device.is_cpu(tracer.device) else min(
         64, int(tracer.device.max_work_group_size))
@@ -336,6 +376,13 @@ def _program(tracer, first=False):
         defines["WIDE_STACK"] = tracer._wide()[1]
     if first:
         defines["LIST_SLOTS"] = LIST_SLOTS
+    if world:
+        defines["RAYS_WORLD"] = None
+        defines["ORIGIN_T"], defines["DIRECTION_T"] = world
+        if tracer._scale != 1.0:
+            # exact: a power of two as a hexadecimal literal (as Tracer.program's)
+            defines["SCALE"] = f"{tracer._scale.hex()}f"
+            defines["SCALE_INV"] = (1.0 / tracer._scale).hex()
     entry = tracer._built("queries.cl", defines,
                           ("list_first",) if first else ("count_rays", "list_rays"))
     entry["run"], entry["local"] = run, local
@@ -354,7 +401,7 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False,
     n = stop - start
     if n == 0:
         return {}
-    entry = _program(tracer, first=kernel_name == "list_first")
+    entry = _program(tracer, first=kernel_name == "list_first", world=rays.world)
     o, d, t_mins, t_maxs = rays.part(start, stop)
     keep = []                                    # the host arrays the buffers use
 
@@ -386,13 +433,17 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False,
     # an image's blocks only where the launch takes all its rays; other rays in no
     # order of their own taken in one (kdray.ray_order)
     image_w = rays.image_w if (start, stop) == (0, rays.n) else 0
-    o_buf, d_buf = inp(o), inp(d)
-    order = None if image_w else ray_order(tracer, o, d, *tracer.tree.bounds, rays.o_step,
-                                           ((o_buf, 0), (d_buf, 0)))
+    keep.extend((o, d))
+    (o_buf, o_at), (d_buf, d_at) = tracer._input_buffer(o), tracer._input_buffer(d)
+    box = tracer.tree.world_box() if rays.world else tracer.tree.bounds
+    order = None if image_w else ray_order(tracer, o, d, *box, rays.o_step,
+                                           ((o_buf, o_at), (d_buf, d_at)))
     wide = (tracer._wide()[0],) if tracer.packet > 1 else ()
+    origin = tuple(np.float64(x) for x in tracer._origin) if rays.world else ()
     args = (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
-            np.uint32(tracer._n_nodes), *wide, o_buf, d_buf, np.uint32(rays.o_step), inp(t_mins),
-            inp(t_maxs), np.uint32(rays.t_step), np.uint32(n), np.uint32(image_w), inp(order),
+            np.uint32(tracer._n_nodes), *wide, o_buf, d_buf, np.uint32(rays.o_step),
+            np.uint32(o_at), np.uint32(d_at), *origin, inp(t_mins), inp(t_maxs),
+            np.uint32(rays.t_step), np.uint32(n), np.uint32(image_w), inp(order),
             *map(inp, extra), *exact_args, *device_out.values())
     items = -(-n // entry["run"])
     if image_w:
@@ -410,7 +461,8 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False,
 def _launches(tracer, rays, widths):
     """(start, stop) of each launch over `rays`, as many rays a launch as fit beside the
     tree (Tracer._launch_size); widths: the launch's bytes a ray besides the rays'."""
-    step = tracer._launch_size([12 * rays.o_step, 12, 8 * rays.t_step] + widths)
+    o_bytes, d_bytes = rays.ray_bytes()
+    step = tracer._launch_size([o_bytes * rays.o_step, d_bytes, 8 * rays.t_step] + widths)
     return [(start, min(rays.n, start + step)) for start in range(0, rays.n, step)]
 
 
@@ -570,7 +622,9 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     # a launch's rays and slots fit the device (a ray's slots counted at their mean)
     mean = HIT_BYTES * total / max(rays.n, 1)
     # (the float32 rays, their float64 copies, t ranges, offsets, caps, count, slots)
-    step = tracer._launch_size([36 * rays.o_step, 36, 8 * rays.t_step, 16, int(mean) + 1])
+    o_bytes, d_bytes = rays.ray_bytes()
+    step = tracer._launch_size([(o_bytes + 24) * rays.o_step, d_bytes + 24, 8 * rays.t_step, 16,
+                                int(mean) + 1])
     start = 0
     while start < rays.n:
         stop = min(rays.n, start + step)
@@ -682,7 +736,8 @@ def _first_pass(tracer, rays, cap, crossing, nearest_k):
     found = page_aligned_empty((rays.n,), np.uint32)
     first = page_aligned_empty((rays.n,), np.uint32)
     # (the float32 rays, their float64 copies, t ranges, count, first slot, slots)
-    widths = [36 * rays.o_step, 36, 8 * rays.t_step, 8, HIT_BYTES * cap]
+    o_bytes, d_bytes = rays.ray_bytes()
+    widths = [(o_bytes + 24) * rays.o_step, d_bytes + 24, 8 * rays.t_step, 8, HIT_BYTES * cap]
     step = min(tracer._launch_size(widths), int(tracer.device.max_mem_alloc_size) // (8 * cap))
     for start in range(0, rays.n, step):
         stop = min(rays.n, start + step)

@@ -37,14 +37,20 @@
  * (list_rays' t, u, v recomputed in double, triangle.cl,
  * kd_refine_hit, from the caller's rays in double), LIST_SLOTS (list_first's program:
  * KdQuery's slots private, LIST_SLOTS of them; count_rays and list_rays are left out).
- * Rays are float32, relative to the tree's origin in its units; t_min, t_max per ray
- * (t_step 1) or one pair for all (t_step 0), in the same units. Outputs are in those
+ * Rays are float32, relative to the tree's origin in its units, or with RAYS_WORLD
+ * (ORIGIN_T, DIRECTION_T; SCALE and SCALE_INV where the tree's scale is not 1) the
+ * caller's rays in world coordinates, converted to those numbers as they are read
+ * (world_rays.h, KdRaySource): kdray/rays.py passes an image's rays so, whose
+ * conversion on the host took a sixth of a camera's count. Origins and directions
+ * start o_offset and d_offset elements into their buffers. t_min, t_max per ray
+ * (t_step 1) or one pair for all (t_step 0), in the tree's units. Outputs are in those
  * units too: the host scales t.
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"
 #include "triangle.cl"
 #include "traverse.cl"
+#include "world_rays.h"
 #ifdef PACKET
 /* packet programs walk packets that share their paths as one (packet.cl's node step
  * and cull) and test a lone ray's leaf KD_PACKET triangles at a time (kd_ray_block_all) */
@@ -79,6 +85,31 @@
 
 #define KD_COUNT 1u
 #define KD_LIST 2u
+
+/* The rays a query reads (KD_QUERY_ARGS): ray k's origin o[k * o_step] and direction
+ * d[k], float relative to the tree's origin in its units, or with RAYS_WORLD the
+ * caller's rays in world coordinates, converted here as the host converts them
+ * (world_rays.h: the same numbers). */
+typedef struct {
+    __global const KD_ORIGIN_T *o;
+    __global const KD_DIRECTION_T *d;
+    uint o_step;
+#ifdef RAYS_WORLD
+    double3 origin;                      /* the tree's origin, world coordinates */
+#endif
+} KdRaySource;
+
+/* Ray k of rays s: its origin and direction as the walks take them */
+KD_INLINE
+void kd_source_ray(const KdRaySource *s, uint k, float3 *o, float3 *d)
+{
+#ifdef RAYS_WORLD
+    *o = kd_ray_origin(s->o, (size_t)k * s->o_step, s->origin);
+#else
+    *o = kd_load3(s->o, (size_t)k * s->o_step);
+#endif
+    *d = kd_ray_direction(s->d, k);
+}
 
 /* What a query keeps of one ray while it walks. */
 typedef struct {
@@ -456,12 +487,12 @@ void kd_wide_query_step(uint query, KdWideRay *r, KdQuery *q, __global const uin
 /* Start ray k's wide walk into r (its stack st), or leave r->top 0 where the ray has
  * nothing to walk (kd_walk_range). */
 KD_INLINE
-void kd_wide_query_start(KdWideRay *r, KdWideStack *st, __global const float *origins,
-                         __global const float *directions, uint o_step,
+void kd_wide_query_start(KdWideRay *r, KdWideStack *st, const KdRaySource *src,
                          __global const float *t_mins, __global const float *t_maxs,
                          uint t_step, uint k, float3 bmin, float3 bmax, float reach)
 {
-    float3 o = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
+    float3 o, d;
+    kd_source_ray(src, k, &o, &d);
     float t_min = t_mins[k * t_step], t_max = t_maxs[k * t_step], t_enter, t_exit;
     r->top = 0u;
     if (kd_walk_range(bmin, bmax, o, d, t_min, t_max, &t_enter, &t_exit))
@@ -475,21 +506,21 @@ void kd_wide_query_start(KdWideRay *r, KdWideStack *st, __global const float *or
 KD_INLINE
 void kd_wide_walks(uint query, __global const uint *wide, __global const float *tris,
                    __global const uint *tri_ids, float3 bmin, float3 bmax,
-                   __global const float *origins, __global const float *directions,
-                   uint o_step, __global const float *t_mins, __global const float *t_maxs,
-                   uint t_step, const uint *ids, const uchar *rays, uint n, KdQuery *q)
+                   const KdRaySource *src, __global const float *t_mins,
+                   __global const float *t_maxs, uint t_step, const uint *ids,
+                   const uchar *rays, uint n, KdQuery *q)
 {
     float reach = kd_wide_reach(bmin, bmax);
     KdWideStack sa, sb;
     for (uint i = 0u; i < n; i += 2u) {
         uint ia = rays[i], ib = i + 1u < n ? rays[i + 1u] : rays[i];
         KdWideRay a, b;
-        kd_wide_query_start(&a, &sa, origins, directions, o_step, t_mins, t_maxs, t_step,
-                            ids[ia], bmin, bmax, reach);
+        kd_wide_query_start(&a, &sa, src, t_mins, t_maxs, t_step, ids[ia], bmin, bmax,
+                            reach);
         b.top = 0u;
         if (i + 1u < n)
-            kd_wide_query_start(&b, &sb, origins, directions, o_step, t_mins, t_maxs, t_step,
-                                ids[ib], bmin, bmax, reach);
+            kd_wide_query_start(&b, &sb, src, t_mins, t_maxs, t_step, ids[ib], bmin, bmax,
+                                reach);
         while (a.top | b.top) {
             if (a.top)
                 kd_wide_query_step(query, &a, &q[ia], wide, tris, tri_ids);
@@ -745,16 +776,17 @@ KD_INLINE
 intP kd_packet_walk(uint query, __global const KdNode *nodes, uint n_nodes,
                     __global const uint *wide,
                     __global const float *tris, __global const uint *tri_ids, float3 bmin,
-                    float3 bmax, __global const float *origins, __global const float *directions,
-                    uint o_step, __global const float *t_mins, __global const float *t_maxs,
-                    uint t_step, const uint *ids, uint m, bool crossing, KdQuery *q)
+                    float3 bmax, const KdRaySource *src, __global const float *t_mins,
+                    __global const float *t_maxs, uint t_step, const uint *ids, uint m,
+                    bool crossing, KdQuery *q)
 {
     KdFP o[3], dx, dy, dz, enter, exit, lo, hi;
     uint on_bits = 0u;
     for (uint l = 0; l < KD_PACKET; l++) {
         /* lanes past m repeat the first ray (off): kd_alone and the shear see real rays */
         uint k = ids[l < m ? l : 0u];
-        float3 p = kd_load3(origins, (size_t)k * o_step), d = kd_load3(directions, k);
+        float3 p, d;
+        kd_source_ray(src, k, &p, &d);
         o[0].s[l] = p.x; o[1].s[l] = p.y; o[2].s[l] = p.z;
         dx.s[l] = d.x; dy.s[l] = d.y; dz.s[l] = d.z;
         lo.s[l] = t_mins[k * t_step];
@@ -899,10 +931,11 @@ void kd_query_start(KdQuery *q, bool crossing)
 
 #define KD_QUERY_ARGS                                                                      \
     __global const KdNode *nodes, __global const float *tris, __global const uint *tri_ids, \
-    __global const float *bounds, uint n_nodes KD_WIDE_PARAM, __global const float *origins, \
-    __global const float *directions, uint o_step, __global const float *t_mins,          \
-    __global const float *t_maxs, uint t_step, uint n_rays, uint image_w,                 \
-    __global const uint *order
+    __global const float *bounds, uint n_nodes KD_WIDE_PARAM,                              \
+    __global const KD_ORIGIN_T *origins, __global const KD_DIRECTION_T *directions,        \
+    uint o_step, uint o_offset, uint d_offset KD_ORIGIN_PARAMS,                            \
+    __global const float *t_mins, __global const float *t_maxs, uint t_step, uint n_rays,  \
+    uint image_w, __global const uint *order
 
 /* Rays walked together: a packet program's work-item's RUN (as packets and wide
  * walks), else one. */
@@ -978,6 +1011,13 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
     for (uint l = 0; l < n; l++)
         kd_query_start(&q[l], crossing);
     float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
+    KdRaySource src;
+    src.o = origins + o_offset;
+    src.d = directions + d_offset;
+    src.o_step = o_step;
+#ifdef RAYS_WORLD
+    src.origin = (double3)(origin_x, origin_y, origin_z);
+#endif
 #ifdef PACKET
     /* packets of rays that share their paths walk as packets, the others (and the
      * lanes that leave a packet, started again; all of a block too small for
@@ -992,8 +1032,8 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
             uint m = min((uint)KD_PACKET, n - p0);
             KdIP leave;
             leave.v = kd_packet_walk(query, nodes, n_nodes, wide, tris, tri_ids, bmin, bmax,
-                                     origins, directions, o_step, t_mins, t_maxs, t_step,
-                                     ids + p0, m, crossing, q + p0);
+                                     &src, t_mins, t_maxs, t_step, ids + p0, m, crossing,
+                                     q + p0);
             for (uint l = 0u; l < m; l++) {
                 if (!leave.s[l])
                     continue;
@@ -1002,20 +1042,22 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
             }
         }
     }
-    kd_wide_walks(query, wide, tris, tri_ids, bmin, bmax, origins, directions, o_step,
-                  t_mins, t_maxs, t_step, ids, alone, n_alone, q);
+    kd_wide_walks(query, wide, tris, tri_ids, bmin, bmax, &src, t_mins, t_maxs, t_step, ids,
+                  alone, n_alone, q);
 #else
     for (uint l = 0; l < n; l++) {
         uint k = ids[l];
-        kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax,
-                kd_load3(origins, (size_t)k * o_step), kd_load3(directions, k),
-                t_mins[k * t_step], t_maxs[k * t_step], &q[l]);
+        float3 o, d;
+        kd_source_ray(&src, k, &o, &d);
+        kd_walk(query, nodes, n_nodes, tris, tri_ids, bmin, bmax, o, d, t_mins[k * t_step],
+                t_maxs[k * t_step], &q[l]);
     }
 #endif
 }
 
 #define KD_WALK_ARGS nodes, tris, tri_ids, bounds, n_nodes KD_WIDE_PASS, origins,          \
-    directions, o_step, t_mins, t_maxs, t_step, n_rays, image_w, order
+    directions, o_step, o_offset, d_offset KD_ORIGIN_PASS, t_mins, t_maxs, t_step, n_rays, \
+    image_w, order
 
 #ifndef LIST_SLOTS
 /* out[k]: the number of distinct triangles ray k hits (crossing 1: under the count's

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from helpers import (RTOL_T, SCENES, camera_for, edge_distance, edge_midpoints,
-                     graze_tolerance, grid_cube, icosphere, random_rays, real_mesh_arrays,
-                     split_plane_rays)
+                     force_ray_order, graze_tolerance, grid_cube, icosphere, random_rays,
+                     real_mesh_arrays, split_plane_rays)
+from kdray import ray_order as kray_order
 from kdray import rays as krays
 from kdray.builder import build
 from kdray.errors import KdrayError
@@ -86,6 +87,65 @@ def test_occluded_stops_at_any_hit_in_packets_and_lanes(runtime, teapot_tree):
                 assert np.array_equal(tracer.occluded(o, d, t_min, t_max), want), packet
         # (the image looks at the teapot: some of its rays hit)
         assert tracer.occluded(eye, image).any()
+
+
+@pytest.mark.parametrize("where", ["near", "far"])
+def test_image_rays_read_as_given_answer_as_float32_copies(runtime, where, monkeypatch):
+    """An image's rays are read by the query kernels as the caller gave them (float64 or
+    float32, (N, 3) or one (3,) origin, a t range a ray or one for all; RAYS_WORLD),
+    converted as the host converts them: count, crossings and every hit's t, u, v and
+    triangle equal those of the same rays in reverse order (float32 copies made on the
+    host), at scale 1 and for a tree far from the origin at a scale that is not 1
+    (SCALE), and in launches of a few rows (taken in an order through the world box)."""
+    v, f = real_mesh_arrays("teapot.obj")
+    if where == "far":
+        v = v * 2.0 ** 48 + np.array([3e15, -7e14, 1.5e15])     # beyond 2^40: scaled
+    tree = build(v, f)
+    tracer = Tracer(tree, device=runtime.spec)
+    if tracer.packet == 1 or not tracer._rays_in_kernel:
+        pytest.skip("image rays are walked in blocks by packet programs on CPUs")
+    eye, image = eye_image(tree, 40)
+    back = slice(None, None, -1)
+    lo_box, hi_box = tree.world_box()
+    lens = eye + 1e-3 * (hi_box - lo_box) * np.random.default_rng(6).random(image.shape)
+    for o_given, d_given in ((eye, image), (lens, image),
+                             (lens.astype(np.float32), image.astype(np.float32))):
+        rays = krays._image(tracer, krays._Rays(tracer, o_given, d_given, 0.0, np.inf),
+                            o_given, d_given)
+        assert rays.world and rays.image_w == 40
+        d_flat = d_given.reshape(-1, 3)
+        o_flat = np.broadcast_to(o_given, d_given.shape).reshape(-1, 3)
+        lo, hi = ranges(np.random.default_rng(7), len(d_flat), 0.5)
+        for t_min, t_max in ((0.0, np.inf), (lo.reshape(40, 40), hi.reshape(40, 40))):
+            flat_lo = np.ravel(t_min) if np.ndim(t_min) else t_min
+            flat_hi = np.ravel(t_max) if np.ndim(t_max) else t_max
+            rev = (lambda a: a[back] if np.ndim(a) else a)
+            assert np.array_equal(tracer.count(o_given, d_given, t_min, t_max).reshape(-1),
+                                  tracer.count(o_flat[back], d_flat[back], rev(flat_lo),
+                                               rev(flat_hi))[back])
+            got = tracer.intersections(o_given, d_given, t_min, t_max)
+            want = tracer.intersections(o_flat[back], d_flat[back], rev(flat_lo), rev(flat_hi))
+            order = np.concatenate([np.arange(want.offsets[i], want.offsets[i + 1])
+                                    for i in range(len(d_flat))[back]]).astype(np.int64)
+            assert np.array_equal(got.counts.reshape(-1), want.counts[back])
+            for name in ("t", "u", "v", "prim"):
+                assert np.array_equal(getattr(got, name), getattr(want, name)[order]), name
+    # unrefined, a hit's t is the float32 test's, which any other rounding of a ray
+    # changes
+    raw = Tracer(tree, device=runtime.spec, refine=False)
+    got = raw.intersections(lens, image)
+    want = raw.intersections(lens.reshape(-1, 3)[back], image.reshape(-1, 3)[back])
+    assert np.array_equal(np.sort(got.t), np.sort(want.t))
+    # launches of 3 rows: a launch's rays are no whole image, and each is taken in an
+    # order of its own (forced here: ordered rays are left as they are), its keys
+    # computed over the world box
+    want = tracer.count(np.broadcast_to(eye, image.shape).reshape(-1, 3)[back],
+                        image.reshape(-1, 3)[back])[back]
+    monkeypatch.setattr(tracer, "_launch_size", lambda widths, *a, **k: 120)
+    taken = force_ray_order(monkeypatch, krays)
+    monkeypatch.setattr(kray_order, "unordered", lambda *a, **k: True)
+    assert np.array_equal(tracer.count(eye, image).reshape(-1), want)
+    assert any(t is not None for t in taken)
 
 
 def test_hit_rows_on_the_device_are_numpys(runtime, teapot_tree):
