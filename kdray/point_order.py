@@ -17,33 +17,16 @@ import numpy as np
 
 from . import device as _device
 from .host import page_aligned_empty
-from .points import GRID_CELLS
-
-LOCAL = 64
-"""The kernels' work-group size (one point a work-item)."""
-
+from .points import spatial_grid
 
 def available(tracer):
     """Whether the tracer's device runs these kernels (it has cl_khr_fp64)."""
     return _device.has_fp64(tracer.device)
 
 
-def _grid(lo, hi):
-    """(lo, scale) float32 (3,) each: spatial_order's grid over the box lo .. hi."""
-    lo = np.asarray(lo, dtype=np.float64)
-    scale = GRID_CELLS / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
-    return lo.astype(np.float32), scale.astype(np.float32)
-
-
-def _launch(tracer, name, n, args, outputs):
-    """Run point_order.cl's kernel `name` over n points (one a work-item) on args, then
-    the outputs (dict name -> host array it writes, or None for NULL: not written, in
-    argument order), and wait for it."""
-    entry = tracer._built("point_order.cl", {}, ("point_keys", "contains_rays"))
-    device_out = {k: None if a is None else tracer._output_buffer(a) for k, a in outputs.items()}
-    local = min(LOCAL, int(tracer.device.max_work_group_size))
-    tracer._enqueue(entry, name, -(-n // local) * local, local, (*args, *device_out.values()))
-    tracer._read_outputs({k: b for k, b in device_out.items() if b is not None}, outputs)
+def _program(tracer):
+    """point_order.cl built for the tracer's device (kept with its other programs)."""
+    return tracer._built("point_order.cl", {}, ("point_keys", "contains_rays"))
 
 
 def spatial_order(tracer, points, lo, hi, centre=None, rel=None, sides=None):
@@ -57,14 +40,15 @@ def spatial_order(tracer, points, lo, hi, centre=None, rel=None, sides=None):
     n = len(points)
     keys = page_aligned_empty((n,), np.uint16)
     if n:
-        grid_lo, scale = _grid(lo, hi)
+        grid_lo, scale = spatial_grid(lo, hi)
         c = np.zeros(3) if centre is None else np.asarray(centre, dtype=np.float64)
         buf, offset = tracer._input_buffer(points)
-        _launch(tracer, "point_keys", n,
-                (buf, np.uint32(offset), np.uint32(n), *grid_lo, *scale,
-                 np.uint32(centre is not None), *c,
-                 *np.asarray(tracer._origin, dtype=np.float64), np.float64(tracer._scale)),
-                {"keys": keys, "rel": rel, "sides": sides})
+        tracer._run_items(_program(tracer), "point_keys", n,
+                          (buf, np.uint32(offset), np.uint32(n), *grid_lo, *scale,
+                           np.uint32(centre is not None), *c,
+                           *np.asarray(tracer._origin, dtype=np.float64),
+                           np.float64(tracer._scale)),
+                          {"keys": keys, "rel": rel, "sides": sides})
     order = page_aligned_empty((n,), np.uint32)    # read in place by contains_rays
     order[:] = np.argsort(keys, kind="stable")
     return order
@@ -86,8 +70,8 @@ def contains_rays(tracer, points, centre, directions):
     d = page_aligned_empty((n, 3), np.float32)
     if n:
         dir_buf = tracer._buffer(np.ascontiguousarray(directions, dtype=np.float32))
-        _launch(tracer, "contains_rays", n,
-                (tracer._input_buffer(rel)[0], tracer._input_buffer(sides)[0],
-                 tracer._input_buffer(order)[0], np.uint32(0), np.uint32(n), dir_buf),
-                {"o": o, "d": d})
+        tracer._run_items(_program(tracer), "contains_rays", n,
+                          (*map(tracer._whole_input, (rel, sides, order)), np.uint32(0),
+                           np.uint32(n), dir_buf),
+                          {"o": o, "d": d})
     return order, o, d

@@ -133,6 +133,15 @@ MORTON_SPREAD = np.array([sum(((i >> b) & 1) << (3 * b) for b in range(5)) for i
 a cell index's part of a Morton code (here and kdray.ray_order)."""
 
 
+def spatial_grid(lo, hi):
+    """(lo, scale), (3,) float32 each: `spatial_order`'s grid over the box lo .. hi, a
+    point's cell on axis k ((float32(p) - lo) * scale, clamped to 0 .. GRID_CELLS - 1;
+    kernels/point_order.cl computes it alike)."""
+    lo = np.asarray(lo, dtype=np.float64)
+    scale = GRID_CELLS / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
+    return lo.astype(np.float32), scale.astype(np.float32)
+
+
 def spatial_order(points, lo, hi, sides=None):
     """(n,) int64 permutation that puts points (n, 3) in Morton order of a 32^3 grid over
     the box lo .. hi (points outside it clamped to its cells): queries of near points
@@ -143,8 +152,7 @@ def spatial_order(points, lo, hi, sides=None):
     octant, in that order, are one run (`kdray.rays.contains`). Bunny, 2^19 points,
     Intel's CPU runtime: contains 1.5-1.6x, distance 1.2-1.3x, for less sorting time
     than it saves (16-bit keys: numpy's radix sort). Answers do not depend on it."""
-    lo = np.asarray(lo, dtype=np.float64)
-    scale = GRID_CELLS / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
+    lo, scale = spatial_grid(lo, hi)
     # float32: half the memory traffic of float64, and fine enough for 32 cells a side;
     # columns made contiguous (numpy is slow on rows of three, and on strided columns)
     x = np.empty((3, len(points)), dtype=np.float32)

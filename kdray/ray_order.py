@@ -175,20 +175,15 @@ def device_keys(tracer, origins, directions, lo, hi, o_step=1, buffers=None,
         buffers = (tracer._input_buffer(np.ascontiguousarray(origins)),
                    tracer._input_buffer(np.ascontiguousarray(directions)))
     (o_buf, o_at), (d_buf, d_at) = buffers
-    out = {"keys": tracer._output_buffer(keys)}
-    local = min(KEYS_LOCAL, int(tracer.device.max_work_group_size))
-    items = -(-n // local) * local
     if by_direction:
-        tracer._enqueue(entry, "direction_keys", items, local,
-                        (d_buf, np.uint32(d_at), np.uint32(n), out["keys"]))
+        name, args = "direction_keys", (d_buf, np.uint32(d_at), np.uint32(n))
     else:
         lo = np.asarray(lo, dtype=np.float64)
         size = np.asarray(hi, dtype=np.float64) - lo
-        tracer._enqueue(entry, "ray_keys", items, local,
-                        (o_buf, d_buf, np.uint32(o_at), np.uint32(d_at), np.uint32(o_step),
-                         np.uint32(n), *lo.astype(np.float32), *size.astype(np.float32),
-                         out["keys"]))
-    tracer._read_outputs(out, {"keys": keys})
+        name, args = "ray_keys", (o_buf, d_buf, np.uint32(o_at), np.uint32(d_at),
+                                  np.uint32(o_step), np.uint32(n), *lo.astype(np.float32),
+                                  *size.astype(np.float32))
+    tracer._run_items(entry, name, n, args, {"keys": keys}, local=KEYS_LOCAL)
     return keys
 
 

@@ -34,7 +34,7 @@ from . import device as _device
 from . import point_order, ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
-from .host import PAGE, check_host_memory, page_aligned_empty, take_rows
+from .host import check_host_memory, page_aligned_empty, take_rows
 from .points import SORT_FROM, check_points, spatial_order
 from .ray_order import ray_order
 from .tree import object_ids
@@ -410,9 +410,7 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False,
             return array                         # None: NULL
         array = np.ascontiguousarray(array)
         keep.append(array)
-        if tracer._page_inputs and array.ctypes.data % PAGE:
-            return tracer._buffer(array)         # queries.cl takes no offsets: a copy
-        return tracer._input_buffer(array)[0]
+        return tracer._whole_input(array)        # queries.cl takes no offsets for them
 
     # Read-write: list_rays keeps its slots sorted in place (it reads what it wrote),
     # and compilers may turn a kernel's store in a loop into a load before it and a
@@ -706,17 +704,10 @@ def _rows_on_device(tracer, counts, offsets, first, slots):
     entry = tracer._built("hit_rows.cl", {"FIRST_T": "uint" if first.dtype == np.uint32 else "long"},
                           ("hit_rows",))
     (f_buf, f_at), (o_buf, o_at) = (tracer._input_buffer(a) for a in (first, offsets))
-    ins = []
-    for a in slots:
-        buf, at = tracer._input_buffer(a)
-        ins.append(buf if at == 0 else tracer._buffer(a))   # the kernel takes them whole
-    outputs = {"t": t, "uv": uv, "prim": prim}
-    device_out = {k: tracer._output_buffer(a) for k, a in outputs.items()}
-    local = min(64, int(tracer.device.max_work_group_size))
-    tracer._enqueue(entry, "hit_rows", -(-n // local) * local, local,
-                    (f_buf, np.uint32(f_at), o_buf, np.uint32(o_at), np.uint32(n),
-                     np.uint64(len(slots[0])), *ins, *device_out.values()))
-    tracer._read_outputs(device_out, outputs)
+    tracer._run_items(entry, "hit_rows", n,
+                      (f_buf, np.uint32(f_at), o_buf, np.uint32(o_at), np.uint32(n),
+                       np.uint64(len(slots[0])), *map(tracer._whole_input, slots)),
+                      {"t": t, "uv": uv, "prim": prim})
     return t, uv, prim
 
 

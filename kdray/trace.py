@@ -452,6 +452,26 @@ class Tracer:
             entry[("arg_types", kernel_name)] = types
         kernel(self.queue, (global_size,), (local_size,), *args)
 
+    def _run_items(self, entry, kernel_name, n, args, outputs, local=64):
+        """Run `kernel_name` of a program entry (`_built`) over n work-items (groups of
+        `local`, or the device's most, the last padded) on args, then outputs (dict name
+        -> host array it writes, or None for NULL, in argument order), and bring the
+        outputs back: the launch of the small kernels that take one item a work-item."""
+        device_out = {k: None if a is None else self._output_buffer(a)
+                      for k, a in outputs.items()}
+        local = min(local, int(self.device.max_work_group_size))
+        self._enqueue(entry, kernel_name, -(-n // local) * local, local,
+                      (*args, *device_out.values()))
+        self._read_outputs({k: b for k, b in device_out.items() if b is not None}, outputs)
+
+    def _whole_input(self, array):
+        """A read-only device buffer of a contiguous host array for a kernel that takes
+        no element offset: `_input_buffer`'s, in place where it starts on a page (or the
+        device copies anyway), else a copy of it."""
+        if self._page_inputs and array.ctypes.data % PAGE:
+            return self._buffer(array)
+        return self._input_buffer(array)[0]
+
     def compile(self, aovs=DEFAULT_AOVS, trace=False, precision="single"):
         """Build the program `render` uses for `aovs` at `precision` (and with
         trace=True the ones `trace` uses for float64 and float32 rays) and launch each
