@@ -31,7 +31,8 @@ from .load import load
 from .mesh import Mesh
 from .rays import Intersections
 from .points import ClosestPoints
-from .trace import Hits, Tracer
+from .hits import Hits
+from .trace import Tracer
 from .tree import BuildParams, KdTree
 
 __version__ = "0.1.0"

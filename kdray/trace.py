@@ -5,21 +5,7 @@
     hits.t, hits.prim, hits.u, hits.v, hits.normal, hits.object
     images = tracer.render(camera, aovs=("depth", "normal", "bary", "id"))
 
-Arrays returned (for (N, 3) rays; rays shaped (..., 3) give arrays of their shape
-(...) and normal (..., 3))::
-
-    Hits.t       (N,) float32     ray parameter in units of |direction|; +inf on a miss
-    Hits.prim    (N,) uint32      input triangle id; 0xFFFFFFFF on a miss
-    Hits.u, .v   (N,) float32     P = (1 - u - v) v0 + u v1 + v v2; 0 on a miss
-                                  (strided views of one (N, 2) array)
-    Hits.normal  (N, 3) float32   unit geometric normal (v1 - v0) x (v2 - v0); 0 on a miss
-    Hits.object  (N,) uint32      the hit triangle's object (KdTree.objects; 0 for a
-                                  tree with no table); 0xFFFFFFFF on a miss. Looked up
-                                  on first access
-
-u, v and normal are None when `trace` was asked to leave them out (outputs=).
-
-With precision="double", t, u and v are float64 (kdray.double).
+The arrays of `hits` and their dtypes: kdray.hits.
 
 Precision: the tree's float32 data is relative to its float64 `origin`, in units of
 its `scale` (a power of two); ray origins are taken there in float64 (on the host or
@@ -34,7 +20,6 @@ kept on the Tracer; the kernels compute and store only the outputs asked for.
 import ctypes
 import copy
 import dataclasses
-import functools
 import logging
 import time
 
@@ -47,6 +32,7 @@ from . import points as _points
 from . import render as _render
 from .double import wants_double
 from .errors import DeviceError, KdrayError
+from .hits import Hits  # noqa: F401 (kdray.trace.Hits, as before)
 from .host import PAGE, check_host_memory, huge_page_copy, huge_page_empty, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BLOCK,
                      device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
@@ -54,7 +40,6 @@ from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BL
 from .ray_grid import ImageWidths
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
-from .tree import object_ids
 from .validate import check_float32, whole_or_none
 from .wide import wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
@@ -87,52 +72,6 @@ _OUTPUTS = KERNEL_OUTPUTS + ("STATS",)   # the kernels' output arguments, in ord
 MAPS_KEPT = 2
 """Ray maps (camera models', lidars') a Tracer keeps (12 bytes a ray on the host and
 12 on the device each): a dataset's views share their camera's intrinsics."""
-
-
-@dataclasses.dataclass(eq=False)
-class Hits:
-    """Nearest hits of N rays (see the module docstring for the arrays).
-
-    object_table : the traced tree's KdTree.objects ((n_input_tris,) uint32, or None:
-        one object), which `object` looks up prim in."""
-
-    t: np.ndarray
-    prim: np.ndarray
-    u: np.ndarray
-    v: np.ndarray
-    normal: np.ndarray
-    object_table: np.ndarray = dataclasses.field(default=None, repr=False)
-
-    @property
-    def hit(self):
-        """(N,) bool: the ray hit something."""
-        return self.prim != MISS
-
-    @functools.cached_property
-    def object(self):
-        """(N,) uint32: the object of each hit triangle, 0xFFFFFFFF on a miss; computed
-        on first access (kdray.tree.object_ids)."""
-        return object_ids(self.prim, self.object_table)
-
-    def __len__(self):
-        return len(self.t)
-
-    def _reshaped(self, shape):
-        """The same hits as arrays of `shape` (the rays' shape; normal shape + (3,)):
-        views where numpy can make them."""
-        def part(a, tail=()):
-            return None if a is None else a.reshape(shape + tail)
-
-        return Hits(part(self.t), part(self.prim), part(self.u), part(self.v),
-                    part(self.normal, (3,)), object_table=self.object_table)
-
-    def __getitem__(self, index):
-        """The hits of a subset of the rays (a slice, mask or index array)."""
-        def part(a):
-            return None if a is None else a[index]
-
-        return Hits(self.t[index], self.prim[index], part(self.u), part(self.v),
-                    part(self.normal), object_table=self.object_table)
 
 
 class Tracer:

@@ -1,0 +1,71 @@
+"""Hits: the nearest hits of N rays, as `Tracer.trace` returns them.
+
+Arrays returned (for (N, 3) rays; rays shaped (..., 3) give arrays of their shape
+(...) and normal (..., 3))::
+
+    Hits.t       (N,) float32     ray parameter in units of |direction|; +inf on a miss
+    Hits.prim    (N,) uint32      input triangle id; 0xFFFFFFFF on a miss
+    Hits.u, .v   (N,) float32     P = (1 - u - v) v0 + u v1 + v v2; 0 on a miss
+                                  (strided views of one (N, 2) array)
+    Hits.normal  (N, 3) float32   unit geometric normal (v1 - v0) x (v2 - v0); 0 on a miss
+    Hits.object  (N,) uint32      the hit triangle's object (KdTree.objects; 0 for a
+                                  tree with no table); 0xFFFFFFFF on a miss. Looked up
+                                  on first access
+
+u, v and normal are None when `trace` was asked to leave them out (outputs=).
+
+With precision="double", t, u and v are float64 (kdray.double).
+"""
+import dataclasses
+import functools
+
+import numpy as np
+
+from .layout import MISS
+from .tree import object_ids
+
+
+@dataclasses.dataclass(eq=False)
+class Hits:
+    """Nearest hits of N rays (see the module docstring for the arrays).
+
+    object_table : the traced tree's KdTree.objects ((n_input_tris,) uint32, or None:
+        one object), which `object` looks up prim in."""
+
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+    object_table: np.ndarray = dataclasses.field(default=None, repr=False)
+
+    @property
+    def hit(self):
+        """(N,) bool: the ray hit something."""
+        return self.prim != MISS
+
+    @functools.cached_property
+    def object(self):
+        """(N,) uint32: the object of each hit triangle, 0xFFFFFFFF on a miss; computed
+        on first access (kdray.tree.object_ids)."""
+        return object_ids(self.prim, self.object_table)
+
+    def __len__(self):
+        return len(self.t)
+
+    def _reshaped(self, shape):
+        """The same hits as arrays of `shape` (the rays' shape; normal shape + (3,)):
+        views where numpy can make them."""
+        def part(a, tail=()):
+            return None if a is None else a.reshape(shape + tail)
+
+        return Hits(part(self.t), part(self.prim), part(self.u), part(self.v),
+                    part(self.normal, (3,)), object_table=self.object_table)
+
+    def __getitem__(self, index):
+        """The hits of a subset of the rays (a slice, mask or index array)."""
+        def part(a):
+            return None if a is None else a[index]
+
+        return Hits(self.t[index], self.prim[index], part(self.u), part(self.v),
+                    part(self.normal), object_table=self.object_table)
