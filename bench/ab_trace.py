@@ -4,7 +4,7 @@ way to measure a change to the kernels or the Tracer on a machine whose speed dr
 
 usage: python bench/ab_trace.py [--base HEAD] [--work COMMIT] [--meshes bunny,bunny-1.6M]
                                 [--rounds 15] [--pairs 1] [--size 1024] [--packet 8]
-                                [--incoherent] [--queries]
+                                [--incoherent [--rays 100000]] [--queries]
 
 The base commit's `kdray/` and `kernels/` are exported (git archive) into a temporary
 folder, and with --work another commit's too (so that a past change can be measured
@@ -18,8 +18,8 @@ after the one before: `render` (depth only), `render` (the default AOVs), `trace
 (numpy to numpy, the camera's 1024 x 1024 rays in row-major order, which a kdray
 with kdray.ray_grid traces as an image) and `trace HxW`
 (the same rays shaped (1024, 1024, 3), t and prim only; NaN for a kdray without
-image-shaped rays). With --incoherent, three more: `trace` of 100,000 rays in random
-directions from the centre of the tree's box and from random points in it
+image-shaped rays). With --incoherent, three more: `trace` of --rays (100,000) rays in
+random directions from the centre of the tree's box and from random points in it
 (bench_incoherent.py's rays), and `trace spread`, the camera's rays from origins spread
 over 1e-4 of the box's diagonal (a lens's or a projector's: coherent packets of
 several origins; t and prim). With --queries, four more, the ray queries (kdray.rays)
@@ -61,10 +61,11 @@ INCOHERENT = ("random centre", "random points", "trace spread")
 QUERIES = ("count", "intersections", "count random", "contains")
 
 
-def worker(tree_path, size, out_path, packet=0):
+def worker(tree_path, size, out_path, packet=0, n_rays=100_000):
     """Serve timed calls on stdin ("render depth", ...): print each one's seconds.
     Writes the outputs of one call of each to out_path (npz) first. packet: the
-    Tracer's packet width, 0 for the device's default."""
+    Tracer's packet width, 0 for the device's default; n_rays: the incoherent sets'
+    rays."""
     import kdray
     tree = kdray.KdTree.load(tree_path)
     # (a base commit may predate KdTree.world_box; scale-1 trees need no scale)
@@ -73,7 +74,7 @@ def worker(tree_path, size, out_path, packet=0):
     o, d = camera.rays()
     tracer = kdray.Tracer(tree, packet=packet or None)
     from bench_incoherent import ray_sets, spread_origins
-    (oc, dc), (op, dp) = ray_sets(tree, 100_000).values()
+    (oc, dc), (op, dp) = ray_sets(tree, n_rays).values()
     shape = (size, size, 3)
     spread = spread_origins(o, lo, hi, 1e-4)
     calls = {"render depth": lambda: tracer.render(camera, aovs=("depth",)),
@@ -114,7 +115,8 @@ def worker(tree_path, size, out_path, packet=0):
         print(f"{wall} {cpu}" if ran else "nan nan", flush=True)
 
 
-def start_workers(name, folder, tree_path, base_root, work_root, size, packet=0):
+def start_workers(name, folder, tree_path, base_root, work_root, size, packet=0,
+                  n_rays=100_000):
     """{"base": (process, outputs npz path), "work": ...}: one ready worker per version."""
     workers = {}
     for who, root in (("base", base_root), ("work", work_root)):
@@ -122,7 +124,7 @@ def start_workers(name, folder, tree_path, base_root, work_root, size, packet=0)
         out = os.path.join(folder, f"{name}-{who}.npz")
         env["PYTHONPATH"] += os.pathsep + HERE          # bench_incoherent's rays
         p = subprocess.Popen([sys.executable, __file__, "--worker", tree_path, str(size), out,
-                              str(packet)],
+                              str(packet), str(n_rays)],
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
                              cwd=root)
         if p.stdout.readline().strip() != "ready":
@@ -150,7 +152,8 @@ def timed_rounds(workers, rounds, calls=CALLS):
     return {k: np.array(v) for k, v in seconds.items()}
 
 
-def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CALLS, packet=0):
+def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CALLS, packet=0,
+            n_rays=100_000):
     """Both versions on one mesh, in turns, in `pairs` pairs of fresh processes one
     after the other; prints the medians and ratios. Every pair's outputs are compared
     (each process computes its own). packet: the Tracers' packet width (0: default)."""
@@ -163,7 +166,8 @@ def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CAL
     same = True
     runs = []
     for _ in range(pairs):
-        workers = start_workers(name, folder, tree_path, base_root, work_root, size, packet)
+        workers = start_workers(name, folder, tree_path, base_root, work_root, size, packet,
+                                n_rays)
         a, b = (np.load(workers[who][1]) for who in ("base", "work"))
         same &= sorted(a.files) == sorted(b.files) and all(
             np.array_equal(a[k], b[k], equal_nan=True) for k in a.files)
@@ -185,7 +189,8 @@ def compare(name, folder, base_root, work_root, rounds, size, pairs=1, calls=CAL
 
 def main():
     if len(sys.argv) > 1 and sys.argv[1] == "--worker":
-        return worker(sys.argv[2], int(sys.argv[3]), sys.argv[4], int(sys.argv[5]))
+        return worker(sys.argv[2], int(sys.argv[3]), sys.argv[4], int(sys.argv[5]),
+                      int(sys.argv[6]))
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", default="HEAD", help="commit to compare with (default HEAD)")
     ap.add_argument("--work", default=None, help="commit to measure (default: the working tree)")
@@ -196,8 +201,10 @@ def main():
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--packet", type=int, default=0,
                     help="the Tracers' packet width: 1, 8 or 16 (default: the device's)")
+    ap.add_argument("--rays", type=int, default=100_000,
+                    help="rays in each --incoherent set (default 100,000)")
     ap.add_argument("--incoherent", action="store_true",
-                    help="also time 100,000 rays in random directions (two sets)")
+                    help="also time --rays rays in random directions (two sets)")
     ap.add_argument("--queries", action="store_true",
                     help="also time the ray queries (count, intersections, contains)")
     args = ap.parse_args()
@@ -213,7 +220,7 @@ def main():
                 git_export(commit, roots[who], ["kdray", "kernels"])
         for name in args.meshes.split(","):
             compare(name, tmp, roots["base"], roots["work"], args.rounds, args.size,
-                    args.pairs, calls, args.packet)
+                    args.pairs, calls, args.packet, args.rays)
 
 
 if __name__ == "__main__":
