@@ -25,8 +25,25 @@ from .layout import MISS
 from .tree import object_ids
 
 
+class TriangleAnswers:
+    """What answers naming a triangle a row (`prim`, MISS where none, and the tree's
+    `object_table`: Hits, points.ClosestPoints) share: `hit` and `object`."""
+
+    @property
+    def hit(self):
+        """bool, prim's shape: the row names a triangle (a ray's hit, a point's nearest
+        surface point within the distance asked)."""
+        return self.prim != MISS
+
+    @functools.cached_property
+    def object(self):
+        """uint32, prim's shape: the object of each row's triangle, 0xFFFFFFFF where none;
+        computed on first access (kdray.tree.object_ids)."""
+        return object_ids(self.prim, self.object_table)
+
+
 @dataclasses.dataclass(eq=False)
-class Hits:
+class Hits(TriangleAnswers):
     """Nearest hits of N rays (see the module docstring for the arrays).
 
     object_table : the traced tree's KdTree.objects ((n_input_tris,) uint32, or None:
@@ -38,17 +55,6 @@ class Hits:
     v: np.ndarray
     normal: np.ndarray
     object_table: np.ndarray = dataclasses.field(default=None, repr=False)
-
-    @property
-    def hit(self):
-        """(N,) bool: the ray hit something."""
-        return self.prim != MISS
-
-    @functools.cached_property
-    def object(self):
-        """(N,) uint32: the object of each hit triangle, 0xFFFFFFFF on a miss; computed
-        on first access (kdray.tree.object_ids)."""
-        return object_ids(self.prim, self.object_table)
 
     def __len__(self):
         return len(self.t)

@@ -26,7 +26,6 @@ The rules (docs/conventions.md, "Point queries"):
   warned about).
 """
 import dataclasses
-import functools
 import warnings
 
 import numpy as np
@@ -35,9 +34,9 @@ from . import device as _device
 from . import ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
+from .hits import TriangleAnswers
 from .host import check_host_memory, page_aligned_empty, take_rows
 from .layout import MISS, device_triangles, is_leaf, leaf_offset, n_prims
-from .tree import object_ids
 from .validate import FLOAT32_MAX, real_number
 
 RUN_CPU = 32
@@ -69,7 +68,7 @@ class OpenMeshWarning(UserWarning):
 
 
 @dataclasses.dataclass(eq=False)
-class ClosestPoints:
+class ClosestPoints(TriangleAnswers):
     """The nearest surface point of N points (in the points' shape).
 
     distance : float32 (float64 with precision="double"), world units; +inf on a miss
@@ -84,16 +83,6 @@ class ClosestPoints:
     u: np.ndarray
     v: np.ndarray
     object_table: np.ndarray = dataclasses.field(default=None, repr=False)
-
-    @property
-    def hit(self):
-        """bool: a surface point was found within max_distance."""
-        return self.prim != MISS
-
-    @functools.cached_property
-    def object(self):
-        """uint32: each nearest triangle's object (kdray.tree.object_ids)."""
-        return object_ids(self.prim, self.object_table)
 
 
 POINT_HOST_BYTES = 96
