@@ -1,0 +1,105 @@
+"""How many wide nodes and leaves a lone ray opens in BVHs of other widths: a float64
+simulation of the wide walk (kdray/wide.py's binary BVH gathered by wide_children at
+each width), to predict what wider nodes would save before building them.
+
+usage: python bench/sim_wide_width.py [--meshes bunny,bunny-1.6M] [--rays 2000]
+                                      [--widths 8,16]
+
+Rays: origins uniform in the tree's box, directions uniform on the sphere (bench_embree's
+`uniform`), seeded. The walk takes entries nearest first (a heap on where the ray enters
+each box) and skips those entered beyond the best hit: an idealised order, the same at
+every width, so the widths compare; kdray's kernels take a node's slots in an octant's
+order and open more of them. Leaves are tested with a float64 Moller-Trumbore test.
+Prints, per mesh and width, the wide nodes, their levels, the share of slots filled,
+and the nodes opened and leaves tested a ray.
+"""
+import argparse
+import heapq
+import os
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from meshes import mesh as bench_mesh  # noqa: E402
+
+import kdray  # noqa: E402
+from kdray import wide  # noqa: E402
+from kdray.builder.bvh import wide_children  # noqa: E402
+
+
+def nearest_t(tris, o, d):
+    """The nearest t > 0 at which ray o + t d meets one of tris ((k, 3, 3) float64)."""
+    v0 = tris[:, 0]
+    e1, e2 = tris[:, 1] - v0, tris[:, 2] - v0
+    p = np.cross(d, e2)
+    det = (e1 * p).sum(1)
+    with np.errstate(all="ignore"):
+        inv = 1.0 / det
+        s = o - v0
+        u = (s * p).sum(1) * inv
+        q = np.cross(s, e1)
+        v = (d * q).sum(1) * inv
+        t = (e2 * q).sum(1) * inv
+    ok = (det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+    return t[ok].min() if ok.any() else np.inf
+
+
+def walk(o, d, kids, wide_of, left, first, count, order, boxes, tris):
+    """(nodes opened, leaves tested) by ray o + t d, nearest entry first."""
+    with np.errstate(divide="ignore"):
+        inv = 1.0 / d
+    best, opened, tested = np.inf, 0, 0
+    heap = [(0.0, False, 0)]                  # (entry t, is a leaf, wide node or leaf)
+    while heap:
+        t, is_leaf, i = heapq.heappop(heap)
+        if t > best:
+            break
+        if is_leaf:
+            tested += 1
+            best = min(best, nearest_t(tris[order[first[i]:first[i] + count[i]]], o, d))
+            continue
+        opened += 1
+        slots = kids[i] >= 0
+        c = kids[i][slots]
+        with np.errstate(invalid="ignore"):
+            ta = (boxes[c, :3] - o) * inv
+            tb = (boxes[c, 3:] - o) * inv
+        enter = np.maximum(np.nanmax(np.minimum(ta, tb), axis=1), 0.0)
+        leave = np.minimum(np.nanmin(np.maximum(ta, tb), axis=1), best)
+        for child, a, b, w in zip(c, enter, leave, wide_of[i][slots]):
+            if a <= b:
+                leaf = left[child] < 0
+                heapq.heappush(heap, (a, leaf, child if leaf else w))
+    return opened, tested
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--meshes", default="bunny,bunny-1.6M")
+    ap.add_argument("--rays", type=int, default=2000)
+    ap.add_argument("--widths", default="8,16")
+    args = ap.parse_args()
+    for name in args.meshes.split(","):
+        m = bench_mesh(name)
+        tree = kdray.build(m.vertices, m.faces)
+        order, left, right, first, count, _, box = wide.binary_bvh(tree)
+        tris = np.asarray(tree.triangles, np.float64).reshape(-1, 3, 3)
+        lo, hi = np.asarray(tree.bounds, np.float64).reshape(2, 3)
+        rng = np.random.default_rng(5)
+        origins = lo + rng.random((args.rays, 3)) * (hi - lo)
+        directions = rng.normal(size=(args.rays, 3))
+        boxes = box.astype(np.float64)
+        for width in (int(w) for w in args.widths.split(",")):
+            kids, wide_of, depth = wide_children(left, right, box, width)
+            steps = np.array([walk(o, d, kids, wide_of, left, first, count, order, boxes, tris)
+                              for o, d in zip(origins, directions)])
+            print(f"{name:<11} width {width:>2}: {len(kids):>6} wide nodes, {depth.max() + 1} "
+                  f"levels, {np.mean(kids >= 0):.2f} of slots filled; a ray opens "
+                  f"{steps[:, 0].mean():.2f} nodes and tests {steps[:, 1].mean():.2f} leaves",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()
