@@ -20,7 +20,11 @@ ray count: the keys on the device and their sort included) and once as the rays 
 (ordered / as they come: < 1, the order pays), and checks the two gave the same hits.
 With --presorted, also the same rays put in that order on the host beforehand (untimed)
 and taken as they come: what the order would gain if its keys, sort and the kernel's
-reads out of memory order cost nothing (ms, and / as they come).
+reads out of memory order cost nothing (ms, and / as they come); then where the
+difference goes: `order given`, the rays as they come with their order made
+beforehand (no keys, no sort), and `identity`, the presorted rays through the order
+0, 1, 2, ... (the kernel's way with an order: each lane read and written by itself,
+in memory order).
 """
 import argparse
 import os
@@ -38,6 +42,7 @@ from meshes import mesh as bench_mesh  # noqa: E402
 
 import kdray  # noqa: E402
 import kdray.ray_order as ray_order  # noqa: E402
+from kdray.host import page_aligned_empty  # noqa: E402
 import kdray.rays as krays  # noqa: E402
 import kdray.trace as ktrace  # noqa: E402
 
@@ -95,9 +100,13 @@ def main():
                 lo, hi = tracer.tree.world_box()
                 order = ordered(tracer, o.reshape(-1, 3), d, lo, hi, int(o.ndim == 2))
                 if order is not None:
-                    ways.append(("presorted", as_they_come,
-                                 np.ascontiguousarray(o[order]) if o.ndim == 2 else o,
-                                 np.ascontiguousarray(d[order])))
+                    o_sorted = np.ascontiguousarray(o[order]) if o.ndim == 2 else o
+                    d_sorted = np.ascontiguousarray(d[order])
+                    identity = page_aligned_empty((len(order),), np.uint32)
+                    identity[:] = np.arange(len(order))
+                    ways += [("presorted", as_they_come, o_sorted, d_sorted),
+                             ("order given", lambda *a, **k: order, o, d),
+                             ("identity", lambda *a, **k: identity, o_sorted, d_sorted)]
             for call in args.calls.split(","):
                 best = {}
                 got = {}
@@ -111,8 +120,8 @@ def main():
                 same = all(np.array_equal(a, b, equal_nan=True)
                            for a, b in zip(got["ordered"], got["as they come"]))
                 a, b = best["ordered"] * 1e3, best["as they come"] * 1e3
-                pre = (f"  presorted {best['presorted'] * 1e3:8.1f} = "
-                       f"{best['presorted'] * 1e3 / b:.2f}" if "presorted" in best else "")
+                pre = "".join(f"  {way} {best[way] * 1e3:8.1f} = {best[way] * 1e3 / b:.2f}"
+                              for way in ("presorted", "order given", "identity") if way in best)
                 print(f"{name:<11} {tracer.device_bytes / 2**20:6.1f} MB {kind:<13} {call:<13} "
                       f"{a:8.1f} / {b:8.1f} = {a / b:.2f}  {'same' if same else 'DIFFERENT'}"
                       + pre, flush=True)
