@@ -19,6 +19,7 @@ from . import device as _device
 from .host import page_aligned_empty
 from .points import spatial_grid
 
+
 def available(tracer):
     """Whether the tracer's device runs these kernels (it has cl_khr_fp64)."""
     return _device.has_fp64(tracer.device)

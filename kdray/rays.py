@@ -687,7 +687,7 @@ def _rows_on_host(tracer, counts, offsets, first, slots):
     numpy: one index for the three gathers, made over the hits, not over every slot
     (most are empty)."""
     keep = np.arange(offsets[-1]) + np.repeat(first - offsets[:-1], counts)
-    return tuple(np.take(a, keep, axis=0, mode="clip") for a in slots)
+    return tuple(take_rows(a, keep, mode="clip") for a in slots)
 
 
 def _rows_on_device(tracer, counts, offsets, first, slots):
