@@ -11,8 +11,8 @@ each box) and skips those entered beyond the best hit: an idealised order, the s
 every width, so the widths compare (kdray's kernels take a node's slots in an octant's
 order: on the bunny 4.09 and 3.17 nodes a ray at widths 8 and 16, against 4.07 and 3.17
 nearest first). Steps, not time: 16-wide nodes built as an experiment opened 22 % fewer
-and traced in 0.97-1.03 of the time (BENCHMARKS.md, "Incoherent rays"). Leaves are tested with a float64 Moller-Trumbore test.
-Prints, per mesh and width, the wide nodes, their levels, the share of slots filled,
+and traced in 0.97-1.03 of the time (BENCHMARKS.md, "Incoherent rays"). Leaves are
+tested with a float64 Moller-Trumbore test. Prints, per mesh and width, the wide nodes, their levels, the share of slots filled,
 and the nodes opened and leaves tested a ray.
 """
 import argparse

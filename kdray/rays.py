@@ -701,8 +701,8 @@ def _rows_on_device(tracer, counts, offsets, first, slots):
     if not total:
         return t, uv, prim
     first = first if first.dtype in (np.uint32, np.int64) else first.astype(np.int64)
-    entry = tracer._built("hit_rows.cl", {"FIRST_T": "uint" if first.dtype == np.uint32 else "long"},
-                          ("hit_rows",))
+    first_t = "uint" if first.dtype == np.uint32 else "long"
+    entry = tracer._built("hit_rows.cl", {"FIRST_T": first_t}, ("hit_rows",))
     (f_buf, f_at), (o_buf, o_at) = (tracer._input_buffer(a) for a in (first, offsets))
     tracer._run_items(entry, "hit_rows", n,
                       (f_buf, np.uint32(f_at), o_buf, np.uint32(o_at), np.uint32(n),
