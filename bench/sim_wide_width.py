@@ -3,14 +3,14 @@ simulation of the wide walk (kdray/wide.py's binary BVH gathered by wide_childre
 each width), to predict what wider nodes would save before building them.
 
 usage: python bench/sim_wide_width.py [--meshes bunny,bunny-1.6M] [--rays 2000]
-                                      [--widths 8,16]
+                                      [--widths 8,16] [--order nearest|octant]
 
 Rays: origins uniform in the tree's box, directions uniform on the sphere (bench_embree's
 `uniform`), seeded. The walk takes entries nearest first (a heap on where the ray enters
 each box) and skips those entered beyond the best hit: an idealised order, the same at
-every width, so the widths compare (kdray's kernels take a node's slots in an octant's
-order: on the bunny 4.09 and 3.17 nodes a ray at widths 8 and 16, against 4.07 and 3.17
-nearest first). Steps, not time: 16-wide nodes built as an experiment opened 22 % fewer
+every width, so the widths compare; --order octant takes them as kdray's kernels do (a
+stack, each node's slots in the order of their centres along the ray's octant's
+diagonal). Steps, not time: 16-wide nodes built as an experiment opened 22 % fewer
 and traced in 0.97-1.03 of the time (BENCHMARKS.md, "Incoherent rays"). Leaves are
 tested with a float64 Moller-Trumbore test. Prints, per mesh and width, the wide nodes, their levels, the share of slots filled,
 and the nodes opened and leaves tested a ray.
@@ -47,15 +47,20 @@ def nearest_t(tris, o, d):
     return t[ok].min() if ok.any() else np.inf
 
 
-def walk(o, d, kids, wide_of, left, first, count, order, boxes, tris):
-    """(nodes opened, leaves tested) by ray o + t d, nearest entry first."""
+def walk(o, d, kids, wide_of, left, first, count, order, boxes, tris, octant=False):
+    """(nodes opened, leaves tested) by ray o + t d, nearest entry first, or with
+    `octant` as the kernels take them: a stack, each node's met slots in the order of
+    their boxes' centres along the ray's octant's diagonal (kdray/wide.py)."""
     with np.errstate(divide="ignore"):
         inv = 1.0 / d
+    diagonal = np.where(d < 0, -1.0, 1.0)
     best, opened, tested = np.inf, 0, 0
-    heap = [(0.0, False, 0)]                  # (entry t, is a leaf, wide node or leaf)
-    while heap:
-        t, is_leaf, i = heapq.heappop(heap)
+    todo = [(0.0, False, 0)]                  # (entry t, is a leaf, wide node or leaf)
+    while todo:
+        t, is_leaf, i = todo.pop() if octant else heapq.heappop(todo)
         if t > best:
+            if octant:
+                continue
             break
         if is_leaf:
             tested += 1
@@ -69,10 +74,17 @@ def walk(o, d, kids, wide_of, left, first, count, order, boxes, tris):
             tb = (boxes[c, 3:] - o) * inv
         enter = np.maximum(np.nanmax(np.minimum(ta, tb), axis=1), 0.0)
         leave = np.minimum(np.nanmin(np.maximum(ta, tb), axis=1), best)
-        for child, a, b, w in zip(c, enter, leave, wide_of[i][slots]):
-            if a <= b:
-                leaf = left[child] < 0
-                heapq.heappush(heap, (a, leaf, child if leaf else w))
+        met = [(k, (a, left[child] < 0, child if left[child] < 0 else w))
+               for k, (child, a, b, w) in enumerate(zip(c, enter, leave, wide_of[i][slots]))
+               if a <= b]
+        if octant:
+            # the slots' rank along the diagonal; pushed last first, so popped first first
+            rank = np.argsort(np.argsort((boxes[c, :3] + boxes[c, 3:]) @ diagonal,
+                                         kind="stable"))
+            todo.extend(e for _, e in sorted(met, key=lambda m: -rank[m[0]]))
+        else:
+            for _, e in met:
+                heapq.heappush(todo, e)
     return opened, tested
 
 
@@ -82,6 +94,7 @@ def main():
     ap.add_argument("--meshes", default="bunny,bunny-1.6M")
     ap.add_argument("--rays", type=int, default=2000)
     ap.add_argument("--widths", default="8,16")
+    ap.add_argument("--order", default="nearest", choices=("nearest", "octant"))
     args = ap.parse_args()
     for name in args.meshes.split(","):
         m = bench_mesh(name)
@@ -95,7 +108,8 @@ def main():
         boxes = box.astype(np.float64)
         for width in (int(w) for w in args.widths.split(",")):
             kids, wide_of, depth = wide_children(left, right, box, width)
-            steps = np.array([walk(o, d, kids, wide_of, left, first, count, order, boxes, tris)
+            steps = np.array([walk(o, d, kids, wide_of, left, first, count, order, boxes, tris,
+                                   args.order == "octant")
                               for o, d in zip(origins, directions)])
             print(f"{name:<11} width {width:>2}: {len(kids):>6} wide nodes, {depth.max() + 1} "
                   f"levels, {np.mean(kids >= 0):.2f} of slots filled; a ray opens "
