@@ -605,3 +605,91 @@ def test_trimesh_imported_only_by_the_adapter():
     code = ("import sys, kdray, kdray.integrations; assert 'trimesh' not in sys.modules; "
             "import kdray.integrations.trimesh; assert 'trimesh' in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def voxel_surface(occupied):
+    """(vertices (n, 3) float64, faces (m, 3) int64): the boundary of the union of the
+    unit cubes [i, i + 1] x [j, j + 1] x [k, k + 1] where occupied[i, j, k] (bool (X, Y,
+    Z)), two triangles a square face, outward, vertices shared by their integer
+    coordinates."""
+    index, faces = {}, []
+    pad = np.pad(occupied, 1)
+    for axis in range(3):
+        u, w = (axis + 1) % 3, (axis + 2) % 3
+        for cell in np.argwhere(pad):
+            for side in (-1, 1):
+                beside = cell.copy()
+                beside[axis] += side
+                if pad[tuple(beside)]:
+                    continue
+                corner = cell - 1
+                corner[axis] += side == 1
+                square = []
+                for a, b in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    p = corner.copy()
+                    p[u] += a
+                    p[w] += b
+                    square.append(index.setdefault(tuple(p.tolist()), len(index)))
+                if side == -1:
+                    square = square[::-1]
+                faces += [square[:3], [square[0], square[2], square[3]]]
+    return np.array(list(index), dtype=np.float64), np.array(faces, dtype=np.int64)
+
+
+def exact_first(vertices, faces, o, d):
+    """(n,) int64 the lowest index among the triangles each ray o + t d (t > 0) hits at
+    its least t, -1 on a miss, in exact arithmetic: 2 o, the vertices and d integers
+    (Cramer's rule in int64, edges and vertices inside)."""
+    tri = (2 * vertices[faces]).astype(np.int64)
+    o2, d = (2 * o).astype(np.int64), d.astype(np.int64)
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    first = np.full(len(o), -1, dtype=np.int64)
+    for i in range(len(o)):
+        s = o2[i] - tri[:, 0]
+        nd = np.broadcast_to(-d[i], s.shape)
+        det = np.linalg.det(np.stack([e1, e2, nd], axis=2)).round().astype(np.int64)
+        u = np.linalg.det(np.stack([s, e2, nd], axis=2)).round().astype(np.int64)
+        v = np.linalg.det(np.stack([e1, s, nd], axis=2)).round().astype(np.int64)
+        t = np.linalg.det(np.stack([e1, e2, s], axis=2)).round().astype(np.int64)
+        sign = np.sign(det)
+        hit = (det != 0) & (u * sign >= 0) & (v * sign >= 0) & ((u + v) * sign <= det * sign) \
+            & (t * sign > 0)
+        if hit.any():
+            # t / det exact in float64's division: equal ratios, equal numbers
+            at = np.where(hit, t / np.where(det == 0, 1, det), np.inf)
+            first[i] = np.flatnonzero(at == at.min())[0]
+    return first
+
+
+def test_first_hit_at_edges_and_vertices_is_the_lowest_index():
+    """Rays between the centres of a voxel solid's cells pass exactly through its edges
+    and vertices (the squares' diagonals included). intersects_first, multiple_hits=False
+    and the first point of intersects_location, whatever max_hits, give the same
+    triangle: the lowest index that kdray's test hits there. In directions whose ratios
+    are exact in float32 (components 0, 1, 2, 4) the test is exact, and that is the exact
+    oracle's lowest index at the least t."""
+    rng = np.random.default_rng(5)
+    v, f = voxel_surface(rng.random((5, 5, 5)) < 0.5)
+    mesh = ours(trimesh.Trimesh(v, f, process=False))
+    n = 4000
+    o = rng.integers(-1, 6, size=(2 * n, 3)) + 0.5
+    d = np.concatenate([rng.choice([-4, -2, -1, 0, 0, 1, 2, 4], size=(n, 3)),
+                        rng.integers(-1, 6, size=(n, 3)) + 0.5 - o[n:]])
+    d[(d == 0).all(axis=1)] = (1, 1, 1)
+    first = mesh.ray.intersects_first(o, d)
+    assert (first[:n] >= 0).sum() > n // 3 and (first[n:] >= 0).sum() > n // 3
+    assert (first[:n] == exact_first(v, f, o[:n], d[:n])).all()
+    tri, ray = mesh.ray.intersects_id(o, d, multiple_hits=False)
+    assert (ray == np.flatnonzero(first >= 0)).all() and (tri == first[ray]).all()
+    for max_hits in (None, 1, 2):
+        _, ray, tri = mesh.ray.intersects_location(o, d, max_hits=max_hits)
+        starts = np.flatnonzero(np.diff(ray, prepend=-1) != 0)
+        assert (ray[starts] == np.flatnonzero(first >= 0)).all()
+        assert (tri[starts] == first[ray[starts]]).all()
+    # two faces at a right angle sharing an edge, and a ray through it (the audit's
+    # case: its unit direction rounded, the first hit was 1)
+    two = ours(trimesh.Trimesh([[1, 3, 0], [1, 4, 0], [1, 4, 1], [0, 4, 0]],
+                               [[0, 1, 2], [3, 2, 1]], process=False))
+    through = ([[0.5, 5.5, -0.5]], [[1.0, -3.0, 2.0]])    # (1, 4, 0.5) at t = 0.5
+    assert two.ray.intersects_first(*through).tolist() == [0]
+    assert two.ray.intersects_location(*through, max_hits=1)[2].tolist() == [0]

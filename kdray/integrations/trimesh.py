@@ -39,11 +39,16 @@ Which hits, and the differences from embree's intersector on purpose:
 - kdray's hit test is watertight (docs/conventions.md, "Ray queries"): a ray through
   an edge or a vertex hits every triangle that has it. `intersects_id` without
   locations lists them all: both triangles at a shared edge, the whole fan at a
-  vertex. With locations (`intersects_location`, `intersects_id(...,
-  return_locations=True)`) a ray's hits at one point are one hit, as trimesh's
-  ray_triangle intersector documents ("unique cartesian locations", so that the hits
-  can be counted): the hit of the lowest triangle index among them (the triangle
-  `intersects_first` gives there). Two hits of a ray are one point when their
+  vertex. The test decides in float32 along axes sheared by the direction's ratios,
+  so directions are traced as given (times a power of two), not made unit (which
+  would round them again): a ray through an edge whose origin, direction and ratios
+  are exact in float32 hits both triangles; where the shear rounds, the test may see
+  it just beside the edge and hit one (watertight still). With locations
+  (`intersects_location`, `intersects_id(..., return_locations=True)`) a ray's hits
+  at one point are one hit, as trimesh's ray_triangle intersector documents ("unique
+  cartesian locations", so that the hits can be counted): the hit of the lowest
+  triangle index among them, whatever `max_hits` (the triangle `intersects_first`
+  and `multiple_hits=False` give there). Two hits of a ray are one point when their
   distances along it differ by at most SAME_POINT_RTOL times the scene's size, or,
   for triangles that share a vertex (the ray through an edge or a vertex, as kdray's
   float32 test decides it), SAME_TRIANGLE_RTOL times that size.
@@ -86,6 +91,7 @@ trimesh's default intersector: assign this one again.
 This is the only kdray module besides kdray.load that imports trimesh.
 """
 import copy
+import typing
 
 import numpy as np
 from trimesh import caching
@@ -174,22 +180,21 @@ class RayMeshIntersector:
         Returns index_tri (h,) int64 (rows of mesh.faces), index_ray (h,) int64, and
         with return_locations locations (h, 3) float64; sorted by ray, then distance.
         ParameterError (a ValueError) for arrays of other shapes or a bad max_hits."""
-        o, d = _rays(ray_origins, ray_directions)
+        rays = _rays(ray_origins, ray_directions)
         limit = _max_hits(max_hits)
         tracer = self._tracer
-        if tracer is None or len(o) == 0 or limit == 0:
+        if tracer is None or len(rays.o) == 0 or limit == 0:
             return _empty(return_locations)
         if not multiple_hits:
-            ray, tri, t32 = _first(tracer, o, d)
+            ray, tri, t = self._first_points(tracer, rays, return_locations)
             if not return_locations:
                 return tri, ray
-            t = self._t64(o, d, ray, tri, t32)
         elif not return_locations:
-            hits = tracer.intersections(o, d, max_hits=limit)
+            hits = tracer.intersections(rays.o, rays.kd, max_hits=limit)
             return hits.prim.astype(np.int64), hits.ray
         else:
-            ray, tri, t = self._points(tracer, o, d, limit)
-        return tri, ray, o[ray] + t[:, None] * d[ray]
+            ray, tri, t = self._points(tracer, rays, limit)
+        return tri, ray, rays.o[ray] + t[:, None] * rays.d[ray]
 
     def intersects_location(self, ray_origins, ray_directions, multiple_hits=True,
                             max_hits=100):
@@ -203,26 +208,26 @@ class RayMeshIntersector:
         return locations, index_ray, index_tri
 
     def intersects_first(self, ray_origins, ray_directions):
-        """(n,) int64: the index of the triangle each ray hits first, -1 on a miss (ties
-        at an edge or a vertex: the lowest index)."""
-        o, d = _rays(ray_origins, ray_directions)
-        first = np.full(len(o), -1, dtype=np.int64)
+        """(n,) int64: the index of the triangle each ray hits first, -1 on a miss (at an
+        edge or a vertex the lowest index that kdray's test hits there: the first point's
+        as intersects_location gives it, _first_points)."""
+        rays = _rays(ray_origins, ray_directions)
+        first = np.full(len(rays.o), -1, dtype=np.int64)
         tracer = self._tracer
-        if tracer is None or len(o) == 0:
+        if tracer is None or len(rays.o) == 0:
             return first
-        prim = tracer.trace(o, d, outputs=()).prim
-        hit = prim != MISS
-        first[hit] = prim[hit]
+        ray, tri, _ = self._first_points(tracer, rays)
+        first[ray] = tri
         return first
 
     def intersects_any(self, ray_origins, ray_directions):
         """(n,) bool: whether each ray hits the mesh (Tracer.occluded: an any-hit walk,
         the same answers as intersects_first != -1)."""
-        o, d = _rays(ray_origins, ray_directions)
+        rays = _rays(ray_origins, ray_directions)
         tracer = self._tracer
-        if tracer is None or len(o) == 0:
-            return np.zeros(len(o), dtype=bool)
-        return np.asarray(tracer.occluded(o, d), dtype=bool)
+        if tracer is None or len(rays.o) == 0:
+            return np.zeros(len(rays.o), dtype=bool)
+        return np.asarray(tracer.occluded(rays.o, rays.kd), dtype=bool)
 
     def contains_points(self, points):
         """(n,) bool: whether each point is inside the mesh (Tracer.contains: one ray's
@@ -240,33 +245,106 @@ class RayMeshIntersector:
 
     # -- hit points ----------------------------------------------------------------------
 
-    def _t64(self, o, d, ray, tri, t32):
+    def _t64(self, rays, ray, tri, t32):
         """(h,) float64 distance along each hit's unit ray to its triangle's plane, in
-        float64 from the mesh's vertices; the float32 test's t where that is not finite
-        (a ray in the plane to float64 precision that float32 found a hit for)."""
+        float64 from the mesh's vertices; the float32 test's (t32, a distance: _dist)
+        where that is not finite (a ray in the plane to float64 precision that float32
+        found a hit for)."""
         vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
         faces = np.asarray(self.mesh.faces)
-        t = plane_hits(vertices[faces[tri]], o[ray], d[ray])[0]
+        t = plane_hits(vertices[faces[tri]], rays.o[ray], rays.d[ray])[0]
         bad = ~np.isfinite(t)
         t[bad] = t32[bad]
         return t
 
-    def _points(self, tracer, o, d, limit):
+    def _first_points(self, tracer, rays, locations=False):
+        """(ray, tri, t) of the rays that hit, by ray: the first point each hits
+        (_distinct) and there its lowest triangle index; (h,) int64, int64, and with
+        `locations` t (h,) float64 (else None). Tracer.trace's nearest hit is that
+        triangle but where the ray passes through an edge or a vertex: its float32 test
+        orders the triangles there by their t's roundings, not by index. So rays whose
+        hit is that near an edge of its triangle (_near_edges) list their hits again up
+        to just past it (_window)."""
+        hits = tracer.trace(rays.o, rays.kd, outputs=("uv",))
+        ray = np.flatnonzero(hits.prim != MISS)
+        tri = hits.prim[ray].astype(np.int64)
+        t32 = _dist(rays, ray, hits.t[ray])
+        t = self._t64(rays, ray, tri, t32) if locations else None
+        near = np.flatnonzero(self._near_edges(rays, ray, tri, hits.u[ray], hits.v[ray]))
+        if near.size == 0:
+            return ray, tri, t
+        r = ray[near]
+        t_max = self._window(rays.o[r], t32[near]) / rays.length[r]
+        again = tracer.intersections(rays.o[r], rays.kd[r], t_max=t_max)
+        r2 = r[again.ray]
+        ray2, tri2, t2 = self._distinct(rays, r2, again.prim.astype(np.int64),
+                                        _dist(rays, r2, again.t))
+        first = np.flatnonzero(np.diff(ray2, prepend=-1) != 0)
+        at = np.searchsorted(ray, ray2[first])
+        tri[at] = tri2[first]
+        if locations:
+            t[at] = t2[first]
+        return ray, tri, t
+
+    def _near_edges(self, rays, ray, tri, u, v):
+        """(h,) bool: whether each hit (ray, tri, barycentrics u, v of its second and
+        third vertices: float32) lies within SAME_TRIANGLE_RTOL times the scene's size
+        of an edge of its triangle (u, v and 1 - u - v allowed 2^-20 for their
+        rounding), where another triangle may share the point."""
+        u, v = u.astype(np.float64), v.astype(np.float64)
+        weights = np.stack([1.0 - u - v, u, v], axis=1) - 2.0 ** -20       # (h, 3)
+        tol = SAME_TRIANGLE_RTOL * self._sizes(rays.o[ray])
+        return (weights <= tol[:, None] * self._inverse_altitudes[tri]).any(axis=1)
+
+    @caching.cache_decorator
+    def _inverse_altitudes(self):
+        """(m, 3) float64: 1 / each face's altitude from vertex k to the opposite edge
+        (a barycentric weight k over a distance from that edge); inf for a degenerate
+        face."""
+        p = np.asarray(self.mesh.vertices, dtype=np.float64)[np.asarray(self.mesh.faces)]
+        # the altitude: twice the area over the edge's length
+        area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        edges = np.linalg.norm(p[:, [2, 0, 1]] - p[:, [1, 2, 0]], axis=2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inverse = edges / area2[:, None]
+        return np.where(np.isnan(inverse), np.inf, inverse)
+
+    def _window(self, o, t):
+        """(h,) float64 distance for rays (origins o (h, 3)) that hit at distance t
+        (float32's t: _dist): just past every hit that may be the same point
+        (SAME_TRIANGLE_RTOL of the scene's size beyond, twice, and 2^-20 of t for
+        float32's rounding)."""
+        return t + 2.0 * SAME_TRIANGLE_RTOL * self._sizes(o) + 2.0 ** -20 * np.abs(t)
+
+    def _points(self, tracer, rays, limit):
         """(ray, tri, t) of every distinct hit point of each ray, at most `limit` (None:
         all) a ray, sorted by ray then t: (h,) int64, int64, float64."""
-        hits = tracer.intersections(o, d, max_hits=limit)
-        ray, tri, t = self._distinct(o, d, hits.ray, hits.prim.astype(np.int64), hits.t)
+        o = rays.o
+        hits = tracer.intersections(o, rays.kd, max_hits=limit)
+        ray, tri, t = self._distinct(rays, hits.ray, hits.prim.astype(np.int64),
+                                     _dist(rays, hits.ray, hits.t))
         if limit is None:
             return ray, tri, t
-        # a ray cut at `limit` triangles that shared points has fewer than `limit` points:
-        # list its every hit again and keep its first `limit` points
-        redo = np.flatnonzero((hits.counts == limit) &
-                              (np.bincount(ray, minlength=len(o)) < limit))
+        # A ray cut at `limit` triangles is listed again: with fewer than `limit` points
+        # (its triangles shared points) every hit, to keep its first `limit` points;
+        # with `limit`, when its last hit is near an edge (_near_edges), up to just past
+        # it (_window): its point's other triangles (ordered by their float32 t's
+        # roundings) may lie past the cut and have a lower index.
+        points = np.bincount(ray, minlength=len(o))
+        cut = np.flatnonzero(hits.counts == limit)
+        end = hits.offsets[cut + 1] - 1
+        redo = cut[(points[cut] < limit) |
+                   self._near_edges(rays, cut, hits.prim[end].astype(np.int64), hits.u[end],
+                                    hits.v[end])]
         if redo.size == 0:
             return ray, tri, t
-        again = tracer.intersections(o[redo], d[redo])
-        ray2, tri2, t2 = self._distinct(o, d, redo[again.ray], again.prim.astype(np.int64),
-                                        again.t)
+        last = _dist(rays, redo, hits.t[hits.offsets[redo + 1] - 1])
+        t_max = np.where(points[redo] < limit, np.inf,
+                         self._window(o[redo], last) / rays.length[redo])
+        again = tracer.intersections(o[redo], rays.kd[redo], t_max=t_max)
+        r2 = redo[again.ray]
+        ray2, tri2, t2 = self._distinct(rays, r2, again.prim.astype(np.int64),
+                                        _dist(rays, r2, again.t))
         starts = np.searchsorted(ray2, ray2, side="left")
         keep = np.arange(len(ray2)) - starts < limit
         old = ~np.isin(ray, redo)
@@ -276,18 +354,19 @@ class RayMeshIntersector:
         order = np.lexsort((t, ray))
         return ray[order], tri[order], t[order]
 
-    def _distinct(self, o, d, ray, tri, t32):
-        """The hits (ray, tri, t32: (h,) each, ray sorted) merged to one a point: sorted
+    def _distinct(self, rays, ray, tri, t32):
+        """The hits (ray, tri, t32: (h,) each, ray sorted; t32 float32's t as a distance,
+        _dist) merged to one a point: sorted
         by (ray, float64 t, tri), a hit is the previous one's point when their t differ
         by at most SAME_POINT_RTOL * size, or SAME_TRIANGLE_RTOL * size for triangles
         sharing a vertex; a point keeps its lowest triangle index. Returns (ray, tri, t)
         sorted by ray then t."""
-        t = self._t64(o, d, ray, tri, t32)
+        t = self._t64(rays, ray, tri, t32)
         order = np.lexsort((tri, t, ray))
         ray, tri, t = ray[order], tri[order], t[order]
         if len(ray) < 2:
             return ray, tri, t
-        size = self._sizes(o)[ray[1:]]
+        size = self._sizes(rays.o[ray[1:]])
         step = np.diff(t)
         same_ray = ray[1:] == ray[:-1]
         same = same_ray & (step <= SAME_POINT_RTOL * size)
@@ -307,13 +386,13 @@ class RayMeshIntersector:
         return ray[first], tri[first], t[first]
 
     def _sizes(self, o):
-        """(n,) float64 the scene's size a ray sees: the largest coordinate of its origin
-        and of the mesh's box, from the box's centre."""
+        """(h,) float64 the scene's size a ray (origins o (h, 3)) sees: the largest
+        coordinate of its origin and of the mesh's box, from the box's centre."""
         bounds = np.asarray(self.mesh.bounds, dtype=np.float64)
         centre = bounds.mean(axis=0)
         box = np.abs(bounds - centre).max()
-        with np.errstate(invalid="ignore"):
-            return np.fmax(np.abs(o - centre).max(axis=1), box)
+        a = np.abs(o - centre)
+        return np.fmax(np.fmax(np.fmax(a[:, 0], a[:, 1]), a[:, 2]), box)
 
     # -- pickling and copies: without OpenCL objects --------------------------------------
 
@@ -343,9 +422,14 @@ class RayMeshIntersector:
 
 
 def _rays(ray_origins, ray_directions):
-    """(o (n, 3) float64, d (n, 3) float64 unit directions; zero where a direction is
-    zero or not finite, which kdray takes as a miss). ParameterError for shapes that
-    differ or are not (n, 3) (a single (3,) ray is one ray)."""
+    """_Rays of the arguments: o (n, 3) float64; d (n, 3) float64 unit directions; kd,
+    the directions as given times a power of two (so that the largest component's
+    magnitude is in [0.5, 1)), which kdray traces: as exact as the caller's in float32,
+    where a unit direction would round again (a ray through an edge then passes beside
+    it); length (n,) float64 kd's norm, t along kd times which is the distance; zero
+    where a direction is zero or not finite, which kdray takes as a miss.
+    ParameterError for shapes that differ or are not (n, 3) (a single (3,) ray is one
+    ray)."""
     o = np.array(ray_origins, dtype=np.float64)
     d = np.array(ray_directions, dtype=np.float64)
     if o.shape != d.shape:
@@ -354,14 +438,30 @@ def _rays(ray_origins, ray_directions):
     if o.ndim not in (1, 2) or o.shape[-1] != 3:
         raise ParameterError(f"rays must be (n, 3) arrays, got shape {o.shape}")
     o, d = o.reshape(-1, 3), d.reshape(-1, 3)
-    # scaled by the largest component first: a finite direction of any size has a norm
+    # scaled by a power of two first: a finite direction of any size has a norm
+    a = np.abs(d)
+    big = np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])      # not max(axis=1): slower
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        big = np.abs(d).max(axis=1, keepdims=True) if len(d) else np.ones((0, 1))
-        unit = d / big
-        unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+        kd = np.ldexp(d, -np.frexp(big)[1][:, None])
+        length = np.sqrt(np.einsum("ij,ij->i", kd, kd))
+        unit = kd / length[:, None]
     ok = np.isfinite(unit).all(axis=1)
-    unit[~ok] = 0.0
-    return o, unit
+    unit[~ok], kd[~ok], length[~ok] = 0.0, 0.0, 1.0
+    return _Rays(o, unit, kd, length)
+
+
+class _Rays(typing.NamedTuple):
+    """The rays of a query (_rays): origins, unit directions, the directions kdray
+    traces and their lengths."""
+    o: np.ndarray
+    d: np.ndarray
+    kd: np.ndarray
+    length: np.ndarray
+
+
+def _dist(rays, ray, t):
+    """(h,) float64 distances of the hits at kdray's t (h,) along rays.kd[ray]."""
+    return t.astype(np.float64) * rays.length[ray]
 
 
 def _max_hits(max_hits):
@@ -373,14 +473,6 @@ def _max_hits(max_hits):
     if max_hits < 0:
         raise ParameterError(f"max_hits must be >= 0, got {max_hits}")
     return int(max_hits)
-
-
-def _first(tracer, o, d):
-    """(ray (h,) int64, tri (h,) int64, t (h,) float32) of the rays that hit, by ray:
-    their nearest hits (Tracer.trace; ties by the lowest triangle index)."""
-    hits = tracer.trace(o, d, outputs=())
-    ray = np.flatnonzero(hits.prim != MISS)
-    return ray, hits.prim[ray].astype(np.int64), hits.t[ray]
 
 
 def _empty(locations):
