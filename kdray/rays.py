@@ -172,7 +172,7 @@ def check_t(t, name, shape=None):
     return t
 
 
-def _checked_ranges(t_min, t_max, n):
+def check_ranges(t_min, t_max, n):
     """(lo, hi, t_step): t_min and t_max (numbers or (n,) arrays) as float64 arrays,
     0-d or of n elements, and t_step 1 where either is an array, else 0. KdrayError for
     NaN, t_min < 0, t_min > t_max or arrays of another length."""
@@ -198,8 +198,8 @@ def _checked_ranges(t_min, t_max, n):
 
 def _ranges(t_min, t_max, n, scale):
     """(t_mins, t_maxs, t_step) as queries.cl takes them: float32 arrays in the tree's
-    units, of n elements (t_step 1) or of one (t_step 0) (`_checked_ranges`)."""
-    lo, hi, step = _checked_ranges(t_min, t_max, n)
+    units, of n elements (t_step 1) or of one (t_step 0) (`check_ranges`)."""
+    lo, hi, step = check_ranges(t_min, t_max, n)
     shape = (n,) if step else (1,)
     with np.errstate(over="ignore"):
         return (np.ascontiguousarray(np.broadcast_to(lo / scale, shape), dtype=np.float32),
@@ -211,8 +211,8 @@ def range_pairs(t_min, t_max, n, scale):
     """(t_ranges, t_step) as trace_rays takes them (render.cl): a page-aligned
     float32 array of (t_min, t_max) pairs in the tree's units, (n, 2) (t_step 1) or
     (1, 2) (t_step 0: one range for all), from numbers or (n,) arrays
-    (`_checked_ranges`; beyond float32: inf, the same range)."""
-    lo, hi, step = _checked_ranges(t_min, t_max, n)
+    (`check_ranges`; beyond float32: inf, the same range)."""
+    lo, hi, step = check_ranges(t_min, t_max, n)
     pairs = page_aligned_empty((n if step else 1, 2), np.float32)
     with np.errstate(over="ignore"):
         pairs[:, 0] = lo / scale

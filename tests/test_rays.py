@@ -762,6 +762,16 @@ def test_cast_command(tmp_path, capsys):
                  ("--rays", tmp_path / "r.npy", "--query", "all", "--max-hits", "0")):
         code, _, err = run(capsys, "cast", SCENES / "sphere.obj", *argv, "-o", tmp_path / "x.npz")
         assert code == 1 and err.count("\n") == 1 and err.startswith("kdray: error:"), argv
+    # a rays file's bad values name the file, bad options' values do not
+    np.savez(tmp_path / "nan.npz", origins=o, directions=d, t_min=np.full(len(d), np.nan))
+    np.savez(tmp_path / "crossed.npz", origins=o, directions=d, t_min=hi + 1, t_max=hi)
+    for name in ("nan.npz", "crossed.npz"):
+        code, _, err = run(capsys, "cast", SCENES / "sphere.obj", "--rays", tmp_path / name,
+                           "-o", tmp_path / "x.npz")
+        assert code == 1 and err.startswith(f"kdray: error: {tmp_path / name}: "), err
+    code, _, err = run(capsys, "cast", SCENES / "sphere.obj", "--rays", tmp_path / "r.npy",
+                       "--t-min", "nan", "-o", tmp_path / "x.npz")
+    assert code == 1 and err == "kdray: error: t_min and t_max must not be NaN\n"
     for argv in (("--rays", tmp_path / "r.npz", "--t-max", "1"),
                  ("--rays", tmp_path / "r.npy", "--max-hits", "2"),
                  ("--rays", tmp_path / "r.npy", "--query", "count", "--precision", "double")):
