@@ -188,10 +188,25 @@ def _unordered(a, order, dtype=None):
     return out if dtype is None else out.astype(dtype, copy=False)
 
 
+REACH = 2.0 ** 300
+"""The farthest a point may lie from the tree's origin, in the tree's units (about its
+size): the kernels' squared and cubed distances (the winding number's solid angles)
+stay finite in double up to about 2^340, and no answer is lost to them here."""
+
+
 def _relative(tracer, p):
     """(N, 3) float64 points relative to the tree's origin in its units (scale a power
-    of two: the division is exact)."""
-    return np.ascontiguousarray((p - tracer._origin) / tracer._scale)
+    of two: the division is exact). KdrayError for a point beyond REACH, naming it."""
+    rel = np.ascontiguousarray((p - tracer._origin) / tracer._scale)
+    a = np.abs(rel)
+    far = np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2]) > REACH
+    if far.any():
+        i = int(np.flatnonzero(far)[0])
+        raise KdrayError(f"point {i} ({p[i].tolist()}) lies beyond the point queries' "
+                         f"reach, {REACH * tracer._scale:.3g} from the scene's centre in "
+                         f"each axis (2^300 times the tree's unit, where double arithmetic "
+                         f"of cubed distances stays finite)")
+    return rel
 
 
 def _state(tracer):

@@ -15,6 +15,7 @@ Floats beyond float64's range (1e999) are read as inf, as NaN and Infinity are: 
 caller's checks then refuse them naming the field ("cx must be finite").
 """
 import json
+import math
 import numbers
 import warnings
 
@@ -115,11 +116,14 @@ def check_float32(values, name, error):
 
 
 def real_number(value, name, error):
-    """float(value) for a real number; `error` for bools, strings and anything else,
-    which are refused, not converted."""
+    """float(value) for a real number (an integer beyond float64's range: +-inf); `error`
+    for bools, strings and anything else, which are refused, not converted."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise error(f"{name} must be a number, got {value!r:.80}")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:               # an int of 400 digits: as large as inf is
+        return math.inf if value > 0 else -math.inf
 
 
 def whole_or_none(value, name, error):

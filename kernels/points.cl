@@ -139,6 +139,7 @@ double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, doubl
 typedef struct {
     double d2;                           /* squared distance */
     double bound2;                       /* regions farther than this are skipped */
+    double pad;                          /* bound2's widening (kd_nearest_pad) */
     double u, v;
     double3 q;                           /* the nearest point */
     uint id;                             /* input id, KD_NO_HIT */
@@ -163,9 +164,24 @@ void kd_nearest_triangle(__global const float *tris, __global const uint *tri_id
         best->q = p - e;
         best->id = id;
         best->tri = tri;
-        double r = sqrt(d2) + SLACK;
+        double r = sqrt(d2) + SLACK + best->pad;
         best->bound2 = r * r;
     }
+}
+
+/* The widening of a point's bound past its best distance: a region's lower bound and
+ * a triangle's squared distance in it are rounded apart (by a few roundings of the
+ * coordinates, up to the point's or the scene's size: scene, the box's largest
+ * |coordinate|), and a region whose bound rounds just above a distance that ties
+ * (the lower id) or beats the best must still be walked; else which triangle wins
+ * would depend on the order they were tested in (a point's first test is the
+ * previous point's triangle). 2^-44 of that size is far above those roundings; it
+ * walks a few more regions only where a point is that near a region's side. */
+KD_INLINE
+double kd_nearest_pad(double3 p, float scene)
+{
+    double size = fmax(fmax(fabs(p.x), fabs(p.y)), fmax(fabs(p.z), (double)scene));
+    return size * 0x1p-44;
 }
 
 #ifdef PACKET
@@ -359,6 +375,9 @@ void closest_points(__global const KdNode *nodes, __global const float *tris,
      * the start, which then skips most regions at once. The answer does not depend on
      * the order triangles are tested in (ties: the lowest input id). */
     uint prev_tri = KD_NO_HIT;
+    float3 bmin = vload3(0, bounds), bmax = vload3(1, bounds);
+    float scene = fmax(fmax(fmax(fabs(bmin.x), fabs(bmax.x)), fmax(fabs(bmin.y), fabs(bmax.y))),
+                       fmax(fabs(bmin.z), fabs(bmax.z)));
     KD_FOR_ITEM_POINTS(k) {
         double3 p = vload3(k, points);
         KdNearest best;
@@ -369,6 +388,7 @@ void closest_points(__global const KdNode *nodes, __global const float *tris,
         best.q = (double3)(0.0);
         best.id = KD_NO_HIT;
         best.tri = KD_NO_HIT;
+        best.pad = kd_nearest_pad(p, scene);
         uint walk = KD_WALK_DONE;
         if (isfinite(p.x) && isfinite(p.y) && isfinite(p.z)) {
             if (prev_tri != KD_NO_HIT)

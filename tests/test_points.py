@@ -110,6 +110,33 @@ def test_ties_go_to_the_lowest_input_id(tracers):
     assert np.allclose(signed, np.where(outside > 0, want, -want), rtol=1e-6, atol=1e-12)
 
 
+def test_ties_do_not_depend_on_the_points_before(tracers):
+    """Points outside the grid cube nearest to a corner tie between the triangles that
+    share it: the lowest input id, alone and after a point whose nearest triangle is
+    another of them (a work-item tests the previous point's triangle first; the bound
+    it sets must not skip the region of a tying lower id)."""
+    v, f = grid_cube(1)
+    tracer = tracers(build(v, f))
+    rng = np.random.default_rng(8)
+    corners = v[(np.abs(v) == 1).all(axis=1)]
+    c = corners[rng.integers(0, len(corners), 300)]
+    p = c + np.sign(c) * rng.uniform(0.01, 2.0, (300, 3))        # beyond the corner
+    d2 = reference.point_triangle_d2(p, v[f])
+    lowest = np.argmax(d2 == d2.min(axis=1, keepdims=True), axis=1)
+    tying = [np.flatnonzero(row == row.min()) for row in d2]
+    assert all(len(t) > 1 for t in tying)
+    # each point after a point beside it whose nearest triangle is its highest tying id
+    highest = np.array([t[-1] for t in tying])
+    tri = v[f[highest]]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    before = tri.mean(axis=1) + 0.01 * normal / np.linalg.norm(normal, axis=1)[:, None]
+    pairs = np.stack([before, p], axis=1).reshape(-1, 3)
+    assert (tracer.closest_points(pairs).prim[0::2] == highest).all()
+    assert (tracer.closest_points(pairs).prim[1::2] == lowest).all()
+    assert (tracer.closest_points(p).prim == lowest).all()
+    assert all(tracer.closest_points(p[i:i + 1]).prim[0] == lowest[i] for i in range(0, 300, 37))
+
+
 def test_max_distance_and_misses(tracers, spot):
     v, f, tree = spot
     tracer = tracers(tree)
@@ -320,6 +347,17 @@ def test_bad_input_is_refused(tracers, spot):
             tracer.distance(np.zeros((1, 3)), max_distance=limit)
     with pytest.raises(KdrayError, match="beta"):
         tracer.winding_number(np.zeros((1, 3)), beta=0.5)
+    # an integer beyond float64's range is as large as inf
+    far = np.array([[1e30, 0.0, 0.0]])
+    assert tracer.distance(far, max_distance=10 ** 400) == tracer.distance(far)
+    assert tracer.winding_number(far, beta=10 ** 400) == tracer.winding_number(far, beta=np.inf)
+    # points beyond the queries' reach (2^300 of the tree's unit) are refused, naming them
+    size = float(np.abs(spot[0]).max())
+    for query in (tracer.distance, tracer.winding_number, tracer.signed_distance):
+        with pytest.raises(KdrayError, match="point 1 .* beyond the point queries' reach"):
+            query(np.array([[0.0, 0.0, 0.0], [1e95 * size, 0.0, 0.0]]))
+    within = tracer.distance(np.array([[1e85 * size, 0.0, 0.0]]), precision="double")
+    assert np.allclose(within, 1e85 * size, rtol=1e-12)
     with pytest.raises(KdrayError, match="sign must be"):
         tracer.signed_distance(np.zeros((1, 3)), sign="vote")
     with pytest.raises(KdrayError, match="resolution"):
