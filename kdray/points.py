@@ -26,6 +26,8 @@ The rules (docs/conventions.md, "Point queries"):
   warned about).
 """
 import dataclasses
+import os
+import sys
 import warnings
 
 import numpy as np
@@ -489,7 +491,20 @@ def _warn_open(tracer):
     if state["open_edges"]:
         warnings.warn(f"sign='parity' on a mesh with {state['open_edges']} open edges: a "
                       f"point's sign is undefined where its ray leaves through a hole; "
-                      f"sign='winding' is meant for such meshes", OpenMeshWarning, stacklevel=3)
+                      f"sign='winding' is meant for such meshes", OpenMeshWarning,
+                      stacklevel=_caller_level())
+
+
+def _caller_level():
+    """The stacklevel of warnings.warn, called by the caller of this function, that
+    names the first frame outside the kdray package: the user's line, whether it
+    called kdray.points or a Tracer method."""
+    package = os.path.dirname(os.path.abspath(__file__))
+    frame, level = sys._getframe(2), 2
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(
+            package + os.sep):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 NODE_VALUES = 32

@@ -116,8 +116,11 @@ def check_float32(values, name, error):
 
 
 def real_number(value, name, error):
-    """float(value) for a real number (an integer beyond float64's range: +-inf); `error`
-    for bools, strings and anything else, which are refused, not converted."""
+    """float(value) for a real number (an integer beyond float64's range: +-inf; a 0-d
+    numpy array of one); `error` for bools, strings and anything else, which are
+    refused, not converted."""
+    if isinstance(value, np.ndarray) and value.ndim == 0 and value.dtype.kind in "fiu":
+        value = value.item()
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise error(f"{name} must be a number, got {value!r:.80}")
     try:

@@ -279,6 +279,12 @@ def test_parity_on_an_open_mesh_warns(tracers):
     assert kpoints.open_edges(tracer.tree) == 4
     with pytest.warns(kpoints.OpenMeshWarning, match="4 open edges"):
         tracer.occupancy(np.zeros((1, 3)), sign="parity")
+    # the warning names the caller's line, through a Tracer or kdray.points
+    for call in (lambda: tracer.signed_distance(np.zeros((1, 3)), sign="parity"),
+                 lambda: kpoints.signed_distance(tracer, np.zeros((1, 3)), sign="parity")):
+        with pytest.warns(kpoints.OpenMeshWarning) as said:
+            call()
+        assert said[0].filename == __file__
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         tracer.occupancy(np.zeros((1, 3)))            # winding: no warning
@@ -347,8 +353,9 @@ def test_bad_input_is_refused(tracers, spot):
             tracer.distance(np.zeros((1, 3)), max_distance=limit)
     with pytest.raises(KdrayError, match="beta"):
         tracer.winding_number(np.zeros((1, 3)), beta=0.5)
-    # an integer beyond float64's range is as large as inf
+    # an integer beyond float64's range is as large as inf; a 0-d array is its number
     far = np.array([[1e30, 0.0, 0.0]])
+    assert tracer.distance(far, max_distance=np.array(2e30)) == tracer.distance(far)
     assert tracer.distance(far, max_distance=10 ** 400) == tracer.distance(far)
     assert tracer.winding_number(far, beta=10 ** 400) == tracer.winding_number(far, beta=np.inf)
     # points beyond the queries' reach (2^300 of the tree's unit) are refused, naming them
