@@ -122,10 +122,14 @@ def kernel_rays(origins, directions, origin, scale, in_kernel):
     in_kernel (a device with double precision that is a CPU or refines its hits):
     float64 and float32 rays go to the kernel as they are (C-contiguous, on a CPU no
     copy when they are), which shifts and rounds them itself; rays_world is then their
-    (origin, direction) C types ("double" or "float"). Else `rays32`'s float32 arrays,
-    and rays_world None."""
+    (origin, direction) C types ("double" or "float"). Other dtypes (float16, integers,
+    long double) go as float64, the caller's rays as the queries take them (kdray.rays'
+    exact rays), so that hits are refined from the same numbers. Else `rays32`'s float32
+    arrays, and rays_world None."""
     o, d, o_step = origin_rows(origins, directions)
-    if in_kernel and o.dtype in C_TYPES and d.dtype in C_TYPES:
+    if in_kernel:
+        o = o if o.dtype in C_TYPES else o.astype(np.float64)
+        d = d if d.dtype in C_TYPES else d.astype(np.float64)
         return (np.ascontiguousarray(o), np.ascontiguousarray(d), o_step,
                 (C_TYPES[o.dtype], C_TYPES[d.dtype]))
     return (*rays32(o, d, o_step, origin, scale), o_step, None)

@@ -285,6 +285,25 @@ def test_nearest_hits_end_their_walks_and_keep_the_whole_lists_first(runtime, te
                     assert np.array_equal(few.t, hit.t[hit.hit])
 
 
+def test_rays_of_other_dtypes_refine_as_float64(runtime, teapot_tree):
+    """Rays given as float16 or integers are the float64 rays of the same values: trace
+    refines its hits from those (as the queries do), so its t, u and v are float64's bit
+    for bit and max_hits=1 is its hit."""
+    tracer = Tracer(teapot_tree, device=runtime.spec)
+    o, d = random_rays(teapot_tree, runtime.small(4000, 40), seed=31)
+    d16 = d.astype(np.float16)
+    for oo, dd in ((o.astype(np.float16), d16), (np.round(o).astype(np.int32), d16),
+                   (o, np.round(d * 8).astype(np.int16))):
+        hit = tracer.trace(oo, dd)
+        assert hit.hit.sum() > len(d) // 10
+        exact = tracer.trace(oo.astype(np.float64), dd.astype(np.float64))
+        for name in ("t", "prim", "u", "v", "normal"):
+            assert np.array_equal(getattr(hit, name), getattr(exact, name)), name
+        first = tracer.intersections(oo, dd, max_hits=1)
+        for name in ("t", "prim", "u", "v"):
+            assert np.array_equal(getattr(first, name), getattr(hit, name)[hit.hit]), name
+
+
 def test_counts_are_exact_through_vertices_and_edges(runtime):
     """A ray into a convex closed mesh through any vertex or edge crosses it exactly
     twice; from inside, once; a ray grazing it (in a face's plane) an even number."""
