@@ -515,7 +515,7 @@ class Camera:
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         cam = (points - self.eye) @ self.rotation  # R^T (p - eye), row by row
         if self.model != "pinhole":
-            return lens.project_camera(self.model, self.K, self.distortion, cam)
+            return lens.project_camera(self.model, self.K, self.distortion, cam, self.width)
         depth = cam[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             pixels = (cam @ self.K.T)[:, :2] / depth[:, None]

@@ -395,10 +395,21 @@ def _model_rays(model, K, distortion, width, height):
     return origins, d, valid
 
 
-def project_camera(model, K, distortion, points):
+def _in_longitudes(a, left, span):
+    """Longitudes a (n,) in (-pi, pi], each turned by the whole turns that bring it into
+    [left, left + span] where any does (the first such), else as they are."""
+    turn = 2.0 * math.pi
+    moved = a + turn * np.ceil((left - a) / turn)        # the least a + k turn >= left
+    return np.where(((a < left) | (a > left + span)) & (moved <= left + span), moved, a)
+
+
+def project_camera(model, K, distortion, points, width=None):
     """Camera-axis points (n, 3) -> (pixels (n, 2), depth (n,)), float64: the forward
     model. depth is the camera-z for pinhole, opencv and orthographic, the distance
-    from the eye for fisheye and equirectangular (the AOV `depth` of each model)."""
+    from the eye for fisheye and equirectangular (the AOV `depth` of each model).
+    width (equirectangular): the image's, whose longitudes (left to right edge) a
+    point's longitude is taken among, turned by whole turns, where one of them lies
+    there (a panorama from 0 to 2 pi, or one across the back)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -416,6 +427,8 @@ def project_camera(model, K, distortion, points):
             depth = np.sqrt(x * x + y * y + z * z)
         elif model == "equirectangular":
             a = np.arctan2(x, z)
+            if width is not None:
+                a = _in_longitudes(a, -K[0, 2] / K[0, 0], width / K[0, 0])
             b = np.arctan2(y, np.hypot(x, z))
             depth = np.sqrt(x * x + y * y + z * z)
         elif model == "orthographic":

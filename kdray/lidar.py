@@ -324,10 +324,9 @@ def scan_images(lidar, origin, directions, t, prim, objects):
     from .tree import object_ids
     t = np.array(t)
     prim = np.array(prim, dtype=np.uint32)
-    # beyond max_range, a miss (inf), or NaN; numpy compares a float32 t with max_range
-    # rounded to float32, which a max_range of 1e308 overflows to inf: no limit, as meant
-    with np.errstate(over="ignore"):
-        far = ~(t < lidar.max_range)
+    # beyond max_range, a miss (inf), or NaN; compared in float64 (numpy would round
+    # max_range to a float32 t's precision, and miss a return just below it)
+    far = ~(t.astype(np.float64) < lidar.max_range)
     np.copyto(t, np.inf, where=far)         # (faster than t[far] = inf)
     np.copyto(prim, MISS, where=far)
     shape = lidar.shape

@@ -142,6 +142,14 @@ def test_equirectangular_partial_range_and_past_the_poles():
     assert lon.min() == pytest.approx(-1.0 + 0.75 / W, abs=1e-12)
     assert lon.max() == pytest.approx(0.5 - 0.75 / W, abs=1e-12)
     assert lat.max() == pytest.approx(0.4 - 0.3 / H, abs=1e-12)
+    # ranges that do not hold longitude 0 in their middle (from 0 to 2 pi, across the
+    # back): project takes each direction's longitude by whole turns into the image's
+    for longitude in ((0.0, 2 * np.pi), (-2 * np.pi, 0.0), (2.0, 4.5)):
+        camera = Camera.panorama(_pose(), W, H, longitude=longitude)
+        o, d = camera.rays()
+        pixels, _ = camera.project(o + d)
+        centres = np.stack(np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5), axis=-1)
+        assert np.allclose(pixels, centres.reshape(-1, 2), rtol=0, atol=1e-9), longitude
     # latitudes beyond the poles have no direction
     camera = Camera.panorama(_pose(), W, H, latitude=(2.0, -2.0))
     valid = camera.valid()

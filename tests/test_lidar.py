@@ -193,6 +193,15 @@ def test_a_return_at_max_range_is_a_miss(tracers, room_tree):
     above = float(np.nextafter(np.float32(t), np.float32(np.inf)))
     assert tracers(room_tree).scan(Lidar.from_dict({**spec, "max_range": above}),
                                    pose)["range"][0, 0] == t
+    # the least float64 above the range (below the next float32 in single precision):
+    # a hit, in both precisions
+    for precision in ("single", "double"):
+        lidar = Lidar.from_dict(spec)
+        r = tracers(room_tree).scan(lidar, pose, precision=precision)["range"][0, 0]
+        hair = float(np.nextafter(float(r), np.inf))
+        got = tracers(room_tree).scan(Lidar.from_dict({**spec, "max_range": hair}), pose,
+                                      precision=precision)["range"][0, 0]
+        assert got == r, precision
 
 
 def test_pose_is_checked(tracers, room_tree):
