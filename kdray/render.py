@@ -38,7 +38,8 @@ in the cache. Columns are a multiple of the packet width (8)."""
 def parse_aovs(aovs):
     """Validated AOV names, in the order given, duplicates dropped.
 
-    aovs : a sequence of names, or one comma-separated string ('all' = every AOV).
+    aovs : a sequence of names, or one comma-separated string ('all' = every AOV, with
+        other names too: they are in it).
     Raises KdrayError naming the valid AOVs for an unknown name or an empty list.
     """
     if isinstance(aovs, str):
@@ -48,7 +49,7 @@ def parse_aovs(aovs):
                          f"valid AOVs are {', '.join(AOVS)} (or 'all').")
     names = [a.strip().lower() for a in aovs]
     names = [n for n in names if n]
-    if names == ["all"]:
+    if "all" in names and all(n in AOVS or n == "all" for n in names):
         return AOVS
     unknown = [n for n in names if n not in AOVS]
     if unknown or not names:

@@ -711,11 +711,12 @@ def test_parse_aovs():
     assert parse_aovs("depth,normal") == ("depth", "normal")
     assert parse_aovs(" id , depth,id ") == ("id", "depth")
     assert parse_aovs("all") == AOVS
+    assert parse_aovs("all,DEPTH") == parse_aovs(["id", "all"]) == AOVS
     assert parse_aovs(",".join(DEFAULT_AOVS)) == DEFAULT_AOVS
     assert AOVS == ("depth", "distance", "normal", "bary", "id", "position", "object")
 
 
-@pytest.mark.parametrize("text", ["depth,colour", "", " , ", "Z"])
+@pytest.mark.parametrize("text", ["depth,colour", "", " , ", "Z", "all,colour"])
 def test_parse_aovs_errors(text):
     with pytest.raises(KdrayError) as info:
         parse_aovs(text)
