@@ -16,7 +16,8 @@ and traced in 0.97-1.03 of the time (BENCHMARKS.md, "Incoherent rays"). Leaves a
 tested with a float64 Moller-Trumbore test. --splits any builds the binary BVH with
 its splits after any triangle (the same cost, a leaf's run of TRI_BLOCK triangles
 costing one test however full), not only after whole blocks as kdray/builder/bvh.py
-does: numpy, slow (seconds for the bunny), for the simulation only. Prints, per mesh and width, the wide nodes, their levels, the share of slots filled,
+does: numpy, slow (seconds for the bunny), for the simulation only. Prints, per mesh
+and width, the wide nodes, their levels, the share of slots filled,
 and the nodes opened and leaves tested a ray.
 """
 import argparse
