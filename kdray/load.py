@@ -2,11 +2,14 @@
 
 OBJ and PLY first, then anything trimesh loads as triangles (STL, OFF, GLB/glTF):
 quads and polygons are triangulated by trimesh's loaders, scenes of several meshes
-are flattened with their node transforms applied, materials and textures are skipped
-(no image library is needed). Triangle ids are the order of the loaded triangles:
+are flattened with their node transforms applied (a mirroring one reverses its
+triangles' winding, as glTF 2.0 and trimesh's own flattening do), materials and
+textures are skipped (no image library is needed). Triangle ids are the order of the loaded triangles:
 meshes are taken in the scene graph's order, each mesh's faces in file order. A file
 whose name ends in .gz is read through gzip ("bunny.obj.gz" as an OBJ named
-"bunny.obj").
+"bunny.obj"). An OBJ's relative (negative) indices count back from the vertex read
+last before their line, as the format has it (trimesh counts from the file's last
+vertex): such a file is read with them made absolute first (`_obj_absolute`).
 
 Objects (Mesh.objects, Mesh.object_names), numbered in the order of their first
 triangle:
@@ -65,8 +68,12 @@ def load(path):
     # 4294967295, a transform that overflows); Mesh.from_arrays refuses what is left of it
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
+        obj = _obj_absolute(_read(path, zipped)) if ext == "obj" else None
         try:
-            if zipped:
+            if obj is not None:
+                scene = trimesh.load(_named_stream(obj, file_name), file_type="obj",
+                                     force="scene", process=False, skip_materials=True)
+            elif zipped:
                 with gzip.open(path, "rb") as f:
                     scene = trimesh.load(f, file_type=ext, force="scene", process=False,
                                          skip_materials=True)
@@ -83,7 +90,7 @@ def load(path):
         raise MeshError(f"{path}: contains no triangles{what}")
     mesh = Mesh.from_arrays(np.concatenate(vertices), np.concatenate(faces), name=file_name)
     if ext == "obj":
-        objects, object_names = _obj_objects(path, zipped, file_name, mesh.triangles)
+        objects, object_names = _obj_objects(path, zipped, file_name, mesh.triangles, obj)
     if len(object_names) > 1:                   # else one object, named after the file
         objects, object_names = check_objects(objects, object_names, len(mesh.faces))
         mesh = dataclasses.replace(mesh, objects=objects, object_names=object_names)
@@ -92,7 +99,8 @@ def load(path):
 
 def _scene_arrays(scene, path):
     """The triangles of a trimesh Scene, node by node in the graph's order, transforms
-    applied: (vertices [(n_i, 3) float64], faces [(m_i, 3) int64] indexing the
+    applied (a mirroring one reverses its triangles' winding, so that their normals
+    turn with them): (vertices [(n_i, 3) float64], faces [(m_i, 3) int64] indexing the
     concatenated vertices, objects (m,) uint32, object_names tuple): objects numbered
     in the order of their first triangle."""
     import trimesh
@@ -106,10 +114,13 @@ def _scene_arrays(scene, path):
             log.info("%s: skipping %s (%s, no triangles)", path, name, type(geom).__name__)
             continue
         v = np.asarray(geom.vertices, dtype=np.float64)
-        if not np.allclose(transform, np.eye(4)):
+        f = np.asarray(geom.faces, dtype=np.int64)
+        if not np.array_equal(transform, np.eye(4)):       # any other, however near
             v = v @ transform[:3, :3].T + transform[:3, 3]
+            if np.linalg.det(transform[:3, :3]) < 0:
+                f = f[:, ::-1]          # a mirror turns the winding (glTF 2.0, as trimesh's dump)
         vertices.append(v)
-        faces.append(np.asarray(geom.faces, dtype=np.int64) + offset)
+        faces.append(f + offset)
         offset += len(v)
         index = names.setdefault(_object_name(scene, node, geom), len(names))
         objects.append(np.full(len(geom.faces), index, dtype=np.uint32))
@@ -131,24 +142,87 @@ def _object_name(scene, node, geom):
 _OBJ_GROUP_LINE = re.compile(rb"^[ \t]*[og][ \t]", re.MULTILINE)
 
 
-def _obj_objects(path, zipped, file_name, triangles):
+def _read(path, zipped):
+    """The file's bytes (through gzip when zipped)."""
+    with (gzip.open(path, "rb") if zipped else open(path, "rb")) as f:
+        return f.read()
+
+
+def _named_stream(data, file_name):
+    """A stream of data named file_name (trimesh names faces outside any `o` or `g`
+    after it)."""
+    stream = io.BytesIO(data)
+    stream.name = file_name
+    return stream
+
+
+_OBJ_COUNTED = {b"v": 0, b"vt": 1, b"vn": 2}
+_OBJ_ELEMENTS = (b"f", b"fo", b"l", b"p")
+
+
+def _obj_may_count_back(data):
+    """Whether a line of an OBJ file's bytes that starts with f, l or p (after blanks)
+    holds a '-': where a relative index can be. In numpy (a tenth of a second for 60
+    MB; a regular expression takes seconds)."""
+    b = np.frombuffer(data, dtype=np.uint8)
+    minus = np.flatnonzero(b == ord("-"))
+    if minus.size == 0:
+        return False
+    breaks = np.flatnonzero(b == ord("\n"))
+    at = np.concatenate([[0], breaks + 1])[np.searchsorted(breaks, minus)]
+    for _ in range(8):                          # past a few leading blanks
+        first = b[np.minimum(at, len(b) - 1)]
+        blank = (first == ord(" ")) | (first == ord("\t"))
+        if not blank.any():
+            break
+        at = at + blank
+    return bool(np.isin(b[np.minimum(at, len(b) - 1)], list(b"flp")).any())
+
+
+def _obj_absolute(data):
+    """An OBJ file's bytes with its relative (negative) indices made absolute, each
+    from the count of its kind (v, vt, vn) read before its line; None when it has none.
+    """
+    if not _obj_may_count_back(data):
+        return None
+    counts = [0, 0, 0]
+    lines = data.split(b"\n")
+    for n, line in enumerate(lines):
+        words = line.split()
+        if not words:
+            continue
+        kind = _OBJ_COUNTED.get(words[0])
+        if kind is not None:
+            counts[kind] += 1
+        elif words[0] in _OBJ_ELEMENTS and b"-" in line:
+            out = [words[0]]
+            for word in words[1:]:
+                parts = word.split(b"/")
+                for k, part in enumerate(parts[:3]):
+                    if part.startswith(b"-") and part[1:].isdigit():
+                        parts[k] = b"%d" % (counts[k] + 1 + int(part))
+                out.append(b"/".join(parts))
+            lines[n] = b" ".join(out)
+    return b"\n".join(lines)
+
+
+def _obj_objects(path, zipped, file_name, triangles, data=None):
     """(objects (m,) uint32, object_names tuple) of an OBJ file: each triangle's `o`/`g`
     group as trimesh's split_objects and split_groups name it (a second read of the
-    file), matched to `triangles` ((m, 3, 3) float64, the first read's, in triangle id
-    order) by their coordinates. A file with no `o` or `g` line, or whose two reads do
-    not hold the same triangles (then with a warning), is one object."""
+    file, or of `data`, its bytes as read the first time), matched to `triangles` ((m,
+    3, 3) float64, the first read's, in triangle id order) by their coordinates. A file
+    with no `o` or `g` line, or whose two reads do not hold the same triangles (then
+    with a warning), is one object."""
     import trimesh
     one = np.zeros(len(triangles), dtype=np.uint32), (file_name,)
-    with (gzip.open(path, "rb") if zipped else open(path, "rb")) as f:
-        data = f.read()
+    if data is None:
+        data = _read(path, zipped)
     if not _OBJ_GROUP_LINE.search(data):
         return one
-    stream = io.BytesIO(data)
-    stream.name = file_name         # trimesh's name for faces outside any `o` and `g`
     try:
-        split = trimesh.load(stream, file_type="obj", force="scene", process=False,
-                             skip_materials=True, split_objects=True, split_groups=True,
-                             group_material=False)
+        split = trimesh.load(_named_stream(data, file_name), file_type="obj", force="scene",
+                             process=False, skip_materials=True, split_objects=True,
+                             split_groups=True, group_material=False)
     except Exception as e:  # trimesh read the file once already: not expected
         log.warning("%s: cannot read its o/g groups (%s: %s); one object", path,
                     type(e).__name__, e)

@@ -210,6 +210,20 @@ def test_origin_is_centre_of_the_used_vertices():
     check_tree(tree, v, f)
 
 
+def test_a_vertex_float32_cannot_hold_leaves_out_its_triangles_only():
+    """A vertex beyond float32's range (1e39) neither places nor sizes the tree: its
+    triangles are left out, as a non-finite vertex's, and the others kept."""
+    rng = np.random.default_rng(4)
+    v, f = soup(rng, 40)
+    far = np.vstack([v, [[1e39, 0.0, 0.0]]])
+    f_far = np.vstack([f, [[0, 1, len(v)]]])
+    tree, plain = build(far, f_far), build(v, f)
+    assert len(tree.tri_ids) == len(plain.tri_ids) == len(f)
+    np.testing.assert_array_equal(tree.origin, plain.origin)
+    assert tree.scale == plain.scale
+    check_tree(tree, far, f_far)
+
+
 def numpy_prepare(v, f, origin):
     """The builder's triangles in numpy (the oracle for prepare's numba pass):
     (triangles (k, 3, 3) float32, tri_ids (k,) uint32, bounds (2, 3) float32)."""
@@ -242,10 +256,9 @@ def test_prepare_matches_numpy(seed, threads, monkeypatch):
                    np.repeat(rng.integers(0, n, size=(50, 1)), 3, axis=1)])
     f = f[rng.permutation(len(f))]
     for origin in (np.array([0.3, -7.0, 1e38]), None):
-        if origin is None:                  # the 1e39 vertex would move the origin to 5e38
-            f = f[~(f == n - 3).any(axis=1)]
+        # the default origin: the box of what float32 holds (not the 1e39 vertex's)
         pts = v[np.unique(f)]
-        pts = pts[np.isfinite(pts).all(axis=1)]
+        pts = pts[(np.abs(pts) <= np.finfo(np.float32).max).all(axis=1)]
         p = prepare(v, f, origin)
         o = 0.5 * (pts.min(0) + pts.max(0)) if origin is None else origin
         np.testing.assert_array_equal(p.origin, o)

@@ -66,6 +66,49 @@ def test_scene_transforms_are_applied(tmp_path):
     assert np.all(m.triangles[b][..., 0] > 9) and np.all(m.triangles[~b][..., 0] < 1)
 
 
+def test_mirrored_and_nearly_identity_transforms(tmp_path):
+    """A node whose transform mirrors (a negative determinant) turns its triangles'
+    winding, as glTF 2.0 and trimesh's dump have it, so normals stay outward; a
+    transform however near the identity is applied."""
+    import trimesh
+    box = trimesh.creation.box()
+    scene = trimesh.Scene()
+    scene.add_geometry(box, node_name="plain")
+    scene.add_geometry(box, node_name="mirrored", transform=np.diag([1.0, 1.0, -1.0, 1.0])
+                       @ trimesh.transformations.translation_matrix([3, 0, 0]))
+    near = trimesh.transformations.scale_matrix(1 + 5e-6)
+    near[:3, 3] = [2e6 * 5e-6, 0, 0]
+    scene.add_geometry(box.copy().apply_translation([2e6, 0, 0]), node_name="near",
+                       transform=near)
+    p = tmp_path / "s.glb"
+    scene.export(p)
+    m = load(p)
+    want = trimesh.load(p, force="scene").to_geometry()
+    for name in ("plain", "mirrored"):
+        t = m.triangles[m.objects == m.object_names.index(name)]
+        centre = t.reshape(-1, 3).mean(axis=0)
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        assert ((n * (t.mean(axis=1) - centre)).sum(axis=1) > 0).all(), name   # outward
+    assert m.bounds[1][0] == want.bounds[1][0] and m.bounds[1][0] > 2e6 + 10
+
+
+def test_obj_relative_indices_count_back_from_their_line(tmp_path):
+    """OBJ's negative indices count back from the last vertex (texture coordinate,
+    normal) read before their line, not from the file's last."""
+    p = tmp_path / "r.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n"
+                 "o first\nf -3/-3 -2/-2 -1/-1\n"
+                 "v 0 0 7\nv 1 0 7\nv 0 1 7\n  f  4 5 -1\r\n"
+                 "o second\nv 0 0 -2\nv 2 0 -2\nv 0 2 -2\nf -3 -2 -1\n")
+    m = load(p)
+    assert m.triangles[:, :, 2].tolist() == [[0, 0, 0], [7, 7, 7], [-2, -2, -2]]
+    assert m.object_names == ("first", "second") and m.objects.tolist() == [0, 0, 1]
+    q = tmp_path / "plain.obj"                   # the same file with absolute indices
+    q.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nv 0 0 7\nv 1 0 7\nv 0 1 7\nf 4 5 6\n"
+                 "v 0 0 -2\nv 2 0 -2\nv 0 2 -2\nf 7 8 9\n")
+    np.testing.assert_array_equal(load(q).triangles, m.triangles)
+
+
 @pytest.mark.parametrize("content, ext, message", [
     (None, "obj", "no such file"),
     ("", "obj", "empty"),

@@ -81,19 +81,12 @@ def mesh_scale(vertices, faces, used_box=None):
     lo, hi, found = _used_box(vertices, faces) if used_box is None else used_box
     if not found:
         return 1.0
-    size = np.max(hi - lo)
-    if size > SIZE_LIMITS[1]:
-        pts = vertices[np.unique(faces)]
-        pts = pts[(np.abs(pts) <= FLOAT32_MAX).all(axis=1)]    # (NaN compares False)
-        if len(pts) == 0:
-            scale_for(size)                                     # raises: beyond float32
-        size = np.max(np.ptp(pts, axis=0))
-    return scale_for(size)
+    return scale_for(np.max(hi - lo))
 
 
 def mesh_origin(vertices, faces, used_box=None):
     """(3,) float64: the builder's default origin, the centre of the float64 box of the
-    finite vertices the faces use; None when there is none.
+    vertices the faces use that float32 can hold (`_used_box`); None when there is none.
 
     vertices : (n, 3) float64;  faces : (m, 3) int, valid indices (check_arrays);
     used_box : as for `mesh_scale`.
@@ -106,8 +99,10 @@ def mesh_origin(vertices, faces, used_box=None):
 
 @njit(cache=True)
 def _used_box(vertices, faces):
-    """(lo (3,) float64, hi (3,) float64, found): the box of the finite vertices that
-    the faces use; found False when there is none.
+    """(lo (3,) float64, hi (3,) float64, found): the box of the vertices that the faces
+    use and float32 can hold (no coordinate non-finite or beyond FLOAT32_MAX: `prepare`
+    leaves out their triangles, so they neither place nor size the tree); found False
+    when there is none.
 
     vertices : (n, 3) float64;  faces : (m, 3) int64, valid indices.
     """
@@ -124,8 +119,8 @@ def _used_box(vertices, faces):
         x = vertices[j, 0]
         y = vertices[j, 1]
         z = vertices[j, 2]
-        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
-            continue
+        if not (abs(x) <= FLOAT32_MAX and abs(y) <= FLOAT32_MAX and abs(z) <= FLOAT32_MAX):
+            continue                                # not finite, or beyond float32 (NaN too)
         found = True
         lo[0] = min(lo[0], x)
         lo[1] = min(lo[1], y)
