@@ -68,8 +68,11 @@ def load(path):
     # 4294967295, a transform that overflows); Mesh.from_arrays refuses what is left of it
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
-        obj = _obj_absolute(_read(path, zipped)) if ext == "obj" else None
+        obj = None                  # an OBJ's bytes, read once for both its reads
         try:
+            if ext == "obj":
+                obj = _read(path, zipped)
+                obj = _obj_absolute(obj) or obj
             if obj is not None:
                 scene = trimesh.load(_named_stream(obj, file_name), file_type="obj",
                                      force="scene", process=False, skip_materials=True)

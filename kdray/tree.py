@@ -135,7 +135,8 @@ class KdTree:
         """A copy of the tree that keeps the float64 triangles of the mesh it was built
         from (vertices (n, 3), faces (n_input_tris, 3)): the geometry
         precision="double" computes t, u, v from. Raises TreeError when the faces do not
-        match the tree's input."""
+        match the tree's input, or the triangles it holds are not theirs rounded as the
+        builder rounds them (another mesh of as many faces)."""
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces)
         if v.ndim != 2 or v.shape[1] != 3 or f.shape != (self.n_input_tris, 3) or f.dtype.kind not in "iu":
@@ -143,7 +144,19 @@ class KdTree:
                             f"and ({self.n_input_tris}, 3) integer faces, got {v.shape} and {f.shape}")
         if f.size and (f.min() < 0 or f.max() >= len(v)):
             raise TreeError("with_double: a face's vertex index is out of range")
-        return dataclasses.replace(self, triangles64=v[f])
+        t64 = v[f]
+        # the builder's rounding (builder.prepare): the difference times 1 / scale (a
+        # power of two: exact), to float32
+        with np.errstate(over="ignore", invalid="ignore"):
+            t32 = ((t64[np.asarray(self.tri_ids, np.intp)] - self.origin)
+                   * (1.0 / self.scale)).astype(np.float32)
+        differ = np.flatnonzero((t32 != np.asarray(self.triangles)).any(axis=(1, 2)))
+        if differ.size:
+            i = int(self.tri_ids[differ[0]])
+            raise TreeError(f"with_double needs the mesh the tree was built from: its "
+                            f"triangle {i} is not the tree's ({differ.size:,} of "
+                            f"{len(self.tri_ids):,} differ)")
+        return dataclasses.replace(self, triangles64=t64)
 
     def world(self, relative):
         """float64 world coordinates of points relative to the tree: origin + scale * x

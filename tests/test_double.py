@@ -125,6 +125,11 @@ def test_double_needs_the_float64_triangles():
     assert Tracer(with_double).trace(o, d, precision="double").t.dtype == np.float64
     with pytest.raises(TreeError):
         tree.with_double(v, f[:-1])
+    # another mesh of as many faces: its triangles are not the tree's
+    with pytest.raises(TreeError, match="not the tree's"):
+        tree.with_double(v + 1.0, f)
+    with pytest.raises(TreeError, match="triangle 3 is not the tree's"):
+        tree.with_double(v, np.concatenate([f[:3], f[3:4, ::-1], f[4:]]))
 
 
 def test_cli_precision_double(capsys, tmp_path):

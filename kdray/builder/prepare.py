@@ -80,6 +80,11 @@ def mesh_scale(vertices, faces, used_box=None):
     """
     lo, hi, found = _used_box(vertices, faces) if used_box is None else used_box
     if not found:
+        # none that float32 holds: a scene too large says so (scale_for raises)
+        pts = vertices[np.unique(faces)]
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts):
+            scale_for(np.max(np.ptp(pts, axis=0)))
         return 1.0
     return scale_for(np.max(hi - lo))
 
@@ -207,7 +212,9 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
     if origin is None:
         origin = mesh_origin(v, f, used_box)
         if origin is None:
-            raise MeshError("no triangles left after removing degenerate ones (no finite vertex)")
+            mesh_scale(v, f, used_box)          # a scene beyond float32 says so first
+            raise MeshError("no triangles left after removing degenerate ones (no vertex "
+                            "that float32 holds)")
     else:
         given = origin
         try:
