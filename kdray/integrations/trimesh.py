@@ -356,11 +356,10 @@ class RayMeshIntersector:
 
     def _distinct(self, rays, ray, tri, t32):
         """The hits (ray, tri, t32: (h,) each, ray sorted; t32 float32's t as a distance,
-        _dist) merged to one a point: sorted
-        by (ray, float64 t, tri), a hit is the previous one's point when their t differ
-        by at most SAME_POINT_RTOL * size, or SAME_TRIANGLE_RTOL * size for triangles
-        sharing a vertex; a point keeps its lowest triangle index. Returns (ray, tri, t)
-        sorted by ray then t."""
+        _dist) merged to one a point: sorted by (ray, float64 t, tri), a hit is the
+        previous one's point when their t differ by at most SAME_POINT_RTOL * size, or
+        SAME_TRIANGLE_RTOL * size for triangles sharing a vertex; a point keeps its
+        lowest triangle index. Returns (ray, tri, t) sorted by ray then t."""
         t = self._t64(rays, ray, tri, t32)
         order = np.lexsort((tri, t, ray))
         ray, tri, t = ray[order], tri[order], t[order]
