@@ -697,23 +697,26 @@ def _task_views(job, views, overwrite, _tree_done=None):
     return seconds, rendered, errors, done
 
 
-def local_cluster(workers):
+def local_cluster(workers, quiet=False):
     """A dask.distributed LocalCluster of `workers` processes of one thread each, with
     glibc's malloc left as it is: Dask's nannies set MALLOC_TRIM_THRESHOLD_ in their
     workers, which also fixes glibc's mmap threshold, so that every image array is
     mapped and faulted in anew and a worker renders and writes at 0.6 times the speed
-    (BENCHMARKS.md)."""
+    (BENCHMARKS.md). quiet: the workers log nothing below CRITICAL (a task's KdrayError,
+    which the caller reports in one line, is an ERROR there with its traceback)."""
     import dask
     distributed = _dask()
     with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
         return distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
                                         processes=True, dashboard_address=None,
-                                        silence_logs=logging.ERROR)
+                                        silence_logs=logging.CRITICAL if quiet
+                                        else logging.ERROR)
 
 
 def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, chunk):
     distributed = _dask()
-    if not log.isEnabledFor(logging.DEBUG):      # Dask's own progress lines only at -vv
+    quiet = not log.isEnabledFor(logging.DEBUG)
+    if quiet:                                    # Dask's own progress lines only at -vv
         logging.getLogger("distributed").setLevel(logging.ERROR)
     cluster = None
     if scheduler:
@@ -725,7 +728,7 @@ def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, c
             raise DatasetError(f"cannot reach the Dask scheduler {scheduler}: {e}") from None
         n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
     else:
-        cluster = local_cluster(workers)
+        cluster = local_cluster(workers, quiet=quiet)
         client = distributed.Client(cluster)
         n_workers = int(workers)
     try:

@@ -369,6 +369,23 @@ def test_dask_worker_killed_loses_nothing(tmp_path, monkeypatch):
         assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]   # no partial file
 
 
+def test_dask_worker_errors_are_one_line(tmp_path):
+    """A scene that fails to load in a Dask worker is reported as in-process: one line a
+    failure and the summary, no worker log or traceback (the worker's stderr is the
+    command's)."""
+    pytest.importorskip("distributed")
+    orbit(tmp_path / "cams.json", 1)
+    (tmp_path / "broken.obj").write_text("v 0 0 0\nv 1 0 0\nf 1 2 9\n")
+    jobs = write_jobs(tmp_path / "jobs.jsonl", [
+        {"scene": str(real_mesh("teapot.obj")), "cameras": "cams.json", "output": "a"},
+        {"scene": "broken.obj", "cameras": "cams.json", "output": "b"}])
+    code, _, err = kdray_cli("batch", jobs, "--workers", "1", "--no-cache")
+    assert code == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 2 and all(line.startswith("kdray: ") for line in lines), err
+    assert "broken.obj" in lines[0] and lines[1].startswith("kdray: error: 1 of 2 job(s)")
+
+
 def test_dask_missing_is_a_clear_error(tmp_path, monkeypatch):
     import builtins
     real_import = builtins.__import__
