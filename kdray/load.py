@@ -4,12 +4,13 @@ OBJ and PLY first, then anything trimesh loads as triangles (STL, OFF, GLB/glTF)
 quads and polygons are triangulated by trimesh's loaders, scenes of several meshes
 are flattened with their node transforms applied (a mirroring one reverses its
 triangles' winding, as glTF 2.0 and trimesh's own flattening do), materials and
-textures are skipped (no image library is needed). Triangle ids are the order of the loaded triangles:
-meshes are taken in the scene graph's order, each mesh's faces in file order. A file
-whose name ends in .gz is read through gzip ("bunny.obj.gz" as an OBJ named
-"bunny.obj"). An OBJ's relative (negative) indices count back from the vertex read
-last before their line, as the format has it (trimesh counts from the file's last
-vertex): such a file is read with them made absolute first (`_obj_absolute`).
+textures are skipped (no image library is needed). Triangle ids are the order of the
+loaded triangles: meshes are taken in the scene graph's order, each mesh's faces in
+file order (a PLY's put back in it: `_ply_file_order`). A file whose name ends in .gz
+is read through gzip ("bunny.obj.gz" as an OBJ named "bunny.obj"). An OBJ's relative
+(negative) indices count back from the vertex read last before their line, as the
+format has it (trimesh counts from the file's last vertex): such a file is read with
+them made absolute first (`_obj_absolute`).
 
 Objects (Mesh.objects, Mesh.object_names), numbered in the order of their first
 triangle:
@@ -117,7 +118,7 @@ def _scene_arrays(scene, path):
             log.info("%s: skipping %s (%s, no triangles)", path, name, type(geom).__name__)
             continue
         v = np.asarray(geom.vertices, dtype=np.float64)
-        f = np.asarray(geom.faces, dtype=np.int64)
+        f = _ply_file_order(geom, np.asarray(geom.faces, dtype=np.int64))
         if not np.array_equal(transform, np.eye(4)):       # any other, however near
             v = v @ transform[:3, :3].T + transform[:3, 3]
             if np.linalg.det(transform[:3, :3]) < 0:
@@ -129,6 +130,66 @@ def _scene_arrays(scene, path):
         objects.append(np.full(len(geom.faces), index, dtype=np.uint32))
     objects = np.concatenate(objects) if objects else np.zeros(0, dtype=np.uint32)
     return vertices, faces, objects, tuple(names)
+
+
+def _ply_file_order(geom, faces):
+    """A PLY mesh's triangles (faces (m, 3) int64, trimesh's) in its file's order: each
+    polygon's in turn, split as trimesh splits it (a quad into (0, 1, 2), (2, 3, 0),
+    larger ones into fans from their first vertex), where trimesh puts every file's
+    triangles first, then the quads' first halves, then their second halves. faces as
+    they are for other meshes, or where the file's polygons (trimesh's raw PLY data)
+    do not give the same triangles."""
+    polygons = _ply_polygons(geom)
+    if polygons is None:
+        return faces
+    try:
+        if isinstance(polygons, np.ndarray) and polygons.dtype != object:
+            polygons = polygons.astype(np.int64).reshape(len(polygons), -1)
+            if polygons.shape[1] == 3:
+                return faces                    # triangles only: trimesh's are the file's
+            groups = [(np.arange(len(polygons)), polygons)]
+        else:
+            lengths = np.fromiter((len(p) for p in polygons), dtype=np.int64,
+                                  count=len(polygons))
+            groups = [(i, np.array([polygons[k] for k in i], dtype=np.int64).reshape(len(i), n))
+                      for n in np.unique(lengths) for i in [np.flatnonzero(lengths == n)]]
+    except (TypeError, ValueError):
+        return faces
+    tris, keys = [], []
+    for source, rows in groups:
+        n = rows.shape[1]
+        if n < 3:
+            continue
+        splits = [(0, 1, 2), (2, 3, 0)] if n == 4 else [(0, k, k + 1) for k in range(1, n - 1)]
+        for part, corners in enumerate(splits):
+            tris.append(rows[:, corners])
+            keys.append(source * n + part)           # part < n: file order, then part
+    if not tris:
+        return faces
+    tris, keys = np.concatenate(tris), np.concatenate(keys)
+    ordered = tris[np.argsort(keys, kind="stable")]
+    same = (len(ordered) == len(faces)
+            and np.array_equal(ordered[np.lexsort(ordered.T[::-1])],
+                               faces[np.lexsort(faces.T[::-1])]))
+    return ordered if same else faces
+
+
+def _ply_polygons(geom):
+    """The polygons of a mesh trimesh read from a PLY file (its raw element data): an
+    (n, k) array or a sequence of index arrays; None for other meshes."""
+    raw = geom.metadata.get("_ply_raw")
+    try:
+        data = raw["face"]["data"]
+    except (KeyError, TypeError, IndexError, ValueError):
+        return None
+    for key in ("vertex_indices", "vertex_index"):
+        try:
+            lists = data[key]
+        except (KeyError, TypeError, IndexError, ValueError):
+            continue
+        names = getattr(getattr(lists, "dtype", None), "names", None)
+        return lists["f1"] if names and "f1" in names else lists    # binary: (count, indices)
+    return None
 
 
 def _object_name(scene, node, geom):

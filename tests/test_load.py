@@ -109,6 +109,30 @@ def test_obj_relative_indices_count_back_from_their_line(tmp_path):
     np.testing.assert_array_equal(load(q).triangles, m.triangles)
 
 
+def test_ply_polygons_in_file_order(tmp_path):
+    """A PLY file's polygons become triangles in the file's order (a quad's two, then
+    the next face's), split as trimesh splits them, in ASCII and binary."""
+    import struct
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1],
+                  [2, 0, 0]], dtype=np.float32)
+    faces = [[0, 1, 2, 3], [1, 2, 5], [0, 1, 5, 4], [0, 1, 6, 2, 3]]
+    want = [[0, 1, 2], [2, 3, 0], [1, 2, 5], [0, 1, 5], [5, 4, 0],
+            [0, 1, 6], [0, 6, 2], [0, 2, 3]]
+    head = ("ply\nformat {}\nelement vertex 7\nproperty float x\nproperty float y\n"
+            "property float z\nelement face {}\nproperty list uchar int vertex_indices\n"
+            "end_header\n")
+    ascii_ply = tmp_path / "a.ply"
+    ascii_ply.write_text(head.format("ascii 1.0", len(faces))
+                         + "".join("%g %g %g\n" % tuple(p) for p in v)
+                         + "".join(" ".join(map(str, [len(f)] + f)) + "\n" for f in faces))
+    assert load(ascii_ply).faces.tolist() == want
+    quads = [faces[0], faces[2]]                 # binary: trimesh reads one length only
+    binary_ply = tmp_path / "b.ply"
+    binary_ply.write_bytes(head.format("binary_little_endian 1.0", 2).encode() + v.tobytes()
+                           + b"".join(struct.pack("<B4i", 4, *f) for f in quads))
+    assert load(binary_ply).faces.tolist() == [want[0], want[1], want[3], want[4]]
+
+
 @pytest.mark.parametrize("content, ext, message", [
     (None, "obj", "no such file"),
     ("", "obj", "empty"),
