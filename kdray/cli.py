@@ -361,7 +361,13 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
     width, height = size
     if cameras_file:
         given = {"--camera": camera_file, "--eye": eye, "--target": target,
-                 "--intrinsics": intrinsics, "--pose": pose, "--tree": tree_file, "--cull": cull}
+                 "--intrinsics": intrinsics, "--pose": pose, "--tree": tree_file, "--cull": cull,
+                 "--preview FILE": preview}           # --preview alone: a PNG a view
+        # the views' own sizes and fields of view: these would be ignored
+        ctx = click.get_current_context()
+        for name in ("size", "fov", "up"):
+            given[f"--{name}"] = (ctx.get_parameter_source(name)
+                                  is not click.core.ParameterSource.DEFAULT)
         clash = [k for k, v in given.items() if v]
         if clash:
             raise click.UsageError(f"--cameras cannot be combined with {', '.join(clash)}")

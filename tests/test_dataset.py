@@ -236,6 +236,12 @@ def test_bad_camera_file_is_one_line_and_writes_nothing(capsys, tmp_path):
     code, _, err = run_cli(capsys, "render", real_mesh("teapot.obj"), "--cameras", cams,
                            "--eye", "0,0,3", "--target", "0,0,0")
     assert code == 2 and "--cameras cannot be combined with --eye, --target" in err
+    # the views' own sizes and fields of view: one-view options would be ignored
+    for more, name in ((("--size", "8x6"), "--size"), (("--fov", "30"), "--fov"),
+                       (("--up", "0,0,1"), "--up"), (("--preview", "p.png"), "--preview FILE")):
+        code, _, err = run_cli(capsys, "render", real_mesh("teapot.obj"), "--cameras", cams,
+                               *more)
+        assert code == 2 and f"--cameras cannot be combined with {name}" in err, more
 
 
 def test_tree_cache(tmp_path, caplog):
