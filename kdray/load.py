@@ -86,7 +86,10 @@ def load(path):
         except IndexError as e:
             raise MeshError(f"{path}: a face refers to a vertex that does not exist ({one_line(e)})") from None
         except Exception as e:  # trimesh raises many kinds for a malformed file
-            raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: {one_line(e)})") from None
+            scene = _binary_ply_scene(path, zipped) if ext == "ply" else None
+            if scene is None:
+                raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: "
+                                f"{one_line(e)})") from None
         vertices, faces, objects, object_names = _scene_arrays(scene, path)
     if not faces:
         kinds = sorted({type(g).__name__ for g in scene.geometry.values()})
@@ -99,6 +102,24 @@ def load(path):
         objects, object_names = check_objects(objects, object_names, len(mesh.faces))
         mesh = dataclasses.replace(mesh, objects=objects, object_names=object_names)
     return mesh
+
+
+def _binary_ply_scene(path, zipped):
+    """A trimesh Scene of the one mesh of a binary PLY file that trimesh's reader refused
+    (faces of several sizes: kdray.ply), its polygons split in file order; None when
+    that reader cannot read it either."""
+    import struct
+    import zlib
+    import trimesh
+    from .ply import read_binary_ply
+    try:
+        vertices, polygons = read_binary_ply(_read(path, zipped))
+    except (ValueError, struct.error, OSError, EOFError, zlib.error):
+        return None
+    faces = split_polygons(polygons) if polygons else None
+    if faces is None:
+        return None
+    return trimesh.Scene(trimesh.Trimesh(vertices=vertices, faces=faces, process=False))
 
 
 def _scene_arrays(scene, path):
@@ -133,20 +154,32 @@ def _scene_arrays(scene, path):
 
 
 def _ply_file_order(geom, faces):
-    """A PLY mesh's triangles (faces (m, 3) int64, trimesh's) in its file's order: each
-    polygon's in turn, split as trimesh splits it (a quad into (0, 1, 2), (2, 3, 0),
-    larger ones into fans from their first vertex), where trimesh puts every file's
-    triangles first, then the quads' first halves, then their second halves. faces as
-    they are for other meshes, or where the file's polygons (trimesh's raw PLY data)
-    do not give the same triangles."""
+    """A PLY mesh's triangles (faces (m, 3) int64, trimesh's) in its file's order
+    (`split_polygons`), where trimesh puts every file's triangles first, then the
+    quads' first halves, then their second halves. faces as they are for other
+    meshes, or where the file's polygons (trimesh's raw PLY data) do not give the same
+    triangles."""
     polygons = _ply_polygons(geom)
     if polygons is None:
         return faces
+    if (isinstance(polygons, np.ndarray) and polygons.dtype != object
+            and polygons.reshape(len(polygons), -1).shape[1] == 3):
+        return faces                            # triangles only: trimesh's are the file's
+    ordered = split_polygons(polygons)
+    same = (ordered is not None and len(ordered) == len(faces)
+            and np.array_equal(ordered[np.lexsort(ordered.T[::-1])],
+                               faces[np.lexsort(faces.T[::-1])]))
+    return ordered if same else faces
+
+
+def split_polygons(polygons):
+    """(m, 3) int64 triangles of polygons (an (n, k) array, or a sequence of index
+    arrays) in their order, each polygon's in turn, split as trimesh splits them: a
+    quad into (0, 1, 2), (2, 3, 0), a larger polygon into a fan from its first vertex;
+    polygons of fewer than 3 indices give none. None where polygons are not that."""
     try:
         if isinstance(polygons, np.ndarray) and polygons.dtype != object:
             polygons = polygons.astype(np.int64).reshape(len(polygons), -1)
-            if polygons.shape[1] == 3:
-                return faces                    # triangles only: trimesh's are the file's
             groups = [(np.arange(len(polygons)), polygons)]
         else:
             lengths = np.fromiter((len(p) for p in polygons), dtype=np.int64,
@@ -154,8 +187,9 @@ def _ply_file_order(geom, faces):
             groups = [(i, np.array([polygons[k] for k in i], dtype=np.int64).reshape(len(i), n))
                       for n in np.unique(lengths) for i in [np.flatnonzero(lengths == n)]]
     except (TypeError, ValueError):
-        return faces
-    tris, keys = [], []
+        return None
+    tris, keys = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.int64)]
+    widest = max([rows.shape[1] for _, rows in groups], default=0)
     for source, rows in groups:
         n = rows.shape[1]
         if n < 3:
@@ -163,15 +197,9 @@ def _ply_file_order(geom, faces):
         splits = [(0, 1, 2), (2, 3, 0)] if n == 4 else [(0, k, k + 1) for k in range(1, n - 1)]
         for part, corners in enumerate(splits):
             tris.append(rows[:, corners])
-            keys.append(source * n + part)           # part < n: file order, then part
-    if not tris:
-        return faces
+            keys.append(source * widest + part)      # part < widest: file order, then part
     tris, keys = np.concatenate(tris), np.concatenate(keys)
-    ordered = tris[np.argsort(keys, kind="stable")]
-    same = (len(ordered) == len(faces)
-            and np.array_equal(ordered[np.lexsort(ordered.T[::-1])],
-                               faces[np.lexsort(faces.T[::-1])]))
-    return ordered if same else faces
+    return tris[np.argsort(keys, kind="stable")]
 
 
 def _ply_polygons(geom):

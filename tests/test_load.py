@@ -133,6 +133,37 @@ def test_ply_polygons_in_file_order(tmp_path):
     assert load(binary_ply).faces.tolist() == [want[0], want[1], want[3], want[4]]
 
 
+@pytest.mark.parametrize("endian", ["<", ">"])
+def test_binary_ply_of_polygons_of_several_sizes(tmp_path, endian):
+    """A binary PLY whose faces are of several sizes (trimesh's reader refuses it) loads
+    as its ASCII twin does: other vertex and face properties and other elements read
+    past; a file cut short is a one-line MeshError."""
+    import struct
+    v = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [2, 0, 0]]
+    faces = [[1, 2, 5], [0, 1, 2, 3], [0, 1, 6, 2, 3], [4, 5, 1]]
+    fmt = "binary_little_endian" if endian == "<" else "binary_big_endian"
+    head = ("ply\nformat {}\ncomment made by a test\nelement vertex 7\nproperty float x\n"
+            "property double y\nproperty float z\nproperty uchar red\nelement face 4\n"
+            "property list uchar int vertex_indices\nproperty ushort flags\n"
+            "element edge 1\nproperty list uchar uint vertex_index\nend_header\n")
+    body = b"".join(struct.pack(endian + "fdfB", x, y, z, 7) for x, y, z in v)
+    body += b"".join(struct.pack(f"{endian}B{len(f)}iH", len(f), *f, 3) for f in faces)
+    body += struct.pack(endian + "B2I", 2, 0, 1)
+    binary = tmp_path / "b.ply"
+    binary.write_bytes(head.format(fmt).encode() + body)
+    text = tmp_path / "a.ply"
+    text.write_text(head.format("ascii 1.0") + "".join(f"{x} {y} {z} 7\n" for x, y, z in v)
+                    + "".join(" ".join(map(str, [len(f)] + f + [3])) + "\n" for f in faces)
+                    + "2 0 1\n")
+    got, want = load(binary), load(text)
+    assert got.faces.tolist() == want.faces.tolist() == [
+        [1, 2, 5], [0, 1, 2], [2, 3, 0], [0, 1, 6], [0, 6, 2], [0, 2, 3], [4, 5, 1]]
+    np.testing.assert_array_equal(got.vertices, want.vertices)
+    binary.write_bytes(head.format(fmt).encode() + body[:-30])
+    with pytest.raises(MeshError, match="cannot be read as a mesh"):
+        load(binary)
+
+
 @pytest.mark.parametrize("content, ext, message", [
     (None, "obj", "no such file"),
     ("", "obj", "empty"),
