@@ -149,6 +149,6 @@ def build_for_camera(vertices, faces, camera, **build_params):
     tree = dataclasses.replace(tree, tri_ids=keep[tree.tri_ids].astype(np.uint32),
                                n_input_tris=len(f))
     if keep_double:                     # by the whole mesh's ids, as tri_ids are
-        tree = tree.with_double(v, f)
+        tree = tree.with_double(v, f, built=True)
     log.debug("culled %d of %d triangles outside the view frustum", len(f) - len(keep), len(f))
     return tree, len(f) - len(keep)

@@ -190,4 +190,4 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
                   tri_ids=mesh.tri_ids, origin=mesh.origin, bounds=mesh.bounds,
                   n_input_tris=mesh.n_input_tris, depth=int(depth), params=params,
                   scale=mesh.scale)
-    return tree.with_double(vertices, faces) if keep_double else tree
+    return tree.with_double(vertices, faces, built=True) if keep_double else tree
