@@ -210,7 +210,8 @@ def _ply_polygons(geom):
         data = raw["face"]["data"]
     except (KeyError, TypeError, IndexError, ValueError):
         return None
-    for key in ("vertex_indices", "vertex_index"):
+    from .ply import INDEX_NAMES
+    for key in INDEX_NAMES:
         try:
             lists = data[key]
         except (KeyError, TypeError, IndexError, ValueError):

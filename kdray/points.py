@@ -37,7 +37,7 @@ from . import ray_input
 from .double import wants_double
 from .errors import DeviceError, KdrayError
 from .hits import TriangleAnswers
-from .host import check_host_memory, page_aligned_empty, take_rows
+from .host import check_host_memory, page_aligned_empty, row_abs_max, take_rows
 from .layout import MISS, device_triangles, is_leaf, leaf_offset, n_prims
 from .validate import FLOAT32_MAX, real_number
 
@@ -200,8 +200,7 @@ def _relative(tracer, p):
     """(N, 3) float64 points relative to the tree's origin in its units (scale a power
     of two: the division is exact). KdrayError for a point beyond REACH, naming it."""
     rel = np.ascontiguousarray((p - tracer._origin) / tracer._scale)
-    a = np.abs(rel)
-    far = np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2]) > REACH
+    far = row_abs_max(rel) > REACH
     if far.any():
         i = int(np.flatnonzero(far)[0])
         raise KdrayError(f"point {i} ({p[i].tolist()}) lies beyond the point queries' "

@@ -36,3 +36,13 @@ def test_threads_are_kept_and_made_again_after_a_fork(monkeypatch):
     monkeypatch.setattr(os, "getpid", lambda: pid + 1)
     other = host.threads()
     assert other is not pool and host.threads() is other
+
+
+def test_row_abs_max():
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(1001, 3))
+    a[5, 1], a[7] = np.nan, np.nan
+    got = host.row_abs_max(a)
+    rows = np.arange(1001) != 7                  # row 7 is all NaN: NaN
+    assert np.array_equal(got[rows], np.nanmax(np.abs(a[rows]), axis=1))
+    assert np.isnan(got[7]) and got[5] == max(abs(a[5, 0]), abs(a[5, 2]))

@@ -99,6 +99,7 @@ from trimesh import caching
 from ..builder import build
 from ..double import plane_hits
 from ..errors import KdrayError, MeshError, ParameterError
+from ..host import row_abs_max
 from ..layout import MISS
 from ..trace import Tracer
 
@@ -332,13 +333,13 @@ class RayMeshIntersector:
         # roundings) may lie past the cut and have a lower index.
         points = np.bincount(ray, minlength=len(o))
         cut = np.flatnonzero(hits.counts == limit)
-        end = hits.offsets[cut + 1] - 1
-        redo = cut[(points[cut] < limit) |
-                   self._near_edges(rays, cut, hits.prim[end].astype(np.int64), hits.u[end],
-                                    hits.v[end])]
+        end = hits.offsets[cut + 1] - 1                 # each cut ray's last hit
+        relist = (points[cut] < limit) | self._near_edges(
+            rays, cut, hits.prim[end].astype(np.int64), hits.u[end], hits.v[end])
+        redo, end = cut[relist], end[relist]
         if redo.size == 0:
             return ray, tri, t
-        last = _dist(rays, redo, hits.t[hits.offsets[redo + 1] - 1])
+        last = _dist(rays, redo, hits.t[end])
         t_max = np.where(points[redo] < limit, np.inf,
                          self._window(o[redo], last) / rays.length[redo])
         again = tracer.intersections(o[redo], rays.kd[redo], t_max=t_max)
@@ -390,8 +391,7 @@ class RayMeshIntersector:
         bounds = np.asarray(self.mesh.bounds, dtype=np.float64)
         centre = bounds.mean(axis=0)
         box = np.abs(bounds - centre).max()
-        a = np.abs(o - centre)
-        return np.fmax(np.fmax(np.fmax(a[:, 0], a[:, 1]), a[:, 2]), box)
+        return np.fmax(row_abs_max(o - centre), box)
 
     # -- pickling and copies: without OpenCL objects --------------------------------------
 
@@ -438,8 +438,7 @@ def _rays(ray_origins, ray_directions):
         raise ParameterError(f"rays must be (n, 3) arrays, got shape {o.shape}")
     o, d = o.reshape(-1, 3), d.reshape(-1, 3)
     # scaled by a power of two first: a finite direction of any size has a norm
-    a = np.abs(d)
-    big = np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])      # not max(axis=1): slower
+    big = row_abs_max(d)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         kd = np.ldexp(d, -np.frexp(big)[1][:, None])
         length = np.sqrt(np.einsum("ij,ij->i", kd, kd))
