@@ -98,6 +98,11 @@ def dataset_options(f):
     return f
 
 
+SDF_PROGRESS_POINTS = 1 << 22
+"""`kdray sdf` shows its progress (as Steps does: on a terminal, without -q) for grids
+of at least this many points."""
+
+
 def _build_kwargs(kw):
     return {k: kw.pop(k) for k in ("K_T", "K_I", "empty_bonus", "max_depth", "leaf_size")}
 
@@ -830,7 +835,9 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
             shown = [0]
 
             def progress(done, total):
-                if total >= 1 << 22 and (done == total or done - shown[0] >= total // 20):
+                if not step.live or total < SDF_PROGRESS_POINTS:
+                    return
+                if done == total or done - shown[0] >= total // 20:
                     shown[0] = done
                     click.echo(f"\r{what}: {100 * done // total}% of {total:,} points",
                                err=True, nl=done == total)

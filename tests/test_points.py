@@ -3,6 +3,7 @@ oracles: the float64 brute force over every triangle (kdray.reference.closest_po
 computed unlike the kernel, and reference.winding_number, the exact sum of solid
 angles), and geometry (points on a closed mesh's vertices and edges are at distance
 0; a grid cube's distances are known in closed form)."""
+import sys
 import warnings
 
 import numpy as np
@@ -423,6 +424,26 @@ def test_sdf_command(tmp_path, capsys):
         assert code == 2 and "cannot be combined with --samples" in err
     code, _, err = run(capsys, "sdf", mesh, "-o", out, "--sigma", 0.1)
     assert code == 2 and "--sigma goes with --samples" in err
+
+
+
+def test_sdf_progress_only_on_a_terminal(tmp_path, capsys, monkeypatch):
+    """`kdray sdf` shows a large grid's progress as the other steps' (Steps.live: on a
+    terminal, without -q; docs/interface.md), not on a file or pipe, with or without
+    -q: it printed it whatever stderr was."""
+    from kdray import cli
+    v, f = icosphere(1)
+    mesh = tmp_path / "ball.obj"
+    mesh.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    out = tmp_path / "grid.npz"
+    # 162^3 points, past SDF_PROGRESS_POINTS; capsys's stderr is no terminal
+    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--resolution", 162, "--occupancy")
+    assert code == 0 and "% of" not in err, err
+    monkeypatch.setattr(cli, "SDF_PROGRESS_POINTS", 8)         # a "large" grid: 3^3 and up
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--resolution", 6)
+    assert code == 0 and "signed distances: 100% of 216 points" in err
 
 
 def test_points_command(tmp_path, capsys):
