@@ -50,19 +50,28 @@ def plane_hits(triangles, origins, directions):
     return t, u, v
 
 
-def hits_double(triangles64, prim, origins, directions):
+CHUNK = 1 << 18
+"""Hits `hits_double` takes at a time: plane_hits' temporaries (about 400 bytes a hit)
+stay within some 100 MB however many hits there are."""
+
+
+def hits_double(triangles64, prim, origins, directions, rays=None):
     """(t (N,), uv (N, 2)) float64 of N rays at the triangles the kernels found.
 
     triangles64 : (n_input_tris, 3, 3) float64 world (KdTree.triangles64);
     prim : (N,) uint32 input triangle id per ray, MISS on a miss;
-    origins, directions : (N, 3) float64. t is +inf and uv 0 on a miss.
+    origins, directions : (N, 3) float64, or with `rays` ((N,) int64) rows of them:
+    ray i is origins[rays[i]], directions[rays[i]]. t is +inf and uv 0 on a miss.
+    Host memory: 24 bytes a ray for the answers, and CHUNK rays' temporaries.
     """
     from .layout import MISS
-    hit = prim != MISS
     t = np.full(len(prim), np.inf)
     uv = np.zeros((len(prim), 2))
-    t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(triangles64[prim[hit]], origins[hit],
-                                                directions[hit])
+    for a in range(0, len(prim), CHUNK):
+        hit = np.flatnonzero(prim[a:a + CHUNK] != MISS) + a
+        at = hit if rays is None else rays[hit]
+        t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(triangles64[prim[hit]], origins[at],
+                                                    directions[at])
     return t, uv
 
 

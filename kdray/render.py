@@ -314,6 +314,16 @@ DOUBLE_AOVS = ("depth", "distance", "position", "bary")
 """The AOVs precision="double" computes in float64 (`double_images`)."""
 
 
+def double_bytes_per_pixel(aovs):
+    """Host bytes per pixel that `double_images` needs for `aovs` beside the kernel's
+    images: the float64 rays (Camera.rays: origins, directions and the camera-axis
+    directions they are made from), t and uv (depth and bary are views of them), the
+    hit mask, and distance and position with their numpy temporaries (kdray.double's
+    own are bounded by its CHUNK)."""
+    size = {"distance": 8 + 24 + 8, "position": 24 + 4 * 24}
+    return 72 + 24 + 1 + sum(size.get(a, 0) for a in aovs)
+
+
 def double_images(ids, camera, triangles64, aovs):
     """The AOVs of DOUBLE_AOVS in `aovs` in float64, from each pixel's exact float64
     ray (Camera.rays) and the float64 triangle the kernel found (kdray.double).

@@ -758,8 +758,13 @@ class Tracer:
         if double:
             # the kernel finds the triangles (ids, objects) and the normals; the rest is
             # float64
-            kernel_aovs = [a for a in aovs if a in ("normal", "id", "object")]
-            images = self.render(camera, tuple(dict.fromkeys(kernel_aovs + ["id"])))
+            kernel_aovs = tuple(dict.fromkeys(
+                [a for a in aovs if a in ("normal", "id", "object")] + ["id"]))
+            w, h = int(camera.width), int(camera.height)
+            check_host_memory(max(w * h, 0) * (_render.host_bytes_per_pixel(kernel_aovs)
+                                               + _render.double_bytes_per_pixel(aovs)),
+                              f"a {w}x{h} render of {', '.join(aovs)} in double precision")
+            images = self.render(camera, kernel_aovs)
             exact = _render.double_images(images["id"].reshape(-1), camera,
                                           self.tree.triangles64, aovs)
             return {a: exact[a] if a in exact else images[a] for a in aovs}

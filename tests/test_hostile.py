@@ -301,6 +301,52 @@ def test_scan_at_the_documented_limits_is_refused_with_the_amount(capsys, folder
         lidar.directions()                # the first large array of Tracer.scan
 
 
+def _stacked_planes(n_planes, keep_double=False):
+    """A Tracer of n_planes unit squares at z = 0, 1, ..., and rays up through them all
+    (more hits a ray than intersections' first pass lists)."""
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)
+    v = np.concatenate([np.column_stack([corners, np.full(4, z)]) for z in range(n_planes)])
+    f = np.concatenate([np.array([[0, 1, 2], [0, 2, 3]]) + 4 * z for z in range(n_planes)])
+    return kdray.Tracer(kdray.build(v, f, keep_double=keep_double))
+
+
+def test_intersections_count_every_list_they_make(monkeypatch):
+    """intersections checks the memory of each array that grows with the hits before
+    making it, so that a total the first checks let through (20 bytes a hit) ends in
+    a KdrayError, not numpy's MemoryError: the whole list with the relisted rays' hits
+    put in place (and their index), the lists of several launches joined, and the
+    float64 answers (about 84 bytes a hit). It counted the first two only."""
+    tracer = _stacked_planes(40, keep_double=True)
+    rng = np.random.default_rng(3)
+    n = 300
+    o = np.column_stack([0.05 + 0.9 * rng.random((n, 2)), np.full(n, -0.5)])
+    d = np.tile([0.0, 0.0, 1.0], (n, 1))
+    hits = tracer.intersections(o, d)
+    assert len(hits.t) == 40 * n                         # 12,000: every plane once a ray
+    # room for the listing passes (under 20 bytes a hit), not for the whole list's
+    monkeypatch.setattr("kdray.host.available_memory", lambda: 40 * n * 22 + n * 200)
+    with pytest.raises(KdrayError, match="12,000 hits of 300 rays needs about .*max_hits"):
+        tracer.intersections(o, d)
+    monkeypatch.setattr("kdray.host.available_memory", lambda: 40 * n * 60 + n * 200)
+    assert len(tracer.intersections(o, d).t) == 40 * n
+    with pytest.raises(KdrayError, match="hits of 300 rays in double precision needs about"):
+        tracer.intersections(o, d, precision="double")
+
+
+def test_double_render_counts_its_float64_images(monkeypatch):
+    """render(precision="double") checks the memory of its float64 part (the camera's
+    float64 rays, t and uv, the images) before the kernel's: it checked the kernel's
+    float32 images only, and ended in numpy's MemoryError where those fit."""
+    from kdray import render as _render
+    tracer = _stacked_planes(2, keep_double=True)
+    cam = kdray.Camera.frame(*tracer.tree.world_box(), width=64, height=48)
+    single = 64 * 48 * _render.host_bytes_per_pixel(("depth", "id"))
+    monkeypatch.setattr("kdray.host.available_memory", lambda: 2 * single)
+    tracer.render(cam, aovs="depth,id")
+    with pytest.raises(KdrayError, match="a 64x48 render of depth, id in double precision"):
+        tracer.render(cam, aovs="depth,id", precision="double")
+
+
 def test_available_memory_under_an_address_space_limit():
     """RLIMIT_AS (ulimit -v) bounds what a check_host_memory allows."""
     code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30)); "
