@@ -211,8 +211,9 @@ def _relative(tracer, p):
 
 
 def _state(tracer):
-    """The point queries' per-Tracer device data, made when first needed."""
-    return tracer.__dict__.setdefault("_point_queries", {})
+    """The point queries' data of the Tracer's tree (a dict the Tracer empties when it
+    takes a tree, Tracer._upload), made when first needed."""
+    return tracer._point_queries
 
 
 def _program(tracer, geometry64, outputs=()):

@@ -25,6 +25,7 @@ vectors) and origins (when there is one per ray and they are not all equal):
 """
 import dataclasses
 import functools
+import threading
 
 import numpy as np
 
@@ -157,9 +158,11 @@ class ImageWidths:
 
     def __init__(self):
         self._widths = {}                 # n -> width, the oldest count first
+        self._lock = threading.Lock()     # a Tracer's threads share it
 
     def __getitem__(self, n):
-        return self._widths[n]
+        with self._lock:
+            return self._widths[n]
 
     def width(self, origins, directions, min_rows):
         """(width, search) for (N, 3) rays (grid_width's arguments): the width of the
@@ -170,15 +173,19 @@ class ImageWidths:
             return 0, None
 
         def search():
-            self._widths.pop(n, None)
-            self._widths[n] = grid_width(origins, directions, min_rows=min_rows)
-            while len(self._widths) > WIDTHS_KEPT:
-                self._widths.pop(next(iter(self._widths)))     # the oldest count
+            found = grid_width(origins, directions, min_rows=min_rows)
+            with self._lock:
+                self._widths.pop(n, None)
+                self._widths[n] = found
+                while len(self._widths) > WIDTHS_KEPT:
+                    self._widths.pop(next(iter(self._widths)))     # the oldest count
+            return found
 
-        if n in self._widths:
-            return self._widths[n], search
-        search()
-        return self._widths[n], None
+        with self._lock:
+            kept = self._widths.get(n)
+        if kept is not None:
+            return kept, search
+        return search(), None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,7 +20,9 @@ kept on the Tracer; the kernels compute and store only the outputs asked for.
 import ctypes
 import copy
 import dataclasses
+import functools
 import logging
+import threading
 import time
 
 import numpy as np
@@ -72,6 +74,17 @@ _OUTPUTS = KERNEL_OUTPUTS + ("STATS",)   # the kernels' output arguments, in ord
 MAPS_KEPT = 2
 """Ray maps (camera models', lidars') a Tracer keeps (12 bytes a ray on the host and
 12 on the device each): a dataset's views share their camera's intrinsics."""
+
+
+def _one_at_a_time(method):
+    """The method under its Tracer's lock (Tracer._lock): what a launch sets and reads
+    of the shared kernels, counter, programs and lazily made buffers is one thread's
+    at a time."""
+    @functools.wraps(method)
+    def locked(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+    return locked
 
 
 class Tracer:
@@ -135,6 +148,11 @@ class Tracer:
             raise KdrayError(f"batch_size ({self.batch_size}) must be a multiple of local_size "
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")
         self._programs = {}
+        # Threads may share a Tracer (and the Tracers of with_tree, which share its
+        # queue and kernels): a kernel's arguments are set on the one pyopencl Kernel
+        # and then enqueued, and trace's and render's batches are counted from one
+        # counter set to 0 first, so each launch holds the lock (`_one_at_a_time`).
+        self._lock = threading.RLock()
         self._maps = {}                       # camera models' ray maps (`_ray_map`)
         self._widths = ImageWidths()          # the image widths found (`_image_width`)
         self._poison_outputs = False
@@ -250,6 +268,7 @@ class Tracer:
         self._wide_unfit = False              # they did not fit (`_wide_fits`)
         self._origin = np.asarray(tree.origin, dtype=np.float64)
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
+        self._point_queries = {}              # the point queries' data of this tree (points.py)
 
     def program(self, outputs, stats=False, rays_world=None, rays="pinhole", any_hit=False,
                 wide=False):
@@ -306,6 +325,7 @@ class Tracer:
         entry["wide"] = "KD_WIDE" in defines
         return entry
 
+    @_one_at_a_time
     def _wide(self):
         """(buffer, stack groups): the tree's wide nodes on the device (kdray.wide) and
         the stack a walk of them needs, made at the first trace, query or render that
@@ -360,6 +380,7 @@ class Tracer:
             cl.enqueue_copy(self.queue, whole[:n], buffer)
         return whole
 
+    @_one_at_a_time
     def _built(self, source, defines, kernels):
         """kernels/<source> built with `defines` (dict name -> value or None), once per
         Tracer and option set (a program build takes seconds on some runtimes), with
@@ -380,6 +401,7 @@ class Tracer:
             self._programs[key] = entry
         return entry
 
+    @_one_at_a_time
     def _enqueue(self, entry, kernel_name, global_size, local_size, args):
         """Launch kernel `kernel_name` of a program entry (`_built`) on args. Told the
         scalars' types, pyopencl packs them itself: its untyped set_arg takes about
@@ -436,6 +458,7 @@ class Tracer:
 
     # -- launching ---------------------------------------------------------------------
 
+    @_one_at_a_time
     def _launch(self, kernel_name, outputs, n, args, host_out, stats=False, rays_world=None,
                 rays="pinhole", while_running=None, any_hit=False, wide=False):
         """Run `kernel_name` over n work slots (rays; for a render, its tiling's pixel
