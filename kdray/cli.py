@@ -940,10 +940,12 @@ def batch(jobs_file, workers, scheduler, no_cache, overwrite, device):
 @device_option
 def setup(device):
     """Compile the tree builder (once per install), the kernels of a default render
-    on the device and the camera models' inversions, so that the first render does not
-    wait for them."""
+    on the device (for trees up to 31 levels deep: meshes to millions of triangles)
+    and the camera models' inversions, so that the first render does not wait for
+    them."""
     from . import builder, lens
     from .trace import Tracer
+    from .work_sizes import STACK_SIZES
     step = Steps()
     if builder.compiled():
         click.echo("tree builder: compiled already")
@@ -953,7 +955,9 @@ def setup(device):
         click.echo("tree builder: compiled")
     tree = builder.build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     with step("compiling the kernels"):
-        tracer = Tracer(tree, device=device).compile()
+        # the programs of trees of each stack size but the deepest (a depth above 31),
+        # which the on-disk program cache then gives any tree of that size
+        tracer = Tracer(tree, device=device).compile(stack_sizes=STACK_SIZES[:-1])
     click.echo(f"kernels: compiled for {tracer.device.name.strip()}")
     with step("compiling the camera models' inversions"):
         lens.compile_kernels()

@@ -43,7 +43,7 @@ from .ray_grid import ImageWidths
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .validate import check_float32, whole_or_none
-from .wide import wide_nodes
+from .wide import stack_groups, wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
                          default_stack_size, default_work_sizes, max_local_size,
                          pocl_item_bytes, thread_stack_bytes)
@@ -328,7 +328,8 @@ class Tracer:
     @_one_at_a_time
     def _wide(self):
         """(buffer, stack groups): the tree's wide nodes on the device (kdray.wide) and
-        the stack a walk of them needs, made at the first trace, query or render that
+        the stack groups the programs that walk them are compiled for (at least a group
+        a level: `wide.stack_groups`), made at the first trace, query or render that
         needs them. Their leaves' triangle copies follow the k-d leaves' (from the next
         TRI_BLOCK on) in the triangle buffers, which are made again with them (the k-d
         part unchanged, so that every kernel reads either); their bytes join
@@ -352,7 +353,7 @@ class Tracer:
             self._tri_ids = self._buffer(whole, resident="placed")
             # a node's stack group stays until its last child is taken: the groups
             # belong to nodes on one path from the root, one a level at most
-            self._wide_nodes = (self._tree_buffer(records), levels)
+            self._wide_nodes = (self._tree_buffer(records), stack_groups(levels))
             self.device_bytes = sum(sizes.values())
         return self._wide_nodes
 
@@ -433,12 +434,28 @@ class Tracer:
             return self._buffer(array)
         return self._input_buffer(array)[0]
 
-    def compile(self, aovs=DEFAULT_AOVS, trace=False, precision="single"):
+    def compile(self, aovs=DEFAULT_AOVS, trace=False, precision="single", stack_sizes=()):
         """Build the program `render` uses for `aovs` at `precision` (and with
         trace=True the ones `trace` uses for float64 and float32 rays) and launch each
         once on one pixel (ray), so that the time of compiling is spent here and not in
         the first render: some runtimes compile a kernel again at its first launch
-        (PoCL, per work-group size). Returns the Tracer."""
+        (PoCL, per work-group size). stack_sizes: also the programs of trees that get
+        these stack sizes (kdray.work_sizes.STACK_SIZES; each launched on this tree,
+        whose walks any larger stack holds, and left out where this Tracer's local size
+        would not fit it), which the on-disk program cache (pyopencl's or the
+        driver's) then holds for other trees (`kdray setup`). Returns the Tracer."""
+        self._compile_one(aovs, trace, precision)
+        for size in stack_sizes:
+            if self.local_size > max_local_size(self.device, self.packet, size):
+                continue
+            # a copy of this Tracer (its tree, buffers, programs and lock) at that size
+            other = copy.copy(self)
+            other.stack_size = other.packet_stack_size = int(size)
+            other._compile_one(aovs, trace, precision)
+        return self
+
+    def _compile_one(self, aovs, trace, precision):
+        """`compile`'s programs at this Tracer's stack sizes, each launched once."""
         aovs = _render.parse_aovs(aovs)
         if precision == "double":          # the kernel's part of a double render
             aovs = tuple(dict.fromkeys([a for a in aovs if a in ("normal", "id")] + ["id"]))
@@ -454,7 +471,6 @@ class Tracer:
         if trace:
             for dtype in (np.float64, np.float32):
                 self._trace(np.zeros((1, 3), dtype), np.zeros((1, 3), dtype))
-        return self
 
     # -- launching ---------------------------------------------------------------------
 

@@ -58,6 +58,17 @@ MAX_COPIES = LEAF_ALIGN * ((1 << 27) - 1)   # the child word's reach (an EMPTY's
 MAX_DEPTH = 48             # the BVH's deepest binary level (kdray/builder/bvh.py)
 ONE_AXIS = 4096            # nodes of more triangles split along one axis (sah_bvh)
 
+STACK_GROUPS = (16, MAX_DEPTH + 1)
+"""The stack groups (levels of wide nodes, kernels/wide.cl's WIDE_STACK) programs are
+compiled for: every tree whose wide nodes are at most 16 levels deep shares its programs
+(meshes of 32 to 1.6M triangles have 1 to 9 levels), as kdray.work_sizes' STACK_SIZES
+share them among k-d trees; MAX_DEPTH + 1 levels hold any tree's."""
+
+
+def stack_groups(levels):
+    """The fewest of STACK_GROUPS that hold a walk through `levels` levels of wide nodes."""
+    return next(g for g in STACK_GROUPS if g >= levels)
+
 
 def binary_bvh(tree):
     """The binary BVH of the triangles `tree` lists (kdray/builder/bvh.py, sah_bvh, its

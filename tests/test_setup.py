@@ -1,4 +1,5 @@
-"""`kdray setup` leaves nothing for the default render (`make render`) to compile.
+"""`kdray setup` leaves nothing for the default render (`make render`) to compile, nor
+for a default render of meshes whose trees are of other sizes.
 
 Checked from a fresh environment: numba's and pyopencl's caches (NUMBA_CACHE_DIR,
 XDG_CACHE_HOME) and PoCL's (POCL_CACHE_DIR) in an empty temporary folder, `kdray setup`,
@@ -47,3 +48,11 @@ def test_default_render_compiles_nothing_after_setup(tmp_path):
     after = {p for p in _files(caches) if not p.name.startswith("tempfile")}
     assert after == before, f"the render compiled: {sorted(map(str, after - before))}"
     assert (tmp_path / "out" / "cornell.exr").is_file()
+    # trees of other depths and wide levels (the bunny: 20 deep, 6 levels of wide
+    # nodes; fandisk 14 and 5; a 1280-triangle sphere 7 and 3) share the programs that
+    # setup compiled (work_sizes.STACK_SIZES, wide.STACK_GROUPS)
+    for scene in ("tests/data/meshes/stanford-bunny.obj.gz", "tests/data/meshes/fandisk.obj.gz",
+                  "scenes/sphere.obj"):
+        kdray("render", scene, "--size", "64x48", "-o", tmp_path / "out" / "mesh.exr")
+        now = {p for p in _files(caches) if not p.name.startswith("tempfile")}
+        assert now == before, f"rendering {scene} compiled: {sorted(map(str, now - before))}"

@@ -17,6 +17,7 @@ from kdray.device import has_fp64
 from kdray.errors import KdrayError
 from kdray.reference import brute_force
 from kdray.trace import MISS, PACKETS, Tracer, default_stack_size
+from kdray.wide import STACK_GROUPS
 
 
 
@@ -1169,3 +1170,28 @@ def test_compile_builds_what_render_and_trace_use():
                for k in ("t", "prim", "u", "v", "normal"))
     again = Tracer(tree).render(cam, aovs=("id", "depth"))
     assert all(np.array_equal(images[k], again[k]) for k in images)
+
+
+def test_compile_for_other_stack_sizes():
+    """compile(stack_sizes=...) also builds the programs of trees of those stack sizes
+    (as `kdray setup` does), launched on this tree, and leaves the Tracer's own sizes
+    and answers as they were; the wide walks' stack groups are shared by trees of
+    different depths (wide.STACK_GROUPS)."""
+    tree = mesh_tree("teapot.obj", "sah")
+    tr = Tracer(tree)
+    own = (tr.stack_size, tr.packet_stack_size)
+    assert tr.compile(("depth",), stack_sizes=(8, 16)) is tr
+    assert (tr.stack_size, tr.packet_stack_size) == own
+    sizes = {dict(key)["STACK_SIZE"] for key in tr._programs}
+    assert sizes == {own[0], 8, 16}
+    if tr.packet > 1:
+        assert {dict(key)["PACKET_STACK_SIZE"] for key in tr._programs} == {own[1], 8, 16}
+        assert {dict(key).get("WIDE_STACK") for key in tr._programs} == {STACK_GROUPS[0]}
+        other = Tracer(mesh_tree("spot.obj", "sah"))        # 4 levels; the teapot 5
+        assert other._wide()[1] == tr._wide()[1] == STACK_GROUPS[0]
+    cam = camera_for(tree, 24, 16)
+    n = len(tr._programs)
+    images = tr.render(cam, aovs=("depth",))
+    assert len(tr._programs) == n                      # its own program came first
+    again = Tracer(tree).render(cam, aovs=("depth",))
+    assert np.array_equal(images["depth"], again["depth"])

@@ -9,7 +9,8 @@ import trees
 from helpers import check_hits, grid_cube, icosphere, random_rays, real_mesh_arrays, soup
 from kdray import layout
 from kdray.builder import build
-from kdray.wide import EMPTY, LEAF, LEAF_ALIGN, MAX_DEPTH, WIDE_WORDS, WIDTH, wide_nodes
+from kdray.wide import (EMPTY, LEAF, LEAF_ALIGN, MAX_DEPTH, STACK_GROUPS, WIDE_WORDS, WIDTH,
+                        stack_groups, wide_nodes)
 from small_trees import single_leaf_tree
 
 
@@ -103,6 +104,7 @@ def test_wide_nodes_hold_each_triangle_once_in_boxes_that_hold_them(name, run):
     for j in range(len(records)):
         wide_depth[child[j][is_node[j]]] = wide_depth[j] + 1
     assert wide_depth.max() + 1 <= levels <= MAX_DEPTH + 1
+    assert levels <= stack_groups(levels) in STACK_GROUPS
     for octant in range(8):
         for j in range(len(records)):
             n_kids = int(np.count_nonzero(kind[j] != EMPTY))
@@ -404,3 +406,12 @@ def test_renders_keep_to_the_k_d_tree_where_the_wide_nodes_do_not_fit(tracers, m
     o, d = random_rays(tree, 101, seed=45)
     with pytest.raises(DeviceError):
         tr.trace(o, d)
+
+
+def test_stack_groups():
+    """Programs are compiled for a few stack depths of wide nodes: the fewest that hold
+    a walk, any tree's at most (MAX_DEPTH + 1 levels)."""
+    assert STACK_GROUPS == tuple(sorted(STACK_GROUPS)) and STACK_GROUPS[-1] == MAX_DEPTH + 1
+    for levels in range(1, MAX_DEPTH + 2):
+        g = stack_groups(levels)
+        assert g >= levels and all(h < levels for h in STACK_GROUPS if h < g)

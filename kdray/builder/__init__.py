@@ -109,7 +109,10 @@ def compiled():
 def compile_all():
     """Compile every numba function of the builder into its on-disk cache, so that
     `compiled` holds (it checks each one): one build of a single triangle (the
-    one-thread path), one of 20,000 (the threaded path), and `events.event_counts`,
+    one-thread path), one of `events.SPLIT_TRIS` on two threads (the threaded path,
+    with z's root events made in two jobs as on two CPUs: that job's call from Python
+    is compiled apart, and was left to a first build of 30,000 triangles or more on
+    such machines), and `events.event_counts`,
     which no build calls (`sorted_root_events` counts with it for a caller that passes
     no `flat`); left out, every command that builds would warn that it compiles. Also
     the wide nodes' BVH (`bvh`, kdray/wide.py), which a Tracer's first trace of rays
@@ -119,8 +122,9 @@ def compile_all():
     rng = np.random.default_rng(0)
     one = build([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     events.event_counts(one.triangles)
-    soup = rng.random((20000, 1, 3)) + 0.01 * rng.random((20000, 3, 3))
-    wide_nodes(build(soup.reshape(-1, 3), np.arange(60000).reshape(-1, 3)), 16, 0)
+    n = events.SPLIT_TRIS
+    soup = rng.random((n, 1, 3)) + 0.01 * rng.random((n, 3, 3))
+    wide_nodes(build(soup.reshape(-1, 3), np.arange(3 * n).reshape(-1, 3), threads=2), 16, 0)
 
 
 MAX_THREADS = 1024
