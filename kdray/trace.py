@@ -837,7 +837,7 @@ class Tracer:
             array[none] = np.inf if name == "T" else (MISS if name == "ID" else 0)
         images = _render.images(out, camera, self._origin, aovs, self._scale,
                                 objects=self.tree.objects, map32=map32)
-        images["valid"] = valid.reshape(h, w)
+        images["valid"] = valid.reshape(h, w).copy()     # the caller's own, not the kept map's
         return images
 
     def _render_rows(self, camera_buf, map_buf, w, h, outputs, out, rays):

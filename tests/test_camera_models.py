@@ -361,6 +361,20 @@ def test_pinhole_render_has_no_valid_image(room):
     assert list(images) == ["depth", "id"]
 
 
+def test_valid_images_are_the_callers_own(room):
+    """A render's `valid` image is a writable array of its own, like every other image:
+    it was the Tracer's kept ray map's mask, read-only, shared by every render of
+    that camera."""
+    tree, tracer = room
+    camera = Camera(W, H, _K(40.0), _pose(), "fisheye", FISHEYE)
+    first = tracer.render(camera, aovs="depth")
+    want = first["valid"].copy()
+    assert first["valid"].flags.writeable and not want.all()
+    first["valid"][:] = True                                   # the caller's to change
+    again = tracer.render(camera, aovs="depth")["valid"]
+    assert np.array_equal(again, want) and not np.shares_memory(again, first["valid"])
+
+
 def test_cull_keeps_every_face_for_a_camera_model(room):
     tree, _ = room
     v, f = np.zeros((3, 3)), np.array([[0, 1, 2]] * 5)
