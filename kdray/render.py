@@ -77,7 +77,7 @@ model but the pinhole trace the camera's float64 rays."""
 def camera_values(camera, origin, scale=1.0):
     """The float32 values of the render kernel's `camera` buffer: M (3, 3) row-major and
     the eye relative to `origin` in units of `scale` (`camera_constants`); for an
-    orthographic camera M = R K^-1 / scale, the eye less the forward axis / scale, then
+    orthographic camera M = R K'^-1 / scale (K^-1 with its last row 0), the eye, then
     the unit forward axis (15 values: kernels/render.cl, ORTHOGRAPHIC)."""
     M, eye = camera_constants(camera, origin, scale)
     if camera.model != "orthographic":
@@ -131,18 +131,24 @@ def ray_map(camera):
 
 def camera_constants(camera, origin, scale=1.0):
     """(M, eye): float32 R K^-1 (3, 3) (R for a camera of MAP_MODELS, whose directions
-    come from its ray map) and the eye relative to `origin` ((3,) float64, the tree's
-    origin) in units of `scale` (the tree's) as (3,) float32, exactly as the kernel
-    receives them."""
+    come from its ray map; R K'^-1 / scale for an orthographic camera, K^-1 with its
+    last row 0: the pixels' origins about the eye) and the eye relative to `origin`
+    ((3,) float64, the tree's origin) in units of `scale` (the tree's) as (3,)
+    float32, exactly as the kernel receives them."""
     c2w = np.asarray(camera.cam_to_world, dtype=np.float64)
     if camera.model in MAP_MODELS:
         M = c2w[:3, :3]
+    elif camera.model == "orthographic":
+        # pixel (x, y)'s origin is the eye + R (a, b, 0), (a, b, 1) = K^-1 (x, y, 1):
+        # K^-1 without its last row, so that no unit of the forward axis is added in
+        # float32 and taken off again (which lost a and b where the image spans
+        # much less than a unit: a scene of 1e-4 drew 5e-4 of its size off)
+        k_inv = np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
+        k_inv[2] = 0.0
+        M = c2w[:3, :3] @ k_inv / scale
     else:
         M = c2w[:3, :3] @ np.linalg.inv(np.asarray(camera.K, dtype=np.float64))
     eye = (c2w[:3, 3] - np.asarray(origin, dtype=np.float64)) / scale
-    if camera.model == "orthographic":
-        M = M / scale
-        eye = eye - c2w[:3, 2] / scale
     # a camera far from a small scene (1e30 from a tree of scale 2^-100): the kernel's
     # float32 cannot hold where it is
     check_float32(M, "the camera's rays in the tree's units", KdrayError)

@@ -712,8 +712,8 @@ void trace_rays(KD_TREE_ARGS,
  * M ray_map[p], ray_map holding 3 floats a pixel of the whole image (camera axes);
  * a pixel whose map entry is NaN has no ray and is not traced nor written (the host
  * writes its miss). ray_map is NULL without RAY_MAP.
- * ORTHOGRAPHIC: camera holds 15 floats, M = R K^-1 / scale, then the eye less the
- * forward axis, relative to the origin in the tree's units, then the unit forward
+ * ORTHOGRAPHIC: camera holds 15 floats, M = R K'^-1 / scale (K^-1 with its last row
+ * 0), then the eye relative to the origin in the tree's units, then the unit forward
  * axis: pixel (i, j)'s ray leaves eye + M [i + 0.5, j + 0.5, 1] along the forward
  * axis (its origin on the plane through the camera's eye).
  *

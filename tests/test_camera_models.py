@@ -354,6 +354,35 @@ def test_render_equirectangular_and_orthographic(room):
     assert np.allclose(images["depth"].reshape(-1), depth, rtol=1e-6)
 
 
+@pytest.mark.parametrize("size", [1.0, 1e-4, 2.0**-50, 3e12])
+def test_orthographic_render_at_any_scale(size):
+    """An orthographic camera's float32 render of a sphere of any size: its pixels'
+    origins are the eye + R (a, b, 0) (K^-1 (x, y, 1) = (a, b, 1)) and its depths the
+    float64 render's to float32's precision. They came from eye - forward + R K^-1 (x,
+    y, 1) in float32, the forward axis added and taken off again, which lost a and b
+    below a unit: a sphere of 1e-4 drew its depths 2.5e-4 off, one of 2^-50 gave every
+    pixel the same ray."""
+    from helpers import icosphere
+    v, f = icosphere(3)
+    tree = kdray.build(np.asarray(v) * size, f, keep_double=True)
+    tracer = kdray.Tracer(tree)
+    pose = np.eye(4)
+    pose[:3, :3] = np.diag([1.0, -1.0, -1.0])         # looking down -z, y up in the image
+    pose[2, 3] = 3.0 * size
+    K = np.array([[10.0 / size, 0.0, 16.5], [0.0, 10.0 / size, 12.0], [0.0, 0.0, 1.0]])
+    camera = Camera(33, 24, K, pose, "orthographic")
+    single = tracer.render(camera, aovs="depth,id")
+    double = tracer.render(camera, aovs="depth,id", precision="double")
+    hit = single["id"] != 0xFFFFFFFF
+    assert 200 < hit.sum() < 33 * 24 and np.array_equal(hit, np.isfinite(double["depth"]))
+    assert np.allclose(single["depth"][hit], double["depth"][hit], rtol=2e-6)
+    o = tracer.camera_rays(camera)[0]
+    x, y = np.meshgrid(np.arange(33) + 0.5, np.arange(24) + 0.5)
+    want = pose[:3, 3] + np.stack([(x - 16.5) * size / 10, -(y - 12.0) * size / 10,
+                                   np.zeros_like(x)], axis=-1).reshape(-1, 3)
+    assert np.abs(o - want).max() < 1e-6 * size
+
+
 def test_pinhole_render_has_no_valid_image(room):
     tree, tracer = room
     camera = Camera(W, H, _K(), _pose())
