@@ -29,6 +29,7 @@ triangle:
   or `g`, a scene of one node) has one object, named after the file.
 """
 import dataclasses
+import functools
 import gzip
 import io
 import logging
@@ -90,7 +91,7 @@ def load(path):
             if scene is None:
                 raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: "
                                 f"{one_line(e)})") from None
-        vertices, faces, objects, object_names = _scene_arrays(scene, path)
+        vertices, faces, objects, object_names = _scene_arrays(scene, path, obj)
     if not faces:
         kinds = sorted({type(g).__name__ for g in scene.geometry.values()})
         what = f" (only {', '.join(kinds)})" if kinds else ""
@@ -122,13 +123,15 @@ def _binary_ply_scene(path, zipped):
     return trimesh.Scene(trimesh.Trimesh(vertices=vertices, faces=faces, process=False))
 
 
-def _scene_arrays(scene, path):
+def _scene_arrays(scene, path, obj=None):
     """The triangles of a trimesh Scene, node by node in the graph's order, transforms
     applied (a mirroring one reverses its triangles' winding, so that their normals
     turn with them): (vertices [(n_i, 3) float64], faces [(m_i, 3) int64] indexing the
     concatenated vertices, objects (m,) uint32, object_names tuple): objects numbered
-    in the order of their first triangle."""
+    in the order of their first triangle. obj: the bytes of the OBJ file the scene was
+    read from (its quads' triangles put in turn, `_obj_quads_in_turn`), or None."""
     import trimesh
+    quads = functools.cache(lambda: obj is not None and bool(_OBJ_QUAD_LINE.search(obj)))
     vertices, faces, objects = [], [], []
     names = {}                                  # object name -> index, in order of appearance
     offset = 0
@@ -140,6 +143,8 @@ def _scene_arrays(scene, path):
             continue
         v = np.asarray(geom.vertices, dtype=np.float64)
         f = _ply_file_order(geom, np.asarray(geom.faces, dtype=np.int64))
+        if obj is not None:
+            f = _obj_quads_in_turn(f, quads)
         if not np.array_equal(transform, np.eye(4)):       # any other, however near
             v = v @ transform[:3, :3].T + transform[:3, 3]
             if np.linalg.det(transform[:3, :3]) < 0:
@@ -170,6 +175,31 @@ def _ply_file_order(geom, faces):
             and np.array_equal(ordered[np.lexsort(ordered.T[::-1])],
                                faces[np.lexsort(faces.T[::-1])]))
     return ordered if same else faces
+
+
+def _obj_quads_in_turn(faces, file_has_quads):
+    """An OBJ mesh's triangles (faces (m, 3) int64, trimesh's) with each quad's two in
+    turn, where trimesh split a run of quads as every quad's (0, 1, 2), then every
+    quad's (2, 3, 0) (its triangulate_quads, for a run of face lines of four
+    vertices; a run of mixed sizes it splits in turn itself). Such faces are m / 2
+    first halves and m / 2 second halves, the second of each sharing its first's
+    corners 2 and 0; they are put in turn where the file has a face line of four
+    vertices or more (file_has_quads(), asked only then): a file of triangles in that
+    order (one trimesh wrote) keeps it."""
+    m = len(faces)
+    if m < 4 or m % 2:
+        return faces
+    first, second = faces[:m // 2], faces[m // 2:]
+    if not (np.array_equal(second[:, 0], first[:, 2]) and np.array_equal(second[:, 2], first[:, 0])
+            and file_has_quads()):
+        return faces
+    out = np.empty_like(faces)
+    out[0::2], out[1::2] = first, second
+    return out
+
+
+_OBJ_QUAD_LINE = re.compile(rb"^[ \t]*f(?:[ \t]+[^\s#]+){4}", re.MULTILINE)
+"""A face line of four vertices or more."""
 
 
 def split_polygons(polygons):
@@ -320,7 +350,7 @@ def _obj_objects(path, zipped, file_name, triangles, data=None):
         log.warning("%s: cannot read its o/g groups (%s: %s); one object", path,
                     type(e).__name__, e)
         return one
-    g_vertices, g_faces, g_objects, g_names = _scene_arrays(split, path)
+    g_vertices, g_faces, g_objects, g_names = _scene_arrays(split, path, data)
     if len(g_names) <= 1:
         return one
     # the same triangles, bit for bit, in two orders: sort both and pair them up

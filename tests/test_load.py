@@ -133,6 +133,36 @@ def test_ply_polygons_in_file_order(tmp_path):
     assert load(binary_ply).faces.tolist() == [want[0], want[1], want[3], want[4]]
 
 
+def test_obj_quads_in_file_order(tmp_path):
+    """An OBJ file's quads become triangles in the file's order, each quad's two in
+    turn, as a PLY's do (trimesh split a run of quad lines into every first half, then
+    every second half); a file of triangles keeps its order however its triangles
+    pair up, and o/g groups follow their triangles."""
+    v = "".join(f"v {x} {y} {z}\n" for x, y, z in
+                [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (3, 0, 0), (3, 1, 0),
+                 (2, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)])
+    quads = tmp_path / "quads.obj"
+    quads.write_text(v + "o a\nf 1 2 3 4\nf 5/1 6/1 7/1 8/1\no b\nf 9 10 11 12\n")
+    m = load(quads)
+    assert m.faces.tolist() == [[0, 1, 2], [2, 3, 0], [4, 5, 6], [6, 7, 4],
+                                [8, 9, 10], [10, 11, 8]]
+    assert m.object_names == ("a", "b") and m.objects.tolist() == [0, 0, 0, 0, 1, 1]
+    one = tmp_path / "one.obj"                     # one run of quads, no groups
+    one.write_text(v + "f 1 2 3 4\nf 5 6 7 8\nf 9 10 11 12\n")
+    assert load(one).faces.tolist() == [[0, 1, 2], [2, 3, 0], [4, 5, 6], [6, 7, 4],
+                                        [8, 9, 10], [10, 11, 8]]
+    # the same triangles written in trimesh's order (first halves, then second halves)
+    # by a tool: a file of triangles, kept as it is
+    halves = tmp_path / "halves.obj"
+    halves.write_text(v + "f 1 2 3\nf 5 6 7\nf 9 10 11\nf 3 4 1\nf 7 8 5\nf 11 12 9\n")
+    assert load(halves).faces.tolist() == [[0, 1, 2], [4, 5, 6], [8, 9, 10], [2, 3, 0],
+                                           [6, 7, 4], [10, 11, 8]]
+    mixed = tmp_path / "mixed.obj"       # sizes mixed: in turn already (vertices renumbered)
+    mixed.write_text(v + "f 1 2 3 4\nf 5 6 7\nf 9 10 11 12 4\n")
+    want = m.vertices[[[0, 1, 2], [2, 3, 0], [4, 5, 6], [8, 9, 10], [8, 10, 11], [8, 11, 3]]]
+    np.testing.assert_array_equal(load(mixed).triangles, want)
+
+
 @pytest.mark.parametrize("endian", ["<", ">"])
 def test_binary_ply_of_polygons_of_several_sizes(tmp_path, endian):
     """A binary PLY whose faces are of several sizes (trimesh's reader refuses it) loads
