@@ -17,6 +17,7 @@ a whole file. A file that fails to load (corrupt, truncated, another version) is
 logged, rebuilt and replaced. Nothing is ever evicted: `kdray cache --clear` or
 removing the folder empties it.
 """
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -122,19 +123,36 @@ class TreeCache:
         self.store(key, tree)
         return tree, False
 
+    def _files(self):
+        """(trees, leftovers): the cache's tree files, and the temporary files of
+        writes that a killed process left (kdray.files.atomic_write's `.NAME.<hex>.tmp`),
+        which nothing reads."""
+        return (list(self.folder.glob(f"??/*{SUFFIX}")),
+                list(self.folder.glob(f"??/.*{SUFFIX}.*.tmp")))
+
     def clear(self):
-        """Remove every cached tree; returns (files, bytes) removed."""
+        """Remove every cached tree, the leftovers of writes cut short and the emptied
+        folders (a run that fills the cache meanwhile may lose a tree it was writing:
+        it is logged and built again next time); returns (trees, bytes) removed."""
+        trees, leftovers = self._files()
         files = size = 0
-        for path in self.folder.glob(f"??/*{SUFFIX}"):
+        for path in trees + leftovers:
             try:
                 size += path.stat().st_size
                 path.unlink()
-                files += 1
+                files += path.suffix == SUFFIX
             except OSError:
                 pass
+        for folder in self.folder.glob("??"):
+            with contextlib.suppress(OSError):
+                folder.rmdir()                      # only when empty
         return files, size
 
     def usage(self):
-        """(files, bytes) in the cache."""
-        paths = list(self.folder.glob(f"??/*{SUFFIX}"))
-        return len(paths), sum(p.stat().st_size for p in paths if p.exists())
+        """(trees, bytes) in the cache, the leftovers of writes cut short in the bytes."""
+        trees, leftovers = self._files()
+        size = 0
+        for path in trees + leftovers:
+            with contextlib.suppress(OSError):
+                size += path.stat().st_size
+        return len(trees), size

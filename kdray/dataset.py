@@ -31,6 +31,7 @@ unknown keys, missing fields or scene files, two jobs writing one folder, an out
 that is a file or cannot be written.
 """
 import collections
+import contextlib
 import concurrent.futures
 import dataclasses
 import logging
@@ -145,7 +146,9 @@ def read_jobs(path):
             jobs.append(_job(data, path.parent))
         except KdrayError as e:
             raise DatasetError(f"{where}: {e}") from None
-    check_jobs(jobs, [f"{path}, line {number}" for number, _ in lines])
+    where = [f"{path}, line {number}" for number, _ in lines]
+    check_jobs(jobs, where)
+    check_outputs(jobs, where, make=False)
     return jobs
 
 
@@ -216,29 +219,40 @@ def check_jobs(jobs, where=None):
         seen[key] = i
 
 
-def check_outputs(jobs):
-    """Create every job's output folder, after checking all of them: OutputError when
-    one is a file, or it or the folder it would be made in cannot be written. Nothing
-    is created when any fails."""
-    for job in jobs:
+def check_outputs(jobs, where=None, make=True):
+    """Check every job's output folder, then (make) create them: OutputError when one is
+    a file, or it or the folder it would be made in cannot be written, or making one
+    fails; where: how to name each job in messages (a jobs file's "JOBS, line N").
+    Nothing is created when any fails: the folders made before a failure are removed."""
+    def error(i, message):
+        return OutputError(f"{where[i]}: {message}" if where else message)
+    for i, job in enumerate(jobs):
         out = job.output
         try:                                    # exists() raises for a name too long
             if out.exists() and not out.is_dir():
-                raise OutputError(f"{out}: is a file, not a folder (the output of {job.scene.name})")
+                raise error(i, f"{out}: is a file, not a folder (the output of {job.scene.name})")
             existing = out
             while not existing.exists():
                 existing = existing.parent
         except OSError as e:
-            raise OutputError(f"{out}: cannot be used ({e.strerror or e})") from None
+            raise error(i, f"{out}: cannot be used ({e.strerror or e})") from None
         if not existing.is_dir():
-            raise OutputError(f"{out}: cannot be made, {existing} is a file")
+            raise error(i, f"{out}: cannot be made, {existing} is a file")
         if not os.access(existing, os.W_OK | os.X_OK):
-            raise OutputError(f"{out}: {'the folder' if existing == out else existing} is not writable")
-    for job in jobs:
+            raise error(i, f"{out}: {'the folder' if existing == out else existing} is not writable")
+    if not make:
+        return
+    made = []                                   # the folders made, deepest last
+    for i, job in enumerate(jobs):
+        missing = [f for f in (job.output, *job.output.parents) if not f.exists()]
         try:
             job.output.mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            raise OutputError(f"{job.output}: cannot be made ({e.strerror or e})") from None
+            for folder in reversed(made):       # what the checks let through: undone
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
+            raise error(i, f"{job.output}: cannot be made ({e.strerror or e})") from None
+        made.extend(reversed(missing))
 
 
 # -- what a run did ------------------------------------------------------------------------
@@ -350,7 +364,7 @@ class Renderer:
         written on a thread while the next view traces (WRITES_WAITING), so `seconds`'
         trace and write overlap."""
         seconds = dict.fromkeys(STEPS, 0.0)
-        todo = [v for v in views if overwrite or not all(f.exists() for f in job.files(v.name))]
+        todo = [v for v in views if overwrite or not all(f.is_file() for f in job.files(v.name))]
         skipped = len(views) - len(todo)
         if not todo:
             return seconds, 0, skipped, [], None
@@ -534,7 +548,7 @@ def plan(jobs, overwrite=False):
             planned.append((report, []))
             continue
         remove_stale_temporaries(job, [v.name for v in views])
-        todo = [v for v in views if overwrite or not all(f.exists() for f in job.files(v.name))]
+        todo = [v for v in views if overwrite or not all(f.is_file() for f in job.files(v.name))]
         report.skipped = len(views) - len(todo)
         planned.append((report, todo))
     return planned
@@ -627,7 +641,7 @@ def _run_here(planned, device, cache, overwrite, progress):
             continue
         job = report.job
         try:
-            seconds, rendered, _, errors, cached = renderer.render_views(
+            seconds, rendered, skipped, errors, cached = renderer.render_views(
                 job, todo, overwrite, on_view=lambda name, s, job=job: progress.view(job, name, s))
         except Exception as e:          # a scene that fails, whatever the reason: go on
             what = str(e) if isinstance(e, KdrayError) else f"{type(e).__name__}: {e}"
@@ -637,6 +651,7 @@ def _run_here(planned, device, cache, overwrite, progress):
             continue
         report.add(seconds)
         report.rendered += rendered
+        report.skipped += skipped           # written meanwhile (by another run)
         report.errors.extend(errors)
         report.tree_cached = cached
         progress.advance(len(todo) - rendered)       # failed, or written meanwhile
@@ -690,11 +705,13 @@ def _task_tree(job):
 
 def _task_views(job, views, overwrite, _tree_done=None):
     """A Dask task: render and write some of a job's views on this worker. Returns
-    (seconds, rendered, errors, [(name, seconds)])."""
+    (seconds, rendered, skipped, errors, [(name, seconds)]): skipped, the views whose
+    files were there by then (a task run again after its worker died had written
+    them)."""
     done = []
-    seconds, rendered, _, errors, _ = _worker_renderer().render_views(
+    seconds, rendered, skipped, errors, _ = _worker_renderer().render_views(
         job, views, overwrite, on_view=lambda name, s: done.append((name, s)))
-    return seconds, rendered, errors, done
+    return seconds, rendered, skipped, errors, done
 
 
 def local_cluster(workers, quiet=False):
@@ -767,9 +784,10 @@ def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, c
                 report.add(seconds)
                 report.tree_cached = cached
                 continue
-            seconds, rendered, errors, done = result
+            seconds, rendered, skipped, errors, done = result
             report.add(seconds)
             report.rendered += rendered
+            report.skipped += skipped
             report.errors.extend(errors)
             for name, s in done:
                 progress.view(report.job, name, s)

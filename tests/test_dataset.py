@@ -209,6 +209,7 @@ def test_duplicate_outputs_and_output_that_is_a_file(capsys, tmp_path):
                                                 dict(job, output="file/sub")])
     code, out, err = run_cli(capsys, "batch", jobs)
     assert code == 1 and err.count("\n") == 1 and "is a file, not a folder" in err
+    assert "jobs.jsonl, line 2: " in err               # where, as the file's other checks
     assert not (tmp_path / "o").exists()               # nothing made before the check
     code, out, err = run_cli(capsys, "render", tmp_path / "m.obj", "--cameras", tmp_path / "c.json",
                              "-o", tmp_path / "file")
@@ -276,7 +277,13 @@ def test_tree_cache(tmp_path, caplog):
     tree3, cached = cache.tree(mesh, BuildParams(), build)
     assert not cached and tree3 == tree and "building it again" in caplog.text
     assert cache.load(tree_key(mesh, BuildParams())) == tree
-    assert cache.usage()[0] == 3 and cache.clear()[0] == 3 and cache.usage()[0] == 0
+    # a write a kill cut short leaves a temporary file: counted in the size, cleared
+    from kdray.files import temporary_path
+    temporary_path(path).write_bytes(b"\0" * 5000)
+    trees, size = cache.usage()
+    assert trees == 3 and size == 5000 + sum(f.stat().st_size for f in cache.folder.glob("??/*.kdt"))
+    assert cache.clear() == (3, size) and cache.usage() == (0, 0)
+    assert not list(cache.folder.iterdir())             # the emptied folders too
 
 
 def test_progress_line():
@@ -375,6 +382,23 @@ def test_dask_worker_killed_loses_nothing(tmp_path, monkeypatch):
         assert not [p.name for p in folder.iterdir() if p.name.startswith(".")]   # no partial file
 
 
+def test_a_task_run_again_counts_the_views_it_finds(tmp_path, monkeypatch):
+    """A Dask task run again (its worker died after writing some of its views) finds
+    those views written: it reports them as already there, so that a job's views
+    rendered and already there add up to its views (they were dropped: "145 of 150
+    views rendered, 0 already there" with all 150 written)."""
+    from kdray.camera_files import read_cameras
+    renderer = dataset.Renderer()                       # this process as the worker
+    monkeypatch.setattr(dataset, "_worker_renderer", lambda: renderer)
+    (job,) = _dask_jobs(tmp_path, "out")[:1]
+    job.output.mkdir(parents=True)                      # as run() makes it first
+    views = read_cameras(job.cameras)
+    seconds, rendered, skipped, errors, done = dataset._task_views(job, views[:3], False)
+    assert (rendered, skipped, errors, len(done)) == (3, 0, [], 3)
+    seconds, rendered, skipped, errors, done = dataset._task_views(job, views[:5], False)
+    assert (rendered, skipped, errors, len(done)) == (2, 3, [], 2)
+
+
 def test_dask_worker_errors_are_one_line(tmp_path):
     """A scene that fails to load in a Dask worker is reported as in-process: one line a
     failure and the summary, no worker log or traceback (the worker's stderr is the
@@ -413,6 +437,37 @@ def test_output_errors_before_anything(tmp_path):
     with pytest.raises(OutputError, match="is a file"):
         run(jobs)
     assert not (tmp_path / "ok").exists()
+
+
+def test_output_that_cannot_be_made_leaves_none_made(tmp_path, monkeypatch):
+    """A folder whose making fails though the checks let it through (a file system's
+    own refusal: /proc, a full disk) leaves none of the jobs' folders made: those made
+    before it are removed (they were left)."""
+    cams = orbit(tmp_path / "c.json", 1)
+    jobs = [Job(scene=real_mesh("teapot.obj"), cameras=cams, output=tmp_path / "a" / "b"),
+            Job(scene=real_mesh("teapot.obj"), cameras=cams, output=tmp_path / "c")]
+    (tmp_path / "kept").mkdir()
+    jobs.append(Job(scene=real_mesh("teapot.obj"), cameras=cams, output=tmp_path / "kept"))
+    real_mkdir = Path.mkdir
+
+    def refuse(self, *args, **kwargs):
+        if self == tmp_path / "c":
+            raise OSError(28, "No space left on device")
+        return real_mkdir(self, *args, **kwargs)
+    monkeypatch.setattr(Path, "mkdir", refuse)
+    with pytest.raises(OutputError, match="c: cannot be made .No space left on device"):
+        run(jobs)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "kept"]
+
+
+def test_views_whose_files_are_folders_are_not_done(tmp_path):
+    """A view counts as done when its files are files: a folder of its file's name
+    (nothing a run writes) is not skipped, the view fails and the others go on."""
+    cams = orbit(tmp_path / "c.json", 2)
+    job = Job(scene=real_mesh("teapot.obj"), cameras=cams, output=tmp_path / "out")
+    (tmp_path / "out" / "view00.exr").mkdir(parents=True)
+    (report,) = run([job])
+    assert report.skipped == 0 and report.rendered == 1 and len(report.errors) == 1
 
 
 def test_dask_existing_scheduler(tmp_path):
