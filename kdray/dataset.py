@@ -31,8 +31,8 @@ unknown keys, missing fields or scene files, two jobs writing one folder, an out
 that is a file or cannot be written.
 """
 import collections
-import contextlib
 import concurrent.futures
+import contextlib
 import dataclasses
 import logging
 import math
