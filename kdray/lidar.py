@@ -54,12 +54,12 @@ MAX_COLUMNS = 1 << 16
 """The most azimuth steps: 0.0055 degrees at 360, finer than any spinning lidar's
 (2048 columns: 0.18 degrees); with MAX_BEAMS, 2^26 rays a scan at most."""
 
-SCAN_BYTES_PER_BEAM = 136
+SCAN_BYTES_PER_BEAM = 140
 """Host bytes a scan holds at once per beam (Tracer.scan, kdray.scan_images): the
 float64 directions (24) and their float32 copy for the device (12), t and the
 triangle (8), the kernel's rays on the host (24 and 12 for its float32 components),
 copies of t and the triangle, the far mask and t in float64 (17), the points (24),
-the objects (4), and the PLY of `kdray scan --points` (38) less what is freed by then."""
+the objects (4), and the PLY of `kdray scan --points` (42) less what is freed by then."""
 
 SPEC_KEYS = ("elevations", "channels", "fov_up", "fov_down", "columns", "horizontal_fov",
              "max_range", "azimuth_offsets")
@@ -305,7 +305,11 @@ def _spaced(spec):
         if up != down:
             raise ParameterError(f"one channel needs fov_up == fov_down, got {up} and {down}")
         return [up]
-    return (up - np.arange(channels) * ((up - down) / (channels - 1))).tolist()
+    # in the documented order, fov_up - i (fov_up - fov_down) / (channels - 1), and the
+    # last exactly fov_down (the step rounded first put it 3e-14 past -90: refused)
+    elevations = up - (np.arange(channels) * (up - down)) / (channels - 1)
+    elevations[-1] = down
+    return elevations.tolist()
 
 
 def check_pose(pose, name="the sensor pose"):
@@ -348,7 +352,7 @@ def scan_images(lidar, origin, directions, t, prim, objects):
 PLY_FIELDS = (("x", "<f8", "double"), ("y", "<f8", "double"), ("z", "<f8", "double"),
               ("ring", "<u2", "ushort"), ("column", "<u4", "uint"), ("range", "<f4", "float"),
               ("id", "<u4", "uint"), ("object", "<u4", "uint"))
-"""The PLY vertex properties of `write_points_ply`: (name, numpy dtype, PLY type), 38
+"""The PLY vertex properties of `write_points_ply`: (name, numpy dtype, PLY type), 42
 bytes a point. x y z are float64: world coordinates far from the origin (a georeferenced
 scene at 1e6 m) keep their precision (float32 would be 6 cm there)."""
 

@@ -117,6 +117,20 @@ def test_channels_and_partial_field_of_view():
                                                    -np.sin(np.radians(3))]], atol=1e-15)
 
 
+def test_spaced_channels_end_exactly_at_fov_down():
+    """Channels spaced over [fov_down, fov_up] are fov_up - i (fov_up - fov_down) /
+    (channels - 1), the last exactly fov_down: with the step rounded first, 64 channel
+    counts from 2 to 1024 put the last of (90, -90) at -90.00000000000003, refused as
+    out of [-90, 90], and others 3e-14 off fov_down."""
+    for up, down in ((90.0, -90.0), (15.0, -25.0), (2.0, -24.8), (10.67, -30.67)):
+        for channels in range(2, 1025):
+            e = Lidar.from_dict({"channels": channels, "fov_up": up, "fov_down": down,
+                                 "columns": 4, "max_range": 10}).elevations
+            i = np.arange(channels)
+            assert e[0] == up and e[-1] == down
+            assert np.array_equal(e[:-1], (up - (i * (up - down)) / (channels - 1))[:-1])
+
+
 def test_spec_round_trips_exactly():
     lidar = Lidar.from_dict({**SPEC, "azimuth_offsets": list(np.linspace(-1.1, 3.3, 32))})
     assert Lidar.from_dict(json.loads(lidar.to_json())) == lidar
