@@ -2,9 +2,9 @@
 picture and the relative accuracy of the unscaled scene, on every OpenCL implementation
 present. Outside what float32 depths can hold, building is a one-line error.
 
-A scene outside 2^-40 .. 2^40 across is stored divided by the power of two nearest its
+A scene outside 2^-40 .. 2^28 across is stored divided by the power of two nearest its
 size (KdTree.scale), so the kernels' products of coordinates neither overflow nor
-underflow; a power-of-two scale changes no rounding, so a scene scaled by 2^k renders
+underflow for rays from thousands of its sizes away; a power-of-two scale changes no rounding, so a scene scaled by 2^k renders
 exactly 2^k times the unscaled depths."""
 import warnings
 
@@ -109,6 +109,25 @@ def test_traced_rays_at_extreme_scales_match_float64(runtime, s):
     assert same.sum() > n // 5
     rel = np.abs(hits.t[same] - ref.t[same]) / ref.t[same]
     assert np.percentile(rel, 99) <= 1e-6 and rel.max() <= 4e-6, (np.percentile(rel, 99), rel.max())
+
+
+@pytest.mark.parametrize("e", [0.0, 27.5, 28.5, 39.5])
+def test_rays_from_far_away_hit_large_scenes(e):
+    """A quad 2^e across, traced, counted and tested for occlusion from 100 and 10,000
+    of its sizes away (an eye far off a large scene): every query hits it once, t to
+    float32's precision. At scale 1 up to 2^40 across, a quad of 2^39.5 lost every
+    hit from 1000 sizes away: the triangle test's products (cubes of the vertices'
+    offsets from the ray's origin) overflowed float32."""
+    s = 2.0 ** e
+    v = np.array([[-0.5, 0, -0.5], [0.5, 0, -0.5], [0.5, 0, 0.5], [-0.5, 0, 0.5]]) * s
+    tracer = Tracer(build(v, np.array([[0, 2, 1], [0, 3, 2]])))
+    assert tracer.tree.scale == (1.0 if e <= 28 else 2.0 ** round(e))
+    d = np.array([0.3, -1.0, 0.2]) / np.linalg.norm([0.3, -1.0, 0.2])
+    for away in (100.0, 10000.0):
+        o = (np.array([0.1, 0.0, -0.2]) - away * d) * s           # the hit at t = away * s
+        hits = tracer.trace(o[None], d[None])
+        assert hits.prim[0] == 0 and abs(hits.t[0] / (away * s) - 1) < 1e-6
+        assert tracer.occluded(o[None], d[None])[0] and tracer.count(o[None], d[None])[0] == 1
 
 
 @pytest.mark.parametrize("s", [1e-40, 1e39])

@@ -7,7 +7,7 @@
     tri_ids   : (k,) uint32         input row of each kept triangle (input order kept)
     origin    : (3,) float64        centre of the box of the finite vertices the faces use
     bounds    : (2, 3) float32      box of the kept triangles (min, max), relative
-    scale     : float               a power of two (`mesh_scale`): 1 for sizes 2^-40 .. 2^40
+    scale     : float               a power of two (`mesh_scale`): 1 for sizes 2^-40 .. 2^28
     flat      : (3,) int64          kept triangles flat on each axis (three equal coordinates
                                     there: one PLANAR event, not START and END; `events`)
 
@@ -42,10 +42,14 @@ class Prepared:
     scale: float = 1.0
 
 
-SCALE_FREE = (2.0 ** -40, 2.0 ** 40)
-"""Scene sizes stored at scale 1: the float32 kernels' products of coordinates (up to
-cubes of a coordinate relative to a ray's origin) stay far from float32's overflow and
-underflow for eyes up to thousands of scene sizes away."""
+SCALE_FREE = (2.0 ** -40, 2.0 ** 28)
+"""Scene sizes stored at scale 1. The float32 kernels' products of coordinates reach
+cubes of a coordinate relative to a ray's origin, which overflow float32 from 2^42.7:
+so a scene at scale 1 is at most 2^28 across, whose rays may start 2^14 (16,384) of
+its sizes away; a larger one is stored at about 1, whose rays may start 2^42 of its
+sizes away. (Up to 2^40 at scale 1, a scene 2^39.5 across lost every hit of a ray
+from 1000 of its sizes away: the triangle test's t overflowed.) Small scenes:
+products of coordinates stay above float32's underflow down to 2^-40."""
 
 SIZE_LIMITS = (2.0 ** -126, 2.0 ** 126)
 """The scene sizes kdray represents (1.2e-38 .. 8.5e37): depths are float32, the tree's
