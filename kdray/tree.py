@@ -21,7 +21,7 @@ A tree holds an object table only for more than one object (`with_objects` drops
 table of one object), and the tree file holds it then (format version 3).
 `object_ids(tri_ids, tree.objects)` looks up the objects of triangle ids.
 
-`scale` is 1 unless the scene's size is outside 2^-40 .. 2^28 (kdray.builder.prepare):
+`scale` is 1 unless the scene's size is outside 2^-28 .. 2^28 (kdray.builder.prepare):
 then the float32 data is the scene divided by the power of two nearest its size, so
 that the kernels' products of coordinates neither overflow nor underflow. Every
 split position and box of the tree is in the same units. `world(x)` converts.

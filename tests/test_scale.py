@@ -2,7 +2,7 @@
 picture and the relative accuracy of the unscaled scene, on every OpenCL implementation
 present. Outside what float32 depths can hold, building is a one-line error.
 
-A scene outside 2^-40 .. 2^28 across is stored divided by the power of two nearest its
+A scene outside 2^-28 .. 2^28 across is stored divided by the power of two nearest its
 size (KdTree.scale), so the kernels' products of coordinates neither overflow nor
 underflow for rays from thousands of its sizes away; a power-of-two scale changes no rounding, so a scene scaled by 2^k renders
 exactly 2^k times the unscaled depths."""
@@ -128,6 +128,34 @@ def test_rays_from_far_away_hit_large_scenes(e):
         hits = tracer.trace(o[None], d[None])
         assert hits.prim[0] == 0 and abs(hits.t[0] / (away * s) - 1) < 1e-6
         assert tracer.occluded(o[None], d[None])[0] and tracer.count(o[None], d[None])[0] == 1
+
+
+@pytest.mark.parametrize("k", [0, -41])
+def test_small_scenes_keep_the_nearest_of_two_close_surfaces(k):
+    """Two concentric spheres 4e-6 of their size apart, scaled by 2^k: every ray from
+    outside takes the outer sphere as its nearest hit. At scale 1 down to 2^-40
+    across, the triangle test's products fell into float32's subnormals, and the
+    scene 2^-40 across took the inner one for 746 rays in 20,000."""
+    v, f = _sphere()
+    v = v.astype(np.float32).astype(np.float64)
+    both = np.concatenate([v, (v * (1 - 4e-6)).astype(np.float32).astype(np.float64)])
+    faces = np.concatenate([f, f + len(v)])
+    rng = np.random.default_rng(3)
+    n = 20000
+    out = rng.normal(size=(n, 3))
+    o = 5.0 * out / np.linalg.norm(out, axis=1, keepdims=True)
+    d = (rng.uniform(-0.6, 0.6, (n, 3)) - o).astype(np.float32).astype(np.float64)
+    s = 2.0 ** k
+    tree = build(s * both, faces)
+    for refine in (True, False):
+        hits = Tracer(tree, refine=refine).trace(s * o, d)
+        assert hits.hit.sum() > n // 2 and (hits.prim[hits.hit] < len(f)).all()
+
+
+def _sphere():
+    from kdray.load import load
+    m = load(SCENES / "sphere.obj")
+    return np.asarray(m.vertices, np.float64), np.asarray(m.faces)
 
 
 @pytest.mark.parametrize("s", [1e-40, 1e39])

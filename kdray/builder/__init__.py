@@ -148,7 +148,7 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         mesh built with the whole mesh's origin stores the same float32 triangles;
     threads : None (the CPUs this process may run on) or the number of threads that
         build subtrees; the tree is the same for any number;
-    scale : None (1 for scenes 2^-40 .. 2^28 across, else the power of two nearest
+    scale : None (1 for scenes 2^-28 .. 2^28 across, else the power of two nearest
         the size: kdray.builder.prepare.scale_for) or a power of two: the unit of the
         stored triangles (KdTree.scale). Like origin, for a tree over part of a mesh;
     keep_double : also keep the input's float64 triangles (KdTree.triangles64, 72
