@@ -295,9 +295,9 @@ def test_scan_at_the_documented_limits_is_refused_with_the_amount(capsys, folder
     monkeypatch.setattr("kdray.host.available_memory", lambda: 4 * 2**30)
     Path("big.json").write_text(json.dumps(dict(LIDAR, channels=1024, columns=65536)))
     refused(capsys, folder, "scan", "c.obj", "--lidar", "big.json", "--pose", "pose.txt",
-            "-o", "s.exr", words=["1024 x 65536 beams needs about 8.5 GiB", "4.0 GiB"])
+            "-o", "s.exr", words=["1024 x 65536 beams needs about 8.8 GiB", "4.0 GiB"])
     lidar = kdray.Lidar.from_json("big.json")
-    with pytest.raises(KdrayError, match="8.5 GiB"):
+    with pytest.raises(KdrayError, match="8.8 GiB"):
         lidar.directions()                # the first large array of Tracer.scan
 
 
