@@ -219,6 +219,12 @@ def check_jobs(jobs, where=None):
         seen[key] = i
 
 
+def missing_views(job, views, overwrite=False):
+    """The views of `job` to render: those whose files are not all there (as files: a
+    folder of a file's name is not one), or all with overwrite."""
+    return [v for v in views if overwrite or not all(f.is_file() for f in job.files(v.name))]
+
+
 def check_outputs(jobs, where=None, make=True):
     """Check every job's output folder, then (make) create them: OutputError when one is
     a file, or it or the folder it would be made in cannot be written, or making one
@@ -364,7 +370,7 @@ class Renderer:
         written on a thread while the next view traces (WRITES_WAITING), so `seconds`'
         trace and write overlap."""
         seconds = dict.fromkeys(STEPS, 0.0)
-        todo = [v for v in views if overwrite or not all(f.is_file() for f in job.files(v.name))]
+        todo = missing_views(job, views, overwrite)
         skipped = len(views) - len(todo)
         if not todo:
             return seconds, 0, skipped, [], None
@@ -548,7 +554,7 @@ def plan(jobs, overwrite=False):
             planned.append((report, []))
             continue
         remove_stale_temporaries(job, [v.name for v in views])
-        todo = [v for v in views if overwrite or not all(f.is_file() for f in job.files(v.name))]
+        todo = missing_views(job, views, overwrite)
         report.skipped = len(views) - len(todo)
         planned.append((report, todo))
     return planned

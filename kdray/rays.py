@@ -611,7 +611,7 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     caps = np.broadcast_to(np.asarray(caps, dtype=np.int64), (rays.n,))
     offsets = _offsets(caps)
     total = int(offsets[-1])
-    _check_hits_memory(total, HIT_BYTES + 4, rays.n, 12)
+    _check_hits_memory(total * (HIT_BYTES + 4) + rays.n * 12, total, rays.n)
     t = page_aligned_empty((total,), np.float32)
     uv = page_aligned_empty((total, 2), np.float32)
     prim = page_aligned_empty((total,), np.uint32)
@@ -648,12 +648,11 @@ def _list(tracer, rays, caps, crossing=False, nearest_k=False):
     return _gathered(tracer, n_found, offsets[:-1], (t, uv, prim)), more
 
 
-def _check_hits_memory(hits, per_hit, rays, per_ray, what="", more=(0, 0)):
-    """KdrayError, before it is allocated, where a list of `hits` hits of `rays` rays
-    needs more host memory than is available: per_hit and per_ray bytes each, and
-    more = (count, bytes) of something else beside them."""
-    check_host_memory(hits * per_hit + rays * per_ray + more[0] * more[1],
-                      f"the {hits:,} hits of {rays:,} rays{' ' + what if what else ''}",
+def _check_hits_memory(nbytes, hits, rays, what=""):
+    """KdrayError, before they are allocated, where nbytes for a list of `hits` hits of
+    `rays` rays (`what` it is, if more than that) are more host memory than is
+    available."""
+    check_host_memory(nbytes, f"the {hits:,} hits of {rays:,} rays{' ' + what if what else ''}",
                       "list fewer rays at a time, or fewer hits a ray (max_hits)")
 
 
@@ -728,7 +727,7 @@ def _first_pass(tracer, rays, cap, crossing, nearest_k):
     input id) order; more as `_list`'s."""
     cl = _device._cl()
     total = rays.n * cap
-    _check_hits_memory(total, HIT_BYTES, rays.n, 24)
+    _check_hits_memory(total * HIT_BYTES + rays.n * 24, total, rays.n)
     t = page_aligned_empty((total,), np.float32)
     uv = page_aligned_empty((total, 2), np.float32)
     prim = page_aligned_empty((total,), np.uint32)
@@ -808,7 +807,8 @@ def _listed(tracer, rays, max_hits):
     again = _relisted(tracer, rays, redo, max_hits)
     n[redo] = again.counts
     # the whole list, and the index of the relisted hits in it (and its making's)
-    _check_hits_memory(int(n.sum()), HIT_BYTES, rays.n, 8, more=(len(again.t), 24))
+    total = int(n.sum())
+    _check_hits_memory(total * HIT_BYTES + rays.n * 8 + len(again.t) * 24, total, rays.n)
     hits = _gathered(tracer, n, first, slots)
     at = np.arange(len(again.t)) + np.repeat(hits.offsets[redo] - again.offsets[:-1], n[redo])
     for name in ("t", "prim", "u", "v"):
@@ -828,8 +828,8 @@ def _relisted(tracer, rays, redo, max_hits):
 
 def _concatenated(parts):
     """One Intersections of the rays of `parts` (Intersections of consecutive rays)."""
-    _check_hits_memory(sum(len(q.t) for q in parts), HIT_BYTES,
-                       sum(len(q.offsets) - 1 for q in parts), 8)
+    hits, rays = sum(len(q.t) for q in parts), sum(len(q.offsets) - 1 for q in parts)
+    _check_hits_memory(hits * HIT_BYTES + rays * 8, hits, rays)
     offsets = [parts[0].offsets]
     for part in parts[1:]:
         offsets.append(part.offsets[1:] + offsets[-1][-1])
@@ -847,7 +847,7 @@ def _double(tracer, hits, origins, directions):
     o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
     n = len(hits.prim)
     # the rays' index, t and uv, the order and its sort's keys, the four answers
-    _check_hits_memory(n, 8 + 24 + 8 + 16 + 28, len(hits.offsets) - 1, 0,
+    _check_hits_memory(n * (8 + 24 + 8 + 16 + 28), n, len(hits.offsets) - 1,
                        "in double precision")
     ray = hits.ray
     t, uv = hits_double(tracer.tree.triangles64, hits.prim, o, d, rays=ray)

@@ -446,7 +446,8 @@ class Tracer:
         driver's) then holds for other trees (`kdray setup`). Returns the Tracer."""
         self._compile_one(aovs, trace, precision)
         for size in stack_sizes:
-            if self.local_size > max_local_size(self.device, self.packet, size):
+            if ((size, size) == (self.stack_size, self.packet_stack_size)     # built above
+                    or self.local_size > max_local_size(self.device, self.packet, size)):
                 continue
             # a copy of this Tracer (its tree, buffers, programs and lock) at that size
             other = copy.copy(self)
@@ -800,8 +801,8 @@ class Tracer:
             kernel_aovs = tuple(dict.fromkeys(
                 [a for a in aovs if a in ("normal", "id", "object")] + ["id"]))
             w, h = int(camera.width), int(camera.height)
-            check_host_memory(max(w * h, 0) * (_render.host_bytes_per_pixel(kernel_aovs)
-                                               + _render.double_bytes_per_pixel(aovs)),
+            check_host_memory(w * h * (_render.host_bytes_per_pixel(kernel_aovs)
+                                       + _render.double_bytes_per_pixel(aovs)),
                               f"a {w}x{h} render of {', '.join(aovs)} in double precision")
             images = self.render(camera, kernel_aovs)
             exact = _render.double_images(images["id"].reshape(-1), camera,
