@@ -6,7 +6,9 @@ are flattened with their node transforms applied (a mirroring one reverses its
 triangles' winding, as glTF 2.0 and trimesh's own flattening do), materials and
 textures are skipped (no image library is needed). Triangle ids are the order of the
 loaded triangles: meshes are taken in the scene graph's order, each mesh's faces in
-file order (a PLY's put back in it: `_ply_file_order`). A file whose name ends in .gz
+file order (a PLY's put back in it: `_ply_file_order`; an OBJ of several materials,
+which trimesh reads as a mesh a material, is put back in the order of its face lines:
+`_obj_in_file_order`). A file whose name ends in .gz
 is read through gzip ("bunny.obj.gz" as an OBJ named "bunny.obj"). An OBJ's relative
 (negative) indices count back from the vertex read last before their line, as the
 format has it (trimesh counts from the file's last vertex): such a file is read with
@@ -32,6 +34,7 @@ import dataclasses
 import functools
 import gzip
 import io
+import itertools
 import logging
 import os
 import re
@@ -97,6 +100,8 @@ def load(path):
         what = f" (only {', '.join(kinds)})" if kinds else ""
         raise MeshError(f"{path}: contains no triangles{what}")
     mesh = Mesh.from_arrays(np.concatenate(vertices), np.concatenate(faces), name=file_name)
+    if ext == "obj" and len(faces) > 1:         # trimesh's meshes, one a material
+        mesh = _obj_in_file_order(mesh, obj, path)
     if ext == "obj":
         objects, object_names = _obj_objects(path, zipped, file_name, mesh.triangles, obj)
     if len(object_names) > 1:                   # else one object, named after the file
@@ -356,22 +361,13 @@ def _obj_objects(path, zipped, file_name, triangles, data=None):
     # the same triangles, bit for bit, in two orders: sort both and pair them up
     # (equal triangles pair in the order of their ids and of the groups); by a hash of
     # their bits, and by the bits themselves should two triangles' hashes collide
-    a = np.ascontiguousarray(triangles, dtype=np.float64).reshape(-1, 9).view(np.uint64)
-    b = np.ascontiguousarray(np.concatenate(g_vertices)[np.concatenate(g_faces)])
-    b = b.reshape(-1, 9).view(np.uint64)
-    different = (f"{path}: its o/g groups hold other triangles than the file ({len(b)}, "
-                 f"{len(a)}); one object")
-    if len(a) != len(b):
-        log.warning("%s", different)
+    a, b = _bits(triangles), _bits(np.concatenate(g_vertices)[np.concatenate(g_faces)])
+    pairs = _pair_rows(a, b)
+    if pairs is None:
+        log.warning("%s: its o/g groups hold other triangles than the file (%d, %d); one "
+                    "object", path, len(b), len(a))
         return one
-    for sort_key in (_row_hash, _row_bytes):
-        order_a = np.argsort(sort_key(a), kind="stable")
-        order_b = np.argsort(sort_key(b), kind="stable")
-        if np.array_equal(a[order_a], b[order_b]):
-            break
-    else:
-        log.warning("%s", different)
-        return one
+    order_a, order_b = pairs
     objects = np.empty(len(a), dtype=np.uint32)
     objects[order_a] = g_objects[order_b]
     # numbered in the order of their first triangle in id order
@@ -379,6 +375,113 @@ def _obj_objects(path, zipped, file_name, triangles, data=None):
     rank = np.zeros(len(g_names), dtype=np.uint32)
     rank[used[np.argsort(first)]] = np.arange(len(used), dtype=np.uint32)
     return rank[objects], tuple(g_names[i] for i in used[np.argsort(first)])
+
+
+def _pair_rows(a, b):
+    """(order_a, order_b) with a[order_a] equal to b[order_b] bit for bit, a and b (m, k)
+    uint64 rows in two orders (equal rows paired in their orders): sorted by a hash of
+    their bits, or by the bits themselves should two rows' hashes collide. None where
+    a and b do not hold the same rows."""
+    if a.shape != b.shape:
+        return None
+    for sort_key in (_row_hash, _row_bytes):
+        order_a = np.argsort(sort_key(a), kind="stable")
+        order_b = np.argsort(sort_key(b), kind="stable")
+        if np.array_equal(a[order_a], b[order_b]):
+            return order_a, order_b
+    return None
+
+
+def _obj_in_file_order(mesh, data, path):
+    """An OBJ's Mesh (trimesh's read of data, its bytes: a mesh a material, each
+    material's faces in file order, the materials in an order of trimesh's) with its
+    triangles in the file's order (`_obj_file_triangles`), matched to them by their
+    corners' coordinates, bit for bit. The Mesh as it is, with a warning, where the
+    file's face lines cannot be read here or give other triangles."""
+    ours = _obj_file_triangles(data)
+    pairs = None
+    if ours is not None:
+        pairs = _pair_rows(_bits(mesh.triangles), _bits(ours))
+    if pairs is None:
+        log.warning("%s: cannot put its triangles in the file's order (its face lines "
+                    "read otherwise than trimesh reads them); triangle ids follow its "
+                    "materials", path)
+        return mesh
+    order_mesh, order_file = pairs
+    order = np.empty(len(order_mesh), dtype=np.int64)
+    order[order_file] = order_mesh              # the file's triangle i is mesh's order[i]
+    return dataclasses.replace(mesh, faces=mesh.faces[order])
+
+
+def _obj_file_triangles(data):
+    """The triangles of an OBJ file's bytes (relative indices made absolute), its face
+    lines in the file's order, a polygon of k corners split as trimesh splits it: a
+    quad into (0, 1, 2), (2, 3, 0), a larger polygon into the fan (0, i, i + 1) for i
+    = 1 .. k - 2. Returns (m, 3, 3) float64 corners, each vertex the first three
+    numbers of its line, or None where a face line has fewer than 3 corners, a corner
+    that is not a vertex of the file, or a line does not read as numbers. Lines as
+    trimesh reads them: "v " or "f " (or "f" and a tab) at a line's start, a backslash
+    before a line break joining two lines, "#" starting a comment."""
+    text = data.replace(b"\r\n", b"\n").replace(b"\\\n", b"")
+    lines = text.split(b"\n")
+    v_lines = [line[2:] for line in lines if line[:2] == b"v "]
+    f_lines = [line[2:] for line in lines if line[:2] in (b"f ", b"f\t")]
+    del lines
+    if b"#" in text:
+        v_lines, f_lines = ([line.split(b"#", 1)[0] if b"#" in line else line for line in x]
+                            for x in (v_lines, f_lines))
+    v_numbers, v_count = _obj_numbers(v_lines, np.float64)
+    corners, k = _obj_numbers(f_lines, np.int64)
+    if v_numbers is None or corners is None or len(k) == 0 or k.min() < 3 or v_count.min() < 3:
+        return None
+    v = v_numbers[(np.cumsum(v_count) - v_count)[:, None] + np.arange(3)]
+    corners -= 1
+    if corners.min() < 0 or corners.max() >= len(v):
+        return None
+    first = np.cumsum(k) - k                    # each line's first corner in corners
+    polygon = np.repeat(np.arange(len(k)), k - 2)
+    i = np.arange(len(polygon)) - np.repeat(np.cumsum(k - 2) - (k - 2), k - 2) + 1
+    at = first[polygon]
+    faces = np.stack([corners[at], corners[at + i], corners[at + i + 1]], axis=1)
+    quad_second = (k[polygon] == 4) & (i == 2)
+    faces[quad_second] = np.roll(faces[quad_second], -1, axis=1)
+    return v[faces]
+
+
+def _obj_numbers(lines, dtype):
+    """The numbers of lines (bytes each), of each word its part before a "/" (a face's
+    vertex index): (numbers (n,) dtype, count (len(lines),) int64 of each line), or
+    (None, None) where a word does not read as a number."""
+    text = b" ".join(lines)
+    # words a line: one more than its spaces where words are single-spaced (checked)
+    count = np.fromiter(map(bytes.count, lines, itertools.repeat(b" ")), dtype=np.int64,
+                        count=len(lines)) + 1
+    if b"  " in text or b"\t" in text or b"\r" in text or b" " in text[:1] + text[-1:]:
+        count = np.fromiter(map(len, map(bytes.split, lines)), dtype=np.int64, count=len(lines))
+    words = int(count.sum())
+    slashes = text.count(b"/")
+    try:
+        if slashes == 0:
+            numbers = np.fromstring(text, dtype=dtype, sep=" ")
+        else:
+            # words of one form ("1/2/3", "1//3", "1/2"): every p-th number
+            form = text.split(None, 1)[0]
+            p = form.count(b"/") + 1 - form.count(b"//")
+            if slashes == words * form.count(b"/") and text.count(b"//") == words * form.count(b"//"):
+                numbers = np.fromstring(text.replace(b"/", b" "), dtype=dtype, sep=" ")[::p]
+            else:
+                numbers = np.array([w.split(b"/", 1)[0] for w in text.split()],
+                                   dtype="S").astype(dtype)
+    except ValueError:
+        return None, None
+    if len(numbers) != words:
+        return None, None
+    return numbers, count
+
+
+def _bits(triangles):
+    """(m, 9) uint64: the bits of triangles ((m, 3, 3) float64), a row each."""
+    return np.ascontiguousarray(triangles, dtype=np.float64).reshape(-1, 9).view(np.uint64)
 
 
 def _row_hash(rows):

@@ -163,6 +163,82 @@ def test_obj_quads_in_file_order(tmp_path):
     np.testing.assert_array_equal(load(mixed).triangles, want)
 
 
+def obj_of_materials(rng, n_faces, form):
+    """An OBJ's text of n_faces polygons of 3 to 6 corners (random coordinates, some
+    vertices shared), a `usemtl` of 3 materials switched every few faces, face words of
+    `form` ("v", "v/vt", "v//vn", "v/vt/vn", or "mixed": each word its own), comments
+    and a line continued by a backslash; and the triangles it holds in file order:
+    (text, (m, 3, 3) float64), each polygon split as trimesh splits it (a quad into
+    (0, 1, 2), (2, 3, 0), larger ones into fans), written here from the polygons."""
+    v = rng.normal(size=(2 * n_faces + 6, 3)).round(7)
+    lines = ["# made for a test", "mtllib none.mtl"]
+    lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
+    lines += ["vt 0.5 0.5", "vn 0 0 1"]
+    want = []
+    forms = ["{}", "{}/1", "{}//1", "{}/1/1"]
+    for j in range(n_faces):
+        if j % 3 == 0:
+            lines.append(f"usemtl m{rng.integers(3)}")
+        k = int(rng.integers(3, 7))
+        corners = rng.choice(len(v), size=k, replace=False)
+        words = []
+        for c in corners:
+            f = forms[rng.integers(4)] if form == "mixed" else forms[["v", "v/vt", "v//vn", "v/vt/vn"].index(form)]
+            words.append(f.format(c + 1))
+        line = "f " + " ".join(words)
+        if j == 5:
+            line = line.replace(" ", " \\\n", 1)          # continued on the next line
+        if j == 7:
+            lines.append("# a comment between faces")
+        lines.append(line)
+        split = [[0, 1, 2], [2, 3, 0]] if k == 4 else [[0, i, i + 1] for i in range(1, k - 1)]
+        want += [v[corners[t]] for t in split]
+    return "\n".join(lines) + "\n", np.array(want)
+
+
+@pytest.mark.parametrize("form", ["v", "v/vt", "v//vn", "v/vt/vn", "mixed"])
+def test_obj_of_several_materials_in_file_order(tmp_path, form, caplog):
+    """trimesh makes a mesh of each material of an OBJ, in an order of its own: the
+    triangles are put back in the file's order, whatever the face lines' form, with
+    polygons, comments and continued lines, and its o/g groups follow them."""
+    rng = np.random.default_rng(["v", "v/vt", "v//vn", "v/vt/vn", "mixed"].index(form))
+    text, want = obj_of_materials(rng, 40, form)
+    p = tmp_path / "m.obj"
+    p.write_text(text)
+    m = load(p)
+    np.testing.assert_array_equal(m.triangles, want)
+    assert "file's order" not in caplog.text
+    grouped = tmp_path / "g.obj"                 # o/g groups: objects follow the triangles
+    lines = text.split("\n")
+    first_face = next(i for i, line in enumerate(lines) if line.startswith("f "))
+    lines.insert(first_face, "o first")
+    lines.insert(len(lines) - 10, "o second")
+    grouped.write_text("\n".join(lines))
+    g = load(grouped)
+    np.testing.assert_array_equal(g.triangles, want)
+    second = sum(line.startswith("f ") for line in lines[lines.index("o second"):])
+    n_second = sum(len(line.split()) - 3 for line in lines[lines.index("o second"):]
+                   if line.startswith("f "))
+    assert g.object_names == ("first", "second") and second > 0
+    assert g.objects.tolist() == [0] * (len(want) - n_second) + [1] * n_second
+
+
+def test_obj_materials_order_left_with_a_warning(tmp_path, monkeypatch, caplog):
+    """Where kdray's own read of the face lines gives other triangles than trimesh's,
+    the triangles stay in trimesh's order (each material's faces in file order) and a
+    warning says so."""
+    import sys
+    load_module = sys.modules["kdray.load"]
+    text, want = obj_of_materials(np.random.default_rng(9), 12, "v")
+    p = tmp_path / "m.obj"
+    p.write_text(text)
+    monkeypatch.setattr(load_module, "_obj_file_triangles", lambda data: want[::-1] + 1.0)
+    m = load(p)
+    assert "cannot put its triangles in the file's order" in caplog.text
+    assert len(m.faces) == len(want) and not np.array_equal(m.triangles, want)
+    assert {t.tobytes() for t in m.triangles} == {t.tobytes() for t in want}
+
+
 @pytest.mark.parametrize("endian", ["<", ">"])
 def test_binary_ply_of_polygons_of_several_sizes(tmp_path, endian):
     """A binary PLY whose faces are of several sizes (trimesh's reader refuses it) loads
