@@ -5,7 +5,9 @@ quads and polygons are triangulated by trimesh's loaders, scenes of several mesh
 are flattened with their node transforms applied (a mirroring one reverses its
 triangles' winding, as glTF 2.0 and trimesh's own flattening do), materials and
 textures are skipped (no image library is needed). Triangle ids are the order of the
-loaded triangles: meshes are taken in the scene graph's order, each mesh's faces in
+loaded triangles: meshes are taken in the scene graph's order (a glTF's as the file
+lists its nodes, depth first, where trimesh walks them the other way round:
+`_gltf_node_ranks`), each mesh's faces in
 file order (a PLY's put back in it: `_ply_file_order`; an OBJ of several materials,
 which trimesh reads as a mesh a material, is put back in the order of its face lines:
 `_obj_in_file_order`). A file whose name ends in .gz
@@ -94,7 +96,8 @@ def load(path):
             if scene is None:
                 raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: "
                                 f"{one_line(e)})") from None
-        vertices, faces, objects, object_names = _scene_arrays(scene, path, obj)
+        ranks = _gltf_node_ranks(path, zipped, ext) if ext in ("glb", "gltf") else None
+        vertices, faces, objects, object_names = _scene_arrays(scene, path, obj, ranks)
     if not faces:
         kinds = sorted({type(g).__name__ for g in scene.geometry.values()})
         what = f" (only {', '.join(kinds)})" if kinds else ""
@@ -128,19 +131,30 @@ def _binary_ply_scene(path, zipped):
     return trimesh.Scene(trimesh.Trimesh(vertices=vertices, faces=faces, process=False))
 
 
-def _scene_arrays(scene, path, obj=None):
-    """The triangles of a trimesh Scene, node by node in the graph's order, transforms
-    applied (a mirroring one reverses its triangles' winding, so that their normals
-    turn with them): (vertices [(n_i, 3) float64], faces [(m_i, 3) int64] indexing the
-    concatenated vertices, objects (m,) uint32, object_names tuple): objects numbered
-    in the order of their first triangle. obj: the bytes of the OBJ file the scene was
-    read from (its quads' triangles put in turn, `_obj_quads_in_turn`), or None."""
+def _scene_arrays(scene, path, obj=None, ranks=None):
+    """The triangles of a trimesh Scene, node by node in the graph's order (or in the
+    order of ranks: {object name: rank}, `_gltf_node_ranks`, where it ranks every
+    node's object), transforms applied (a mirroring one reverses its triangles'
+    winding, so that their normals turn with them): (vertices [(n_i, 3) float64],
+    faces [(m_i, 3) int64] indexing the concatenated vertices, objects (m,) uint32,
+    object_names tuple): objects numbered in the order of their first triangle. obj:
+    the bytes of the OBJ file the scene was read from (its quads' triangles put in
+    turn, `_obj_quads_in_turn`), or None."""
     import trimesh
     quads = functools.cache(lambda: obj is not None and bool(_OBJ_QUAD_LINE.search(obj)))
     vertices, faces, objects = [], [], []
     names = {}                                  # object name -> index, in order of appearance
     offset = 0
-    for node in scene.graph.nodes_geometry:
+    nodes = list(scene.graph.nodes_geometry)
+    if ranks is not None:
+        keys = [ranks.get(_object_name(scene, node, scene.geometry[scene.graph[node][1]]))
+                for node in nodes]
+        if None in keys:
+            log.warning("%s: cannot match its scene's nodes to the file's; meshes in "
+                        "trimesh's order", path)
+        else:                                   # stable: a node's primitives in turn
+            nodes = [nodes[i] for i in sorted(range(len(nodes)), key=keys.__getitem__)]
+    for node in nodes:
         transform, name = scene.graph[node]
         geom = scene.geometry[name]
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
@@ -161,6 +175,44 @@ def _scene_arrays(scene, path, obj=None):
         objects.append(np.full(len(geom.faces), index, dtype=np.uint32))
     objects = np.concatenate(objects) if objects else np.zeros(0, dtype=np.uint32)
     return vertices, faces, objects, tuple(names)
+
+
+def _gltf_node_ranks(path, zipped, ext):
+    """{trimesh's name of a glTF node: its rank} for a .glb or .gltf file: the nodes of
+    the file's scene taken depth first from its roots, each node's children in their
+    order (as a viewer walks them; trimesh walks them the other way round), named as
+    trimesh names them (a node's name, or its index, made unique in index order).
+    None where the file's JSON cannot be read so."""
+    import json
+    import struct
+    from trimesh.util import unique_name
+    try:
+        with (gzip.open(path, "rb") if zipped else open(path, "rb")) as f:
+            if ext == "glb":
+                magic, _, _, length, kind = struct.unpack("<4sIIII", f.read(20))
+                if magic != b"glTF" or kind != 0x4E4F534A:      # the JSON chunk first
+                    return None
+                header = json.loads(f.read(length))
+            else:
+                header = json.loads(f.read())
+        nodes = header.get("nodes", [])
+        name_index, counts = {}, {}
+        for i, node in enumerate(nodes):
+            name_index[unique_name(node.get("name", str(i)), name_index, counts=counts)] = i
+        if "scenes" not in header:             # trimesh adds its meshes as they come
+            return None
+        scene = header["scenes"][header.get("scene", 0)]
+        rank = {}
+        stack = list(reversed(scene.get("nodes", [])))
+        while stack:
+            i = stack.pop()
+            if i not in rank:
+                rank[i] = len(rank)
+                stack.extend(reversed(nodes[i].get("children", [])))
+    except (OSError, EOFError, ValueError, KeyError, IndexError, TypeError, AttributeError,
+            struct.error):
+        return None
+    return {name: rank[i] for name, i in name_index.items() if i in rank}
 
 
 def _ply_file_order(geom, faces):

@@ -338,6 +338,77 @@ def test_gltf_mesh_of_several_primitives_is_one_object(tmp_path):
     assert wheel.sum() == 3 and np.all(a.triangles[wheel][..., 0] >= 5)
 
 
+def test_gltf_nodes_in_the_files_order(tmp_path):
+    """A glTF scene's meshes and objects come in the file's order: its scene's nodes
+    depth first from the roots, children in their listed order (trimesh walks them the
+    other way round), a mesh's primitives in turn; an unnamed node is named by its
+    index, a repeated name made unique. The same through a GLB (trimesh's export) and
+    gzip."""
+    import base64
+    import gzip
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+    i1, i2 = np.array([0, 1, 2], np.uint32), np.array([0, 1, 3, 1, 2, 3], np.uint32)
+    buf = v.tobytes() + i1.tobytes() + i2.tobytes()
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [1, 0, 4]}],
+           "nodes": [{"name": "box", "mesh": 0, "children": [3, 2]},
+                     {"mesh": 0, "translation": [100, 0, 0]},
+                     {"name": "box", "mesh": 0, "translation": [20, 0, 0]},
+                     {"name": "wheel", "mesh": 1, "translation": [10, 0, 0]},
+                     {"name": "empty", "children": [5]},
+                     {"name": "deep", "mesh": 0, "translation": [50, 0, 0]}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]},
+                      {"primitives": [{"attributes": {"POSITION": 0}, "indices": 1},
+                                      {"attributes": {"POSITION": 0}, "indices": 2}]}],
+           "buffers": [{"byteLength": len(buf), "uri": "data:application/octet-stream;base64,"
+                        + base64.b64encode(buf).decode()}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                           {"buffer": 0, "byteOffset": 48, "byteLength": 12},
+                           {"buffer": 0, "byteOffset": 60, "byteLength": 24}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                          "min": [0, 0, 0], "max": [1, 1, 1]},
+                         {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"},
+                         {"bufferView": 2, "componentType": 5125, "count": 6, "type": "SCALAR"}]}
+    path = tmp_path / "nodes.gltf"
+    path.write_text(json.dumps(doc))
+    mesh = kdray.load(path)
+    assert mesh.object_names == ("1", "box", "wheel", "box_1", "deep")
+    want = [(100, i1), (0, i1), (10, i1), (10, i2), (20, i1), (50, i1)]
+    expected = np.concatenate([v[i.reshape(-1, 3)] + np.float32([x, 0, 0]) for x, i in want])
+    np.testing.assert_array_equal(mesh.triangles, expected)
+    assert mesh.objects.tolist() == [0, 1, 2, 2, 2, 3, 4]
+    # a GLB as trimesh writes one, and the same gzipped
+    scene = trimesh.Scene()
+    for k, name in enumerate(["a", "b", "c", "d"]):
+        scene.add_geometry(trimesh.creation.box(), node_name=name, geom_name=f"g{name}",
+                           transform=trimesh.transformations.translation_matrix([10 * k, 0, 0]))
+    glb = tmp_path / "abcd.glb"
+    scene.export(glb)
+    zipped = tmp_path / "abcd.glb.gz"
+    zipped.write_bytes(gzip.compress(glb.read_bytes()))
+    for p in (glb, zipped):
+        m = kdray.load(p)
+        assert m.object_names == ("a", "b", "c", "d")
+        assert np.array_equal(m.triangles.min(axis=(1, 2))[::12], [-0.5, -0.5, -0.5, -0.5])
+        assert np.array_equal(m.triangles[::12, :, 0].min(axis=1), [-0.5, 9.5, 19.5, 29.5])
+
+
+def test_gltf_nodes_not_matched_keep_trimeshs_order(tmp_path, monkeypatch, caplog):
+    """Where the file's nodes cannot be matched to trimesh's (a name it gave another
+    way), the meshes keep trimesh's order, with a warning."""
+    import sys
+    scene = trimesh.Scene()
+    for k, name in enumerate(["a", "b"]):
+        scene.add_geometry(trimesh.creation.box(), node_name=name, geom_name=f"g{name}",
+                           transform=trimesh.transformations.translation_matrix([10 * k, 0, 0]))
+    glb = tmp_path / "ab.glb"
+    scene.export(glb)
+    monkeypatch.setattr(sys.modules["kdray.load"], "_gltf_node_ranks",
+                        lambda path, zipped, ext: {"a": 0})
+    m = kdray.load(glb)
+    assert sorted(m.object_names) == ["a", "b"] and len(m.faces) == 24
+    assert "cannot match its scene's nodes" in caplog.text
+
+
 def test_single_mesh_is_object_0(tracers):
     """A mesh of one object: no table in the tree, object 0 on every hit, MISS on a
     miss, in the image and in Hits.object."""
