@@ -32,6 +32,8 @@ def read_binary_ply(data):
     for name, count, props in elements:
         if all(kind == "scalar" for kind, *_ in props):
             dtype = np.dtype([(p[1], endian + TYPES[p[2]]) for p in props])
+            if dtype.itemsize * count > len(data) - at:
+                raise ValueError(f"the file ends inside its {count} {name} elements")
             items = np.frombuffer(data, dtype=dtype, count=count, offset=at)
             at += dtype.itemsize * count
             if name == "vertex":
@@ -56,8 +58,12 @@ def _header(lines):
             if endian is None:
                 raise ValueError(f"format {words[1]} is not binary")
         elif words[0] == "element":
+            if len(words) < 3 or not words[2].isdigit():
+                raise ValueError(f"an element line without its count: {line!r}")
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property" and elements:
+            if len(words) < (5 if words[1:2] == ["list"] else 3):
+                raise ValueError(f"a property line too short: {line!r}")
             if words[1] == "list":
                 if words[2] not in TYPES or words[3] not in TYPES:
                     raise ValueError(f"unknown property type in {line!r}")

@@ -268,6 +268,17 @@ def test_binary_ply_of_polygons_of_several_sizes(tmp_path, endian):
     binary.write_bytes(head.format(fmt).encode() + body[:-30])
     with pytest.raises(MeshError, match="cannot be read as a mesh"):
         load(binary)
+    # headers whose counts or properties are cut or absurd (found by the long fuzz):
+    # a one-line MeshError, never an IndexError or OverflowError
+    for old, new in [("element vertex 7", "element vertex"),
+                     ("element vertex 7", "element vertex 99999999999999999999"),
+                     ("element face 4", "element face"),
+                     ("property float z", "property float"),
+                     ("property list uchar int vertex_indices", "property list uchar int"),
+                     ("element vertex 7", "element vertex 70000")]:
+        binary.write_bytes(head.format(fmt).replace(old, new).encode() + body)
+        with pytest.raises(MeshError, match="cannot be read as a mesh"):
+            load(binary)
 
 
 @pytest.mark.parametrize("content, ext, message", [
