@@ -480,20 +480,23 @@ class Camera:
             return origins, directions, np.ones(len(directions), dtype=bool)
         return origins, directions
 
-    def _model_rays(self, valid, copy=True):
+    def _model_rays(self, valid, copy=True, origin=None):
         """rays() of a model that is not the pinhole; copy=False: a central model's
-        origins are a read-only broadcast of the eye (Tracer.render)."""
+        origins are a read-only broadcast of the eye (Tracer.render). origin: (3,)
+        float64 or None: the origins relative to it (eye - origin, plus an orthographic
+        pixel's offset), which keep the offsets' digits far from the world's origin."""
         R = self.rotation
+        eye = self.eye if origin is None else self.eye - origin
         o_cam, directions, ok = lens.model_rays(self.model, self.K, self.distortion,
                                                 self.width, self.height, R)
         if o_cam is None:
-            origins = np.broadcast_to(self.eye, directions.shape)
+            origins = np.broadcast_to(eye, directions.shape)
             if copy:
                 origins = origins.copy()
         else:
             origins = np.empty_like(o_cam)
             for k in range(3):
-                origins[:, k] = self.eye[k] + o_cam[:, 0] * R[k, 0] + o_cam[:, 1] * R[k, 1]
+                origins[:, k] = eye[k] + o_cam[:, 0] * R[k, 0] + o_cam[:, 1] * R[k, 1]
         return (origins, directions, ok) if valid else (origins, directions)
 
     def valid(self):

@@ -55,14 +55,15 @@ CHUNK = 1 << 18
 stay within some 100 MB however many hits there are."""
 
 
-def hits_double(triangles64, prim, origins, directions, rays=None):
+def hits_double(triangles64, prim, origins, directions, rays=None, origin=None):
     """(t (N,), uv (N, 2)) float64 of N rays at the triangles the kernels found.
 
     triangles64 : (n_input_tris, 3, 3) float64 world (KdTree.triangles64);
     prim : (N,) uint32 input triangle id per ray, MISS on a miss;
     origins, directions : (N, 3) float64, or with `rays` ((N,) int64) rows of them:
-    ray i is origins[rays[i]], directions[rays[i]]. t is +inf and uv 0 on a miss.
-    Host memory: 24 bytes a ray for the answers, and CHUNK rays' temporaries.
+    ray i is origins[rays[i]], directions[rays[i]]; with origin ((3,) float64) the
+    origins are relative to it, and so are the triangles taken. t is +inf and uv 0 on
+    a miss. Host memory: 24 bytes a ray for the answers, and CHUNK rays' temporaries.
     """
     from .layout import MISS
     t = np.full(len(prim), np.inf)
@@ -70,8 +71,10 @@ def hits_double(triangles64, prim, origins, directions, rays=None):
     for a in range(0, len(prim), CHUNK):
         hit = np.flatnonzero(prim[a:a + CHUNK] != MISS) + a
         at = hit if rays is None else rays[hit]
-        t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(triangles64[prim[hit]], origins[at],
-                                                    directions[at])
+        tri = triangles64[prim[hit]]
+        if origin is not None:
+            tri = tri - origin
+        t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(tri, origins[at], directions[at])
     return t, uv
 
 

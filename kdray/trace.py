@@ -32,7 +32,7 @@ from . import ray_input
 from . import rays as _rays
 from . import points as _points
 from . import render as _render
-from .double import wants_double
+from .double import hits_double, wants_double
 from .errors import DeviceError, KdrayError
 from .hits import Hits  # noqa: F401 (kdray.trace.Hits, as before)
 from .host import PAGE, check_host_memory, huge_page_copy, huge_page_empty, page_aligned_empty
@@ -683,7 +683,6 @@ class Tracer:
 
     def _double_hits(self, hits, origins, directions):
         """`hits` with t, u, v (float64) recomputed from the float64 triangles."""
-        from .double import hits_double
         d = np.asarray(directions, dtype=np.float64)
         o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
         t, uv = hits_double(self.tree.triangles64, hits.prim, o, d)
@@ -891,6 +890,15 @@ class Tracer:
         origins = o.reshape(h, w, 3) if camera.model == "orthographic" else camera.eye
         # image-shaped: traced in blocks of pixels, as render_camera traces them
         hits = self.trace(origins, d.reshape(h, w, 3), precision=precision)._reshaped((h * w,))
+        if camera.model == "orthographic" and precision == "double":
+            # an orthographic pixel's origin in world float64 loses its offset's last
+            # digits far from the world's origin (a 1e-4 at 1e12): t and u, v again
+            # from the rays and triangles relative to the tree's origin, as the
+            # single-precision render makes them
+            c = self.tree.origin
+            o_rel = camera._model_rays(valid=False, origin=c)[0]
+            t, uv = hits_double(self.tree.triangles64, hits.prim, o_rel, d, origin=c)
+            hits = dataclasses.replace(hits, t=t, u=uv[:, 0], v=uv[:, 1])
         return _render.ray_images(hits, o, d, valid, camera, aovs)
 
     def render_many(self, cameras, aovs=DEFAULT_AOVS, precision="single"):
