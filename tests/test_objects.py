@@ -308,27 +308,39 @@ def test_files_of_one_object(tmp_path):
         assert mesh.objects.dtype == np.uint32 and len(mesh.objects) == len(mesh.faces)
 
 
+GLTF_VERTICES = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+GLTF_INDICES = {1: np.array([0, 1, 2], np.uint32), 2: np.array([0, 1, 3, 1, 2, 3], np.uint32)}
+
+
+def gltf_doc(roots, nodes, meshes):
+    """A glTF document (a dict) of the scene `roots` (node indices), `nodes` as given
+    and meshes (a list of each mesh's primitives, each an accessor of indices: 1, one
+    triangle of GLTF_VERTICES, or 2, two), its buffer inline."""
+    import base64
+    buf = GLTF_VERTICES.tobytes() + GLTF_INDICES[1].tobytes() + GLTF_INDICES[2].tobytes()
+    return {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": roots}],
+            "nodes": nodes,
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": i}
+                                       for i in mesh]} for mesh in meshes],
+            "buffers": [{"byteLength": len(buf), "uri": "data:application/octet-stream;base64,"
+                         + base64.b64encode(buf).decode()}],
+            "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                            {"buffer": 0, "byteOffset": 48, "byteLength": 12},
+                            {"buffer": 0, "byteOffset": 60, "byteLength": 24}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                           "min": [0, 0, 0], "max": [1, 1, 1]},
+                          {"bufferView": 1, "componentType": 5125, "count": 3,
+                           "type": "SCALAR"},
+                          {"bufferView": 2, "componentType": 5125, "count": 6,
+                           "type": "SCALAR"}]}
+
+
 def test_gltf_mesh_of_several_primitives_is_one_object(tmp_path):
     """trimesh gives each primitive of a glTF mesh its own node, randomly named: they
     are one object, named after their glTF node, the same on every load."""
-    import base64
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
-    i1, i2 = np.array([0, 1, 2], np.uint32), np.array([0, 1, 3, 1, 2, 3], np.uint32)
-    buf = v.tobytes() + i1.tobytes() + i2.tobytes()
-    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
-           "nodes": [{"name": "Car", "mesh": 0, "children": [1]},
-                     {"name": "Wheel", "mesh": 0, "translation": [5, 0, 0]}],
-           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1},
-                                      {"attributes": {"POSITION": 0}, "indices": 2}]}],
-           "buffers": [{"byteLength": len(buf), "uri": "data:application/octet-stream;base64,"
-                        + base64.b64encode(buf).decode()}],
-           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48},
-                           {"buffer": 0, "byteOffset": 48, "byteLength": 12},
-                           {"buffer": 0, "byteOffset": 60, "byteLength": 24}],
-           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
-                          "min": [0, 0, 0], "max": [1, 1, 1]},
-                         {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"},
-                         {"bufferView": 2, "componentType": 5125, "count": 6, "type": "SCALAR"}]}
+    doc = gltf_doc([0], [{"name": "Car", "mesh": 0, "children": [1]},
+                         {"name": "Wheel", "mesh": 0, "translation": [5, 0, 0]}],
+                   [[1, 2]])
     path = tmp_path / "car.gltf"
     path.write_text(json.dumps(doc))
     a, b = kdray.load(path), kdray.load(path)
@@ -344,30 +356,15 @@ def test_gltf_nodes_in_the_files_order(tmp_path):
     other way round), a mesh's primitives in turn; an unnamed node is named by its
     index, a repeated name made unique. The same through a GLB (trimesh's export) and
     gzip."""
-    import base64
     import gzip
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
-    i1, i2 = np.array([0, 1, 2], np.uint32), np.array([0, 1, 3, 1, 2, 3], np.uint32)
-    buf = v.tobytes() + i1.tobytes() + i2.tobytes()
-    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [1, 0, 4]}],
-           "nodes": [{"name": "box", "mesh": 0, "children": [3, 2]},
-                     {"mesh": 0, "translation": [100, 0, 0]},
-                     {"name": "box", "mesh": 0, "translation": [20, 0, 0]},
-                     {"name": "wheel", "mesh": 1, "translation": [10, 0, 0]},
-                     {"name": "empty", "children": [5]},
-                     {"name": "deep", "mesh": 0, "translation": [50, 0, 0]}],
-           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]},
-                      {"primitives": [{"attributes": {"POSITION": 0}, "indices": 1},
-                                      {"attributes": {"POSITION": 0}, "indices": 2}]}],
-           "buffers": [{"byteLength": len(buf), "uri": "data:application/octet-stream;base64,"
-                        + base64.b64encode(buf).decode()}],
-           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48},
-                           {"buffer": 0, "byteOffset": 48, "byteLength": 12},
-                           {"buffer": 0, "byteOffset": 60, "byteLength": 24}],
-           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
-                          "min": [0, 0, 0], "max": [1, 1, 1]},
-                         {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"},
-                         {"bufferView": 2, "componentType": 5125, "count": 6, "type": "SCALAR"}]}
+    doc = gltf_doc([1, 0, 4], [{"name": "box", "mesh": 0, "children": [3, 2]},
+                               {"mesh": 0, "translation": [100, 0, 0]},
+                               {"name": "box", "mesh": 0, "translation": [20, 0, 0]},
+                               {"name": "wheel", "mesh": 1, "translation": [10, 0, 0]},
+                               {"name": "empty", "children": [5]},
+                               {"name": "deep", "mesh": 0, "translation": [50, 0, 0]}],
+                   [[1], [1, 2]])
+    v, i1, i2 = GLTF_VERTICES, GLTF_INDICES[1], GLTF_INDICES[2]
     path = tmp_path / "nodes.gltf"
     path.write_text(json.dumps(doc))
     mesh = kdray.load(path)
