@@ -273,7 +273,9 @@ the files. Under Dask each is summed over the workers that did it."""
 class JobReport:
     """What a run did for one job: views in the camera file, views rendered, views
     skipped (already there), seconds per step (STEPS), tree_cached (True: read from
-    the cache, False: built, None: not needed), errors (one line each; empty: success)."""
+    the cache, False: built, None: not needed: no view to render, or the scene kept
+    from an earlier job of the run in the process that rendered it), errors (one line
+    each; empty: success)."""
 
     job: Job
     views: int = 0
@@ -322,17 +324,21 @@ class Renderer:
         self.device = device
         self.cache = cache
         self._base = None                 # the first Tracer: its context serves them all
-        self._scenes = {}                 # scene key -> (tracer, seconds, cached)
+        self._scenes = {}                 # scene key -> its Tracer, the most recent last
 
     def scene(self, job):
         """(tracer, seconds, cached) for a job's scene: seconds of the set-up steps this
-        call did (0 for a scene already here), cached as JobReport.tree_cached."""
+        call did, cached as JobReport.tree_cached (None for a scene already here, whose
+        only step is compiling what this job's AOVs need that an earlier job's did
+        not)."""
         from .load import load
         key = _scene_key(job)
         if key in self._scenes:
-            tracer, _, cached = self._scenes.pop(key)
-            self._scenes[key] = (tracer, {}, cached)          # most recent last
-            return tracer, {}, cached
+            tracer = self._scenes.pop(key)
+            self._scenes[key] = tracer                         # most recent last
+            t0 = time.perf_counter()
+            tracer.compile(job.aovs, precision=job.precision)
+            return tracer, {"compile": time.perf_counter() - t0}, None
         seconds = {}
         t0 = time.perf_counter()
         mesh = load(job.scene)
@@ -354,7 +360,7 @@ class Renderer:
         seconds["compile"] = time.perf_counter() - t0
         while len(self._scenes) >= SCENES_KEPT:
             self._scenes.pop(next(iter(self._scenes)))
-        self._scenes[key] = (tracer, seconds, cached)
+        self._scenes[key] = tracer
         return tracer, seconds, cached
 
     def tree(self, mesh, params):
@@ -659,7 +665,8 @@ def _run_here(planned, device, cache, overwrite, progress):
         report.rendered += rendered
         report.skipped += skipped           # written meanwhile (by another run)
         report.errors.extend(errors)
-        report.tree_cached = cached
+        if cached is not None:               # None: the scene kept from an earlier job
+            report.tree_cached = cached
         progress.advance(len(todo) - rendered)       # failed, or written meanwhile
 
 
@@ -711,13 +718,13 @@ def _task_tree(job):
 
 def _task_views(job, views, overwrite, _tree_done=None):
     """A Dask task: render and write some of a job's views on this worker. Returns
-    (seconds, rendered, skipped, errors, [(name, seconds)]): skipped, the views whose
-    files were there by then (a task run again after its worker died had written
-    them)."""
+    (seconds, rendered, skipped, errors, [(name, seconds)], cached): skipped, the views
+    whose files were there by then (a task run again after its worker died had written
+    them); cached as JobReport.tree_cached for this worker's scene."""
     done = []
-    seconds, rendered, skipped, errors, _ = _worker_renderer().render_views(
+    seconds, rendered, skipped, errors, cached = _worker_renderer().render_views(
         job, views, overwrite, on_view=lambda name, s: done.append((name, s)))
-    return seconds, rendered, skipped, errors, done
+    return seconds, rendered, skipped, errors, done, cached
 
 
 def local_cluster(workers, quiet=False):
@@ -790,7 +797,9 @@ def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, c
                 report.add(seconds)
                 report.tree_cached = cached
                 continue
-            seconds, rendered, skipped, errors, done = result
+            seconds, rendered, skipped, errors, done, cached = result
+            if report.tree_cached is None:   # without a tree task (no cache): the workers'
+                report.tree_cached = cached
             report.add(seconds)
             report.rendered += rendered
             report.skipped += skipped

@@ -478,8 +478,37 @@ def test_dask_existing_scheduler(tmp_path):
                                   dashboard_address=None) as cluster:
         there = run(_dask_jobs(tmp_path, "there")[:1], scheduler=cluster.scheduler_address,
                     cache=cache)
+        # without a cache the workers build the tree: reported so, as in-process
+        built = run(_dask_jobs(tmp_path, "built")[:1], scheduler=cluster.scheduler_address,
+                    cache=None, overwrite=True)
     assert here[0].ok and there[0].ok and there[0].rendered == 7
     assert files(tmp_path / "there" / "teapot.obj") == files(tmp_path / "here" / "teapot.obj")
+    assert built[0].ok and built[0].tree_cached is False and "tree" in built[0].summary()
+    assert "(built)" in built[0].summary()
+
+
+def test_a_scene_kept_from_an_earlier_job(tmp_path, monkeypatch):
+    """A job whose scene an earlier job of the run loaded (the same mesh, parameters and
+    precision) takes its Tracer as it is: no tree step of its own (tree_cached None, not
+    "(built)"), and what its other AOVs need compiled under compile, not trace."""
+    from kdray.trace import Tracer
+    cams = orbit(tmp_path / "cams.json", 2)
+    jobs = [Job(scene=real_mesh("teapot.obj"), cameras=cams, output=tmp_path / name, aovs=aovs)
+            for name, aovs in (("a", "depth"), ("b", "depth,normal,bary,id"))]
+    compiled = []
+    real = Tracer.compile
+
+    def compile(self, aovs=None, **kw):
+        compiled.append(tuple(aovs))
+        return real(self, aovs, **kw)
+
+    monkeypatch.setattr(Tracer, "compile", compile)
+    first, second = run(jobs, cache=None)
+    assert first.ok and second.ok and second.rendered == 2
+    assert first.tree_cached is False and "(built)" in first.summary()
+    assert second.tree_cached is None and "(built)" not in second.summary()
+    assert compiled[-1] == ("depth", "normal", "bary", "id")
+    assert second.seconds["load"] == second.seconds["tree"] == 0 < second.seconds["compile"]
 
 
 def test_unwritable_output_checked_before_anything(capsys, tmp_path, monkeypatch):
