@@ -764,7 +764,8 @@ class Tracer:
         """The rays `render` traces, computed on the host with the kernel's float32
         arithmetic: (origins (H*W, 3) float64 world, directions (H*W, 3) float32),
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c).
-        A pixel with no ray has NaN directions."""
+        A pixel with no ray has NaN directions. A central camera's origins are its one
+        eye broadcast, a read-only view (np.array(origins) for a writable copy)."""
         return _render.camera_rays(camera, self._origin, self._scale)
 
     def render(self, camera, aovs=DEFAULT_AOVS, precision="single"):
