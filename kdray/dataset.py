@@ -80,6 +80,8 @@ class Job:
     preview : also write OUTPUT/<name>.png
     precision : "single" or "double" (see Tracer.render)
     params : kdray.BuildParams of the tree
+    source : where the job was read from, for messages (read_jobs: "JOBS, line N"),
+        or None; not compared
     """
 
     scene: Path
@@ -89,6 +91,7 @@ class Job:
     preview: bool = False
     precision: str = "single"
     params: BuildParams = BuildParams()
+    source: str = dataclasses.field(default=None, compare=False)
 
     def __post_init__(self):
         # the one check of a job's fields, for read_jobs and the Python API alike:
@@ -143,7 +146,7 @@ def read_jobs(path):
         where = f"{path}, line {number}"
         data = parse_json(line, where, DatasetError)
         try:
-            jobs.append(_job(data, path.parent))
+            jobs.append(dataclasses.replace(_job(data, path.parent), source=where))
         except KdrayError as e:
             raise DatasetError(f"{where}: {e}") from None
     where = [f"{path}, line {number}" for number, _ in lines]
@@ -228,10 +231,12 @@ def missing_views(job, views, overwrite=False):
 def check_outputs(jobs, where=None, make=True):
     """Check every job's output folder, then (make) create them: OutputError when one is
     a file, or it or the folder it would be made in cannot be written, or making one
-    fails; where: how to name each job in messages (a jobs file's "JOBS, line N").
-    Nothing is created when any fails: the folders made before a failure are removed."""
+    fails; where: how to name each job in messages (a jobs file's "JOBS, line N"; by
+    default each job's source). Nothing is created when any fails: the folders made
+    before a failure are removed."""
     def error(i, message):
-        return OutputError(f"{where[i]}: {message}" if where else message)
+        named = where[i] if where else jobs[i].source
+        return OutputError(f"{named}: {message}" if named else message)
     for i, job in enumerate(jobs):
         out = job.output
         try:                                    # exists() raises for a name too long

@@ -458,6 +458,15 @@ def test_output_that_cannot_be_made_leaves_none_made(tmp_path, monkeypatch):
     with pytest.raises(OutputError, match="c: cannot be made .No space left on device"):
         run(jobs)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "kept"]
+    # jobs read from a file: the message names the job's line, as read_jobs' do
+    listed = write_jobs(tmp_path / "kept" / "jobs.jsonl", [
+        {"scene": str(real_mesh("teapot.obj")), "cameras": str(cams), "output": str(j.output)}
+        for j in jobs])
+    read = read_jobs(listed)
+    assert read == jobs and read[1].source == f"{listed}, line 2"
+    with pytest.raises(OutputError, match=r"jobs.jsonl, line 2: .*c: cannot be made"):
+        run(read)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.json", "kept"]
 
 
 def test_views_whose_files_are_folders_are_not_done(tmp_path):
