@@ -352,12 +352,14 @@ def _run(tracer):
     return RUN_CPU if _device.is_cpu(tracer.device) else 1
 
 
-def _program(tracer, first=False, world=None):
-    """queries.cl built for the tracer's device and tree (kept with its other programs):
-    {"program": Program, kernel name: Kernel, "run": rays a work-item}; first: the
-    program of the first pass's kernel, list_first (LIST_SLOTS slots a ray in private
-    memory), instead of count_rays and list_rays; world: None, or the (origin,
-    direction) C types of rays read as given (RAYS_WORLD, `_Rays.world`)."""
+def _program(tracer, kernel, world=None):
+    """queries.cl's `kernel` (count_rays, list_rays, or the first pass's list_first:
+    LIST_SLOTS slots a ray in private memory), the only kernel compiled in its program
+    (KD_ONLY_*: each compiles in about half the time of two), built for the tracer's
+    device and tree (kept with its other programs): {"program": Program, kernel:
+    Kernel, "run": rays a work-item}; world: None, or the (origin, direction) C types
+    of rays read as given (RAYS_WORLD, `_Rays.world`)."""
+    first = kernel == "list_first"
     run = _run(tracer)
     local = tracer.local_size if _device.is_cpu(tracer.device) else min(
         64, int(tracer.device.max_work_group_size))
@@ -383,8 +385,11 @@ def _program(tracer, first=False, world=None):
             # exact: a power of two as a hexadecimal literal (as Tracer.program's)
             defines["SCALE"] = f"{tracer._scale.hex()}f"
             defines["SCALE_INV"] = (1.0 / tracer._scale).hex()
-    entry = tracer._built("queries.cl", defines,
-                          ("list_first",) if first else ("count_rays", "list_rays"))
+    if kernel == "count_rays":
+        defines["KD_ONLY_COUNT_RAYS"] = None
+    elif kernel == "list_rays":
+        defines["KD_ONLY_LIST_RAYS"] = None
+    entry = tracer._built("queries.cl", defines, (kernel,))
     entry["run"], entry["local"] = run, local
     return entry
 
@@ -401,7 +406,7 @@ def _launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False,
     n = stop - start
     if n == 0:
         return {}
-    entry = _program(tracer, first=kernel_name == "list_first", world=rays.world)
+    entry = _program(tracer, kernel_name, world=rays.world)
     o, d, t_mins, t_maxs = rays.part(start, stop)
     keep = []                                    # the host arrays the buffers use
 

@@ -270,11 +270,12 @@ class Tracer:
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
         self._point_queries = {}              # the point queries' data of this tree (points.py)
 
-    def program(self, outputs, stats=False, rays_world=None, rays="pinhole", any_hit=False,
-                wide=False):
-        """The built program for a set of outputs ("T", "UV", "NORMAL", "ID"), cached
-        with its kernels: {"program": Program, "trace_rays": Kernel, ...} (and the
-        argument types `_launch` gave each kernel, under ("arg_types", name)). rays_world:
+    def program(self, kernel, outputs, stats=False, rays_world=None, rays="pinhole",
+                any_hit=False, wide=False):
+        """The built program of render.cl's `kernel` ("trace_rays" or "render_camera",
+        the only kernel compiled in it: KD_ONLY_*) for a set of outputs ("T", "UV",
+        "NORMAL", "ID"), cached with it: {"program": Program, kernel: Kernel} (and the
+        argument types `_launch` gave it, under ("arg_types", kernel)). rays_world:
         None, or trace_rays takes rays in world coordinates, (origin type, direction
         type), each "float" or "double" (render.cl, RAYS_WORLD).
         rays: how render_camera makes its rays: "pinhole", "map" (a camera model's ray
@@ -321,7 +322,9 @@ class Tracer:
             defines[f"OUT_{name}"] = None
         if stats:
             defines["STATS"] = None
-        entry = self._built("render.cl", defines, ("trace_rays", "render_camera"))
+        # one kernel a program: each compiles in about half the time of both
+        defines["KD_ONLY_TRACE_RAYS" if kernel == "trace_rays" else "KD_ONLY_RENDER_CAMERA"] = None
+        entry = self._built("render.cl", defines, (kernel,))
         entry["wide"] = "KD_WIDE" in defines
         return entry
 
@@ -486,7 +489,7 @@ class Tracer:
         cl = _device._cl()
         if n == 0:
             return
-        entry = self.program(outputs, stats, rays_world, rays, any_hit, wide)
+        entry = self.program(kernel_name, outputs, stats, rays_world, rays, any_hit, wide)
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:

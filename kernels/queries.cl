@@ -1059,7 +1059,7 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
     directions, o_step, o_offset, d_offset KD_ORIGIN_PASS, t_mins, t_maxs, t_step, n_rays, \
     image_w, order
 
-#ifndef LIST_SLOTS
+#if !defined(LIST_SLOTS) && !defined(KD_ONLY_LIST_RAYS)
 /* out[k]: the number of distinct triangles ray k hits (crossing 1: under the count's
  * rule), or every hit found | KD_COUNT_RAW when they were more than KD_SEEN, or
  * KD_WALK_FAULT. crossing 2 (KD_WINDING): the crossings' facings summed (kd_facing), an
@@ -1131,6 +1131,7 @@ void kd_list_finish(KdQuery *q, uint k, __global const float *tris,
 #define KD_FINISH_ARGS tris, tri_ids, t_mins, t_maxs, t_step, o_step KD_EXACT_RAY_PASS
 
 #ifndef LIST_SLOTS
+#ifndef KD_ONLY_COUNT_RAYS
 /* Ray k's hits (crossing: its crossings, the count's rule) into slots offsets[k] ..
  * offsets[k] + caps[k] - 1 (hit_t, hit_uv two floats a slot, hit_id the input id), its
  * count into out_n[k] (KD_WALK_FAULT on a fault): with caps[k] at least its distinct
@@ -1169,6 +1170,7 @@ void list_rays(KD_QUERY_ARGS, uint crossing, uint nearest_k, __global const ulon
         }
     }
 }
+#endif
 #else
 /* list_rays' first pass (cap <= LIST_SLOTS slots a ray, in private memory): each
  * work-item's hits, its rays' in the order it took them, each ray's in (t, input id)

@@ -576,8 +576,11 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
  * after another, reads its rays and writes their outputs in order; else every
  * LOCAL_SIZE-th packet, so that neighbouring work-items read neighbouring rays
  * (coalesced on a GPU). A kernel
- * argument, not a -D option, so that one program serves both and render_camera is
- * compiled the same either way. */
+ * argument, not a -D option, so that one program serves both.
+ * A program holds trace_rays or render_camera (KD_ONLY_TRACE_RAYS,
+ * KD_ONLY_RENDER_CAMERA; both without either): a call needs one, and each compiles in
+ * about half the time of the two. */
+#ifndef KD_ONLY_RENDER_CAMERA
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_VEC_HINT
 void trace_rays(KD_TREE_ARGS,
                 __global const KD_ORIGIN_T *origins, __global const KD_DIRECTION_T *directions,
@@ -702,6 +705,7 @@ void trace_rays(KD_TREE_ARGS,
         }
     }
 }
+#endif
 
 /* Primary rays of the pixels in rows row0 .. row0 + n_rows - 1 (row length `width`),
  * written to outputs 0 .. n_rows * width - 1 (row-major, from row0).
@@ -728,6 +732,7 @@ void trace_rays(KD_TREE_ARGS,
 #ifndef TILE_H
 #define TILE_H 8
 #endif
+#ifndef KD_ONLY_TRACE_RAYS
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_VEC_HINT
 void render_camera(KD_TREE_ARGS, __global const float *camera, __global const float *ray_map,
                    uint width, uint row0, uint n_rows,
@@ -847,3 +852,4 @@ void render_camera(KD_TREE_ARGS, __global const float *camera, __global const fl
         }
     }
 }
+#endif
