@@ -7,14 +7,13 @@ triangles' winding, as glTF 2.0 and trimesh's own flattening do), materials and
 textures are skipped (no image library is needed). Triangle ids are the order of the
 loaded triangles: meshes are taken in the scene graph's order (a glTF's as the file
 lists its nodes, depth first, where trimesh walks them the other way round:
-`_gltf_node_ranks`), each mesh's faces in
-file order (a PLY's put back in it: `_ply_file_order`; an OBJ of several materials,
-which trimesh reads as a mesh a material, is put back in the order of its face lines:
-`_obj_in_file_order`). A file whose name ends in .gz
-is read through gzip ("bunny.obj.gz" as an OBJ named "bunny.obj"). An OBJ's relative
-(negative) indices count back from the vertex read last before their line, as the
-format has it (trimesh counts from the file's last vertex): such a file is read with
-them made absolute first (`_obj_absolute`).
+`_gltf_node_ranks`), each mesh's faces in file order (a PLY's put back in it:
+`_ply_file_order`; an OBJ of several materials, which trimesh reads as a mesh a
+material, is put back in the order of its face lines: `_obj_in_file_order`). A file
+whose name ends in .gz is read through gzip ("bunny.obj.gz" as an OBJ named
+"bunny.obj"). An OBJ's relative (negative) indices count back from the vertex read
+last before their line, as the format has it (trimesh counts from the file's last
+vertex): such a file is read with them made absolute first (`_obj_absolute`).
 
 Objects (Mesh.objects, Mesh.object_names), numbered in the order of their first
 triangle:
