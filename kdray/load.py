@@ -95,14 +95,21 @@ def load(path):
             if scene is None:
                 raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: "
                                 f"{one_line(e)})") from None
-        ranks = _gltf_node_ranks(path, zipped, ext) if ext in ("glb", "gltf") else None
+        ranks = None
+        if ext in ("glb", "gltf"):
+            header = _gltf_header(path, zipped, ext)
+            if header is not None:
+                _gltf_check(header, path)
+            ranks = _gltf_node_ranks(header)
         vertices, faces, objects, object_names = _scene_arrays(scene, path, obj, ranks)
     if not faces:
         kinds = sorted({type(g).__name__ for g in scene.geometry.values()})
         what = f" (only {', '.join(kinds)})" if kinds else ""
         raise MeshError(f"{path}: contains no triangles{what}")
     mesh = Mesh.from_arrays(np.concatenate(vertices), np.concatenate(faces), name=file_name)
-    if ext == "obj" and len(faces) > 1:         # trimesh's meshes, one a material
+    if ext == "obj" and (len(faces) > 1 or len(mesh.faces) != _obj_face_lines(obj)):
+        # a mesh a material, or polygons (a run of quads trimesh splits into every
+        # quad's first half, then every second half): put back in the file's order
         mesh = _obj_in_file_order(mesh, obj, path)
     if ext == "obj":
         objects, object_names = _obj_objects(path, zipped, file_name, mesh.triangles, obj)
@@ -136,33 +143,37 @@ def _scene_arrays(scene, path, obj=None, ranks=None):
     node's object), transforms applied (a mirroring one reverses its triangles'
     winding, so that their normals turn with them): (vertices [(n_i, 3) float64],
     faces [(m_i, 3) int64] indexing the concatenated vertices, objects (m,) uint32,
-    object_names tuple): objects numbered in the order of their first triangle. obj:
-    the bytes of the OBJ file the scene was read from (its quads' triangles put in
-    turn, `_obj_quads_in_turn`), or None."""
+    object_names tuple): objects numbered in the order of their first triangle. A node
+    that trimesh left unreachable from the scene's root (a glTF camera node's
+    children) is left out with a warning."""
     import trimesh
-    quads = functools.cache(lambda: obj is not None and bool(_OBJ_QUAD_LINE.search(obj)))
     vertices, faces, objects = [], [], []
     names = {}                                  # object name -> index, in order of appearance
     offset = 0
-    nodes = list(scene.graph.nodes_geometry)
+    nodes, lost = [], []
+    for node in scene.graph.nodes_geometry:
+        try:
+            nodes.append((node, *scene.graph[node]))
+        except ValueError:                      # "No path from world->node"
+            lost.append(str(node))
+    if lost:
+        log.warning("%s: %s left out: trimesh's reading of the scene does not reach "
+                    "them from its root (a camera node's children?)", path, ", ".join(lost))
     if ranks is not None:
-        keys = [ranks.get(_object_name(scene, node, scene.geometry[scene.graph[node][1]]))
-                for node in nodes]
+        keys = [ranks.get(_object_name(scene, node, scene.geometry[name], ranks))
+                for node, _, name in nodes]
         if None in keys:
             log.warning("%s: cannot match its scene's nodes to the file's; meshes in "
                         "trimesh's order", path)
         else:                                   # stable: a node's primitives in turn
             nodes = [nodes[i] for i in sorted(range(len(nodes)), key=keys.__getitem__)]
-    for node in nodes:
-        transform, name = scene.graph[node]
+    for node, transform, name in nodes:
         geom = scene.geometry[name]
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
             log.info("%s: skipping %s (%s, no triangles)", path, name, type(geom).__name__)
             continue
         v = np.asarray(geom.vertices, dtype=np.float64)
         f = _ply_file_order(geom, np.asarray(geom.faces, dtype=np.int64))
-        if obj is not None:
-            f = _obj_quads_in_turn(f, quads)
         if not np.array_equal(transform, np.eye(4)):       # any other, however near
             v = v @ transform[:3, :3].T + transform[:3, 3]
             if np.linalg.det(transform[:3, :3]) < 0:
@@ -170,21 +181,17 @@ def _scene_arrays(scene, path, obj=None, ranks=None):
         vertices.append(v)
         faces.append(f + offset)
         offset += len(v)
-        index = names.setdefault(_object_name(scene, node, geom), len(names))
+        index = names.setdefault(_object_name(scene, node, geom, ranks), len(names))
         objects.append(np.full(len(geom.faces), index, dtype=np.uint32))
     objects = np.concatenate(objects) if objects else np.zeros(0, dtype=np.uint32)
     return vertices, faces, objects, tuple(names)
 
 
-def _gltf_node_ranks(path, zipped, ext):
-    """{trimesh's name of a glTF node: its rank} for a .glb or .gltf file: the nodes of
-    the file's scene taken depth first from its roots, each node's children in their
-    order (as a viewer walks them; trimesh walks them the other way round), named as
-    trimesh names them (a node's name, or its index, made unique in index order).
-    None where the file's JSON cannot be read so."""
+def _gltf_header(path, zipped, ext):
+    """The JSON of a .glb (its first chunk) or .gltf file, or None where it cannot be
+    read so (trimesh's read then says what is wrong)."""
     import json
     import struct
-    from trimesh.util import unique_name
     try:
         with (gzip.open(path, "rb") if zipped else open(path, "rb")) as f:
             if ext == "glb":
@@ -194,12 +201,59 @@ def _gltf_node_ranks(path, zipped, ext):
                 header = json.loads(f.read(length))
             else:
                 header = json.loads(f.read())
+    except (OSError, EOFError, ValueError, struct.error):
+        return None
+    return header if isinstance(header, dict) else None
+
+
+GLTF_FAN = 6
+"""glTF's TRIANGLE_FAN primitive mode, which trimesh's reader leaves out."""
+
+
+def _gltf_check(header, path):
+    """MeshError for the parts of a glTF file trimesh's reader gets wrong without a
+    word: TRIANGLE_FAN primitives (left out) and sparse accessors (read without their
+    sparse values) of a triangle primitive's positions or indices. Points and lines
+    (modes 0-3) hold no triangles and are left out."""
+    try:
+        for k, mesh in enumerate(header.get("meshes", [])):
+            for primitive in mesh.get("primitives", []):
+                mode = primitive.get("mode", 4)
+                if mode == GLTF_FAN:
+                    named = f" ({mesh['name']!r})" if "name" in mesh else ""
+                    raise MeshError(f"{path}: a primitive of mesh {k}{named} is a "
+                                    f"TRIANGLE_FAN, which kdray (trimesh) does not read")
+                if mode not in (4, 5):
+                    continue
+                used = [primitive.get("attributes", {}).get("POSITION"), primitive.get("indices")]
+                for index in used:
+                    if index is not None and "sparse" in header["accessors"][index]:
+                        raise MeshError(f"{path}: accessor {index} is sparse, which kdray "
+                                        f"(trimesh) does not read")
+    except (KeyError, IndexError, TypeError, AttributeError):
+        return                                  # malformed: trimesh's read says so
+
+
+def _gltf_node_ranks(header):
+    """{trimesh's name of a glTF node: its rank} from a glTF file's JSON: the nodes of
+    the file's scene taken depth first from its roots, each node's children in their
+    order (as a viewer walks them; trimesh walks them the other way round), named as
+    trimesh names them (a node's name, or its index, made unique in index order; one
+    named as the scene's base frame renamed). None where the JSON has no scenes or
+    they cannot be walked so."""
+    from trimesh.util import unique_name
+    import trimesh
+    if header is None or "scenes" not in header:   # trimesh adds its meshes as they come
+        return None
+    try:
         nodes = header.get("nodes", [])
         name_index, counts = {}, {}
         for i, node in enumerate(nodes):
             name_index[unique_name(node.get("name", str(i)), name_index, counts=counts)] = i
-        if "scenes" not in header:             # trimesh adds its meshes as they come
-            return None
+        names = {i: name for name, i in name_index.items()}
+        base = trimesh.Scene().graph.base_frame
+        if base in name_index:                  # trimesh renames it, so as to keep it
+            names[name_index[base]] = unique_name(base, set(names.values()))
         scene = header["scenes"][header.get("scene", 0)]
         rank = {}
         stack = list(reversed(scene.get("nodes", [])))
@@ -208,10 +262,9 @@ def _gltf_node_ranks(path, zipped, ext):
             if i not in rank:
                 rank[i] = len(rank)
                 stack.extend(reversed(nodes[i].get("children", [])))
-    except (OSError, EOFError, ValueError, KeyError, IndexError, TypeError, AttributeError,
-            struct.error):
+    except (KeyError, IndexError, TypeError, AttributeError):
         return None
-    return {name: rank[i] for name, i in name_index.items() if i in rank}
+    return {names[i]: r for i, r in rank.items() if i in names}
 
 
 def _ply_file_order(geom, faces):
@@ -231,31 +284,6 @@ def _ply_file_order(geom, faces):
             and np.array_equal(ordered[np.lexsort(ordered.T[::-1])],
                                faces[np.lexsort(faces.T[::-1])]))
     return ordered if same else faces
-
-
-def _obj_quads_in_turn(faces, file_has_quads):
-    """An OBJ mesh's triangles (faces (m, 3) int64, trimesh's) with each quad's two in
-    turn, where trimesh split a run of quads as every quad's (0, 1, 2), then every
-    quad's (2, 3, 0) (its triangulate_quads, for a run of face lines of four
-    vertices; a run of mixed sizes it splits in turn itself). Such faces are m / 2
-    first halves and m / 2 second halves, the second of each sharing its first's
-    corners 2 and 0; they are put in turn where the file has a face line of four
-    vertices or more (file_has_quads(), asked only then): a file of triangles in that
-    order (one trimesh wrote) keeps it."""
-    m = len(faces)
-    if m < 4 or m % 2:
-        return faces
-    first, second = faces[:m // 2], faces[m // 2:]
-    if not (np.array_equal(second[:, 0], first[:, 2]) and np.array_equal(second[:, 2], first[:, 0])
-            and file_has_quads()):
-        return faces
-    out = np.empty_like(faces)
-    out[0::2], out[1::2] = first, second
-    return out
-
-
-_OBJ_QUAD_LINE = re.compile(rb"^[ \t]*f(?:[ \t]+[^\s#]+){4}", re.MULTILINE)
-"""A face line of four vertices or more."""
 
 
 def split_polygons(polygons):
@@ -307,11 +335,13 @@ def _ply_polygons(geom):
     return None
 
 
-def _object_name(scene, node, geom):
+def _object_name(scene, node, geom, ranks=None):
     """The object a scene graph node's triangles belong to: the node, or for one of the
     nodes trimesh makes for the primitives of a glTF mesh (randomly named), its parent:
-    the glTF node."""
-    if geom.metadata.get("from_gltf_primitive"):
+    the glTF node. ranks: `_gltf_node_ranks`, or None: a node it names is a glTF node,
+    its own object, even where trimesh marks its mesh as a primitive's (one of several
+    of which only one holds triangles)."""
+    if geom.metadata.get("from_gltf_primitive") and not (ranks and node in ranks):
         parent = scene.graph.transforms.parents.get(node)
         if parent is not None and parent != scene.graph.base_frame:
             return parent
@@ -341,12 +371,15 @@ _OBJ_ELEMENTS = (b"f", b"fo", b"l", b"p")
 
 def _obj_may_count_back(data):
     """Whether a line of an OBJ file's bytes that starts with f, l or p (after blanks)
-    holds a '-': where a relative index can be. In numpy (a tenth of a second for 60
-    MB; a regular expression takes seconds)."""
+    holds a '-': where a relative index can be (or any '-' where a line is continued
+    with a backslash). In numpy (a tenth of a second for 60 MB; a regular expression
+    takes seconds)."""
     b = np.frombuffer(data, dtype=np.uint8)
     minus = np.flatnonzero(b == ord("-"))
     if minus.size == 0:
         return False
+    if b"\\\n" in data or b"\\\r\n" in data:
+        return True
     breaks = np.flatnonzero(b == ord("\n"))
     at = np.concatenate([[0], breaks + 1])[np.searchsorted(breaks, minus)]
     for _ in range(8):                          # past a few leading blanks
@@ -365,7 +398,9 @@ def _obj_absolute(data):
     if not _obj_may_count_back(data):
         return None
     counts = [0, 0, 0]
-    lines = data.split(b"\n")
+    # a backslash before a line break joins the lines (as trimesh reads them): a
+    # continued face line's indices count back from its first line
+    lines = data.replace(b"\\\r\n", b"").replace(b"\\\n", b"").split(b"\n")
     for n, line in enumerate(lines):
         words = line.split()
         if not words:
@@ -455,13 +490,18 @@ def _obj_in_file_order(mesh, data, path):
         pairs = _pair_rows(_bits(mesh.triangles), _bits(ours))
     if pairs is None:
         log.warning("%s: cannot put its triangles in the file's order (its face lines "
-                    "read otherwise than trimesh reads them); triangle ids follow its "
-                    "materials", path)
+                    "read otherwise than trimesh reads them); triangle ids follow "
+                    "trimesh's order", path)
         return mesh
     order_mesh, order_file = pairs
     order = np.empty(len(order_mesh), dtype=np.int64)
     order[order_file] = order_mesh              # the file's triangle i is mesh's order[i]
     return dataclasses.replace(mesh, faces=mesh.faces[order])
+
+
+def _obj_face_lines(data):
+    """The face lines of an OBJ file's bytes ("f" and a blank at a line's start)."""
+    return sum(data.count(b"\n" + start) + data.startswith(start) for start in (b"f ", b"f\t"))
 
 
 def _obj_file_triangles(data):

@@ -54,6 +54,8 @@ def _header(lines):
         if not words or words[0] in ("comment", "obj_info"):
             continue
         if words[0] == "format":
+            if len(words) < 2:
+                raise ValueError(f"a format line without its format: {line!r}")
             endian = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(words[1])
             if endian is None:
                 raise ValueError(f"format {words[1]} is not binary")

@@ -103,6 +103,9 @@ def test_obj_relative_indices_count_back_from_their_line(tmp_path):
     m = load(p)
     assert m.triangles[:, :, 2].tolist() == [[0, 0, 0], [7, 7, 7], [-2, -2, -2]]
     assert m.object_names == ("first", "second") and m.objects.tolist() == [0, 0, 1]
+    continued = tmp_path / "c.obj"              # a face line continued by a backslash
+    continued.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n -1\nv 9 9 9\n")
+    assert load(continued).triangles[0].tolist() == [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
     q = tmp_path / "plain.obj"                   # the same file with absolute indices
     q.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nv 0 0 7\nv 1 0 7\nv 0 1 7\nf 4 5 6\n"
                  "v 0 0 -2\nv 2 0 -2\nv 0 2 -2\nf 7 8 9\n")
@@ -157,6 +160,12 @@ def test_obj_quads_in_file_order(tmp_path):
     halves.write_text(v + "f 1 2 3\nf 5 6 7\nf 9 10 11\nf 3 4 1\nf 7 8 5\nf 11 12 9\n")
     assert load(halves).faces.tolist() == [[0, 1, 2], [4, 5, 6], [8, 9, 10], [2, 3, 0],
                                            [6, 7, 4], [10, 11, 8]]
+    # triangles that pair up as trimesh's halves would, and one quad line: the file's
+    # order all the same (a guess from the halves' shared corners took them for quads)
+    pattern = tmp_path / "pattern.obj"
+    pattern.write_text(v + "f 1 2 3\nf 4 5 6\nf 6 7 4\nf 3 8 1\nf 6 9 4 10\n")
+    want = [[0, 1, 2], [3, 4, 5], [5, 6, 3], [2, 7, 0], [5, 8, 3], [3, 9, 5]]
+    np.testing.assert_array_equal(load(pattern).triangles, m.vertices[want])
     mixed = tmp_path / "mixed.obj"       # sizes mixed: in turn already (vertices renumbered)
     mixed.write_text(v + "f 1 2 3 4\nf 5 6 7\nf 9 10 11 12 4\n")
     want = m.vertices[[[0, 1, 2], [2, 3, 0], [4, 5, 6], [8, 9, 10], [8, 10, 11], [8, 11, 3]]]
@@ -275,7 +284,8 @@ def test_binary_ply_of_polygons_of_several_sizes(tmp_path, endian):
                      ("element face 4", "element face"),
                      ("property float z", "property float"),
                      ("property list uchar int vertex_indices", "property list uchar int"),
-                     ("element vertex 7", "element vertex 70000")]:
+                     ("element vertex 7", "element vertex 70000"),
+                     ("format {}".format(fmt), "format")]:
         binary.write_bytes(head.format(fmt).replace(old, new).encode() + body)
         with pytest.raises(MeshError, match="cannot be read as a mesh"):
             load(binary)
