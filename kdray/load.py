@@ -78,6 +78,7 @@ def load(path):
         try:
             if ext == "obj":
                 obj = _read(path, zipped)
+                obj = _obj_plain(obj) or obj
                 obj = _obj_absolute(obj) or obj
             if obj is not None:
                 scene = trimesh.load(_named_stream(obj, file_name), file_type="obj",
@@ -367,6 +368,26 @@ def _named_stream(data, file_name):
 
 _OBJ_COUNTED = {b"v": 0, b"vt": 1, b"vn": 2}
 _OBJ_ELEMENTS = (b"f", b"fo", b"l", b"p")
+
+
+def _obj_plain(data):
+    """An OBJ file's bytes with its lines as trimesh reads them, where some are not:
+    blanks before a line's keyword taken off, tabs made spaces and a comment after a
+    v, f, l or p line's numbers ("f 1 2 3 # a face") cut (trimesh leaves out indented lines and "f"
+    and a tab, and refuses a comment after numbers); None when no line needs it. Only
+    such files are read line by line."""
+    ragged = (data.startswith((b" ", b"\t")) or b"\n " in data or b"\n\t" in data
+              or b"\t" in data or data.count(b"#") > data.count(b"\n#") + data.startswith(b"#"))
+    if not ragged:
+        return None
+    lines = []
+    for line in data.replace(b"\t", b" ").split(b"\n"):
+        line = line.lstrip(b" ")
+        at = line.find(b"#")
+        if at > 0 and line[:1] in (b"v", b"f", b"l", b"p"):   # not in o, g, usemtl names
+            line = line[:at].rstrip(b" ")
+        lines.append(line)
+    return b"\n".join(lines)
 
 
 def _obj_may_count_back(data):

@@ -112,6 +112,19 @@ def test_obj_relative_indices_count_back_from_their_line(tmp_path):
     np.testing.assert_array_equal(load(q).triangles, m.triangles)
 
 
+def test_obj_lines_trimesh_would_drop(tmp_path):
+    """OBJ lines trimesh leaves out or refuses are read as the format has them: an
+    indented line, "f" or "v" and a tab, a comment after a line's numbers; a "#" in an
+    object's name stays in it."""
+    p = tmp_path / "ragged.obj"
+    p.write_text("v 0 0 0\nv\t1 0 0\n  v 0 1 0   # the third\nv 0 0 1\n"
+                 "f 1 2 3 # a comment\no part#1\n\tf\t1\t2\t4\n   f 1 3 4\n")
+    m = load(p)
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float64)
+    np.testing.assert_array_equal(m.triangles, v[[[0, 1, 2], [0, 1, 3], [0, 2, 3]]])
+    assert m.object_names == ("ragged.obj", "part#1") and m.objects.tolist() == [0, 1, 1]
+
+
 def test_ply_polygons_in_file_order(tmp_path):
     """A PLY file's polygons become triangles in the file's order (a quad's two, then
     the next face's), split as trimesh splits them, in ASCII and binary."""
