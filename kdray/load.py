@@ -40,6 +40,7 @@ import logging
 import os
 import re
 import warnings
+import zlib
 
 import numpy as np
 
@@ -80,14 +81,16 @@ def load(path):
                 obj = _read(path, zipped)
                 obj = _obj_plain(obj) or obj
                 obj = _obj_absolute(obj) or obj
-            if obj is not None:
+            # an ASCII OFF file is read in file order by kdray (kdray.off)
+            scene = _off_scene(path, zipped) if ext == "off" else None
+            if scene is None and obj is not None:
                 scene = trimesh.load(_named_stream(obj, file_name), file_type="obj",
                                      force="scene", process=False, skip_materials=True)
-            elif zipped:
+            elif scene is None and zipped:
                 with gzip.open(path, "rb") as f:
                     scene = trimesh.load(f, file_type=ext, force="scene", process=False,
                                          skip_materials=True)
-            else:
+            elif scene is None:
                 scene = trimesh.load(path, force="scene", process=False, skip_materials=True)
         except IndexError as e:
             raise MeshError(f"{path}: a face refers to a vertex that does not exist ({one_line(e)})") from None
@@ -125,7 +128,6 @@ def _binary_ply_scene(path, zipped):
     (faces of several sizes: kdray.ply), its polygons split in file order; None when
     that reader cannot read it either."""
     import struct
-    import zlib
     import trimesh
     from .ply import read_binary_ply
     try:
@@ -134,6 +136,22 @@ def _binary_ply_scene(path, zipped):
         return None
     faces = split_polygons(polygons) if polygons else None
     if faces is None:
+        return None
+    return trimesh.Scene(trimesh.Trimesh(vertices=vertices, faces=faces, process=False))
+
+
+def _off_scene(path, zipped):
+    """A trimesh Scene of the one mesh of an ASCII OFF file, read by kdray (kdray.off:
+    its polygons in file order, split as trimesh splits them); None where that reader
+    cannot read it (trimesh's then tries)."""
+    import trimesh
+    from .off import read_off
+    try:
+        vertices, polygons = read_off(_read(path, zipped))
+    except (ValueError, OverflowError, OSError, EOFError, zlib.error):
+        return None
+    faces = split_polygons(polygons) if polygons else None
+    if faces is None or len(faces) == 0:
         return None
     return trimesh.Scene(trimesh.Trimesh(vertices=vertices, faces=faces, process=False))
 

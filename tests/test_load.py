@@ -125,6 +125,37 @@ def test_obj_lines_trimesh_would_drop(tmp_path):
     assert m.object_names == ("ragged.obj", "part#1") and m.objects.tolist() == [0, 1, 1]
 
 
+def test_off_polygons_in_file_order(tmp_path):
+    """An OFF file's polygons become triangles in the file's order (a quad's two in
+    turn, where trimesh's reader puts every first half, then every second half),
+    triangles mixed with larger polygons too (trimesh's refuses them under numpy 2),
+    with comments, colours and the counts on the keyword's line; gzipped the same. A
+    face with an index out of range is a MeshError."""
+    import gzip
+    v = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [2, 0, 0]]
+    faces = [[0, 1, 2, 3], [1, 2, 5], [0, 1, 5, 4], [0, 1, 6, 2, 3], [4, 5, 1]]
+    want = [[0, 1, 2], [2, 3, 0], [1, 2, 5], [0, 1, 5], [5, 4, 0],
+            [0, 1, 6], [0, 6, 2], [0, 2, 3], [4, 5, 1]]
+    text = ("COFF  # colours after each vertex\n# a comment line\n\n7 5 0\n"
+            + "".join(f"{x} {y} {z} 255 0 0 255\n" for x, y, z in v)
+            + "".join(" ".join(map(str, [len(f)] + f)) + " 0.5 0.5 0.5\n" for f in faces))
+    off = tmp_path / "p.off"
+    off.write_text(text)
+    assert load(off).faces.tolist() == want
+    np.testing.assert_array_equal(load(off).vertices, np.array(v, np.float64))
+    one_line = tmp_path / "q.off"                   # the counts on the keyword's line
+    one_line.write_text("OFF 7 2 0\n" + "".join(f"{x} {y} {z}\n" for x, y, z in v)
+                        + "4 0 1 2 3\n4 0 1 5 4\n")
+    assert load(one_line).faces.tolist() == [[0, 1, 2], [2, 3, 0], [0, 1, 5], [5, 4, 0]]
+    zipped = tmp_path / "p.off.gz"
+    zipped.write_bytes(gzip.compress(text.encode()))
+    assert load(zipped).faces.tolist() == want
+    bad = tmp_path / "bad.off"
+    bad.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    with pytest.raises(MeshError):
+        load(bad)
+
+
 def test_ply_polygons_in_file_order(tmp_path):
     """A PLY file's polygons become triangles in the file's order (a quad's two, then
     the next face's), split as trimesh splits them, in ASCII and binary."""
