@@ -393,10 +393,11 @@ def test_a_task_run_again_counts_the_views_it_finds(tmp_path, monkeypatch):
     (job,) = _dask_jobs(tmp_path, "out")[:1]
     job.output.mkdir(parents=True)                      # as run() makes it first
     views = read_cameras(job.cameras)
-    seconds, rendered, skipped, errors, done = dataset._task_views(job, views[:3], False)
-    assert (rendered, skipped, errors, len(done)) == (3, 0, [], 3)
-    seconds, rendered, skipped, errors, done = dataset._task_views(job, views[:5], False)
+    seconds, rendered, skipped, errors, done, cached = dataset._task_views(job, views[:3], False)
+    assert (rendered, skipped, errors, len(done), cached) == (3, 0, [], 3, False)
+    seconds, rendered, skipped, errors, done, cached = dataset._task_views(job, views[:5], False)
     assert (rendered, skipped, errors, len(done)) == (2, 3, [], 2)
+    assert cached is None                               # the scene kept from the first task
 
 
 def test_dask_worker_errors_are_one_line(tmp_path):
