@@ -105,7 +105,7 @@ def load(path):
             if header is not None:
                 _gltf_check(header, path)
             ranks = _gltf_node_ranks(header)
-        vertices, faces, objects, object_names = _scene_arrays(scene, path, obj, ranks)
+        vertices, faces, objects, object_names = _scene_arrays(scene, path, ranks)
     if not faces:
         kinds = sorted({type(g).__name__ for g in scene.geometry.values()})
         what = f" (only {', '.join(kinds)})" if kinds else ""
@@ -156,7 +156,7 @@ def _off_scene(path, zipped):
     return trimesh.Scene(trimesh.Trimesh(vertices=vertices, faces=faces, process=False))
 
 
-def _scene_arrays(scene, path, obj=None, ranks=None):
+def _scene_arrays(scene, path, ranks=None):
     """The triangles of a trimesh Scene, node by node in the graph's order (or in the
     order of ranks: {object name: rank}, `_gltf_node_ranks`, where it ranks every
     node's object), transforms applied (a mirroring one reverses its triangles'
@@ -480,7 +480,7 @@ def _obj_objects(path, zipped, file_name, triangles, data=None):
         log.warning("%s: cannot read its o/g groups (%s: %s); one object", path,
                     type(e).__name__, e)
         return one
-    g_vertices, g_faces, g_objects, g_names = _scene_arrays(split, path, data)
+    g_vertices, g_faces, g_objects, g_names = _scene_arrays(split, path)
     if len(g_names) <= 1:
         return one
     # the same triangles, bit for bit, in two orders: sort both and pair them up
