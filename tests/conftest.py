@@ -191,3 +191,50 @@ def pytest_terminal_summary(terminalreporter):
                 tr.write_line(f"not covered: {line.strip()}")
     except device.DeviceError as e:
         tr.write_line(f"no default device: {e}")
+
+
+# -- trimesh's trees, where their packages are missing ------------------------------
+
+class _BoxTree:
+    """rtree's Index as trimesh uses it, by brute force: `bounds` (6,) and
+    `intersection(bounds (6,))` -> ids of the triangle boxes that overlap."""
+
+    def __init__(self, triangles):
+        tri = np.asarray(triangles, dtype=np.float64)
+        self.lo, self.hi = tri.min(axis=1), tri.max(axis=1)
+        self.bounds = np.concatenate([self.lo.min(axis=0), self.hi.max(axis=0)])
+
+    def intersection(self, bounds):
+        b = np.asarray(bounds, dtype=np.float64)
+        return np.flatnonzero(((self.lo <= b[3:]) & (self.hi >= b[:3])).all(axis=1)).tolist()
+
+
+class _VertexTree:
+    """scipy's cKDTree as trimesh.proximity uses it, by brute force: query(points) ->
+    (distance (n,), index (n,)) of each point's nearest vertex."""
+
+    def __init__(self, points):
+        self.points = np.asarray(points, dtype=np.float64)
+
+    def query(self, q):
+        q = np.asarray(q, dtype=np.float64).reshape(-1, 3)
+        dist = np.linalg.norm(q[:, None, :] - self.points[None, :, :], axis=2)
+        i = dist.argmin(axis=1)
+        return dist[np.arange(len(q)), i], i
+
+
+@pytest.fixture
+def brute_trees(monkeypatch):
+    """trimesh's r-tree and vertex k-d tree, by brute force where rtree or scipy is
+    missing (the oracles' dependencies, not the intersector's: neither is in the test
+    extra)."""
+    import trimesh
+    try:
+        import rtree  # noqa: F401
+    except ImportError:
+        monkeypatch.setattr(trimesh.Trimesh, "triangles_tree",
+                            property(lambda mesh: _BoxTree(mesh.triangles)))
+    try:
+        import scipy.spatial  # noqa: F401
+    except ImportError:
+        monkeypatch.setattr(trimesh.proximity, "cKDTree", _VertexTree)

@@ -88,7 +88,7 @@ def inputs(folder):
 @pytest.mark.filterwarnings("ignore::kdray.points.OpenMeshWarning")
 @pytest.mark.parametrize("doc", [p for p in DOCS if python_blocks(p)],
                          ids=lambda p: p.relative_to(ROOT).as_posix())
-def test_examples_run_and_print_what_they_say(doc, tmp_path, monkeypatch):
+def test_examples_run_and_print_what_they_say(doc, tmp_path, monkeypatch, brute_trees):
     monkeypatch.chdir(tmp_path)
     namespace = inputs(tmp_path)
     for line, code in python_blocks(doc):
