@@ -40,7 +40,10 @@ latitude -pi (y - cy) / fl_y; no coefficients). Any other model, or instant-ngp'
     Where a key is given both at the top level and in a frame, the frame's value wins
     here (as in instant-ngp). nerfstudio's parser reads a frame's fl_x, fl_y, cx, cy, w,
     h and distortion only when the top level lacks them, so a file with both, differing,
-    renders otherwise there. Distortion and camera_model are checked at both levels.
+    renders otherwise there. Distortion coefficients are checked at both levels; the
+    camera_model that applies (the frame's, else the top level's) only. NeRF's and
+    instant-ngp's camera_angle_x (camera_angle_y) stand for fl_x (fl_y) where it is
+    missing: fl = side / 2 / tan(angle / 2), and cx, cy then default to the centre.
 
 COLMAP text model: a folder holding cameras.txt and images.txt (e.g. ``sparse/0``), or
 the path of either (the other beside it). cameras.txt: ``CAMERA_ID MODEL WIDTH HEIGHT
@@ -295,19 +298,46 @@ def _nerfstudio_view(meta, frame, index, path):
     label = f"frame {name}"
     model, distortion = _nerfstudio_model(meta, frame, path, label)
 
+    def given(key):
+        return key in frame or key in meta
+
+    angles = not given("fl_x") and given("camera_angle_x")   # NeRF's and instant-ngp's form
+
     def value(key):
         """(value, how to name it) from the frame, else the top level."""
         if key in frame:
             return frame[key], key
         if key in meta:
             return meta[key], f"top-level {key}"
-        if key == "fl_y":
-            return value("fl_x")
-        raise _fail(path, label, f"missing '{key}' (give it at the top level or in the frame).")
+        hint = {"fl_x": " or camera_angle_x",
+                "w": " and 'h': a file with camera_angle_x (NeRF's synthetic scenes) does "
+                     "not say its image size" if angles else ""}.get(key, "")
+        raise _fail(path, label, f"missing '{key}'{hint} (give it at the top level or in the "
+                                 f"frame).")
 
-    fx, fy = (_number(*value(key), path, label, positive=True) for key in ("fl_x", "fl_y"))
-    cx, cy = (_number(*value(key), path, label) for key in ("cx", "cy"))
     width, height = (_side(*value(key), path, label) for key in ("w", "h"))
+
+    def focal(key, angle_key, side):
+        """fl_x or fl_y, or one from a field of view (camera_angle_x, camera_angle_y:
+        radians across the image's width, height), or None where neither is given."""
+        if given(key):
+            return _number(*value(key), path, label, positive=True)
+        if not given(angle_key):
+            return None
+        angle = _number(*value(angle_key), path, label, positive=True)
+        if not angle < math.pi:
+            raise _fail(path, label, f"{angle_key} must be below pi radians, got {angle!r}.")
+        return 0.5 * side / math.tan(0.5 * angle)
+
+    fx = focal("fl_x", "camera_angle_x", width)
+    if fx is None:
+        value("fl_x")                           # missing: say so
+    fy = focal("fl_y", "camera_angle_y", height) or fx
+    if angles:                                  # the centre, where not given
+        cx, cy = (_number(*value(key), path, label) if given(key) else 0.5 * side
+                  for key, side in (("cx", width), ("cy", height)))
+    else:
+        cx, cy = (_number(*value(key), path, label) for key in ("cx", "cy"))
     if model == "equirectangular":
         # nerfstudio: longitude pi (x - cx) / fl_x, latitude -pi (y - cy) / fl_y
         fx, fy = fx / math.pi, fy / math.pi
@@ -325,16 +355,17 @@ def _nerfstudio_model(meta, frame, path, label):
     level's, else PINHOLE) and coefficients (each the frame's, else the top level's; a
     level's "distortion_params" before its keys), as nerfstudio renders them."""
     levels = ((meta, "top-level "), (frame, ""))
-    for source, where in levels:
-        model = source.get("camera_model", "PINHOLE")
-        if not isinstance(model, str):
-            raise _fail(path, label, f"{where}camera_model must be a string, got {_show(model)}.")
-        if model not in _NERFSTUDIO_MODELS:
-            raise _fail(path, label, f"camera model {model} {_NOT_SUPPORTED}.")
-        if source.get("is_fisheye", False):
-            raise _fail(path, label, f"{where}is_fisheye is set: instant-ngp's fisheye camera "
-                                     f"{_NOT_SUPPORTED}.")
-    model = frame.get("camera_model", meta.get("camera_model", "PINHOLE"))
+    # the frame's camera_model and is_fisheye, else the top level's: only those apply
+    source, where = (frame, "") if "camera_model" in frame else (meta, "top-level ")
+    model = source.get("camera_model", "PINHOLE")
+    if not isinstance(model, str):
+        raise _fail(path, label, f"{where}camera_model must be a string, got {_show(model)}.")
+    if model not in _NERFSTUDIO_MODELS:
+        raise _fail(path, label, f"camera model {model} {_NOT_SUPPORTED}.")
+    source, where = (frame, "") if "is_fisheye" in frame else (meta, "top-level ")
+    if source.get("is_fisheye", False):
+        raise _fail(path, label, f"{where}is_fisheye is set: instant-ngp's fisheye camera "
+                                 f"{_NOT_SUPPORTED}.")
     coefficients = dict.fromkeys(_DISTORTION_KEYS, (0.0, None))
     for source, where in levels:
         found = {key: (source[key], where + key) for key in _DISTORTION_KEYS if key in source}

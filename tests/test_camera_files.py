@@ -114,6 +114,42 @@ def test_nerfstudio_per_frame_overrides(tmp_path):
     assert [(v.camera.width, v.camera.height) for v in views] == [(64, 48), (64, 48), (32, 16)]
 
 
+def test_nerf_fields_of_view(tmp_path):
+    """NeRF's and instant-ngp's form: camera_angle_x (and camera_angle_y), radians
+    across the image, for fl_x = w / 2 / tan(angle / 2) (fl_y from camera_angle_y,
+    else fl_x), the principal point the image's centre unless given; a file without
+    its image size (NeRF's synthetic scenes) is told so."""
+    a = 0.6911112070083618                                  # NeRF synthetic's lego
+    f = 0.5 * 800 / math.tan(0.5 * a)
+    meta = {"camera_angle_x": a, "w": 800, "h": 600, "frames": [frame("./train/r_0")]}
+    (view,) = read_cameras(write(tmp_path, meta))
+    assert view.name == "r_0"
+    np.testing.assert_allclose(view.camera.K, [[f, 0, 400], [0, f, 300], [0, 0, 1]], rtol=1e-15)
+    b = 0.5
+    both = dict(meta, camera_angle_y=b, cx=410.0)
+    (view,) = read_cameras(write(tmp_path, both, "b.json"))
+    np.testing.assert_allclose(view.camera.K, [[f, 0, 410], [0, 300 / math.tan(0.25), 300],
+                                               [0, 0, 1]], rtol=1e-15)
+    given = dict(meta, fl_x=500.0, cx=1.0, cy=2.0)          # fl_x wins over the angle
+    (view,) = read_cameras(write(tmp_path, given, "c.json"))
+    np.testing.assert_array_equal(view.camera.K, [[500, 0, 1], [0, 500, 2], [0, 0, 1]])
+    sizeless = {"camera_angle_x": a, "frames": [frame("./train/r_0")]}
+    assert "missing 'w' and 'h': a file with camera_angle_x" in error(
+        write(tmp_path, sizeless, "d.json"))
+    assert "camera_angle_x must be below pi radians" in error(
+        write(tmp_path, dict(meta, camera_angle_x=3.5), "e.json"))
+
+
+def test_nerfstudio_frame_model_applies(tmp_path):
+    """A frame's camera_model is the one that applies: a supported one under an
+    unsupported top-level one renders; an unsupported one in a frame is refused."""
+    (view,) = read_cameras(write(tmp_path, transforms([frame("a.png", camera_model="PINHOLE")],
+                                                      camera_model="FISHEYE624")))
+    assert view.camera.model == "pinhole"
+    assert "camera model FISHEYE624 is not supported" in error(write(tmp_path, transforms(
+        [frame("a.png", camera_model="FISHEYE624")]), "b.json"))
+
+
 def test_nerfstudio_intrinsics_only_per_frame_and_top_level_fl_y(tmp_path):
     frames = [frame("a.png", fl_x=10.0, cx=5.0, cy=4.0, w=10, h=8),
               frame("b.png", fl_x=20.0, fl_y=30.0, cx=6.0, cy=7.0, w=12, h=14)]
@@ -168,7 +204,7 @@ def test_nerfstudio_refuses_what_is_not_a_pinhole(tmp_path, top, per_frame, matc
 
 
 @pytest.mark.parametrize("top, per_frame, match", [
-    ({"fl_x": None, "fl_y": None}, {}, r"frame frame_00012: missing 'fl_x' \(give it at the top level or in the frame\)"),
+    ({"fl_x": None, "fl_y": None}, {}, r"frame frame_00012: missing 'fl_x' or camera_angle_x \(give it at the top level or in the frame\)"),
     ({"cx": None}, {}, r"frame frame_00012: missing 'cx'"),
     ({"h": None}, {}, r"frame frame_00012: missing 'h'"),
     ({}, {"transform_matrix": None}, r"frame frame_00012: missing 'transform_matrix'\.$"),
