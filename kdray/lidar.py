@@ -275,7 +275,7 @@ class Lidar:
         camera pose: CameraError). The directions are rotated and renormalised in
         float64, so a hit's t is its range."""
         pose = check_pose(pose)
-        R = pose[:3, :3]
+        R = beam_rotation(pose)
         s = self._components
         # R d, component by component: numpy's matmul would call BLAS, whose threads
         # go on spinning after it returns and take cores from the trace that follows
@@ -310,6 +310,24 @@ def _spaced(spec):
     elevations = up - (np.arange(channels) * (up - down)) / (channels - 1)
     elevations[-1] = down
     return elevations.tolist()
+
+
+ORTHONORMAL = 1e-12
+"""How far from orthonormal (max |R^T R - I|) a pose's rotation may be and still turn
+the beams as it is; the check lets through 1e-6 (`check_pose`)."""
+
+
+def beam_rotation(pose):
+    """(3, 3) float64: the rotation that turns a scan's beams, for a checked pose: its
+    rotation part, or where that is orthonormal only to more than ORTHONORMAL, the
+    nearest rotation (the polar factor U V^T of its SVD), so that every beam stays of
+    length 1 and its range is metres in both precisions (a rotation scaled by 1 + 1e-6
+    lengthened the float32 beams, whose t fell that much short of the range)."""
+    R = np.asarray(pose, dtype=np.float64)[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() <= ORTHONORMAL:
+        return R
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt
 
 
 def check_pose(pose, name="the sensor pose"):

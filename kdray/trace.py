@@ -960,12 +960,12 @@ class Tracer:
     def _scan_on_device(self, lidar, pose):
         """`scan` with the rays made by render_camera from the Lidar's direction map:
         rows are beams, columns azimuth steps; only t and the triangle are computed."""
-        from .lidar import scan_images
+        from .lidar import beam_rotation, scan_images
         rows, columns = lidar.shape
         map32, map_buf, _ = self._kept_map(
             ("lidar", lidar.to_json()),
             lambda: (np.ascontiguousarray(lidar.directions(), dtype=np.float32), None))
-        M = pose[:3, :3].astype(np.float32)
+        M = beam_rotation(pose).astype(np.float32)
         eye = (pose[:3, 3] - self._origin) / self._scale
         # a lidar far from a small scene: the kernel's float32 cannot hold where it is
         check_float32(eye, "the lidar's position relative to the tree (in its units)", KdrayError)

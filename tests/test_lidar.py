@@ -179,6 +179,22 @@ def test_double_precision_ranges(tracers, room_tree):
     assert rel.max() <= 1e-12, f"max {rel.max():.3g}"
 
 
+def test_ranges_of_a_pose_orthonormal_to_1e6_only(tracers, room_tree):
+    """A pose whose rotation is scaled by 1 + 3.2e-7 (the check lets it through: it is
+    orthonormal to 1e-6) turns the beams by its nearest rotation (lidar.beam_rotation),
+    so single-precision ranges stay within float32's precision of the float64 beams'
+    (they were 3.2e-7 short: t along float32 beams that much longer than 1)."""
+    lidar = Lidar.from_dict(SPEC)
+    pose = sensor_pose()
+    pose[:3, :3] *= 1 + 3.2e-7
+    scan = tracers(room_tree).scan(lidar, pose)
+    d = lidar.directions() @ pose[:3, :3].T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)           # Lidar.rays' beams
+    want, _, margin = analytic(pose[:3, 3], d)
+    rel = np.abs(scan["range"].reshape(-1).astype(np.float64) - want) / want
+    assert np.percentile(rel[margin > 1e-4], 99) < 2e-7, np.percentile(rel, 99)
+
+
 def test_beyond_max_range_is_a_miss(tracers, room_tree):
     lidar = Lidar.from_dict({**SPEC, "max_range": 5.0})
     pose = sensor_pose()
