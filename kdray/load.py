@@ -32,7 +32,6 @@ triangle:
   or `g`, a scene of one node) has one object, named after the file.
 """
 import dataclasses
-import functools
 import gzip
 import io
 import itertools
@@ -46,6 +45,8 @@ import numpy as np
 
 from .errors import MeshError, one_line
 from .mesh import Mesh, check_objects
+from .off import read_off
+from .ply import read_binary_ply
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +83,7 @@ def load(path):
                 obj = _obj_plain(obj) or obj
                 obj = _obj_absolute(obj) or obj
             # an ASCII OFF file is read in file order by kdray (kdray.off)
-            scene = _off_scene(path, zipped) if ext == "off" else None
+            scene = _polygons_scene(read_off, path, zipped) if ext == "off" else None
             if scene is None and obj is not None:
                 scene = trimesh.load(_named_stream(obj, file_name), file_type="obj",
                                      force="scene", process=False, skip_materials=True)
@@ -95,7 +96,7 @@ def load(path):
         except IndexError as e:
             raise MeshError(f"{path}: a face refers to a vertex that does not exist ({one_line(e)})") from None
         except Exception as e:  # trimesh raises many kinds for a malformed file
-            scene = _binary_ply_scene(path, zipped) if ext == "ply" else None
+            scene = _polygons_scene(read_binary_ply, path, zipped) if ext == "ply" else None
             if scene is None:
                 raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: "
                                 f"{one_line(e)})") from None
@@ -123,35 +124,20 @@ def load(path):
     return mesh
 
 
-def _binary_ply_scene(path, zipped):
-    """A trimesh Scene of the one mesh of a binary PLY file that trimesh's reader refused
-    (faces of several sizes: kdray.ply), its polygons split in file order; None when
-    that reader cannot read it either."""
+def _polygons_scene(read, path, zipped):
+    """A trimesh Scene of the one mesh that `read` (bytes -> (vertices, polygons):
+    kdray.ply.read_binary_ply for a binary PLY of faces of several sizes, which
+    trimesh's reader refuses; kdray.off.read_off) makes of the file, its polygons split
+    in file order (`split_polygons`); None where it cannot read it (trimesh's reader, or
+    its error, then stands)."""
     import struct
     import trimesh
-    from .ply import read_binary_ply
     try:
-        vertices, polygons = read_binary_ply(_read(path, zipped))
-    except (ValueError, struct.error, OSError, EOFError, zlib.error):
+        vertices, polygons = read(_read(path, zipped))
+    except (ValueError, OverflowError, struct.error, OSError, EOFError, zlib.error):
         return None
     faces = split_polygons(polygons) if polygons else None
     if faces is None:
-        return None
-    return trimesh.Scene(trimesh.Trimesh(vertices=vertices, faces=faces, process=False))
-
-
-def _off_scene(path, zipped):
-    """A trimesh Scene of the one mesh of an ASCII OFF file, read by kdray (kdray.off:
-    its polygons in file order, split as trimesh splits them); None where that reader
-    cannot read it (trimesh's then tries)."""
-    import trimesh
-    from .off import read_off
-    try:
-        vertices, polygons = read_off(_read(path, zipped))
-    except (ValueError, OverflowError, OSError, EOFError, zlib.error):
-        return None
-    faces = split_polygons(polygons) if polygons else None
-    if faces is None or len(faces) == 0:
         return None
     return trimesh.Scene(trimesh.Trimesh(vertices=vertices, faces=faces, process=False))
 
@@ -390,16 +376,20 @@ _OBJ_ELEMENTS = (b"f", b"fo", b"l", b"p")
 
 def _obj_plain(data):
     """An OBJ file's bytes with its lines as trimesh reads them, where some are not:
-    blanks before a line's keyword taken off, tabs made spaces and a comment after a
-    v, f, l or p line's numbers ("f 1 2 3 # a face") cut (trimesh leaves out indented lines and "f"
-    and a tab, and refuses a comment after numbers); None when no line needs it. Only
-    such files are read line by line."""
-    ragged = (data.startswith((b" ", b"\t")) or b"\n " in data or b"\n\t" in data
-              or b"\t" in data or data.count(b"#") > data.count(b"\n#") + data.startswith(b"#"))
+    a line continued by a backslash joined to the next, blanks before a line's keyword
+    taken off, tabs made spaces and a comment after a v, f, l or p line's numbers ("f 1
+    2 3 # a face") cut (trimesh leaves out indented lines and "f" and a tab, and refuses
+    a comment after numbers); None when no line needs it. Only such files are read
+    line by line, and every later read of the bytes (`_obj_absolute`,
+    `_obj_file_triangles`) takes them so: a line a line, keywords at its start."""
+    ragged = (data.startswith((b" ", b"\t")) or b"\n " in data or b"\t" in data
+              or b"\\\n" in data or b"\\\r\n" in data
+              or data.count(b"#") > data.count(b"\n#") + data.startswith(b"#"))
     if not ragged:
         return None
     lines = []
-    for line in data.replace(b"\t", b" ").split(b"\n"):
+    data = data.replace(b"\\\r\n", b"").replace(b"\\\n", b"").replace(b"\t", b" ")
+    for line in data.split(b"\n"):
         line = line.lstrip(b" ")
         at = line.find(b"#")
         if at > 0 and line[:1] in (b"v", b"f", b"l", b"p"):   # not in o, g, usemtl names
@@ -409,24 +399,15 @@ def _obj_plain(data):
 
 
 def _obj_may_count_back(data):
-    """Whether a line of an OBJ file's bytes that starts with f, l or p (after blanks)
-    holds a '-': where a relative index can be (or any '-' where a line is continued
-    with a backslash). In numpy (a tenth of a second for 60 MB; a regular expression
-    takes seconds)."""
+    """Whether a line of an OBJ file's bytes (made plain: `_obj_plain`) that starts
+    with f, l or p holds a '-': where a relative index can be. In numpy (a tenth of a
+    second for 60 MB; a regular expression takes seconds)."""
     b = np.frombuffer(data, dtype=np.uint8)
     minus = np.flatnonzero(b == ord("-"))
     if minus.size == 0:
         return False
-    if b"\\\n" in data or b"\\\r\n" in data:
-        return True
     breaks = np.flatnonzero(b == ord("\n"))
     at = np.concatenate([[0], breaks + 1])[np.searchsorted(breaks, minus)]
-    for _ in range(8):                          # past a few leading blanks
-        first = b[np.minimum(at, len(b) - 1)]
-        blank = (first == ord(" ")) | (first == ord("\t"))
-        if not blank.any():
-            break
-        at = at + blank
     return bool(np.isin(b[np.minimum(at, len(b) - 1)], list(b"flp")).any())
 
 
@@ -437,9 +418,7 @@ def _obj_absolute(data):
     if not _obj_may_count_back(data):
         return None
     counts = [0, 0, 0]
-    # a backslash before a line break joins the lines (as trimesh reads them): a
-    # continued face line's indices count back from its first line
-    lines = data.replace(b"\\\r\n", b"").replace(b"\\\n", b"").split(b"\n")
+    lines = data.split(b"\n")
     for n, line in enumerate(lines):
         words = line.split()
         if not words:
@@ -539,27 +518,22 @@ def _obj_in_file_order(mesh, data, path):
 
 
 def _obj_face_lines(data):
-    """The face lines of an OBJ file's bytes ("f" and a blank at a line's start)."""
-    return sum(data.count(b"\n" + start) + data.startswith(start) for start in (b"f ", b"f\t"))
+    """The face lines of an OBJ file's bytes (made plain: "f " at a line's start)."""
+    return data.count(b"\nf ") + data.startswith(b"f ")
 
 
 def _obj_file_triangles(data):
-    """The triangles of an OBJ file's bytes (relative indices made absolute), its face
-    lines in the file's order, a polygon of k corners split as trimesh splits it: a
-    quad into (0, 1, 2), (2, 3, 0), a larger polygon into the fan (0, i, i + 1) for i
-    = 1 .. k - 2. Returns (m, 3, 3) float64 corners, each vertex the first three
-    numbers of its line, or None where a face line has fewer than 3 corners, a corner
-    that is not a vertex of the file, or a line does not read as numbers. Lines as
-    trimesh reads them: "v " or "f " (or "f" and a tab) at a line's start, a backslash
-    before a line break joining two lines, "#" starting a comment."""
-    text = data.replace(b"\r\n", b"\n").replace(b"\\\n", b"")
-    lines = text.split(b"\n")
+    """The triangles of an OBJ file's bytes (made plain, `_obj_plain`, with relative
+    indices made absolute), its face lines in the file's order, a polygon of k corners
+    split as trimesh splits it: a quad into (0, 1, 2), (2, 3, 0), a larger polygon into
+    the fan (0, i, i + 1) for i = 1 .. k - 2. Returns (m, 3, 3) float64 corners, each
+    vertex the first three numbers of its line ("v " at a line's start), or None where
+    a face line ("f ") has fewer than 3 corners, a corner that is not a vertex of the
+    file, or a line does not read as numbers."""
+    lines = data.replace(b"\r\n", b"\n").split(b"\n")
     v_lines = [line[2:] for line in lines if line[:2] == b"v "]
-    f_lines = [line[2:] for line in lines if line[:2] in (b"f ", b"f\t")]
+    f_lines = [line[2:] for line in lines if line[:2] == b"f "]
     del lines
-    if b"#" in text:
-        v_lines, f_lines = ([line.split(b"#", 1)[0] if b"#" in line else line for line in x]
-                            for x in (v_lines, f_lines))
     v_numbers, v_count = _obj_numbers(v_lines, np.float64)
     corners, k = _obj_numbers(f_lines, np.int64)
     if v_numbers is None or corners is None or len(k) == 0 or k.min() < 3 or v_count.min() < 3:
