@@ -149,9 +149,8 @@ def read_jobs(path):
             jobs.append(dataclasses.replace(_job(data, path.parent), source=where))
         except KdrayError as e:
             raise DatasetError(f"{where}: {e}") from None
-    where = [f"{path}, line {number}" for number, _ in lines]
-    check_jobs(jobs, where)
-    check_outputs(jobs, where, make=False)
+    check_jobs(jobs)
+    check_outputs(jobs, make=False)
     return jobs
 
 
@@ -196,11 +195,11 @@ def check_params(build):
     return _check(**build)
 
 
-def check_jobs(jobs, where=None):
+def check_jobs(jobs):
     """DatasetError for jobs whose scene or camera file does not exist, or two jobs
-    that write one output folder. where: how to name each job in messages (default
-    "job N")."""
-    where = where or [f"job {i + 1}" for i in range(len(jobs))]
+    that write one output folder; each job named by its source (a jobs file's "JOBS,
+    line N"), else "job N"."""
+    where = [job.source or f"job {i + 1}" for i, job in enumerate(jobs)]
     seen = {}
     for i, job in enumerate(jobs):
         for what in ("scene", "cameras"):
@@ -228,14 +227,14 @@ def missing_views(job, views, overwrite=False):
     return [v for v in views if overwrite or not all(f.is_file() for f in job.files(v.name))]
 
 
-def check_outputs(jobs, where=None, make=True):
+def check_outputs(jobs, make=True):
     """Check every job's output folder, then (make) create them: OutputError when one is
     a file, or it or the folder it would be made in cannot be written, or making one
-    fails; where: how to name each job in messages (a jobs file's "JOBS, line N"; by
-    default each job's source). Nothing is created when any fails: the folders made
-    before a failure are removed."""
+    fails, named by the job's source where it has one (a jobs file's "JOBS, line N").
+    Nothing is created when any fails: the folders made before a failure are
+    removed."""
     def error(i, message):
-        named = where[i] if where else jobs[i].source
+        named = jobs[i].source
         return OutputError(f"{named}: {message}" if named else message)
     for i, job in enumerate(jobs):
         out = job.output

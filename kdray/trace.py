@@ -892,13 +892,16 @@ class Tracer:
                           f"a {w}x{h} {camera.model} render of {', '.join(aovs)}")
         o, d, valid = camera._model_rays(valid=True, copy=False)   # one origin: no copy
         origins = o.reshape(h, w, 3) if camera.model == "orthographic" else camera.eye
+        # an orthographic pixel's origin in world float64 loses its offset's last digits
+        # far from the world's origin (a 1e-4 at 1e12): its t, u, v are taken from the
+        # rays and triangles relative to the tree's origin (below), as the
+        # single-precision render makes them, so the trace finds the triangles only
+        relative = camera.model == "orthographic" and precision == "double"
         # image-shaped: traced in blocks of pixels, as render_camera traces them
-        hits = self.trace(origins, d.reshape(h, w, 3), precision=precision)._reshaped((h * w,))
-        if camera.model == "orthographic" and precision == "double":
-            # an orthographic pixel's origin in world float64 loses its offset's last
-            # digits far from the world's origin (a 1e-4 at 1e12): t and u, v again
-            # from the rays and triangles relative to the tree's origin, as the
-            # single-precision render makes them
+        hits = self.trace(origins, d.reshape(h, w, 3),
+                          precision="single" if relative else precision,
+                          outputs=("normal",) if relative else TRACE_OUTPUTS)._reshaped((h * w,))
+        if relative:
             c = self.tree.origin
             o_rel = camera._model_rays(valid=False, origin=c)[0]
             t, uv = hits_double(self.tree.triangles64, hits.prim, o_rel, d, origin=c)
