@@ -121,6 +121,12 @@ _COLMAP_MODELS = {
 The distortion coefficients follow the focal lengths and principal point in OpenCV's
 order; the radial models are OpenCV's with the missing coefficients zero."""
 
+# images.txt's second line of an image: X Y POINT3D_ID triples, X and Y numbers and the
+# ID a whole number (-1: no 3D point). An image line in its place fails this unless its
+# QX, TX and its name's words are numbers, the third word and the QX and TX whole ones.
+_NUMBER = r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"
+_POINTS_2D = re.compile(rf"(?:{_NUMBER}\s+{_NUMBER}\s+-?[0-9]+(?:\s+|$))*")
+
 _NOT_SUPPORTED = ("is not supported yet (kdray renders pinhole, OpenCV, OpenCV fisheye and "
                   "equirectangular cameras)")
 
@@ -502,9 +508,10 @@ def _read_colmap(path, cameras_path, images_path):
 
 def _colmap_image_records(text, path):
     """(line number, the 10 fields) of each image of images.txt. Its second line (the 2D
-    points, possibly empty) is checked for shape only, X Y POINT3D_ID triples: an image
-    line there (10 values) means a file of one line per image, every other image of
-    which would otherwise be lost."""
+    points, possibly empty) is checked for form only, X Y POINT3D_ID triples of numbers,
+    each POINT3D_ID whole: an image line there means a file of one line per image, every
+    other image of which would otherwise be lost (a name of three words makes an image
+    line 12 values, as four triples)."""
     lines = text.split("\n")
     records = []
     i = 0
@@ -518,12 +525,18 @@ def _colmap_image_records(text, path):
             raise CameraError(f"camera file {path}: line {i + 1}: expected IMAGE_ID QW QX QY QZ "
                               f"TX TY TZ CAMERA_ID NAME, found {len(fields)} values.")
         if i + 1 < len(lines):
-            count = len(lines[i + 1].split())
-            if count % 3:
+            points = lines[i + 1].strip()
+            if not _POINTS_2D.fullmatch(points):
+                values = points.split()
+                found = (f"{len(values)} values" if len(values) % 3 else
+                         f"{_show(values[2])} where the first POINT3D_ID belongs"
+                         if not re.fullmatch(r"-?[0-9]+", values[2]) else
+                         "values that are not X Y POINT3D_ID triples")
                 raise CameraError(
                     f"camera file {path}: line {i + 2}: expected the 2D points of image "
-                    f"{_show(fields[9])} (X Y POINT3D_ID triples; the line may be empty), found "
-                    f"{count} values; images.txt holds two lines per image.")
+                    f"{_show(fields[9])} (X Y POINT3D_ID triples, each ID a whole number; the "
+                    f"line may be empty), found {found}; images.txt holds two lines per "
+                    f"image.")
         records.append((i + 1, fields))
         i += 2
     return records

@@ -430,8 +430,25 @@ def test_colmap_one_line_per_image_is_refused(tmp_path):
     images = "\n".join(image_line(f"{i}.png", image_id=i) for i in range(4)) + "\n"
     message = error(colmap(tmp_path, CAMERAS_TXT, images) / "images.txt")
     assert message.endswith("images.txt: line 2: expected the 2D points of image '0.png' (X Y "
-                            "POINT3D_ID triples; the line may be empty), found 10 values; "
+                            "POINT3D_ID triples, each ID a whole number; the line may be "
+                            "empty), found 10 values; "
                             "images.txt holds two lines per image.")
+    # Names of three words make an image line 12 values, as four triples would be: the
+    # IDs' places hold 0.0 (QX) and a word, not whole numbers.
+    images = "\n".join(image_line(f"shot {i} left.png", q=(1.0, 0.0, 0.0, 0.0), image_id=i)
+                       for i in range(4)) + "\n"
+    message = error(colmap(tmp_path, CAMERAS_TXT, images, "names") / "images.txt")
+    assert message.endswith("images.txt: line 2: expected the 2D points of image 'shot 0 left"
+                            ".png' (X Y POINT3D_ID triples, each ID a whole number; the line "
+                            "may be empty), found '0.0' where the first POINT3D_ID belongs; "
+                            "images.txt holds two lines per image.")
+    images = image_line("a.png") + "\n" + "1.5 2.5 -1 3 4 x\n"
+    message = error(colmap(tmp_path, CAMERAS_TXT, images, "words") / "images.txt")
+    assert message.endswith("found values that are not X Y POINT3D_ID triples; images.txt "
+                            "holds two lines per image.")
+    # Numbers in any of C's forms, IDs of any size: a points line as COLMAP writes it.
+    images = image_line("a.png") + "\n" + "2362.39 248.498 -1 1.5e3 .5 123456789012 -7 +8. 0\n"
+    assert [v.name for v in read_cameras(colmap(tmp_path, CAMERAS_TXT, images, "ok"))] == ["a"]
     # The last image may lack its points line altogether.
     views = read_cameras(colmap(tmp_path, CAMERAS_TXT, image_line("last.png"), "b"))
     assert [v.name for v in views] == ["last"]
