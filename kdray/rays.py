@@ -782,6 +782,9 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
                              f"{type(max_hits).__name__} {max_hits!r:.60}".replace("\n", " "))
         if max_hits < 1:
             raise KdrayError(f"max_hits must be at least 1, got {max_hits}")
+        # a Python int (numpy's small integers overflow in the slots' sizes), and no
+        # more than a ray can have: each triangle is listed once
+        max_hits = min(int(max_hits), max(1, len(tracer.tree.triangles)))
     rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
                   directions)
     if rays.n <= GUESS_CHUNK:

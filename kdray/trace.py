@@ -280,8 +280,9 @@ class Tracer:
         type), each "float" or "double" (render.cl, RAYS_WORLD).
         rays: how render_camera makes its rays: "pinhole", "map" (a camera model's ray
         map, RAY_MAP) or "orthographic" (ORTHOGRAPHIC); render.cl says how.
-        any_hit: trace_rays stops at any hit (ANY_HIT, for `occluded`; with no
-        refinement: it changes no hit into a miss).
+        any_hit: trace_rays stops at any hit (ANY_HIT, for `occluded`), with the
+        refinement's triangle test where the Tracer refines (REFINE: a far-reaching
+        triangle's t from double decides its hit, so the same hits as trace's).
         wide: packets' rays that share no path walk the wide nodes (KD_WIDE, `_wide`):
         trace_rays' programs, packet programs only, not with stats (their kernels take
         the records after n_nodes: `_launch` passes them)."""
@@ -297,7 +298,7 @@ class Tracer:
             defines["ORTHOGRAPHIC"] = None
         if any_hit:
             defines["ANY_HIT"] = None
-        elif self.refine:
+        if self.refine:
             defines["REFINE"] = None
         if self._scale != 1.0:
             # exact: a power of two as a hexadecimal literal

@@ -276,6 +276,7 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     float V = Ax * Cy - Ay * Cx;
     float W = Bx * Ay - By * Ax;
 
+    /* Ue, Ve, We: the edge functions the count's rule decides by */
 #ifdef cl_khr_fp64
     /* On an edge, recompute in double: the products of floats are exact there, so
      * the sign of each edge function is exact (and kept: kd_signed_float). The count's
@@ -285,21 +286,38 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
     bool unsure = crossing && !(KD_EDGE_SURE(U, Cx * By, Cy * Bx)
                                 && KD_EDGE_SURE(V, Ax * Cy, Ay * Cx)
                                 && KD_EDGE_SURE(W, Bx * Ay, By * Ax));
-    if (unsure || U == 0.0f || V == 0.0f || W == 0.0f) {
+    bool zero = U == 0.0f || V == 0.0f || W == 0.0f;
+    if (zero) {
         U = kd_signed_float((double)Cx * (double)By - (double)Cy * (double)Bx);
         V = kd_signed_float((double)Ax * (double)Cy - (double)Ay * (double)Cx);
         W = kd_signed_float((double)Bx * (double)Ay - (double)By * (double)Ax);
     }
+    float Ue = U, Ve = V, We = W;
+    if (unsure && !zero) {
+        Ue = kd_signed_float((double)Cx * (double)By - (double)Cy * (double)Bx);
+        Ve = kd_signed_float((double)Ax * (double)Cy - (double)Ay * (double)Cx);
+        We = kd_signed_float((double)Bx * (double)Ay - (double)By * (double)Ax);
+    }
+#else
+    float Ue = U, Ve = V, We = W;
 #endif
 
     if (crossing) {
         /* Miss unless the moved ray is strictly inside (kd_tie): U = F(B, C),
          * V = F(C, A), W = F(A, B) */
-        float Us = kd_tie(U, Cy - By, Bx - Cx);
-        float Vs = kd_tie(V, Ay - Cy, Cx - Ax);
-        float Ws = kd_tie(W, By - Ay, Ax - Bx);
+        float Us = kd_tie(Ue, Cy - By, Bx - Cx);
+        float Vs = kd_tie(Ve, Ay - Cy, Cx - Ax);
+        float Ws = kd_tie(We, By - Ay, Ax - Bx);
         if (!((Us > 0.0f && Vs > 0.0f && Ws > 0.0f) || (Us < 0.0f && Vs < 0.0f && Ws < 0.0f)))
             return false;
+        /* t, u, v from the nearest hit's rule's edge functions where that rule hits the
+         * triangle too: one t a triangle for both rules, so that a range's ends keep
+         * or drop it alike (count <= intersections); else from the exact ones */
+        if (!((U >= 0.0f && V >= 0.0f && W >= 0.0f) || (U <= 0.0f && V <= 0.0f && W <= 0.0f))) {
+            U = Ue;
+            V = Ve;
+            W = We;
+        }
     } else if (!((U >= 0.0f && V >= 0.0f && W >= 0.0f) || (U <= 0.0f && V <= 0.0f && W <= 0.0f))) {
         /* Miss when the edge functions differ in sign (written so that NaN misses) */
         return false;

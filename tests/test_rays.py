@@ -656,6 +656,45 @@ def test_more_crossings_than_kept_ids_count_by_the_crossing_rule(tracers, packet
         assert np.array_equal(few.of(i)[1], prim[:k]) and np.array_equal(few.of(i)[0], t[:k])
 
 
+def test_far_reaching_triangles_give_every_query_the_same_hits(runtime):
+    """Triangles that reach far along a ray next to its hit's t (a ground plane under a
+    point close above it, a point on a triangle leaving it) have their hits decided by
+    t in double (REFINE): occluded is still trace's hit, and count still at most the
+    hits intersections lists (one t a triangle under both rules), with ranges that end
+    at the hit's t, just before and just after it, and from t = 0 off the surface."""
+    n = runtime.small(2000, 24)
+    rng = np.random.default_rng(21)
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    for side in (2.0, 2e4, 2e6):
+        h = side / 2
+        tracer = Tracer(build(np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]]), quad),
+                        device=runtime.spec)
+        tracer._poison_outputs = True
+        o = np.column_stack([rng.uniform(-0.3, 0.3, (n, 2)), rng.uniform(1e-4, 1e-2, n)])
+        d = rng.normal(size=(n, 3))
+        d[:, 2] = -np.abs(d[:, 2]) - 0.05
+        t_hit = -o[:, 2] / d[:, 2]
+        assert tracer.trace(o, d).hit.all()
+        for lo, hi in ((0.0, t_hit), (0.0, t_hit * (1 + 1e-7)), (0.0, t_hit * (1 - 1e-7)),
+                       (t_hit, np.inf), (t_hit * (1 - 1e-7), np.inf)):
+            hit = tracer.trace(o, d, lo, hi).hit
+            assert np.array_equal(tracer.occluded(o, d, lo, hi), hit)
+            listed = tracer.intersections(o, d, lo, hi)
+            assert np.array_equal(listed.counts > 0, hit)
+            assert (tracer.count(o, d, lo, hi) <= listed.counts).all()
+    # from points on an icosphere's triangles, leaving them: a triangle's own hit at a
+    # t of its float32 copy's rounding (about 1e-9) or none, alike for every query
+    v, f = icosphere(2)
+    tracer = Tracer(build(v, f), device=runtime.spec)
+    w = rng.dirichlet(np.ones(3), n)
+    tri = v[f[rng.integers(0, len(f), n)]]
+    o = np.einsum("nk,nkj->nj", w, tri)
+    d = rng.normal(size=(n, 3))
+    hits = tracer.trace(o, d)
+    assert np.array_equal(tracer.occluded(o, d), hits.hit)
+    assert np.array_equal(tracer.intersections(o, d, max_hits=1).counts > 0, hits.hit)
+
+
 def test_double_precision_and_scale(tracers):
     """Far from the origin and at tiny scales the queries answer as at home."""
     v, f = icosphere(1)
@@ -684,9 +723,17 @@ def test_bad_input_is_refused(tracers, teapot_tree):
         for query in (tracer.occluded, tracer.count, tracer.intersections):
             with pytest.raises(KdrayError):
                 query(o, d, **kw)
-    for m in (0, -1, 1.5, True):
+    for m in (0, -1, 1.5, True, np.int8(0)):
         with pytest.raises(KdrayError):
             tracer.intersections(o, d, max_hits=m)
+    # numpy's integers as Python's, and any int however large: every hit at most
+    v = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], float)
+    stack = tracers(build(np.concatenate([v + [0, 0, z] for z in range(12)]),
+                          np.arange(36).reshape(12, 3)))
+    up = np.array([[0.0, 0.0, -1.0]]), np.array([[0.0, 0.0, 1.0]])
+    for m in (np.int8(2), np.uint8(2), np.int32(2)):
+        assert stack.intersections(*up, max_hits=m).prim.tolist() == [0, 1]
+    assert stack.intersections(*up, max_hits=10**30).prim.tolist() == list(range(12))
     for points in (np.array([[0, 0, np.nan]]), np.zeros((3, 2)), np.array([["a", "b", "c"]]),
                    np.array([[np.inf, 0, 0]])):
         with pytest.raises(KdrayError):
