@@ -725,8 +725,9 @@ winding_number and occupancy."""
                    "a miss (inf)  [default: inf].")
 @click.option("--precision", type=click.Choice(["single", "double"]), default="single",
               show_default=True,
-              help="closest, distance and signed: double measures against the mesh's "
-                   "float64 triangles.")
+              help="double: closest, distance and signed measure against the mesh's "
+                   "float64 triangles, and signed, winding and occupancy take their "
+                   "side of them near the surface.")
 @tree_option
 @device_option
 @build_options
@@ -738,8 +739,7 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
     check_output(output, inputs=(scene, tree_file, points_file), what="-o")
     measures = query in ("closest", "distance", "signed")
     for name, given, fits in (("--sign", sign is not None, query in ("signed", "occupancy")),
-                              ("--max-distance", max_distance is not None, measures),
-                              ("--precision double", precision == "double", measures)):
+                              ("--max-distance", max_distance is not None, measures)):
         if given and not fits:
             raise click.UsageError(f"{name} does not go with --query {query}")
     sign = sign or "winding"
@@ -761,10 +761,10 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
             arrays = {"signed_distance": d}
             summary = f"{int(np.count_nonzero(d < 0)):,} inside"
         elif query == "winding":
-            arrays = {"winding_number": tracer.winding_number(at)}
+            arrays = {"winding_number": tracer.winding_number(at, precision=precision)}
             summary = f"{int(np.count_nonzero(arrays['winding_number'] > 0.5)):,} inside"
         else:
-            arrays = {"occupancy": tracer.occupancy(at, sign)}
+            arrays = {"occupancy": tracer.occupancy(at, sign, precision)}
             summary = f"{int(np.count_nonzero(arrays['occupancy'])):,} inside"
     _write_npz(step, output, arrays)
     step.log()

@@ -363,14 +363,17 @@ def distance(tracer, points, max_distance=np.inf, precision="single"):
     return d.reshape(shape)
 
 
-def winding_number(tracer, points, beta=WINDING_BETA):
+def winding_number(tracer, points, beta=WINDING_BETA, precision="single"):
     """(N,) float64 generalized winding number of the surface at each point: 1 inside a
     closed, outward-oriented mesh and 0 outside, fractional near holes (Jacobson et
     al. 2013). Triangles near the point are summed exactly (solid angles in double),
     farther groups by their far-field expansion to the third order where the point is
     beyond beta times their radius (Barill et al. 2018); beta=inf sums every triangle.
-    Within 1e-4 of the exact sum at the default beta."""
+    Within 1e-4 of the exact sum at the default beta. precision="double": the near
+    triangles are the input's float64 ones (the tree's float32 copies otherwise), so
+    that a point within the copies' rounding of the surface is on its own side."""
     _need_fp64(tracer)
+    geometry64 = wants_double(precision, tracer.tree)
     beta = real_number(beta, "beta", KdrayError)
     if not beta >= 1.0:
         raise KdrayError(f"beta must be at least 1 (the expansion needs the point outside "
@@ -380,13 +383,14 @@ def winding_number(tracer, points, beta=WINDING_BETA):
     check_host_memory(n * 48, f"the winding numbers of {n} points",
                       "ask for fewer points at once")
     rel, order = _ordered(tracer, _relative(tracer, p))
-    entry = _program(tracer, False)
+    entry = _program(tracer, geometry64)
+    geometry = (_tris64(tracer),) if geometry64 else ()
     moments, owned = _winding_data(tracer)
     w = page_aligned_empty((n,), np.float64)
     for start, stop in _steps(tracer, n, [24, 8]):
         part = slice(start, stop)
         _launch(tracer, entry, "winding_points", stop - start,
-                (tracer._buffer(rel[part]), moments, owned, np.float64(beta * beta),
+                (*geometry, tracer._buffer(rel[part]), moments, owned, np.float64(beta * beta),
                  np.uint32(stop - start)), {"w": w[part]})
     _check_fault(w, "winding number")
     return _unordered(w, order).reshape(shape)
@@ -397,43 +401,53 @@ def _check_sign(sign):
         raise KdrayError(f"sign must be one of {', '.join(SIGNS)}, got {sign!r}")
 
 
-def occupancy(tracer, points, sign="winding"):
+def occupancy(tracer, points, sign="winding", precision="single"):
     """(N,) bool: whether each point is inside the surface, by its winding number above
     1/2 (sign="winding", at SIGN_BETA) or by the parity of its crossing count
     (sign="parity", kdray.rays.contains; an OpenMeshWarning for a mesh with open
-    edges)."""
+    edges). precision="double": inside the input's float64 triangles where a point is
+    within NEAR_SURFACE of the surface (`inside`)."""
     _check_sign(sign)
     if sign == "parity":
         _warn_open(tracer)
-    return inside(tracer, points, sign)
+    return inside(tracer, points, sign, precision)
 
 
-def inside(tracer, points, sign):
+def inside(tracer, points, sign, precision="single"):
     """`occupancy` without its warning (for callers that warned once already). With
     sign="winding" on a closed, consistently oriented mesh (`closed_cycle`) the winding
     number is the exact integer of one ray's crossings (kdray.rays.crossing_windings),
     as cheap as `contains`, and inside where it is 1 or more: the sign of the
     generalized winding number wherever that is within 1/2 of the integer; the
-    generalized winding number for rays with more crossings than the kernel keeps."""
+    generalized winding number for rays with more crossings than the kernel keeps.
+    precision="double": the points within NEAR_SURFACE of the box's size of the surface
+    (far beyond the float32 copies' rounding, 2^-24 of it) take the generalized winding
+    number of the input's float64 triangles, with sign="parity" too on a closed mesh
+    (where the two agree; on an open one parity stays the float32 copies')."""
     from .rays import contains, crossing_windings, WINDING_RAW
-    if sign == "parity":
-        return contains(tracer, points)
+    double = wants_double(precision, tracer.tree)
     state = _state(tracer)
     if "closed_cycle" not in state:
         state["closed_cycle"] = closed_cycle(tracer.tree)
-    if not state["closed_cycle"]:
-        return winding_number(tracer, points, SIGN_BETA) > 0.5
+    closed = state["closed_cycle"]
+    if sign == "parity" and not (double and closed):
+        return contains(tracer, points)
+    if not closed:
+        return winding_number(tracer, points, SIGN_BETA, precision) > 0.5
     p, shape = check_points(points)
-    w = crossing_windings(tracer, p)
-    result = w >= 1
+    if sign == "parity":
+        result, raw = contains(tracer, p), np.zeros(len(p), bool)
+    else:
+        w = crossing_windings(tracer, p)
+        result, raw = w >= 1, w == WINDING_RAW
     # the generalized winding number where the crossings cannot tell: rays with more
     # crossings than the kernel keeps, and points so near the surface that a crossing
     # may be lost to the rounding of its t or of the float32 copy of the mesh
     lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
     near = np.isfinite(distance(tracer, p, NEAR_SURFACE * float(np.max(hi - lo))))
-    redo = np.flatnonzero(near | (w == WINDING_RAW))
+    redo = np.flatnonzero(near | raw)
     if redo.size:
-        result[redo] = winding_number(tracer, p[redo], SIGN_BETA) > 0.5
+        result[redo] = winding_number(tracer, p[redo], SIGN_BETA, precision) > 0.5
     return result.reshape(shape)
 
 
@@ -450,7 +464,7 @@ def signed_distance(tracer, points, sign="winding", max_distance=np.inf, precisi
 def signed(tracer, points, sign, max_distance=np.inf, precision="single"):
     """`signed_distance` without its warning."""
     d = distance(tracer, points, max_distance, precision)
-    return np.where(inside(tracer, points, sign), -d, d)
+    return np.where(inside(tracer, points, sign, precision), -d, d)
 
 
 def closed_cycle(tree):

@@ -672,13 +672,13 @@ class Tracer:
         """(N,) float32 distance, negative inside (kdray.points.signed_distance)."""
         return _points.signed_distance(self, points, sign, max_distance, precision)
 
-    def winding_number(self, points, beta=_points.WINDING_BETA):
+    def winding_number(self, points, beta=_points.WINDING_BETA, precision="single"):
         """(N,) float64 generalized winding number (kdray.points.winding_number)."""
-        return _points.winding_number(self, points, beta)
+        return _points.winding_number(self, points, beta, precision)
 
-    def occupancy(self, points, sign="winding"):
+    def occupancy(self, points, sign="winding", precision="single"):
         """(N,) bool: points inside the surface (kdray.points.occupancy)."""
-        return _points.occupancy(self, points, sign)
+        return _points.occupancy(self, points, sign, precision)
 
     def _image_width(self, origins, directions):
         """(width, search) for (N, 3) rays: ray_grid.ImageWidths.width, a packet's

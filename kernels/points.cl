@@ -77,16 +77,79 @@ double3 kd_cross_d(double3 a, double3 b)
 #define KD_PASS_GEOMETRY
 #endif
 
+/* The point q of segment (a, b) nearest p, as p - q, and *s its place from a (0: a,
+ * 1: b). The same bits whichever way round the segment is given (it is taken from
+ * its lower end, x then y then z, first): a point beyond the edge two triangles
+ * share is exactly as near to both, so that the lower input id wins (kd_nearest_
+ * triangle). At an end, p minus that end: a vertex's own offset in every triangle. */
+KD_INLINE
+double3 kd_closest_on_segment(double3 p, double3 a, double3 b, double *s)
+{
+    bool swap = b.x < a.x || (b.x == a.x && (b.y < a.y || (b.y == a.y && b.z < a.z)));
+    double3 lo = swap ? b : a, hi = swap ? a : b;
+    double3 e = p - lo, ab = hi - lo;
+    double den = kd_dot_d(ab, ab);
+    double t = den > 0.0 ? kd_dot_d(e, ab) / den : 0.0;
+    if (!(t > 0.0)) {
+        t = 0.0;
+    } else if (t >= 1.0) {
+        t = 1.0;
+        e = p - hi;
+    } else {
+        e = e - t * ab;
+    }
+    *s = swap ? 1.0 - t : t;
+    return e;
+}
+
+/* The nearest of triangle (a, b, c)'s edges to p (kd_closest_on_segment): p - q, and
+ * q's u, v, *d2 (as kd_closest_on_triangle). */
+KD_INLINE
+double3 kd_closest_on_edges(double3 p, double3 a, double3 b, double3 c, double *u,
+                            double *v, double *d2)
+{
+    double s, t, r;
+    double3 e_ab = kd_closest_on_segment(p, a, b, &s);
+    double3 e_ac = kd_closest_on_segment(p, a, c, &t);
+    double3 e_bc = kd_closest_on_segment(p, b, c, &r);
+    double d_ab = kd_dot_d(e_ab, e_ab), d_ac = kd_dot_d(e_ac, e_ac), d_bc = kd_dot_d(e_bc, e_bc);
+    if (d_ab <= d_ac && d_ab <= d_bc) {
+        *u = s; *v = 0.0; *d2 = d_ab;
+        return e_ab;
+    }
+    if (d_ac <= d_bc) {
+        *u = 0.0; *v = t; *d2 = d_ac;
+        return e_ac;
+    }
+    *u = 1.0 - r; *v = r; *d2 = d_bc;
+    return e_bc;
+}
+
 /* The point q of triangle (a, b, c) nearest p, q = a + u (b - a) + v (c - a), by the
  * Voronoi region of p (Ericson, Real-Time Collision Detection, 5.1.5). Returns p - q,
  * made from p's offsets to the vertices (not from q), and *d2 its squared length: in
  * the face's region the squared distance to the plane, (n . (p - a))^2 / n . n. So
- * their rounding is relative to the triangle's size, not to the coordinates'. */
+ * their rounding is relative to the triangle's size, not to the coordinates'. An
+ * edge's point is kd_closest_on_segment's (the same bits in both triangles that share
+ * the edge). The nearest edge's point is taken instead of the region's (the plane's
+ * is never farther than the exact distance, an edge's never nearer):
+ * - everywhere in a sliver (its angle at a below 2^-26: n = ab x ac's direction, and
+ *   the regions' tests, lost to rounding), which lies within its width of its edges
+ *   (off by at most that width, where the point is that near its inside);
+ * - where p may lie in an edge's region (va, vb or vc within 2^-44 of their scale,
+ *   the longest edge squared times p's largest offset squared: some 32 times their
+ *   rounding) and the edge's distance is the plane's to 2^-50 of it, or both within
+ *   2^-50 of that offset of 0: so that a point on an edge two triangles share is
+ *   exactly as near to both, and the lower input id wins. */
 KD_INLINE
 double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, double *u,
                                double *v, double *d2)
 {
     double3 ab = b - a, ac = c - a, ap = p - a;
+    double3 n = kd_cross_d(ab, ac);
+    double nn = kd_dot_d(n, n);
+    if (!(nn > 0x1p-52 * kd_dot_d(ab, ab) * kd_dot_d(ac, ac)))   /* a sliver */
+        return kd_closest_on_edges(p, a, b, c, u, v, d2);
     double3 e;
     double d1 = kd_dot_d(ab, ap), d2_ = kd_dot_d(ac, ap);
     if (d1 <= 0.0 && d2_ <= 0.0) {                    /* vertex a */
@@ -100,9 +163,9 @@ double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, doubl
             *u = 1.0; *v = 0.0;
             e = bp;
         } else if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {   /* edge ab */
-            double s = d1 / (d1 - d3);
+            double s;
+            e = kd_closest_on_segment(p, a, b, &s);
             *u = s; *v = 0.0;
-            e = ap - s * ab;
         } else {
             double3 cp = p - c;
             double d5 = kd_dot_d(ab, cp), d6 = kd_dot_d(ac, cp);
@@ -112,22 +175,32 @@ double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, doubl
                 *u = 0.0; *v = 1.0;
                 e = cp;
             } else if (vb <= 0.0 && d2_ >= 0.0 && d6 <= 0.0) {   /* edge ac */
-                double s = d2_ / (d2_ - d6);
+                double s;
+                e = kd_closest_on_segment(p, a, c, &s);
                 *u = 0.0; *v = s;
-                e = ap - s * ac;
             } else if (va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0) {   /* edge bc */
-                double s = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+                double s;
+                e = kd_closest_on_segment(p, b, c, &s);
                 *u = 1.0 - s; *v = s;
-                e = bp - s * (c - b);
             } else {                                  /* inside the face */
+                double3 bc = c - b;
+                double l2 = fmax(fmax(kd_dot_d(ab, ab), kd_dot_d(ac, ac)), kd_dot_d(bc, bc));
                 double den = 1.0 / (va + vb + vc);
-                double su = vb * den, sv = vc * den;
-                *u = su; *v = sv;
-                double3 n = kd_cross_d(ab, ac);
+                *u = vb * den; *v = vc * den;
                 double h = kd_dot_d(n, ap);
-                double nn = kd_dot_d(n, n);
                 *d2 = h * h / nn;
-                return n * (h / nn);
+                e = n * (h / nn);
+                double p2 = fmax(fmax(kd_dot_d(ap, ap), kd_dot_d(bp, bp)), kd_dot_d(cp, cp));
+                double near = 0x1p-44 * l2 * p2;
+                if (va <= near || vb <= near || vc <= near) {
+                    double eu, ev, ed2;
+                    double3 ee = kd_closest_on_edges(p, a, b, c, &eu, &ev, &ed2);
+                    if (ed2 <= *d2 + 0x1p-50 * *d2 + 0x1p-100 * p2) {
+                        *u = eu; *v = ev; *d2 = ed2;
+                        return ee;
+                    }
+                }
+                return e;
             }
         }
     }
@@ -530,7 +603,7 @@ void winding_points(__global const KdNode *nodes, __global const float *tris,
                          * (0.25 / M_PI);
                 } else if (kd_is_leaf(n)) {
                     uint first = kd_leaf_offset(n);
-#ifdef PACKET
+#if defined(PACKET) && !defined(GEOMETRY64)
                     for (uint i = 0; i < kd_n_prims(n); i += KD_PACKET)
                         w += kd_run_solid_angles(tris, owned, first + i, p);
 #else

@@ -138,6 +138,73 @@ def test_ties_do_not_depend_on_the_points_before(tracers):
     assert all(tracer.closest_points(p[i:i + 1]).prim[0] == lowest[i] for i in range(0, 300, 37))
 
 
+def test_ties_at_shared_edges_go_to_the_lowest_input_id(tracers):
+    """A point on an edge two triangles share, or beyond it (off the surface along the
+    bisector of their normals), is exactly as near to both wherever the edge lies (an
+    icosphere's edges, not a grid's): the lower input id, in both precisions, whichever
+    region of each triangle the rounding puts the point in."""
+    v, f = icosphere(2)
+    tree = build(v, f, keep_double=True)
+    tracer = tracers(tree)
+    edges = {}
+    for i, face in enumerate(f):
+        for k in range(3):
+            a, b = sorted((face[k], face[(k + 1) % 3]))
+            edges.setdefault((a, b), []).append((i, list(face).index(a), list(face).index(b)))
+    faces = np.array([[i for i, _, _ in sides] for sides in edges.values()])   # (E, 2)
+    ends = np.array([sides[0][1:] for sides in edges.values()])   # the edge's corners in face 0
+    lowest = faces.min(axis=1)
+    rng = np.random.default_rng(12)
+    t = rng.uniform(0.25, 0.75, len(faces))[:, None]
+    beyond = rng.uniform(1e-6, 0.05, (len(faces), 1))
+    # the triangles each precision measures: the input's, or the tree's float32 copies
+    for precision, tri in (("double", v[f]), ("single", by_input_id(tree))):
+        a, b = tri[faces[:, 0], ends[:, 0]], tri[faces[:, 0], ends[:, 1]]
+        on = a + t * (b - a)
+        pair = tri[faces]                                          # (E, 2, 3, 3)
+        n = np.cross(pair[:, :, 1] - pair[:, :, 0], pair[:, :, 2] - pair[:, :, 0])
+        n /= np.linalg.norm(n, axis=2, keepdims=True)
+        out = n.sum(axis=1)
+        out /= np.linalg.norm(out, axis=1, keepdims=True)
+        off = on + beyond * np.linalg.norm(b - a, axis=1)[:, None] * out
+        for p in (on, off):
+            assert (tracer.closest_points(p, precision=precision).prim == lowest).all()
+
+
+def test_slivers_are_as_near_as_their_edges(tracers):
+    """A sliver (its apex 1e-9 to 2.3e-12 of its size off the opposite edge: a plane
+    lost to rounding) is measured by its edges: the distance of points near its
+    vertices and edges equals the exact one (in rationals) to 1e-15 of its size."""
+    from fractions import Fraction
+
+    def exact(p, tri):
+        P, *T = ([Fraction(float(x)) for x in q] for q in (p, *tri))
+
+        def seg(a, b):
+            ab = [y - x for x, y in zip(a, b)]
+            ap = [y - x for x, y in zip(a, P)]
+            s = sum(x * y for x, y in zip(ap, ab)) / sum(x * x for x in ab)
+            s = min(max(s, Fraction(0)), Fraction(1))
+            return sum((x - s * y) ** 2 for x, y in zip(ap, ab))
+        return float(min(seg(T[0], T[1]), seg(T[1], T[2]), seg(T[2], T[0]))) ** 0.5
+
+    base = np.array([[0.8063436218297209, -0.8646434752767338, 0.34546162820072834],
+                     [-0.05491058804152682, 0.354855553877627, -0.9206838897907708]])
+    rng = np.random.default_rng(13)
+    for off in (1e-9, 1e-11, 2.3e-12):
+        side = np.cross(base[1] - base[0], [0.3, 0.5, 0.8])
+        apex = base[0] + 0.4 * (base[1] - base[0]) + off * side / np.linalg.norm(side)
+        tri = np.vstack([base, apex])
+        far = np.array([[5, 5, 5], [5, 6, 5], [6, 5, 5.0]])
+        tracer = tracers(build(np.vstack([tri, far]), np.array([[0, 1, 2], [3, 4, 5]]),
+                               keep_double=True))
+        p = tri[rng.integers(0, 3, 40)] + rng.normal(size=(40, 3)) * 1e-11
+        want = np.array([exact(q, tri) for q in p])
+        got = tracer.closest_points(p, precision="double")
+        assert (got.prim == 0).all()
+        assert np.abs(got.distance - want).max() <= 2e-15
+
+
 def test_max_distance_and_misses(tracers, spot):
     v, f, tree = spot
     tracer = tracers(tree)
@@ -174,6 +241,43 @@ def test_precision_double(tracers, spot):
     assert np.array_equal(near.distance, d)
     with pytest.raises(KdrayError, match="keep_double"):
         tracers(build(v, f)).distance(p, precision="double")
+
+
+def test_precision_double_signs_a_small_object_in_a_large_scene(tracers):
+    """A closed box 0.01 across, 1e3 from the origin of a closed slab 1e4 wide: its
+    float32 copy is 4.8e-5 larger on one side. With precision="double" points 1e-5 off
+    its faces, outside and inside, take the float64 box's side (winding and parity,
+    signed_distance, occupancy, winding_number); in single precision they take the
+    copy's, as documented."""
+    def box(lo, hi):
+        v = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                      for z in (lo[2], hi[2])], float)
+        f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+        return v, f
+    sv, sf = box([-5000, -1, -5000], [5000, 0, 5000])
+    lo, side = np.array([1234.5671, 1.0003, 2345.6789]), 0.01
+    bv, bf = box(lo, lo + side)
+    tree = build(np.vstack([sv, bv]), np.vstack([sf, bf + 8]), keep_double=True)
+    tracer = tracers(tree)
+    centre, off = lo + side / 2, 1e-5
+    axes = np.concatenate([np.eye(3), -np.eye(3)])
+    outside = centre + (side / 2 + off) * axes
+    inside = centre + (side / 2 - off) * axes
+    p = np.concatenate([outside, inside])
+    want = np.repeat([off, -off], 6)
+    for sign in ("winding", "parity"):
+        d = tracer.signed_distance(p, sign, precision="double")
+        assert np.allclose(d, want, rtol=0, atol=1e-11)          # the points' rounding
+        assert (tracer.occupancy(p, sign, precision="double") == (want < 0)).all()
+    w = tracer.winding_number(p, precision="double")
+    assert np.allclose(w, want < 0, atol=1e-9)
+    # the float32 copy reaches x = 1234.5771484375, 4.8e-5 past the box's 1234.5771
+    copy = tree.world(np.asarray(tree.triangles, np.float64))[12:].reshape(-1, 3)
+    assert copy[:, 0].max() > lo[0] + side + 2 * off
+    assert tracer.occupancy(outside[:1])[0] and tracer.signed_distance(outside[:1])[0] < 0
+    with pytest.raises(KdrayError, match="keep_double"):
+        tracers(build(bv, bf)).occupancy(p, precision="double")
 
 
 @pytest.mark.parametrize("scale, shift", [(1e-20, 0.0), (1.0, 1e6), (1e20, 3e21)])
@@ -492,9 +596,13 @@ def test_points_command(tmp_path, capsys):
     assert np.allclose(np.sqrt(d2[np.arange(len(at)), got["prim"]]), want_d, rtol=1e-12,
                        atol=1e-12)
 
+    # double precision's side near the surface, for every query that signs
+    tracer64 = Tracer(build(v, f, keep_double=True))
+    for query, key in (("winding", "winding_number"), ("occupancy", "occupancy")):
+        got = points("p.npy", query, "--precision", "double")[key]
+        assert np.array_equal(got, getattr(tracer64, key)(at, precision="double"))
     for more in (("--query", "winding", "--sign", "parity"),
-                 ("--query", "occupancy", "--max-distance", "1"),
-                 ("--query", "winding", "--precision", "double")):
+                 ("--query", "occupancy", "--max-distance", "1")):
         code, _, err = run(capsys, "points", mesh, "--points", tmp_path / "p.npy", "-o", out, *more)
         assert code == 2 and "does not go with" in err, more
     np.save(tmp_path / "bad.npy", np.zeros((3, 2)))
