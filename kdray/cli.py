@@ -459,7 +459,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
 @click.option("--pose", required=True, type=click.Path(dir_okay=False),
               help="4x4 sensor-to-world matrix file (text or .npy), sensor axes x forward, "
                    "y left, z up (ROS REP 103).")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+@click.option("-o", "--output", type=click.Path(), default=None,
               help="EXR range image to write: range, id, object [default: SCENE's name with "
                    ".exr, here].")
 @click.option("--points", type=click.Path(dir_okay=False),
@@ -587,7 +587,7 @@ def _read_rays(path):
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--points", "points_file", required=True, type=click.Path(dir_okay=False),
               help="The points: an (N, 3) .npy file, or text, X Y Z a line.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="The answers to write: an (N,) .npy file, bool (inside) or int32 "
                    "(--count).")
 @click.option("--count", "direction", callback=_floats(3), default=None,
@@ -631,7 +631,7 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
 @click.option("--rays", "rays_file", required=True, type=click.Path(dir_okay=False),
               help="The rays: an (N, 6) .npy or text file (origin, direction a row), or a "
                    ".npz file of origins, directions and optionally t_min and t_max.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="The .npz file to write (its arrays depend on --query).")
 @click.option("--query", type=click.Choice(["nearest", "any", "count", "all"]),
               default="nearest", show_default=True,
@@ -710,7 +710,7 @@ winding_number and occupancy."""
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--points", "points_file", required=True, type=click.Path(dir_okay=False),
               help="The points: an (N, 3) .npy file, or text, X Y Z a line.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="The .npz file to write (its arrays depend on --query).")
 @click.option("--query", type=click.Choice(POINT_QUERIES), default="signed", show_default=True,
               help="closest: the nearest surface point, its distance, triangle and "
@@ -773,7 +773,7 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
 
 @cli.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(),
               help="The .npz file to write: a grid (sdf or occupancy, origin, spacing, "
                    "sign), or with --samples the points and their sdf.")
 @click.option("--resolution", type=int, default=None,
@@ -792,10 +792,12 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
 @click.option("--sigma", type=float, default=None,
               help="--samples: the noise's deviation, world units [default: 1/200 of the "
                    "box's diagonal].")
-@click.option("--uniform", type=float, default=0.1, show_default=True,
-              help="--samples: the fraction of points uniform in the padded box.")
-@click.option("--seed", type=int, default=0, show_default=True,
-              help="--samples: the random seed (the same seed, the same samples).")
+@click.option("--uniform", type=float, default=None,
+              help="--samples: the fraction of points uniform in the padded box  "
+                   "[default: 0.1].")
+@click.option("--seed", type=int, default=None,
+              help="--samples: the random seed (the same seed, the same samples)  "
+                   "[default: 0].")
 @tree_option
 @device_option
 @build_options
@@ -809,7 +811,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
     params = _build_kwargs(kw)
     check_output(output, inputs=(scene, tree_file), what="-o")
     if samples is None:
-        for name, value in (("--sigma", sigma), ("--seed", seed if seed != 0 else None)):
+        for name, value in (("--sigma", sigma), ("--uniform", uniform), ("--seed", seed)):
             if value is not None:
                 raise click.UsageError(f"{name} goes with --samples")
         resolution = 128 if resolution is None else resolution
@@ -850,7 +852,9 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
             summary = f"{resolution}^3 grid, {inside:,} points inside"
         else:
             with step(f"signed distances of {samples:,} samples ({sign})"):
-                p, d = _sdf.sdf_samples(tracer, samples, sigma, uniform, padding, sign, seed)
+                p, d = _sdf.sdf_samples(tracer, samples, sigma,
+                                        0.1 if uniform is None else uniform, padding, sign,
+                                        0 if seed is None else seed)
             arrays = {"points": p, "sdf": d, "sign": np.str_(sign)}
             summary = f"{samples:,} samples, {int(np.count_nonzero(d < 0)):,} inside"
 

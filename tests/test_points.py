@@ -526,8 +526,9 @@ def test_sdf_command(tmp_path, capsys):
     for clash in (["--occupancy"], ["--resolution", 8]):
         code, _, err = run(capsys, "sdf", mesh, "-o", out, *clash, "--samples", 5)
         assert code == 2 and "cannot be combined with --samples" in err
-    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--sigma", 0.1)
-    assert code == 2 and "--sigma goes with --samples" in err
+    for name, value in (("--sigma", 0.1), ("--uniform", 0.5), ("--seed", 0)):
+        code, _, err = run(capsys, "sdf", mesh, "-o", out, name, value)
+        assert code == 2 and f"{name} goes with --samples" in err
 
 
 
