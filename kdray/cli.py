@@ -605,8 +605,14 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
     check_output(output, inputs=(scene, tree_file, points_file), what="-o")
     from .points import check_points
     points = check_points(_read_points(points_file))[0]      # finite, with --count too
-    if direction is not None and not (np.isfinite(direction).all() and np.any(direction)):
-        raise KdrayError(f"--count needs a finite, nonzero direction, got {direction}")
+    if direction is not None:
+        if not (np.isfinite(direction).all() and np.any(direction)):
+            raise KdrayError(f"--count needs a finite, nonzero direction, got {direction}")
+        # a crossing count does not depend on the direction's length: made unit, one
+        # beyond float32's range (1e-46 or 1e39 long) is traced as any other
+        direction = np.asarray(direction, dtype=np.float64)
+        direction = direction / np.abs(direction).max()
+        direction = direction / np.linalg.norm(direction)
     step, tracer = _scene_tracer(scene, tree_file, params, device)
     if direction is None:
         with step(f"testing {len(points):,} points"):

@@ -759,9 +759,11 @@ def test_contains_command(tmp_path, capsys):
                            "-o", tmp_path / "in.npy")
         assert code == 0 and "2 of 3 points inside" in out
         assert np.load(tmp_path / "in.npy").tolist() == [True, False, True]
-    code, _, _ = run(capsys, "contains", SCENES / "sphere.obj", "--points", tmp_path / "p.npy",
-                     "-o", tmp_path / "c.npy", "--count", "1,0,0")
-    assert code == 0 and np.load(tmp_path / "c.npy").tolist() == [1, 0, 1]
+    # any length: the direction alone counts (float32 holds neither 1e-46 nor 1e39)
+    for direction in ("1,0,0", "1e-46,0,0", "1e39,1e30,0"):
+        code, _, _ = run(capsys, "contains", SCENES / "sphere.obj", "--points",
+                         tmp_path / "p.npy", "-o", tmp_path / "c.npy", "--count", direction)
+        assert code == 0 and np.load(tmp_path / "c.npy").tolist() == [1, 0, 1], direction
     np.save(tmp_path / "bad.npy", np.zeros((3, 2)))
     np.save(tmp_path / "nan.npy", np.array([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0]]))
     for argv in (("--points", tmp_path / "bad.npy", "-o", tmp_path / "x.npy"),
