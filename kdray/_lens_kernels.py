@@ -5,11 +5,13 @@ normalized points K^-1 (i + 0.5, j + 0.5, 1) itself, writes the directions turne
 (world axes) and releases the GIL, so that kdray.lens runs parts of an image on threads.
 
 Each pixel's distorted radius rd is inverted on the radial part first: Newton's method
-kept inside a bisection bracket [0, limit] (the radial map is increasing there:
-kdray.lens._monotonic_limit), until the error is `stop` times the tolerance or the
-iterate stops moving; then, for opencv with a tangential part, Newton's method on the
-full 2D model from that point. The result is checked: distortion within tol (1 + rd)
-of the pixel's point, radius below `limit`, and a positive Jacobian.
+kept inside a bisection bracket [0, reach] (the radial map is increasing up to limit
+>= reach, and passes every pixel's radius at reach: kdray.lens._monotonic_limit), until
+the error is `stop` times the tolerance or the iterate stops moving; then, for opencv
+with a tangential part, Newton's method on the full 2D model from that point (which
+may leave the bracket: a pixel beyond g(limit) may still have its point inside limit,
+so only a radial model refuses those at once). The result is checked: distortion within
+tol (1 + rd) of the pixel's point, radius below `limit`, and a positive Jacobian.
 """
 import math
 
@@ -36,7 +38,8 @@ def _bracketed_newton(r, f, df, lo, hi):
         lo = r
     else:
         hi = r
-    step = r - f / df
+    # (df is 0 at a fold, where a tangential pixel's radial start may end)
+    step = r - f / df if df > 0.0 else hi
     if not (lo < step < hi):
         step = 0.5 * (lo + hi)
     return step, lo, hi
@@ -77,23 +80,25 @@ def _store(d, i, R, x, y, z):
 
 
 @njit(cache=True, nogil=True)
-def opencv_rays(Kinv, width, R, k, limit, g_limit, tol, stop, max_iterations, d, valid, start,
-                end):
+def opencv_rays(Kinv, width, R, k, limit, g_limit, reach, tol, stop, max_iterations, d, valid,
+                start, end):
     k1, k2, p1, p2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7]
     tangential = p1 != 0.0 or p2 != 0.0
     scale = 1.0                       # r / rd of the pixel before: the next one's start
     for i in range(start, end):
         ai, bi = _pixel_point(i, Kinv, width)
         rd = math.sqrt(ai * ai + bi * bi)
-        if not rd < g_limit:
+        # a radial model has no point inside limit where rd >= g(limit); a tangential
+        # part may still bring one there: tried, and checked at the end
+        if not (rd < g_limit or (tangential and math.isfinite(rd))):
             d[i, 0] = d[i, 1] = d[i, 2] = math.nan
             valid[i] = False
             continue
         bound = stop * tol * (1.0 + rd)
-        lo, hi = 0.0, limit
+        lo, hi = 0.0, reach
         r = rd * scale
-        if not r < limit:             # start inside the bracket
-            r = 0.5 * limit
+        if not r < reach:             # start inside the bracket
+            r = 0.5 * reach
         for _ in range(max_iterations):
             g, dg, _den = _radial(r, k1, k2, k3, k4, k5, k6)
             f = g - rd
@@ -114,6 +119,8 @@ def opencv_rays(Kinv, width, R, k, limit, g_limit, tol, stop, max_iterations, d,
                 if not (math.sqrt(fx * fx + fy * fy) > bound):
                     break
                 det = j00 * j11 - j01 * j10
+                if det == 0.0:
+                    break           # a fold: refused below (its Jacobian is not positive)
                 xn = xi - (j11 * fx - j01 * fy) / det
                 yn = yi - (j00 * fy - j10 * fx) / det
                 if abs(xn - xi) + abs(yn - yi) <= 1e-16 * (abs(xi) + abs(yi)):

@@ -229,13 +229,15 @@ def exr_camera_matrices(camera):
 
 
 def check_camera_header(camera, path="the EXR file"):
-    """OutputError when a camera's EXR matrices (worldToCamera and worldToNDC, float32 in
-    the header: docs/exr.md) hold a value beyond float32's range; the command line asks
-    before it renders. A camera within float32 (kdray.camera's checks) may still have
-    one: a far eye's -R^T t, or a focal length of 1e30 times the eye's 1e10."""
+    """OutputError when a camera's EXR matrices (worldToCamera, and a pinhole's
+    worldToNDC: the header holds no other model's; float32 in the header: docs/exr.md)
+    hold a value beyond float32's range; the command line asks before it renders. A
+    camera within float32 (kdray.camera's checks) may still have one: a far eye's -R^T
+    t, or a focal length of 1e30 times the eye's 1e10."""
     with np.errstate(all="ignore"):             # overflows are inf: refused below
         matrices = exr_camera_matrices(camera)
-    for name, matrix in zip(("worldToCamera", "worldToNDC"), matrices):
+    written = 2 if camera.model == "pinhole" else 1
+    for name, matrix in list(zip(("worldToCamera", "worldToNDC"), matrices))[:written]:
         big = ~(np.abs(matrix) <= FLOAT32_MAX)
         if big.any():
             raise OutputError(f"cannot write {path}: the camera's {name} matrix holds "
@@ -251,7 +253,6 @@ def _camera_header(camera, aovs):
     # strides (a transposed view would be stored transposed).
     header = {
         "worldToCamera": np.array(world_to_camera, dtype=np.float32, order="C"),
-        "worldToNDC": np.array(world_to_ndc, dtype=np.float32, order="C"),
         "kdray/K": np.array(camera.K, dtype=np.float64, order="C"),
         "kdray/camToWorld": np.array(camera.cam_to_world, dtype=np.float64, order="C"),
         "kdray/imageSize": np.array([camera.width, camera.height], dtype=np.int32),
@@ -261,9 +262,10 @@ def _camera_header(camera, aovs):
         header["kdray/depth"] = DEPTH_CONVENTION
     if "distance" in aovs:
         header["kdray/distance"] = DISTANCE_CONVENTION
-    if camera.model != "pinhole":
-        # worldToNDC is a pinhole's projection: not this camera's
-        del header["worldToNDC"]
+    if camera.model == "pinhole":
+        # a pinhole's projection, the only model's that is one
+        header["worldToNDC"] = np.array(world_to_ndc, dtype=np.float32, order="C")
+    else:
         header["kdray/cameraModel"] = camera.model
         header["kdray/distortion"] = json.dumps(list(camera.distortion))   # exact: repr
         if "depth" in aovs:

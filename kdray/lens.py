@@ -163,9 +163,11 @@ def _radial(distortion):
 
 
 def _monotonic_limit(g, dg, need, cap, den=None):
-    """(limit, g(limit)): the first r > 0 where g stops increasing (g' <= 0, or `den`
-    <= 0) found by a scan, or the r where g passes `need` (every pixel's target), or
-    `cap`, whichever comes first. g is monotonic increasing on [0, limit). Values that
+    """(limit, g(limit), reach): limit the first r > 0 where g stops increasing (g' <=
+    0, or `den` <= 0) found by a scan, or `cap`; g is monotonic increasing on [0,
+    limit). reach: the first r scanned where g passes `need` (every pixel's radius), at
+    most limit: the radial inversions' bracket (a tangential part may still take a
+    pixel's point beyond it, which the limit, not the reach, decides). Values that
     overflow (coefficients near float64's largest) are not finite, and so not > 0: bad."""
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         return _scan_limit(g, dg, need, cap, den)
@@ -173,6 +175,7 @@ def _monotonic_limit(g, dg, need, cap, den=None):
 
 def _scan_limit(g, dg, need, cap, den):
     lo, hi = 0.0, max(min(2.0 * need, cap), 1e-6)
+    reach = None
     while True:
         r = np.linspace(lo, hi, SCAN_STEPS + 1)[1:]
         bad = ~(dg(r) > 0)
@@ -187,10 +190,12 @@ def _scan_limit(g, dg, need, cap, den):
                     break
                 ok = dg(m) > 0 and (den is None or den(m) > 0)
                 a, b = (m, b) if ok else (a, m)
-            return a, float(g(a))
+            return a, float(g(a)), a if reach is None else min(reach, a)
         top = float(g(hi))
-        if top > need or hi >= cap:
-            return hi, top
+        if reach is None and top > need:
+            reach = hi
+        if hi >= cap:
+            return hi, top, hi if reach is None else reach
         lo, hi = hi, min(2.0 * hi, cap)
 
 
@@ -202,14 +207,14 @@ def opencv_rays(K, distortion, width, height, R=None):
     does not converge, or where the Jacobian there is not positive; NaN there."""
     g, dg, den = _radial(distortion)
     Kinv = np.linalg.inv(np.asarray(K, dtype=np.float64))
-    limit, g_limit = _monotonic_limit(g, dg, _corner_radius(Kinv, width, height), cap=1e8,
-                                      den=den)
+    limit, g_limit, reach = _monotonic_limit(g, dg, _corner_radius(Kinv, width, height),
+                                             cap=1e8, den=den)
     n = width * height
     d = np.empty((n, 3))
     valid = np.empty(n, dtype=bool)
     k = np.array(_opencv_coefficients(distortion), dtype=np.float64)
     _on_threads(_kernels().opencv_rays, n, Kinv, width, _rotation(R), k, limit, g_limit,
-                CONVERGENCE_TOL, _STOP, MAX_ITERATIONS, d, valid)
+                reach, CONVERGENCE_TOL, _STOP, MAX_ITERATIONS, d, valid)
     _report(valid, "opencv", distortion, f"monotonic up to the radius {limit:.6g} "
             f"(distorted {g_limit:.6g}) of the normalized image plane")
     return d, valid
@@ -261,7 +266,7 @@ def fisheye_rays(K, distortion, width, height, R=None):
     where not valid."""
     f, df = _fisheye_polynomial(distortion)
     Kinv = np.linalg.inv(np.asarray(K, dtype=np.float64))
-    limit, f_limit = _monotonic_limit(f, df, math.inf, cap=math.pi)
+    limit, f_limit, _ = _monotonic_limit(f, df, math.inf, cap=math.pi)
     n = width * height
     d = np.empty((n, 3))
     valid = np.empty(n, dtype=bool)

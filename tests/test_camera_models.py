@@ -476,6 +476,20 @@ def test_exr_holds_valid_model_and_coefficients(room, tmp_path):
     assert spec.getattribute("kdray/cameraModel") is None
     assert "valid" not in spec.channelnames
     assert read_camera(tmp_path / "p.exr") == pinhole
+    # only the matrices written must fit float32: an eye 1e38 from the origin with a
+    # focal length of 500 has a worldToNDC of -7.8e38, a pinhole's only
+    pose = np.eye(4)
+    pose[:3, 3] = (1e38, 0.0, 0.0)
+    K = np.array([[500.0, 0, 32], [0, 500.0, 24], [0, 0, 1]])
+    depth = {"depth": np.full((48, 64), np.inf, np.float32)}
+    from kdray.errors import OutputError
+    with pytest.raises(OutputError, match="worldToNDC matrix holds"):
+        write_exr(tmp_path / "far.exr", depth, Camera(64, 48, K, pose))
+    for model, distortion in (("opencv", (0.1, 0.0, 0.0, 0.0)), ("fisheye", FISHEYE),
+                              ("orthographic", ())):
+        far = Camera(64, 48, K, pose, model, distortion)
+        write_exr(tmp_path / "far.exr", depth, far)
+        assert read_camera(tmp_path / "far.exr") == far
 
 
 def test_tracer_camera_rays_are_the_renders(room):
@@ -501,6 +515,62 @@ def test_opencv_strong_barrel_inverts_every_pixel_inside_its_limit():
     x, y = d[valid, 0], d[valid, 1]
     r = np.hypot(x, y)
     assert np.abs(r * (1 + k1 * r**2) - rd[valid]).max() < 1e-12
+
+
+@pytest.mark.parametrize("distortion, width, height, f", [
+    ((-0.3, 0.043, 0.001, 0.0005, 0.0), 256, 192, 155.0),    # radial: increasing everywhere
+    ((-0.45, 0.0, -0.014, 0.002), 64, 48, 44.0),              # folds at 0.8607
+])
+def test_opencv_tangential_keeps_every_pixel_with_a_point_inside_the_fold(
+        distortion, width, height, f):
+    """A pixel has a ray wherever its undistorted point lies inside the radius where the
+    radial distortion stops growing, also where the tangential part takes that point
+    beyond the inversion's search bracket (a map increasing everywhere, whose bracket
+    ends where it passes the corner's radius) or the pixel beyond the radial map's
+    largest value: an independent Newton iteration finds each such pixel's point, and
+    kdray's ray is that point (cv2.projectPoints lands it on the pixel's centre)."""
+    k1, k2, p1, p2 = distortion[:4]
+    K = np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
+    camera = Camera(width, height, K, np.eye(4), "opencv", distortion)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        o, d, valid = camera.rays(valid=True)
+    g = np.polynomial.Polynomial([0, 1, 0, k1, 0, k2])            # r (1 + k1 r^2 + k2 r^4)
+    fold = min([r.real for r in g.deriv().roots() if abs(r.imag) < 1e-12 and r.real > 0],
+               default=np.inf)
+
+    def distort(x, y):
+        r2 = x * x + y * y
+        radial = 1 + k1 * r2 + k2 * r2 * r2
+        return (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+                y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)
+
+    def jacobian(x, y, h=1e-7):
+        (ax, ay), (bx, by) = distort(x + h, y), distort(x - h, y)
+        (cx, cy), (dx, dy) = distort(x, y + h), distort(x, y - h)
+        return (ax - bx) / (2 * h), (cx - dx) / (2 * h), (ay - by) / (2 * h), (cy - dy) / (2 * h)
+
+    jj, ii = np.mgrid[0:height, 0:width]
+    a, b = (ii.ravel() + 0.5 - K[0, 2]) / f, (jj.ravel() + 0.5 - K[1, 2]) / f
+    x, y = a.copy(), b.copy()
+    with np.errstate(all="ignore"):
+        for _ in range(100):
+            fx, fy = distort(x, y)
+            j00, j01, j10, j11 = jacobian(x, y)
+            det = j00 * j11 - j01 * j10
+            x, y = (x - (j11 * (fx - a) - j01 * (fy - b)) / det,
+                    y - (j00 * (fy - b) - j10 * (fx - a)) / det)
+        fx, fy = distort(x, y)
+        j00, j01, j10, j11 = jacobian(x, y)
+    found = ((np.hypot(fx - a, fy - b) < 1e-12 * (1 + np.hypot(a, b)))
+             & (j00 * j11 - j01 * j10 > 0) & (np.hypot(x, y) < fold))
+    assert found.sum() > 0.5 * found.size
+    assert not (found & ~valid).any()
+    assert np.allclose(d[found, :2], np.stack([x, y], 1)[found], rtol=0, atol=1e-10)
+    pixels, _ = cv2.projectPoints(d[valid].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K,
+                                  np.array(distortion))
+    centres = np.stack([ii.ravel() + 0.5, jj.ravel() + 0.5], 1)[valid]
+    assert np.abs(pixels.reshape(-1, 2) - centres).max() < 1e-8
 
 
 @pytest.mark.parametrize("model, distortion, f", [("opencv", MODERATE, 110.0),
