@@ -265,7 +265,7 @@ def cli(verbose, quiet, debug):
 
 @cli.command()
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--dump", type=click.Path(dir_okay=False), help="Write the tree to this file.")
+@click.option("--dump", type=click.Path(), help="Write the tree to this file.")
 @build_options
 def build(scene, dump, **kw):
     """Build the SAH k-d tree of SCENE; print its statistics and the build time."""
@@ -335,7 +335,7 @@ def devices():
 @click.option("--aov", default="depth,normal,bary,id", show_default=True,
               help="Comma-separated outputs: depth, distance, normal, bary, id, position, "
                    "object (or all).")
-@click.option("--preview", type=click.Path(dir_okay=False), is_flag=False, flag_value="",
+@click.option("--preview", type=click.Path(), is_flag=False, flag_value="",
               help="Also write an 8-bit PNG for people (with --cameras, or with no value: "
                    "beside each EXR).")
 @click.option("--cameras", "cameras_file", type=click.Path(),
@@ -462,7 +462,7 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
 @click.option("-o", "--output", type=click.Path(), default=None,
               help="EXR range image to write: range, id, object [default: SCENE's name with "
                    ".exr, here].")
-@click.option("--points", type=click.Path(dir_okay=False),
+@click.option("--points", type=click.Path(),
               help="Also write the hit points as a binary PLY (x y z ring column range id "
                    "object).")
 @click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
@@ -517,9 +517,10 @@ def _write_npz(step, output, arrays):
 def _read_table(path, what):
     """The numbers of a .npy file, or of a text file (rows of numbers): a 2-D array,
     float64 from text; KdrayError naming `what` for a file that cannot be read."""
-    from .validate import read_npy
+    from .validate import check_not_device, read_npy
     if str(path).endswith(".npy"):
         return read_npy(path, f"{what} file {path}", KdrayError)
+    check_not_device(path, f"{what} file {path}", KdrayError)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")          # "input contained no data": refused
@@ -879,7 +880,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
               help="Comma-separated: kdray[:KEY=VALUE...] (K_T, K_I, empty_bonus, max_depth, "
                    "leaf_size, stack, local, batch, refine=0|1). "
                    "[default: kdray,kdray:refine=0,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1]")
-@click.option("--csv", "csv_file", type=click.Path(dir_okay=False), help="Also write the table as CSV.")
+@click.option("--csv", "csv_file", type=click.Path(), help="Also write the table as CSV.")
 @device_option
 @click.option("--offset", type=float, default=0.0, show_default=True,
               help="Move scene and camera by D along (1,1,1) (precision far from the origin).")

@@ -395,7 +395,7 @@ class Renderer:
             try:
                 write_seconds = future.result()
             except KdrayError as e:
-                errors.append(f"view {view.name}: {e}")
+                errors.append(f"{job.scene}: view {view.name}: {e}")
                 return
             seconds["trace"] += trace_seconds
             seconds["write"] += write_seconds
@@ -411,7 +411,7 @@ class Renderer:
                     try:
                         images = tracer.render(view.camera, job.aovs, job.precision)
                     except KdrayError as e:
-                        errors.append(f"view {view.name}: {e}")
+                        errors.append(f"{job.scene}: view {view.name}: {e}")
                         continue
                     future = writer.submit(_timed_write, job, view, images, tracer.tree,
                                            self.dask_worker)

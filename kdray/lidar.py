@@ -391,21 +391,34 @@ def points_array(images):
     return out
 
 
+PLY_CHUNK = 1 << 18
+"""Beams `write_points_ply` turns into points at a time: its temporaries (some 100
+bytes a beam) stay within a few tens of MB however large the scan."""
+
+
 def write_points_ply(path, images):
     """Write the hit points of a scan (`Tracer.scan`'s images) as a binary
     little-endian PLY of one `vertex` element with the properties of PLY_FIELDS,
     atomically (kdray.files). Returns the number of points written. OutputError naming
-    `path` on failure."""
-    points = points_array(images)
+    `path` on failure. Written a band of rings at a time (PLY_CHUNK beams), so that it
+    holds no more than the scan's memory check counts."""
+    count = int(np.count_nonzero(images["id"] != MISS))
     header = ["ply", "format binary_little_endian 1.0", "comment written by kdray scan",
-              f"element vertex {len(points)}"]
+              f"element vertex {count}"]
     header += [f"property {ply} {name}" for name, _, ply in PLY_FIELDS]
     header.append("end_header")
-    data = ("\n".join(header) + "\n").encode("ascii") + points.tobytes()
+    head = ("\n".join(header) + "\n").encode("ascii")
+    rows, columns = images["id"].shape
+    band = max(1, PLY_CHUNK // max(columns, 1))
 
     def write(tmp):
         with open(tmp, "wb") as f:
-            f.write(data)
+            f.write(head)
+            for r in range(0, rows, band):
+                part = points_array({k: images[k][r:r + band] for k in
+                                     ("id", "points", "range", "object")})
+                part["ring"] += r
+                f.write(memoryview(part).cast("B"))
 
     atomic_write(path, write)
-    return len(points)
+    return count

@@ -42,7 +42,7 @@ from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BL
 from .ray_grid import ImageWidths
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
-from .validate import check_float32, whole_or_none
+from .validate import check_class, check_float32, whole_or_none
 from .wide import stack_groups, wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
                          default_stack_size, default_work_sizes, max_local_size,
@@ -113,6 +113,8 @@ class Tracer:
 
     def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
                  groups=None, packet=None, refine=True):
+        from .tree import KdTree
+        check_class(tree, KdTree, "Tracer's tree")
         cl = _device._cl()
         if stack_size is None:
             stack_size = default_stack_size(tree)
@@ -770,6 +772,8 @@ class Tracer:
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c).
         A pixel with no ray has NaN directions. A central camera's origins are its one
         eye broadcast, a read-only view (np.array(origins) for a writable copy)."""
+        from .camera import Camera
+        check_class(camera, Camera, "camera")
         return _render.camera_rays(camera, self._origin, self._scale)
 
     def render(self, camera, aovs=DEFAULT_AOVS, precision="single"):
@@ -795,6 +799,8 @@ class Tracer:
         with precision="double" every model but the pinhole is traced from its float64
         rays (Camera.rays).
         """
+        from .camera import Camera
+        check_class(camera, Camera, "camera")
         double = wants_double(precision, self.tree)
         aovs = _render.parse_aovs(aovs)
         if camera.model != "pinhole" and double:
@@ -947,7 +953,8 @@ class Tracer:
         by the pose; hits are refined in double where the device has it. With
         precision="double" the float64 rays (Lidar.rays) are traced from the host.
         """
-        from .lidar import check_pose, scan_images
+        from .lidar import Lidar, check_pose, scan_images
+        check_class(lidar, Lidar, "lidar")
         double = wants_double(precision, self.tree)
         if not double:
             return self._scan_on_device(lidar, check_pose(pose))

@@ -196,7 +196,9 @@ class KdTree:
     def load(cls, path):
         """Read a tree file. The header's counts are checked against the file's size
         before the body is read."""
+        from .validate import check_not_device
         path = os.fspath(path)
+        check_not_device(path, path, TreeFileError)
         try:
             size = os.path.getsize(path)
             with open(path, "rb") as f:

@@ -17,6 +17,8 @@ caller's checks then refuse them naming the field ("cx must be finite").
 import json
 import math
 import numbers
+import os
+import stat
 import warnings
 
 import numpy as np
@@ -88,8 +90,22 @@ def parse_json(text, source, error):
     return data
 
 
+def check_not_device(path, source, error):
+    """`error` "<source> is a device, not a file" for a character or block device
+    (/dev/zero, /dev/urandom: a read to the end would never end). Files and pipes
+    pass; a path that cannot be looked at passes too (its reader says why)."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError, TypeError):
+        return
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        raise error(f"{source} is a device, not a file.")
+
+
 def read_text(path, source, error):
-    """A UTF-8 text file's content; `error` "<source> does not exist" / "cannot be read"."""
+    """A UTF-8 text file's content; `error` "<source> does not exist" / "cannot be read"
+    / "is a device" (check_not_device)."""
+    check_not_device(path, source, error)
     try:
         with open(path, encoding="utf-8") as f:
             return f.read()
@@ -113,6 +129,13 @@ def check_float32(values, name, error):
     if np.any(big):
         raise error(f"{name} holds {float(array[big].flat[0])!r}, beyond float32's range (at most "
                     f"{FLOAT32_MAX:.4g} in magnitude), which the kernels compute in.")
+
+
+def check_class(value, cls, name):
+    """TypeError (Python's, as for a call that does not fit: docs/interface.md,
+    "Types are kept") when `value` is not a `cls`, naming what was given."""
+    if not isinstance(value, cls):
+        raise TypeError(f"{name} must be a kdray.{cls.__name__}, got {type(value).__name__}")
 
 
 def real_number(value, name, error):
@@ -146,6 +169,7 @@ def read_npy(path, source, error):
     SyntaxError from its header's parser, ...), or one of other values (strings, dates,
     complex numbers). The header is checked against the file's size before anything is
     allocated (np.load's memory map), so a header that claims 10^12 rows costs nothing."""
+    check_not_device(path, source, error)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -478,6 +478,8 @@ def test_views_whose_files_are_folders_are_not_done(tmp_path):
     (tmp_path / "out" / "view00.exr").mkdir(parents=True)
     (report,) = run([job])
     assert report.skipped == 0 and report.rendered == 1 and len(report.errors) == 1
+    # named by its scene, as a job's own faults are (several jobs' views share names)
+    assert report.errors[0].startswith(f"{job.scene}: view view00: ")
 
 
 def test_dask_existing_scheduler(tmp_path):

@@ -106,6 +106,18 @@ def test_scan_points_and_output_collide(capsys, folder):
             "-o", "lidar.json", words=["overwrite the input lidar.json"])
 
 
+@pytest.mark.parametrize("argv", [
+    ["scan", "c.obj", "--lidar", "lidar.json", "--pose", "pose.txt", "-o", "new.exr",
+     "--points", "sub"],
+    ["build", "c.obj", "--dump", "sub"],
+    ["render", "c.obj", "--size", "8x6", "-o", "new.exr", "--preview", "sub"],
+    ["bench", "c.obj", "--size", "4x4", "--csv", "sub"],
+])
+def test_every_output_option_refuses_a_folder_in_one_line(capsys, folder, argv):
+    os.mkdir("sub")
+    refused(capsys, folder, *argv, words=["sub: is a folder"])
+
+
 def test_bench_csv_equal_to_a_scene(capsys, folder):
     refused(capsys, folder, "bench", "c.obj", "--size", "4x4", "--csv", "c.obj",
             words=["--csv c.obj", "overwrite the input c.obj"])
@@ -387,6 +399,34 @@ def test_build_parameters_keep_their_types(params, words):
 def test_api_values_of_the_wrong_type_or_range(make, error):
     with pytest.raises(error):
         make()
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="no /dev/zero here")
+@pytest.mark.parametrize("argv, words", [
+    (["batch", "/dev/zero"], "jobs file /dev/zero is a device"),
+    (["info", "/dev/zero"], "/dev/zero is a device"),
+    (["scan", "c.obj", "--lidar", "/dev/zero", "--pose", "pose.txt", "-o", "new.exr"],
+     "lidar spec /dev/zero is a device"),
+    (["scan", "c.obj", "--lidar", "lidar.json", "--pose", "/dev/zero", "-o", "new.exr"],
+     "/dev/zero is a device"),
+    (["render", "c.obj", "--camera", "/dev/zero", "-o", "new.exr"], "/dev/zero is a device"),
+    (["contains", "c.obj", "--points", "/dev/zero", "-o", "new.npy"], "/dev/zero is a device"),
+])
+def test_devices_as_inputs_are_refused_not_read_forever(capsys, folder, argv, words):
+    refused(capsys, folder, *argv, words=[words])
+
+
+def test_api_objects_of_another_class_are_type_errors():
+    """A kdray object of the wrong class (a Mesh for a tree, a dict for a camera or a
+    lidar) is Python's TypeError naming both, not an AttributeError from inside."""
+    v, f = np.eye(3), np.array([[0, 1, 2]])
+    tracer = kdray.Tracer(kdray.build(v, f))
+    for call, words in ((lambda: kdray.Tracer(kdray.Mesh.from_arrays(v, f)), "KdTree, got Mesh"),
+                        (lambda: tracer.render({"width": 4}), "Camera, got dict"),
+                        (lambda: tracer.camera_rays(None), "Camera, got NoneType"),
+                        (lambda: tracer.scan({"columns": 4}, np.eye(4)), "Lidar, got dict")):
+        with pytest.raises(TypeError, match=words):
+            call()
 
 
 def test_api_jobs_keep_their_types():

@@ -314,6 +314,40 @@ def test_scan_command_writes_the_range_image_and_points(tmp_path, capsys):
     np.testing.assert_allclose(xyz, pose[:3, 3] + want[hit][:, None] * rays, rtol=0, atol=1e-5)
 
 
+def test_points_ply_is_written_in_bands_within_the_memory_check(tmp_path, monkeypatch):
+    """write_points_ply turns a band of rings into points at a time: the same bytes as
+    one band, and no more memory than a fraction of the scan's own (the memory check's
+    SCAN_BYTES_PER_BEAM counts one array of 42 bytes a beam for it; three whole copies
+    of the points once pushed a scan past it)."""
+    import tracemalloc
+    from kdray import lidar as klidar
+    rng = np.random.default_rng(3)
+    shape = (1024, 1024)
+    ids = rng.integers(0, 50, shape).astype(np.uint32)
+    ids[rng.random(shape) < 0.2] = MISS
+    images = {"id": ids, "object": ids // 7, "range": rng.random(shape, np.float32),
+              "points": rng.normal(size=shape + (3,))}
+    tracemalloc.start()
+    n = klidar.write_points_ply(tmp_path / "bands.ply", images)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert n == np.count_nonzero(ids != MISS)
+    # a band's temporaries (about 100 bytes a beam of PLY_CHUNK), whatever the scan's
+    # size: here a quarter of it (three whole copies of the points took 100 a beam)
+    assert peak < 120 * klidar.PLY_CHUNK
+    monkeypatch.setattr(klidar, "PLY_CHUNK", 1 << 40)
+    klidar.write_points_ply(tmp_path / "whole.ply", images)
+    whole = (tmp_path / "whole.ply").read_bytes()
+    assert (tmp_path / "bands.ply").read_bytes() == whole
+    monkeypatch.setattr(klidar, "PLY_CHUNK", 1000)  # bands of one ring
+    klidar.write_points_ply(tmp_path / "rings.ply", images)
+    assert (tmp_path / "rings.ply").read_bytes() == whole
+    _, points = read_ply(tmp_path / "rings.ply")
+    hit = ids != MISS
+    np.testing.assert_array_equal(points["ring"], np.nonzero(hit)[0])
+    np.testing.assert_array_equal(points["x"], images["points"][hit][:, 0])
+
+
 def test_scan_command_with_a_dumped_tree(tmp_path, capsys):
     scene, spec, pose_file = write_room(tmp_path)
     assert run(capsys, "build", scene, "--dump", tmp_path / "room.kdt")[0] == 0
