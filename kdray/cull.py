@@ -29,7 +29,8 @@ import logging
 import numpy as np
 
 from .builder import build
-from .builder.prepare import mesh_origin, mesh_scale, prepare
+from .builder.prepare import FLOAT32_MAX, mesh_origin, mesh_scale, prepare
+from .errors import MeshError
 from .mesh import check_arrays
 
 log = logging.getLogger(__name__)
@@ -94,8 +95,8 @@ def cull_faces(vertices, faces, camera, origin=None):
         return np.arange(len(f), dtype=np.int64)
     used = np.zeros(len(v), dtype=bool)
     used[f.ravel()] = True
-    used &= np.isfinite(v).all(axis=1)
-    if not used.any():                  # no finite vertex: no triangle can be hit anyway
+    used &= (np.abs(v) <= FLOAT32_MAX).all(axis=1)     # what the builder keeps (NaN too)
+    if not used.any():                  # no vertex float32 holds: no triangle can be hit
         return np.arange(len(f), dtype=np.int64)
     if origin is None:
         origin = mesh_origin(v, f)
@@ -127,25 +128,38 @@ def build_for_camera(vertices, faces, camera, **build_params):
     """A KdTree of the triangles `camera` may see; its images equal the whole mesh's.
 
     vertices : (n, 3) float64;  faces : (m, 3) int;  camera : kdray.Camera
-    build_params : keyword arguments of kdray.builder.build (K_T, K_I, ...; not origin)
-    Returns (tree, n_left_out): the tree, with the whole mesh's origin and scale, `tri_ids`
-    pointing into `faces` and `n_input_tris` = m, and the number of triangles the cull
-    left out (degenerate ones among them included; the builder leaves out the
-    degenerate ones it is given, so m - n_left_out - len(tree.tri_ids) of those).
-    When the camera sees nothing, one unreachable triangle (the first non-degenerate
-    one) is kept so that the tree is not empty: every ray misses.
+    build_params : keyword arguments of kdray.builder.build (K_T, K_I, scale, ...; not
+        origin)
+    Returns (tree, n_left_out): the tree, with the whole mesh's origin and scale (or the
+    scale given), `tri_ids` pointing into `faces` and `n_input_tris` = m, and the
+    number of triangles the cull left out (degenerate ones among them included; the
+    builder leaves out the degenerate ones it is given, so m - n_left_out -
+    len(tree.tri_ids) of those).
+    When the camera sees nothing the builder keeps (nothing, or only degenerate
+    triangles), one unreachable triangle (the first non-degenerate one) is kept so that
+    the tree is not empty: every ray misses.
     Raises MeshError (as build does) when the mesh has no usable triangle.
     """
     v, f = check_arrays(vertices, faces)
     origin = mesh_origin(v, f)
     if origin is None:
         prepare(v, f)                                           # raises build's MeshError
-    scale = mesh_scale(v, f)
+    # a scale given is build's (checked there), else the whole mesh's
+    scale = build_params.pop("scale", None)
+    if scale is None:
+        scale = mesh_scale(v, f)
     keep = cull_faces(v, f, camera, origin=origin)
-    if len(keep) == 0:
-        keep = prepare(v, f, origin, scale=scale).tri_ids[:1].astype(np.int64)
     keep_double = build_params.pop("keep_double", False)
-    tree = build(v, f[keep], origin=origin, scale=scale, **build_params)
+    try:
+        if len(keep) == 0:
+            raise MeshError("nothing in view")
+        tree = build(v, f[keep], origin=origin, scale=scale, **build_params)
+    except MeshError:
+        # nothing in view that the builder keeps (the cull keeps degenerate triangles
+        # and those with a non-finite vertex): the whole mesh's first usable triangle,
+        # or the whole mesh's MeshError
+        keep = prepare(v, f, origin, scale=scale).tri_ids[:1].astype(np.int64)
+        tree = build(v, f[keep], origin=origin, scale=scale, **build_params)
     tree = dataclasses.replace(tree, tri_ids=keep[tree.tri_ids].astype(np.uint32),
                                n_input_tris=len(f))
     if keep_double:                     # by the whole mesh's ids, as tri_ids are

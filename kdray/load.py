@@ -81,6 +81,7 @@ def load(path):
             if ext == "obj":
                 obj = _read(path, zipped)
                 obj = _obj_plain(obj) or obj
+                _obj_zero_index(obj)
                 obj = _obj_absolute(obj) or obj
             # an ASCII OFF file is read in file order by kdray (kdray.off)
             scene = _polygons_scene(read_off, path, zipped) if ext == "off" else None
@@ -411,6 +412,37 @@ def _obj_may_count_back(data):
     return bool(np.isin(b[np.minimum(at, len(b) - 1)], list(b"flp")).any())
 
 
+def _obj_zero_index(data):
+    """IndexError for a face, line or point of an OBJ file's bytes (made plain:
+    `_obj_plain`) holding an index 0 or -0 (OBJ counts from 1; trimesh would read 0 as
+    the last vertex). In numpy, as `_obj_may_count_back`: a '0' between a blank, '/' or
+    '-' and a blank, '/' or the line's end, on a line of f, l, p or fo."""
+    b = np.frombuffer(data, dtype=np.uint8)
+
+    def peek(i):                        # b[i], and 10 (a line's end) past the end
+        return np.where(i < len(b), b[np.minimum(i, len(b) - 1)], 10)
+
+    # a '0' after a separator: from a view of the bytes shifted by one, with no gather
+    zero = np.flatnonzero((b[1:] == ord("0"))
+                          & ((b[:-1] == ord(" ")) | (b[:-1] == ord("/")) | (b[:-1] == ord("-"))))
+    zero += 1
+    after = peek(zero + 1)
+    zero = zero[(after == ord(" ")) | (after == ord("/")) | (after == ord("\r"))
+                | (after == ord("\n"))]
+    if zero.size == 0:
+        return
+    breaks = np.flatnonzero(b == ord("\n"))
+    line = np.searchsorted(breaks, zero)
+    at = np.concatenate([[0], breaks + 1])[line]
+    # the keyword f, l, p or fo and a blank (not lod, parm, ...)
+    first, second = b[at], peek(at + 1)
+    bad = np.flatnonzero((np.isin(first, list(b"flp")) & (second == ord(" ")))
+                         | ((first == ord("f")) & (second == ord("o"))
+                            & (peek(at + 2) == ord(" "))))
+    if bad.size:
+        raise IndexError(f"line {int(line[bad[0]]) + 1} holds the index 0; OBJ's count from 1")
+
+
 def _obj_absolute(data):
     """An OBJ file's bytes with its relative (negative) indices made absolute, each
     from the count of its kind (v, vt, vn) read before its line; None when it has none.
@@ -432,7 +464,11 @@ def _obj_absolute(data):
                 parts = word.split(b"/")
                 for k, part in enumerate(parts[:3]):
                     if part.startswith(b"-") and part[1:].isdigit():
-                        parts[k] = b"%d" % (counts[k] + 1 + int(part))
+                        index = counts[k] + 1 + int(part)
+                        if index < 1:
+                            raise IndexError(f"line {n + 1}: {part.decode()} counts back past "
+                                             f"the first of {counts[k]} read before it")
+                        parts[k] = b"%d" % index
                 out.append(b"/".join(parts))
             lines[n] = b" ".join(out)
     return b"\n".join(lines)

@@ -51,6 +51,10 @@ def check_arrays(vertices, faces):
     if not np.issubdtype(f.dtype, np.integer):
         if not np.issubdtype(f.dtype, np.number) or not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
             raise MeshError("face indices must be integers")
+        if f.min() < 0 or f.max() >= len(v):        # before a cast that cannot hold them
+            bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])
+            raise MeshError(f"face {bad} has a vertex index out of range (the mesh has "
+                            f"{len(v)} vertices)")
     f = np.ascontiguousarray(f, dtype=np.int64)         # no copy when it already is
     if f.min() < 0 or f.max() >= len(v):
         bad = int(np.flatnonzero((f < 0).any(axis=1) | (f >= len(v)).any(axis=1))[0])

@@ -139,8 +139,13 @@ class KdTree:
         builder rounds them (another mesh of as many faces). built: the caller has just
         built the tree from this mesh (kdray.build, cull), whose rounding is not checked
         again (a tenth of a 1.6M-triangle build)."""
-        v = np.asarray(vertices, dtype=np.float64)
-        f = np.asarray(faces)
+        try:
+            v, f = np.asarray(vertices), np.asarray(faces)
+        except (TypeError, ValueError) as e:        # ragged lists
+            raise TreeError(f"with_double needs numeric arrays ({e})") from None
+        if v.dtype.kind not in "fiu":               # numbers only: no strings read as them
+            raise TreeError(f"with_double needs numeric vertices, got dtype {v.dtype}")
+        v = v.astype(np.float64, copy=False)
         if v.ndim != 2 or v.shape[1] != 3 or f.shape != (self.n_input_tris, 3) or f.dtype.kind not in "iu":
             raise TreeError(f"with_double needs the mesh the tree was built from: (n, 3) vertices "
                             f"and ({self.n_input_tris}, 3) integer faces, got {v.shape} and {f.shape}")

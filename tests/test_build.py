@@ -3,6 +3,7 @@ the same hits as the brute-force oracle, determinism, parameters, and the sweep'
 choice checked against a direct evaluation of every candidate plane."""
 import os
 import threading
+import warnings
 import time
 
 import numpy as np
@@ -17,7 +18,7 @@ from kdray.builder.events import position_bits, position_value, sorted_root_even
 from kdray.builder import sah
 from kdray.builder.sah import best_split
 from kdray.builder.subdivide import MAX_REFS_PER_TRI
-from kdray.errors import MeshError
+from kdray.errors import MeshError, ParameterError
 from helpers import real_mesh_arrays
 
 
@@ -222,6 +223,30 @@ def test_a_vertex_float32_cannot_hold_leaves_out_its_triangles_only():
     np.testing.assert_array_equal(tree.origin, plain.origin)
     assert tree.scale == plain.scale
     check_tree(tree, far, f_far)
+
+
+def test_a_vertex_float32_cannot_hold_is_left_out_at_any_scale():
+    """At a scale other than 1 (a scene 1e30 across) a vertex beyond float32's range
+    (1e39) is left out as at scale 1, though it divided by the scale would fit."""
+    v = np.array([[0, 0, 0], [1e30, 0, 0], [0, 1e30, 0], [1e39, 1e29, 0]], float)
+    tree = build(v, np.array([[0, 1, 2], [1, 2, 3]]))
+    assert tree.scale != 1.0 and tree.tri_ids.tolist() == [0]
+    assert np.abs(tree.world_box()).max() <= 1.0000001e30
+
+
+def test_build_arguments_keep_their_types():
+    """keep_double is a bool, not anything truthy; a scale beyond float64 or float face
+    indices beyond int64 are the builder's MeshError, with no numpy warning."""
+    v, f = np.eye(3), np.array([[0, 1, 2]])
+    with pytest.raises(ParameterError, match="keep_double must be True or False"):
+        build(v, f, keep_double="no")
+    assert build(v, f, keep_double=np.bool_(True)).triangles64 is not None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(MeshError, match="scale must be a power of two"):
+            build(v, f, scale=2 ** 1025)
+        with pytest.raises(MeshError, match="vertex index out of range"):
+            build(v, np.array([[0, 1, 1e20]]))
 
 
 def numpy_prepare(v, f, origin):

@@ -122,6 +122,27 @@ def test_culling_keeps_degenerate_free_ids_and_refuses_bad_meshes():
                          kdray.Camera.look_at((0, 0, 1), (0, 0, 0)))
 
 
+def test_nothing_usable_in_view_keeps_one_triangle_and_scale_is_taken():
+    """The cull keeps degenerate triangles and those with a non-finite vertex: when only
+    such are in view, one usable triangle out of view is kept (every ray misses), as
+    when nothing is. A scale given is build's. Vertices float32 cannot hold: every
+    face (none can be hit) rather than a crash, and build's MeshError from the tree."""
+    camera = kdray.Camera.look_at((0, 0, 5), (0, 0, 0), fov_deg=30, width=16, height=12)
+    v = np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0.05, 0.1, np.nan],
+                  [100, 0, 0], [101, 0, 0], [100, 1, 0]], float)
+    f = np.array([[0, 1, 2], [0, 1, 3], [4, 5, 6]])
+    assert cull_faces(v, f, camera).tolist() == [0, 1]
+    tree, left_out = build_for_camera(v, f, camera)
+    assert tree.tri_ids.tolist() == [2] and left_out == 2
+    assert (kdray.Tracer(tree).render(camera, aovs="id")["id"] == kdray.trace.MISS).all()
+    tree, _ = build_for_camera(v, f, camera, scale=4.0)
+    assert tree.scale == 4.0
+    far = np.full((3, 3), 1e39) * np.eye(3)
+    assert cull_faces(far, np.array([[0, 1, 2]]), camera).tolist() == [0]
+    with pytest.raises(kdray.MeshError):
+        build_for_camera(far, np.array([[0, 1, 2]]), camera)
+
+
 def test_mesh_origin_is_the_builders(rng):
     """Unused and non-finite vertices are ignored as the builder ignores them."""
     vertices = rng.normal(size=(40, 3)) * [1.0, 3.0, 1e3] + [5.0, -2.0, 1e5]

@@ -130,6 +130,11 @@ def test_double_needs_the_float64_triangles():
         tree.with_double(v + 1.0, f)
     with pytest.raises(TreeError, match="triangle 3 is not the tree's"):
         tree.with_double(v, np.concatenate([f[:3], f[3:4, ::-1], f[4:]]))
+    # numbers only, as build takes them: strings and ragged lists are refused
+    with pytest.raises(TreeError, match="numeric vertices"):
+        tree.with_double(v.astype(str), f)
+    with pytest.raises(TreeError, match="numeric arrays"):
+        tree.with_double([[0, 0], [1]], f)
 
 
 def test_cli_precision_double(capsys, tmp_path):

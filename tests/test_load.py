@@ -112,6 +112,24 @@ def test_obj_relative_indices_count_back_from_their_line(tmp_path):
     np.testing.assert_array_equal(load(q).triangles, m.triangles)
 
 
+def test_obj_indices_that_name_no_vertex_are_refused(tmp_path):
+    """An index 0 (OBJ counts from 1) or one counting back past the first vertex names
+    no vertex: refused with the line, not read as some other vertex (trimesh reads 0 as
+    the last one). Other keywords' zeros (lod 0, parm u 0 1) are no indices."""
+    head = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+    for face, words in (("f 1 2 0", "line 5 holds the index 0"),
+                        ("f 1/1 2/0 3/1", "line 5 holds the index 0"),
+                        ("l 1 -0", "line 5 holds the index 0"),
+                        ("f 1 2 -4", "line 5: -4 counts back past the first of 3"),
+                        ("f -9 2 3", "line 5: -9 counts back")):
+        p = tmp_path / "z.obj"
+        p.write_text(head + face + "\n")
+        with pytest.raises(MeshError, match=f"vertex that does not exist .*{words}"):
+            load(p)
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nlod 0\nparm u 0 1\nf 3 -3 2\n")
+    assert load(p).faces.tolist() == [[2, 0, 1]]
+
+
 def test_obj_lines_trimesh_would_drop(tmp_path):
     """OBJ lines trimesh leaves out or refuses are read as the format has them: an
     indented line, "f" or "v" and a tab, a comment after a line's numbers; a "#" in an

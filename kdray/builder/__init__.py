@@ -159,6 +159,8 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
     or when no triangle is left; ParameterError (a ValueError) for parameters out of range.
     """
     params = check_params(K_T, K_I, empty_bonus, max_depth, leaf_size)
+    if not isinstance(keep_double, (bool, np.bool_)):
+        raise ParameterError(f"keep_double must be True or False, got {keep_double!r:.60}")
 
     if threads is None:
         threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()

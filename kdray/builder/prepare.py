@@ -151,11 +151,12 @@ def _triangles(vertices, faces, origin, inv_scale, start, stop, tri, ids):
     float64;  tri : (m, 3, 3) float32, ids : (m,) uint32.
     Returns (kept, lo (3,) float32, hi (3,) float32, flat (3,) int64): each
     coordinate is the float64 difference times inv_scale (exact) rounded to float32; a
-    triangle is kept when its nine coordinates are finite and one component of the
-    float32 cross product of its edges (v1 - v0) x (v2 - v0) is not zero (each
-    product and difference rounded to float32, as numpy's `np.cross` does); lo, hi is
-    the box of the kept triangles (inf, -inf when none); flat[k] counts the kept
-    triangles whose three coordinates on axis k are equal.
+    triangle is kept when its nine input coordinates are within FLOAT32_MAX (what
+    float32 holds, whatever the scale), its nine coordinates are finite and one
+    component of the float32 cross product of its edges (v1 - v0) x (v2 - v0) is not
+    zero (each product and difference rounded to float32, as numpy's `np.cross`
+    does); lo, hi is the box of the kept triangles (inf, -inf when none); flat[k]
+    counts the kept triangles whose three coordinates on axis k are equal.
     """
     lo = np.full(3, np.inf, dtype=np.float32)
     hi = np.full(3, -np.inf, dtype=np.float32)
@@ -167,7 +168,8 @@ def _triangles(vertices, faces, origin, inv_scale, start, stop, tri, ids):
             row = faces[t, i]
             for c in range(3):
                 x = np.float32((vertices[row, c] - origin[c]) * inv_scale)
-                finite &= np.isfinite(x)
+                # (a vertex float32 cannot hold is left out at any scale, as at 1)
+                finite &= np.isfinite(x) & (abs(vertices[row, c]) <= FLOAT32_MAX)
                 tri[w, i, c] = x
         if not finite:
             continue
@@ -197,6 +199,14 @@ on the builder's threads: the pass is bound by the first writes to the new (m, 3
 array, which threads take in parallel, and the pool's threads are started for the
 root's events next anyway (BENCHMARKS.md: from 40k triangles on 2 threads about 2 %
 of a build; at 10k no gain)."""
+
+
+def _is_scale(value):
+    """layout.is_scale, False for an integer beyond float64 (2**1025)."""
+    try:
+        return layout.is_scale(value)
+    except OverflowError:
+        return False
 
 
 def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
@@ -235,8 +245,8 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
     if scale is None:
         scale = mesh_scale(v, f, used_box)
     elif (isinstance(scale, bool) or not isinstance(scale, (int, float, np.integer, np.floating))
-          or not layout.is_scale(scale)):
-        raise MeshError(f"scale must be a power of two from 2^-126 to 2^127, got {scale!r}")
+          or not _is_scale(scale)):
+        raise MeshError(f"scale must be a power of two from 2^-126 to 2^127, got {scale!r:.60}")
     scale = float(scale)
 
     tri = np.empty((m, 3, 3), dtype=np.float32)
