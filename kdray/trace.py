@@ -134,6 +134,8 @@ class Tracer:
                             (batch_size, "batch_size"), (groups, "groups")))
         if device is not None and not isinstance(device, str):
             raise KdrayError(f"device must be None or a --device string, got {device!r:.60}")
+        if not isinstance(refine, (bool, np.bool_)):
+            raise KdrayError(f"refine must be True or False, got {refine!r:.60}")
         self.context, self.device = _device.create_context(device)
         self.queue = cl.CommandQueue(self.context)
         self.packet = int(default_packet(self.device) if packet is None else packet)
@@ -605,10 +607,14 @@ class Tracer:
         double = wants_double(precision, self.tree)
         if isinstance(outputs, str):
             outputs = (outputs,)
-        unknown = sorted(set(outputs) - set(TRACE_OUTPUTS))
+        try:
+            unknown = sorted(map(repr, set(outputs) - set(TRACE_OUTPUTS)))
+        except TypeError:                     # None, a number: no names
+            raise KdrayError(f"outputs must be names from {list(TRACE_OUTPUTS)}, got "
+                             f"{outputs!r:.60}") from None
         if unknown:
-            raise KdrayError(f"unknown trace outputs {unknown}: choose from {list(TRACE_OUTPUTS)} "
-                             f"(t and prim always)")
+            raise KdrayError(f"unknown trace outputs [{', '.join(unknown)}]: choose from "
+                             f"{list(TRACE_OUTPUTS)} (t and prim always)")
         kernel = tuple(name.upper() for name in outputs)
         if double:
             kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64

@@ -992,6 +992,8 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     on &= kd_slabP(ox, dx, bmin.x, bmax.x, &t_enter, &t_exit);
     on &= kd_slabP(oy, dy, bmin.y, bmax.y, &t_enter, &t_exit);
     on &= kd_slabP(oz, dz, bmin.z, bmax.z, &t_enter, &t_exit);
+    t_enter = KD_BOX_ENTER(t_enter);
+    t_exit = KD_BOX_EXIT(t_exit);
     on &= t_enter <= t_exit;
     if (!kd_anyP(on)) {
         /* every ray misses the scene's box (most packets of a camera framing the

@@ -426,9 +426,13 @@ bool kd_walk_range(float3 bmin, float3 bmax, float3 o, float3 d, float t_min, fl
         return false;
     *t_enter = t_min;
     *t_exit = t_max;
-    return kd_slab(o.x, d.x, bmin.x, bmax.x, t_enter, t_exit)
-           && kd_slab(o.y, d.y, bmin.y, bmax.y, t_enter, t_exit)
-           && kd_slab(o.z, d.z, bmin.z, bmax.z, t_enter, t_exit) && *t_enter <= *t_exit;
+    if (!(kd_slab(o.x, d.x, bmin.x, bmax.x, t_enter, t_exit)
+          && kd_slab(o.y, d.y, bmin.y, bmax.y, t_enter, t_exit)
+          && kd_slab(o.z, d.z, bmin.z, bmax.z, t_enter, t_exit)))
+        return false;
+    *t_enter = KD_BOX_ENTER(*t_enter);
+    *t_exit = KD_BOX_EXIT(*t_exit);
+    return *t_enter <= *t_exit;
 }
 
 /* Walk every leaf of the ray o + t d's range [t_min, t_max] within the scene box

@@ -151,6 +151,16 @@ uint kd_node_step(KdNode n, uint node, float3 o, float3 d, float t0, float t1, u
     return KD_STEP_BOTH;
 }
 
+/* The scene box's range of a ray widened by the planes' slack: a ray that grazes the
+ * box (through an edge or a corner of it, or to a face lying on it) enters and leaves
+ * it at one t, which the clip's roundings (kd_slab) may put either way round, and a
+ * hit on the box's face may lie a rounding past its exit. Widening only walks more:
+ * the triangle test still holds every hit to t_min < t < t_max. t_enter >= 0 (it is
+ * at least t_min). Every clip of the box (trace_ray's, the packets', the queries')
+ * takes it, so that a tree's box never decides a hit. */
+#define KD_BOX_ENTER(t) ((t) * (1.0f - KD_T_SLACK))
+#define KD_BOX_EXIT(t) ((t) * (1.0f + KD_T_SLACK))
+
 /* A leaf's hit is final when it is before the leaf's exit by more than the slack:
  * every leaf after it in the order starts at a plane crossed at t_exit or later (as
  * rounded, within the slack), so it cannot hold a nearer hit, nor one as near with a
@@ -318,6 +328,8 @@ bool trace_ray(__global const KdNode *nodes, uint n_nodes,
           && kd_slab(o.y, d.y, bmin.y, bmax.y, &t_enter, &t_exit)
           && kd_slab(o.z, d.z, bmin.z, bmax.z, &t_enter, &t_exit)))
         return false;
+    t_enter = KD_BOX_ENTER(t_enter);
+    t_exit = KD_BOX_EXIT(t_exit);
     if (!(t_enter <= t_exit))
         return false;
 

@@ -257,6 +257,52 @@ def test_subnormal_direction_crosses_a_split_far_away(runtime):
         same_hits(Tracer(tree, device=runtime.spec, packet=packet).trace(o, d), base)
 
 
+def test_the_scene_box_never_decides_a_hit(runtime):
+    """Rays that touch the cube [-1, 1]^3 only at a point of one of its edges (on the
+    scene's box: they come from outside one face and leave beside the other; or pass
+    a float32 rounding beside it), and rays
+    from inside whose t_min lies a rounding below their hit on a face (on the box too),
+    hit as they do in a tree whose box is larger (a far triangle added, the same
+    origin): the box clip's roundings are within the planes' slack (traverse.cl,
+    KD_BOX_ENTER), for trace and occluded, one ray at a time and in packets."""
+    from helpers import grid_cube
+    from kdray.builder import build
+    v, f = grid_cube(1)
+    tree = build(v, f)
+    far = build(np.vstack([v, [[30, 30, 30], [31, 30, 30], [30, 31, 30]]]),
+                 np.vstack([f, [[len(v), len(v) + 1, len(v) + 2]]]), origin=tree.origin)
+    rng = np.random.default_rng(31)
+    n = runtime.small(1200, 48)
+    k = rng.integers(0, 3, n)                     # the edge's axis
+    i, j = (k + 1) % 3, (k + 2) % 3
+    si, sj = rng.choice([-1.0, 1.0], (2, n))
+    rows = np.arange(n)
+    p = np.zeros((n, 3))
+    p[rows, k] = rng.uniform(-0.9, 0.9, n)
+    p[rows, i], p[rows, j] = si, sj
+    d = np.zeros((n, 3))
+    d[rows, k] = rng.uniform(-1, 1, n)
+    d[rows, i] = si * rng.uniform(0.2, 1, n)      # leaving face i's slab after p
+    d[rows, j] = -sj * rng.uniform(0.2, 1, n)     # from outside face j before p
+    o = p - 2.0 * d
+    # from inside to a face, t_min a float32 step or two below the hit
+    q = rng.uniform(-0.9, 0.9, (n, 3))
+    e = rng.normal(size=(n, 3))
+    packets = [None] if runtime.simulator else [1, *PACKETS]
+    for packet in packets:
+        small, large = (Tracer(t, device=runtime.spec, packet=packet) for t in (tree, far))
+        # (the float32 rays pass through the edge or a rounding beside it: half hit)
+        hits = small.trace(o, d)
+        assert hits.hit.mean() > 0.3 and np.allclose(hits.t[hits.hit], 2.0, rtol=1e-5)
+        same_hits(hits, large.trace(o, d))
+        assert np.array_equal(small.occluded(o, d), hits.hit)
+        t = large.trace(q, e).t.astype(np.float64)
+        for t_min in (t * (1 - 1e-7), t * (1 - 2e-7), t):
+            same_hits(small.trace(q, e, t_min=t_min), large.trace(q, e, t_min=t_min))
+            assert np.array_equal(small.occluded(q, e, t_min=t_min),
+                                  large.occluded(q, e, t_min=t_min))
+
+
 def one_origin_rays(tree, seed, n_points, per_point=16):
     """Rays from one point inside the scene's box: per_point of them, one packet's worth,
     at each of n_points of the tree's vertices and edge midpoints, the first exactly at

@@ -738,6 +738,11 @@ def test_trace_outputs_leave_out_what_is_not_asked(tracers):
                     assert value is None, (outputs, field)
     with pytest.raises(KdrayError, match="unknown trace outputs"):
         tracer.trace(o, d, outputs=("depth",))
+    for outputs in (None, 1):                    # no names: kdray's error, not Python's
+        with pytest.raises(KdrayError, match="outputs must be names"):
+            tracer.trace(o, d, outputs=outputs)
+    with pytest.raises(KdrayError, match="refine must be True or False"):
+        Tracer(tracer.tree, refine="no")
     from kdray.builder import build
     tracer64 = tracers(build(*mesh("teapot.obj"), keep_double=True))
     full = tracer64.trace(o, d, precision="double")
