@@ -73,5 +73,10 @@ class Hits(TriangleAnswers):
         def part(a):
             return None if a is None else a[index]
 
+        # a ray's normal is a row of 3: the rays' index, then all of it (an Ellipsis in
+        # the index stands for the rays' axes only, not the row's)
+        rays = index if isinstance(index, tuple) else (index,)
+        row = rays + ((slice(None),) if any(i is Ellipsis for i in rays) else (Ellipsis,))
+        normal = None if self.normal is None else self.normal[row]
         return Hits(self.t[index], self.prim[index], part(self.u), part(self.v),
-                    part(self.normal), object_table=self.object_table)
+                    normal, object_table=self.object_table)

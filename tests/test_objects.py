@@ -185,6 +185,13 @@ def test_hits_object(gltf_scene, tracers):
         assert np.array_equal(part.object, objects[index])
     double = tracer.trace(o, d, precision="double")
     assert double.t.dtype == np.float64 and np.array_equal(double.object, objects)
+    # image-shaped hits: any index of the rays' axes takes whole rows of normals
+    image = tracer.trace(o[:-1].reshape(24, 40, 3), d[:-1].reshape(24, 40, 3))
+    for index in ((Ellipsis, 2), (slice(None), 2), 5, image.hit, (3, 7), (Ellipsis,)):
+        part = image[index]
+        assert np.array_equal(part.t, image.t[index])
+        each = np.stack([image.normal[..., c][index] for c in range(3)], axis=-1)
+        assert part.normal.shape == part.t.shape + (3,) and np.array_equal(part.normal, each)
 
 
 # -- OBJ groups and objects ---------------------------------------------------------------
