@@ -302,11 +302,15 @@ def format_table(rows):
 
 
 def write_csv(rows, path):
-    try:
-        with open(path, "w", newline="", encoding="utf-8") as f:
+    """The table's rows as a CSV file, atomically (kdray.files: a failed write leaves
+    no half-written file and keeps the one there)."""
+    from .files import atomic_write
+
+    def write(tmp):
+        with open(tmp, "w", newline="", encoding="utf-8") as f:
             w = csv.DictWriter(f, fieldnames=COLUMNS)
             w.writeheader()
             for r in rows:
                 w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
-    except OSError as e:
-        raise OutputError(f"{path}: cannot write the CSV file ({e.strerror or e})") from None
+
+    atomic_write(path, write)

@@ -133,19 +133,30 @@ class TreeCache:
     def clear(self):
         """Remove every cached tree, the leftovers of writes cut short and the emptied
         folders (a run that fills the cache meanwhile may lose a tree it was writing:
-        it is logged and built again next time); returns (trees, bytes) removed."""
+        it is logged and built again next time); returns (trees, bytes) removed.
+        OutputError, after removing what it can, when a file stays (a read-only or
+        immutable folder): the cache is not empty."""
         trees, leftovers = self._files()
         files = size = 0
+        kept = []
         for path in trees + leftovers:
             try:
-                size += path.stat().st_size
+                bytes_ = path.stat().st_size
                 path.unlink()
+                size += bytes_
                 files += path.suffix == SUFFIX
-            except OSError:
-                pass
+            except FileNotFoundError:
+                pass                                # removed meanwhile by another run
+            except OSError as e:
+                kept.append((path, e))
         for folder in self.folder.glob("??"):
             with contextlib.suppress(OSError):
                 folder.rmdir()                      # only when empty
+        if kept:
+            path, e = kept[0]
+            raise OutputError(f"cannot empty the tree cache {self.folder}: {len(kept)} file(s) "
+                              f"stay, {path.name} ({e.strerror or e}); removed {files} "
+                              f"tree(s)")
         return files, size
 
     def usage(self):

@@ -430,6 +430,16 @@ def _open_exr(path):
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise KdrayError(f"cannot read EXR {path}: {oiio.geterror() or 'unknown error'}.")
+    # what kdray writes: one part of flat scanlines in OpenEXR (OpenImageIO opens
+    # other formats, and would give a deep file's empty pixels as memory left over)
+    problem = ("is not an EXR file" if inp.format_name() != "openexr" else
+               "is a deep EXR" if inp.spec().deep else
+               "holds several parts" if inp.seek_subimage(1, 0) else None)
+    if problem:
+        inp.close()
+        raise KdrayError(f"cannot read EXR {path}: it {problem}; kdray reads one part of "
+                         f"flat images, as write_exr writes.")
+    inp.seek_subimage(0, 0)
     return oiio, inp
 
 
@@ -465,7 +475,13 @@ def read_exr(path):
             if aov in UINT_CHANNELS:
                 plane = planes[0]
                 if plane.dtype.kind != "u":  # an id channel stored as float elsewhere
-                    plane = np.rint(plane)
+                    whole = np.isfinite(plane) & (plane >= 0) & (plane < 2.0 ** 32)
+                    whole[whole] = plane[whole] == np.rint(plane[whole])
+                    if not whole.all():
+                        bad = plane[~whole][0]
+                        raise KdrayError(f"EXR {path}: channel {CHANNELS[aov][0]} holds "
+                                         f"{float(bad)!r}, not a uint32 {aov} (kdray writes them "
+                                         f"as UINT).")
                 images[aov] = plane.astype(np.uint32) if aov != "valid" else plane != 0
             elif len(planes) == 1:
                 images[aov] = planes[0].astype(np.float32)

@@ -36,7 +36,7 @@ def check_table_and_csv(out, csv_path, settings):
     return rows
 
 
-def test_bench_table_csv(capsys, tmp_path):
+def test_bench_table_csv(capsys, tmp_path, monkeypatch):
     csv_path = tmp_path / "b.csv"
     code, out, err = run(capsys, "bench", SCENES / "sphere.obj", *SMALL,
                          "--settings", "kdray,kdray:stack=1", "--csv", csv_path)
@@ -46,6 +46,21 @@ def test_bench_table_csv(capsys, tmp_path):
         assert int(r["disagree"]) == 0
         assert float(r["depth_p99"]) < 1e-5
         assert float(r["normal_max_deg"]) < 1e-2
+    # written atomically: a write that fails part way keeps the file that was there
+    from kdray import bench
+    from kdray.errors import OutputError
+    before = csv_path.read_bytes()
+    real, written = csv.DictWriter.writerow, []
+
+    def fail(self, row):                         # the disk fills after 10 rows
+        written.append(row)
+        if len(written) > 10:
+            raise OSError(28, "No space left on device")
+        return real(self, row)
+    monkeypatch.setattr(csv.DictWriter, "writerow", fail)
+    with pytest.raises(OutputError, match="No space left"):
+        bench.write_csv([{k: 1.0 for k in bench.COLUMNS}] * 50, csv_path)
+    assert csv_path.read_bytes() == before and len(list(tmp_path.iterdir())) == 1
 
 
 def test_bench_offset_far_from_origin():

@@ -245,7 +245,7 @@ def test_bad_camera_file_is_one_line_and_writes_nothing(capsys, tmp_path):
         assert code == 2 and f"--cameras cannot be combined with {name}" in err, more
 
 
-def test_tree_cache(tmp_path, caplog):
+def test_tree_cache(tmp_path, caplog, monkeypatch):
     cache = TreeCache(tmp_path / "trees")
     mesh = load(real_mesh("teapot.obj"))
     built = []
@@ -284,6 +284,21 @@ def test_tree_cache(tmp_path, caplog):
     assert trees == 3 and size == 5000 + sum(f.stat().st_size for f in cache.folder.glob("??/*.kdt"))
     assert cache.clear() == (3, size) and cache.usage() == (0, 0)
     assert not list(cache.folder.iterdir())             # the emptied folders too
+    # a tree that cannot be removed (an immutable folder): said, not "removed 0"
+    cache.tree(mesh, BuildParams(), build)
+    cache.tree(named, BuildParams(), build)
+    stuck = cache.path(tree_key(mesh, BuildParams()))
+    real_unlink = Path.unlink
+
+    def refuse(self, *args, **kwargs):
+        if self == stuck:
+            raise PermissionError(1, "Operation not permitted")
+        return real_unlink(self, *args, **kwargs)
+    monkeypatch.setattr(Path, "unlink", refuse)
+    with pytest.raises(OutputError, match=r"1 file\(s\) stay, .*Operation not permitted.*"
+                                          r"removed 1 tree"):
+        cache.clear()
+    assert cache.usage()[0] == 1
 
 
 def test_progress_line():

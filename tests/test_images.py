@@ -721,3 +721,45 @@ def test_parse_aovs_errors(text):
     with pytest.raises(KdrayError) as info:
         parse_aovs(text)
     assert all(name in str(info.value) for name in AOVS)
+
+
+def test_files_kdray_does_not_write_are_refused_not_misread(tmp_path):
+    """OpenImageIO opens more than kdray writes: a PNG named .exr (read as no AOVs), a
+    deep EXR (its empty pixels read as memory left over), a multi-part EXR (its later
+    parts unread), an id channel stored as float holding no uint32 (NaN, -1, 2^32:
+    cast to wrong ids). Each is a one-line KdrayError naming the file."""
+    png = tmp_path / "png.exr"
+    out = oiio.ImageOutput.create("png")
+    out.open(str(png), oiio.ImageSpec(2, 2, 3, oiio.UINT8))
+    out.write_image(np.zeros((2, 2, 3), np.uint8))
+    out.close()
+    spec = oiio.ImageSpec(2, 2, 1, oiio.FLOAT)
+    spec.channelnames = ("Z",)
+    spec.deep = True
+    deep = oiio.ImageBuf(spec)
+    deep.set_deep_samples(0, 0, 0, 1)
+    deep.set_deep_value(0, 0, 0, 0, 0, 5.0)
+    deep.write(str(tmp_path / "deep.exr"))
+    parts = [OpenEXR.Part({"type": OpenEXR.scanlineimage}, {"Z": np.ones((2, 2), np.float32)},
+                          name="a"),
+             OpenEXR.Part({"type": OpenEXR.scanlineimage}, {"id": np.ones((2, 2), np.uint32)},
+                          name="b")]
+    with OpenEXR.File(parts) as f:
+        f.write(str(tmp_path / "parts.exr"))
+    for name, words in (("png.exr", "is not an EXR file"), ("deep.exr", "is a deep EXR"),
+                        ("parts.exr", "holds several parts")):
+        for read in (read_exr, read_camera):
+            with pytest.raises(KdrayError, match=words) as info:
+                read(tmp_path / name)
+            assert str(tmp_path / name) in str(info.value) and "\n" not in str(info.value)
+    for value in (np.nan, -1.0, 2.0 ** 32, 1.5):
+        ids = np.full((2, 2), 7.0, np.float32)
+        ids[1, 1] = value
+        with OpenEXR.File({"type": OpenEXR.scanlineimage}, {"id": ids}) as f:
+            f.write(str(tmp_path / "float_id.exr"))
+        with pytest.raises(KdrayError, match="channel id holds .*not a uint32 id"):
+            read_exr(tmp_path / "float_id.exr")
+    ids[1, 1] = 9.0                                   # whole numbers: read as the ids
+    with OpenEXR.File({"type": OpenEXR.scanlineimage}, {"id": ids}) as f:
+        f.write(str(tmp_path / "float_id.exr"))
+    assert read_exr(tmp_path / "float_id.exr")["id"].tolist() == [[7, 7], [7, 9]]
