@@ -150,11 +150,13 @@ def build_for_camera(vertices, faces, camera, **build_params):
         scale = mesh_scale(v, f)
     keep = cull_faces(v, f, camera, origin=origin)
     keep_double = build_params.pop("keep_double", False)
-    try:
-        if len(keep) == 0:
-            raise MeshError("nothing in view")
-        tree = build(v, f[keep], origin=origin, scale=scale, **build_params)
-    except MeshError:
+    tree = None
+    if len(keep):
+        try:
+            tree = build(v, f[keep], origin=origin, scale=scale, **build_params)
+        except MeshError:
+            pass                    # only triangles the builder leaves out: as nothing
+    if tree is None:
         # nothing in view that the builder keeps (the cull keeps degenerate triangles
         # and those with a non-finite vertex): the whole mesh's first usable triangle,
         # or the whole mesh's MeshError

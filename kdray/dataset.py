@@ -390,12 +390,15 @@ class Renderer:
         rendered, errors = 0, []
         pending = collections.deque()            # (view, write's future, trace seconds)
 
+        def fault(view, e):                      # named by its scene, as a job's are
+            errors.append(f"{job.scene}: view {view.name}: {e}")
+
         def finish(view, future, trace_seconds):
             nonlocal rendered
             try:
                 write_seconds = future.result()
             except KdrayError as e:
-                errors.append(f"{job.scene}: view {view.name}: {e}")
+                fault(view, e)
                 return
             seconds["trace"] += trace_seconds
             seconds["write"] += write_seconds
@@ -411,7 +414,7 @@ class Renderer:
                     try:
                         images = tracer.render(view.camera, job.aovs, job.precision)
                     except KdrayError as e:
-                        errors.append(f"{job.scene}: view {view.name}: {e}")
+                        fault(view, e)
                         continue
                     future = writer.submit(_timed_write, job, view, images, tracer.tree,
                                            self.dask_worker)

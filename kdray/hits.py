@@ -21,8 +21,29 @@ import functools
 
 import numpy as np
 
+from .errors import KdrayError
 from .layout import MISS
 from .tree import object_ids
+
+TRACE_OUTPUTS = ("uv", "normal")
+"""What `Tracer.trace` computes besides t and prim when asked (all by default)."""
+
+
+def kernel_outputs(outputs, double=False):
+    """The kernel outputs ("UV", "NORMAL") of `Tracer.trace`'s `outputs` (names from
+    TRACE_OUTPUTS, or one name); without "UV" where double precision recomputes u, v
+    on the host. KdrayError for anything else."""
+    if isinstance(outputs, str):
+        outputs = (outputs,)
+    try:
+        unknown = sorted(map(repr, set(outputs) - set(TRACE_OUTPUTS)))
+    except TypeError:                         # None, a number: no names
+        raise KdrayError(f"outputs must be names from {list(TRACE_OUTPUTS)}, got "
+                         f"{outputs!r:.60}") from None
+    if unknown:
+        raise KdrayError(f"unknown trace outputs [{', '.join(unknown)}]: choose from "
+                         f"{list(TRACE_OUTPUTS)} (t and prim always)")
+    return tuple(name.upper() for name in outputs if not (double and name == "uv"))
 
 
 class TriangleAnswers:

@@ -407,9 +407,16 @@ def _obj_may_count_back(data):
     minus = np.flatnonzero(b == ord("-"))
     if minus.size == 0:
         return False
-    breaks = np.flatnonzero(b == ord("\n"))
-    at = np.concatenate([[0], breaks + 1])[np.searchsorted(breaks, minus)]
+    _, at = _line_starts(b, minus)
     return bool(np.isin(b[np.minimum(at, len(b) - 1)], list(b"flp")).any())
+
+
+def _line_starts(b, positions):
+    """(line (k,) int64 from 0, start (k,) int64): the line of each of `positions`
+    (sorted offsets into the bytes b, a uint8 array) and the offset where it starts."""
+    breaks = np.flatnonzero(b == ord("\n"))
+    line = np.searchsorted(breaks, positions)
+    return line, np.concatenate([[0], breaks + 1])[line]
 
 
 def _obj_zero_index(data):
@@ -431,9 +438,7 @@ def _obj_zero_index(data):
                 | (after == ord("\n"))]
     if zero.size == 0:
         return
-    breaks = np.flatnonzero(b == ord("\n"))
-    line = np.searchsorted(breaks, zero)
-    at = np.concatenate([[0], breaks + 1])[line]
+    line, at = _line_starts(b, zero)
     # the keyword f, l, p or fo and a blank (not lod, parm, ...)
     first, second = b[at], peek(at + 1)
     bad = np.flatnonzero((np.isin(first, list(b"flp")) & (second == ord(" ")))

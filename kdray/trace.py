@@ -32,16 +32,19 @@ from . import ray_input
 from . import rays as _rays
 from . import points as _points
 from . import render as _render
+from .camera import Camera
 from .double import hits_double, wants_double
 from .errors import DeviceError, KdrayError
-from .hits import Hits  # noqa: F401 (kdray.trace.Hits, as before)
+from .hits import TRACE_OUTPUTS, Hits, kernel_outputs  # noqa: F401 (kdray.trace.*, as before)
 from .host import PAGE, check_host_memory, huge_page_copy, huge_page_empty, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BLOCK,
                      device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
                      triangle_copies)
+from .lidar import Lidar
 from .ray_grid import ImageWidths
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
+from .tree import KdTree
 from .validate import check_class, check_float32, whole_or_none
 from .wide import stack_groups, wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
@@ -49,9 +52,6 @@ from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet, 
                          pocl_item_bytes, thread_stack_bytes)
 
 log = logging.getLogger(__name__)
-
-TRACE_OUTPUTS = ("uv", "normal")
-"""What `Tracer.trace` computes besides t and prim when asked (all by default)."""
 
 MAX_RAYS_PER_LAUNCH = 1 << 22
 """Rays per kernel launch at most: keeps the 32-bit batch counter far from overflow and
@@ -113,7 +113,6 @@ class Tracer:
 
     def __init__(self, tree, device=None, stack_size=None, local_size=None, batch_size=None,
                  groups=None, packet=None, refine=True):
-        from .tree import KdTree
         check_class(tree, KdTree, "Tracer's tree")
         cl = _device._cl()
         if stack_size is None:
@@ -605,19 +604,7 @@ class Tracer:
         Returns Hits. Rays with non-finite components or a zero direction miss.
         """
         double = wants_double(precision, self.tree)
-        if isinstance(outputs, str):
-            outputs = (outputs,)
-        try:
-            unknown = sorted(map(repr, set(outputs) - set(TRACE_OUTPUTS)))
-        except TypeError:                     # None, a number: no names
-            raise KdrayError(f"outputs must be names from {list(TRACE_OUTPUTS)}, got "
-                             f"{outputs!r:.60}") from None
-        if unknown:
-            raise KdrayError(f"unknown trace outputs [{', '.join(unknown)}]: choose from "
-                             f"{list(TRACE_OUTPUTS)} (t and prim always)")
-        kernel = tuple(name.upper() for name in outputs)
-        if double:
-            kernel = tuple(k for k in kernel if k != "UV")    # recomputed in float64
+        kernel = kernel_outputs(outputs, double)
         origins, directions, shape = ray_input.flat_rays(origins, directions)
         t_min, t_max = _rays.check_t(t_min, "t_min", shape), _rays.check_t(t_max, "t_max", shape)
         hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
@@ -778,7 +765,6 @@ class Tracer:
         row-major (row j, then column i). `trace(*camera_rays(c))` equals render(c).
         A pixel with no ray has NaN directions. A central camera's origins are its one
         eye broadcast, a read-only view (np.array(origins) for a writable copy)."""
-        from .camera import Camera
         check_class(camera, Camera, "camera")
         return _render.camera_rays(camera, self._origin, self._scale)
 
@@ -805,7 +791,6 @@ class Tracer:
         with precision="double" every model but the pinhole is traced from its float64
         rays (Camera.rays).
         """
-        from .camera import Camera
         check_class(camera, Camera, "camera")
         double = wants_double(precision, self.tree)
         aovs = _render.parse_aovs(aovs)
@@ -959,7 +944,7 @@ class Tracer:
         by the pose; hits are refined in double where the device has it. With
         precision="double" the float64 rays (Lidar.rays) are traced from the host.
         """
-        from .lidar import Lidar, check_pose, scan_images
+        from .lidar import check_pose, scan_images
         check_class(lidar, Lidar, "lidar")
         double = wants_double(precision, self.tree)
         if not double:

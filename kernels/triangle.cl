@@ -287,16 +287,16 @@ bool intersect_triangle(const RayShear *s, float3 o, float3 p0, float3 p1, float
                                 && KD_EDGE_SURE(V, Ax * Cy, Ay * Cx)
                                 && KD_EDGE_SURE(W, Bx * Ay, By * Ax));
     bool zero = U == 0.0f || V == 0.0f || W == 0.0f;
-    if (zero) {
-        U = kd_signed_float((double)Cx * (double)By - (double)Cy * (double)Bx);
-        V = kd_signed_float((double)Ax * (double)Cy - (double)Ay * (double)Cx);
-        W = kd_signed_float((double)Bx * (double)Ay - (double)By * (double)Ax);
-    }
     float Ue = U, Ve = V, We = W;
-    if (unsure && !zero) {
+    if (unsure || zero) {
         Ue = kd_signed_float((double)Cx * (double)By - (double)Cy * (double)Bx);
         Ve = kd_signed_float((double)Ax * (double)Cy - (double)Ay * (double)Cx);
         We = kd_signed_float((double)Bx * (double)Ay - (double)By * (double)Ax);
+        if (zero) {                       /* both rules' values on an edge */
+            U = Ue;
+            V = Ve;
+            W = We;
+        }
     }
 #else
     float Ue = U, Ve = V, We = W;
