@@ -22,9 +22,10 @@ image-shaped rays). With --incoherent, three more: `trace` of --rays (100,000) r
 random directions from the centre of the tree's box and from random points in it
 (bench_incoherent.py's rays), and `trace spread`, the camera's rays from origins spread
 over 1e-4 of the box's diagonal (a lens's or a projector's: coherent packets of
-several origins; t and prim). With --queries, four more, the ray queries (kdray.rays)
-on the same rays: `count` and `intersections` of the camera's rays, `count random` of
-the rays from random points and `contains` of those points (NaN for a kdray without
+several origins; t and prim). With --queries, seven more, the queries (kdray.rays)
+on the same rays: `count`, `intersections` and `occluded` of the camera's rays,
+`count random` and `occluded random` of the rays from random points, and `contains`
+and `distance random` (the point query) of those points (NaN for a kdray without
 them). Separate processes, so each version has its own memory layout
 and OpenCL context. Prints each version's median times, wall and CPU (the worker
 process's, all its threads), the medians of the rounds' ratios (working tree / base:
@@ -58,7 +59,8 @@ from it, so that its own kdray sets what it sets."""
 
 CALLS = ("render depth", "render default", "trace", "trace HxW")
 INCOHERENT = ("random centre", "random points", "trace spread")
-QUERIES = ("count", "intersections", "count random", "contains")
+QUERIES = ("count", "intersections", "count random", "contains", "occluded",
+           "occluded random", "distance random")
 
 
 def worker(tree_path, size, out_path, packet=0, n_rays=100_000):
@@ -89,11 +91,14 @@ def worker(tree_path, size, out_path, packet=0, n_rays=100_000):
         calls.update({"count": lambda: tracer.count(o, d),
                       "intersections": lambda: tracer.intersections(o, d),
                       "count random": lambda: tracer.count(op, dp),
-                      "contains": lambda: tracer.contains(op)})
+                      "contains": lambda: tracer.contains(op),
+                      "occluded": lambda: tracer.occluded(o, d),
+                      "occluded random": lambda: tracer.occluded(op, dp),
+                      "distance random": lambda: tracer.distance(op)})
         listed = calls["intersections"]()
-        queries = {"count": calls["count"](), "count random": calls["count random"](),
-                   "contains": calls["contains"](), "intersections offsets": listed.offsets,
-                   "intersections prim": listed.prim}
+        queries = {k: calls[k]() for k in QUERIES if k != "intersections"}
+        queries.update({"intersections offsets": listed.offsets,
+                        "intersections prim": listed.prim})
     else:
         calls.update({k: (lambda: None) for k in QUERIES})
     images = calls["render default"]()
@@ -206,7 +211,8 @@ def main():
     ap.add_argument("--incoherent", action="store_true",
                     help="also time --rays rays in random directions (two sets)")
     ap.add_argument("--queries", action="store_true",
-                    help="also time the ray queries (count, intersections, contains)")
+                    help="also time the queries (count, intersections, contains, occluded, "
+                         "distance)")
     args = ap.parse_args()
     calls = CALLS + (INCOHERENT if args.incoherent else ()) + (QUERIES if args.queries else ())
     sys.path.insert(0, ROOT)
