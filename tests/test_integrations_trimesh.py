@@ -650,3 +650,88 @@ def test_first_hit_at_edges_and_vertices_is_the_lowest_index():
     through = ([[0.5, 5.5, -0.5]], [[1.0, -3.0, 2.0]])    # (1, 4, 0.5) at t = 0.5
     assert two.ray.intersects_first(*through).tolist() == [0]
     assert two.ray.intersects_location(*through, max_hits=1)[2].tolist() == [0]
+
+
+
+def first_clear_of_origin(mesh, o, d):
+    """(n,) int64 the float64 brute force's first triangle each ray hits farther than
+    1e-9 from its origin (the lower index where two hit within 1e-12 of each other),
+    -1 on none."""
+    length = np.linalg.norm(d, axis=1)
+    ray, prim, t, _, _ = all_hits(mesh.triangles, o, d, t_min=1e-9 / length)
+    first = np.full(len(o), -1, dtype=np.int64)
+    for r in np.unique(ray):
+        k = np.flatnonzero(ray == r)
+        first[r] = prim[k][t[k] - t[k[0]] <= 1e-12 * t[k[0]]].min()
+    return first
+
+
+def test_rays_from_surface_points_do_not_hit_where_they_start():
+    """Rays from float64 points on a closed mesh's faces (trimesh.sample, as visibility
+    and ambient-occlusion rays start) do not hit the face they start on: on a convex
+    mesh rays leaving it hit nothing and rays entering it one point, the far side; on
+    a torus each ray's first hit is the float64 brute force's first clear of the
+    origin. kdray's float32 triangles, moved by their rounding, put about half of such
+    origins just behind their face (docs/integrations.md, "No hit at the origin")."""
+    torus = trimesh.creation.torus(1.0, 0.3, major_sections=24, minor_sections=12)
+    for mesh, seed in ((trimesh.creation.icosphere(2), 1), (torus, 2)):
+        m = ours(mesh)
+        n = 600
+        o, face = trimesh.sample.sample_surface(m, n, seed=seed)
+        normal = m.face_normals[face]
+        d = np.random.default_rng(seed).normal(size=(n, 3))
+        d *= np.sign(np.einsum("ij,ij->i", d, normal))[:, None]          # outward
+        for rays in ((o, normal), (o, -normal), (o, d), (o, -d)):
+            got = m.ray.intersects_first(*rays)
+            assert (got == first_clear_of_origin(m, *rays)).all()
+            assert (got != face).all()
+            assert (m.ray.intersects_any(*rays) == (got >= 0)).all()
+            tri, ray = m.ray.intersects_id(*rays, multiple_hits=False)
+            assert (ray == np.flatnonzero(got >= 0)).all() and (tri == got[ray]).all()
+            _, ray, tri = m.ray.intersects_location(*rays)
+            starts = np.flatnonzero(np.diff(ray, prepend=-1) != 0)
+            assert (ray[starts] == np.flatnonzero(got >= 0)).all()
+            assert (tri[starts] == got[ray[starts]]).all()
+            tri, ray = m.ray.intersects_id(*rays)
+            assert not (tri == face[ray]).any()
+            if mesh is not torus:
+                leaving = rays[1] is normal or rays[1] is d
+                assert (np.bincount(ray, minlength=n) == (0 if leaving else 1)).all()
+
+
+def test_first_points_agree_where_rays_graze_edges():
+    """Rays aimed at points of random edges, half from origins beside the surface (so
+    that many graze a triangle of the edge): intersects_first, multiple_hits=False and
+    the first point of intersects_location, whatever max_hits, name the same triangle.
+    Where a ray grazes, kdray's float32 barycentrics can put its hit 1e-6 off an edge
+    that float64's puts it on, and a float32 t can round past another triangle's; and
+    a ray that lies in a triangle's plane (to float64 precision) misses it, as a
+    float32 hit does not show."""
+    rng = np.random.default_rng(11)
+    meshes = (trimesh.creation.icosphere(2), trimesh.creation.annulus(0.3, 0.8, 1.0, sections=8),
+              trimesh.creation.cylinder(0.5, 1, sections=8),
+              trimesh.creation.torus(1.0, 0.3, major_sections=12, minor_sections=8))
+    for mesh in meshes:
+        m = ours(mesh)
+        n = 3000
+        edges = m.edges_unique[rng.integers(0, len(m.edges_unique), n)]
+        s = rng.random((n, 1))
+        target = m.vertices[edges[:, 0]] * (1 - s) + m.vertices[edges[:, 1]] * s
+        o = rng.normal(size=(n, 3)) * 2
+        k = n // 2
+        along = m.vertices[edges[:k, 1]] - m.vertices[edges[:k, 0]]
+        o[:k] = target[:k] + 3 * np.cross(along, rng.normal(size=(k, 3))) \
+            + 0.05 * rng.normal(size=(k, 3))
+        d = target - o
+        first = m.ray.intersects_first(o, d)
+        assert (first >= 0).sum() > n // 2
+        tri, ray = m.ray.intersects_id(o, d, multiple_hits=False)
+        assert (ray == np.flatnonzero(first >= 0)).all() and (tri == first[ray]).all()
+        for max_hits in (None, 1, 2):
+            _, ray, tri = m.ray.intersects_location(o, d, max_hits=max_hits)
+            starts = np.flatnonzero(np.diff(ray, prepend=-1) != 0)
+            assert (ray[starts] == np.flatnonzero(first >= 0)).all()
+            assert (tri[starts] == first[ray[starts]]).all()
+            # at most max_hits points a ray
+            if max_hits:
+                assert np.bincount(ray).max() <= max_hits

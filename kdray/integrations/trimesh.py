@@ -52,8 +52,12 @@ Which hits, and the differences from embree's intersector on purpose:
   distances along it differ by at most SAME_POINT_RTOL times the scene's size, or,
   for triangles that share a vertex (the ray through an edge or a vertex, as kdray's
   float32 test decides it), SAME_TRIANGLE_RTOL times that size.
-- A hit counts from t > 0 on (above the rounding of t): a ray that starts on the
-  surface does not hit the triangle it starts on (embree's may, at t = 0).
+- A hit counts where the ray meets the hit triangle's plane, in float64 from the
+  mesh's vertices, at t > 0, and not where its origin lies on that plane (within
+  SAME_POINT_RTOL of the scene's size): a ray from a float64 point on the surface
+  does not hit the triangles through it, whichever side of them kdray's float32
+  triangles put it (embree's may, at t = 0), and a ray in a triangle's plane misses
+  it. intersects_any is whether a ray has a hit that counts (_nearest).
 - Locations are o + t d in float64 (d the unit direction), t where the ray meets the
   hit triangle's plane, computed in float64 from the triangle's vertices
   (kdray.double.plane_hits: the plane through its first vertex, normal to its edges'
@@ -69,8 +73,9 @@ Which hits, and the differences from embree's intersector on purpose:
   along a fixed direction (kdray.rays.contains_directions), exact at edges and
   vertices on a closed, consistently oriented mesh, the same every run. trimesh's
   casts two rays a point and, where they disagree, again in a random direction. A
-  point on the surface answers as if moved an infinitesimal step along that
-  direction (trimesh: undefined); a non-finite point is outside. On a mesh that is not
+  point on the surface (kdray's float32 triangles: a float64 point within their
+  rounding of a face may answer either way) answers as if moved an infinitesimal
+  step along that direction (trimesh: undefined); a non-finite point is outside. On a mesh that is not
   closed the answer is that one ray's parity.
 - Order: trimesh documents none for several hits (embree's comes from its re-casting:
   all rays' first hits, then their second hits, ...; ray_triangle's from its r-tree).
@@ -187,14 +192,14 @@ class RayMeshIntersector:
         if tracer is None or len(rays.o) == 0 or limit == 0:
             return _empty(return_locations)
         if not multiple_hits:
-            ray, tri, t = self._first_points(tracer, rays, return_locations)
-            if not return_locations:
-                return tri, ray
+            ray, tri, t = self._first_points(tracer, rays)
         elif not return_locations:
-            hits = tracer.intersections(rays.o, rays.kd, max_hits=limit)
-            return hits.prim.astype(np.int64), hits.ray
+            hits, _ = self._list(tracer, rays, np.arange(len(rays.o)), limit, plane=False)
+            return hits.tri, hits.ray
         else:
             ray, tri, t = self._points(tracer, rays, limit)
+        if not return_locations:
+            return tri, ray
         return tri, ray, rays.o[ray] + t[:, None] * rays.d[ray]
 
     def intersects_location(self, ray_origins, ray_directions, multiple_hits=True,
@@ -222,13 +227,14 @@ class RayMeshIntersector:
         return first
 
     def intersects_any(self, ray_origins, ray_directions):
-        """(n,) bool: whether each ray hits the mesh (Tracer.occluded: an any-hit walk,
-        the same answers as intersects_first != -1)."""
+        """(n,) bool: whether each ray hits the mesh (a hit that counts: _nearest; the
+        same answers as intersects_first != -1)."""
         rays = _rays(ray_origins, ray_directions)
+        hit = np.zeros(len(rays.o), dtype=bool)
         tracer = self._tracer
-        if tracer is None or len(rays.o) == 0:
-            return np.zeros(len(rays.o), dtype=bool)
-        return np.asarray(tracer.occluded(rays.o, rays.kd), dtype=bool)
+        if tracer is not None and len(rays.o):
+            hit[self._nearest(tracer, rays, plane=False).ray] = True
+        return hit
 
     def contains_points(self, points):
         """(n,) bool: whether each point is inside the mesh (Tracer.contains: one ray's
@@ -244,65 +250,148 @@ class RayMeshIntersector:
             inside[finite] = tracer.contains(p[finite])
         return inside
 
-    # -- hit points ----------------------------------------------------------------------
+    # -- hits that count, and hit points -------------------------------------------------
 
-    def _t64(self, rays, ray, tri, t32):
-        """(h,) float64 distance along each hit's unit ray to its triangle's plane, in
-        float64 from the mesh's vertices; the float32 test's (t32, a distance: _dist)
-        where that is not finite (a ray in the plane to float64 precision that float32
-        found a hit for)."""
-        vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
-        faces = np.asarray(self.mesh.faces)
-        t = plane_hits(vertices[faces[tri]], rays.o[ray], rays.d[ray])[0]
+    def _counts(self, rays, ray, tri, t32):
+        """(h,) bool: whether each of kdray's hits (ray, tri (h,) int64; t32 (h,)
+        float64 its distance at kdray's float32 t, _dist) counts. Not where the ray's
+        origin lies on the triangle's plane (within SAME_POINT_RTOL times the scene's
+        size: the ray meets it only there, at t = 0), nor where the ray meets that
+        plane behind its origin (t <= 0; where the ray is parallel to it, t32 decides),
+        the plane in float64 from the mesh's vertices. So a ray from a point on the
+        surface, given in float64, does not hit the triangles through that point, which
+        kdray's float32 triangles, moved by their rounding, may put just ahead of it."""
+        normal, offset = self._planes
+        o = rays.o[ray]
+        ahead = offset[tri] - np.einsum("ij,ij->i", normal[tri], o)   # plane - origin
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ahead / np.einsum("ij,ij->i", normal[tri], rays.d[ray])
+        t = np.where(np.isfinite(t), t, t32)
+        return ~(np.abs(ahead) <= SAME_POINT_RTOL * self._sizes(o)) & ~(t <= 0.0)
+
+    @caching.cache_decorator
+    def _planes(self):
+        """The faces' planes, float64: unit normals (m, 3) and offsets (m,), n . v0 (NaN
+        for a degenerate face, whose hits then count)."""
+        p = self._triangles
+        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            n = n / np.linalg.norm(n, axis=1)[:, None]
+        return n, np.einsum("ij,ij->i", n, p[:, 0])
+
+    def _hits(self, rays, ray, tri, t32, u32, v32, plane=True):
+        """_Hits of kdray's hits (ray, tri, t32 as _counts takes them; u32, v32 (h,)
+        its barycentrics) with, where `plane`, where each unit ray meets its triangle's
+        plane in float64 from the mesh's vertices (kdray.double.plane_hits: t a
+        distance, u, v; the float32 test's t where that is not finite: a ray in the
+        plane to float64 precision that float32 found a hit for); else NaN there."""
+        if not plane:
+            nan = np.full(len(ray), np.nan)
+            return _Hits(ray, tri, t32, u32, v32, nan, nan, nan)
+        t, u, v = plane_hits(self._triangles[tri], rays.o[ray], rays.d[ray])
         bad = ~np.isfinite(t)
         t[bad] = t32[bad]
-        return t
+        return _Hits(ray, tri, t32, u32, v32, t, u, v)
 
-    def _first_points(self, tracer, rays, locations=False):
+    @caching.cache_decorator
+    def _triangles(self):
+        """(m, 3, 3) float64: the mesh's triangles."""
+        return np.asarray(self.mesh.vertices, dtype=np.float64)[np.asarray(self.mesh.faces)]
+
+    def _list(self, tracer, rays, rows, limit, plane=True):
+        """The hits that count (_counts) of the rays `rows` ((r,) int64, ascending), at
+        most `limit` a ray (None: all), the nearest as Tracer.intersections lists them
+        (by t, ties by index), with their planes' hits where `plane` (_hits): (_Hits
+        sorted by ray, more (r,) bool: whether a ray's list was cut at `limit`). A ray
+        whose list was cut and had hits that do not count is listed again with room for
+        as many more."""
+        parts, more = [], np.zeros(len(rows), dtype=bool)
+        pending, k = np.arange(len(rows)), limit
+        while pending.size:
+            r = rows[pending]
+            found = tracer.intersections(rays.o[r], rays.kd[r], max_hits=k)
+            ray, tri = r[found.ray], found.prim.astype(np.int64)
+            t32 = _dist(rays, ray, found.t)
+            counts = self._counts(rays, ray, tri, t32)
+            cut = found.counts == k if k is not None else np.zeros(len(r), dtype=bool)
+            dropped = np.bincount(found.ray[~counts], minlength=len(r))
+            again = cut & (dropped > 0)
+            keep = counts & ~again[found.ray]
+            parts.append(self._hits(rays, ray[keep], tri[keep], t32[keep], found.u[keep],
+                                    found.v[keep], plane))
+            more[pending[cut & ~again]] = True
+            if again.any():
+                k += int(dropped[again].max())
+            pending = pending[again]
+        hits = _Hits(*(np.concatenate(c) for c in zip(*parts)))
+        hits = hits.take(np.argsort(hits.ray, kind="stable"))
+        if limit is not None:
+            # rays listed again may have more than `limit` that count: their nearest
+            rank = np.arange(len(hits.ray)) - np.searchsorted(hits.ray, hits.ray)
+            more[np.searchsorted(rows, hits.ray[rank >= limit])] = True
+            hits = hits.take(rank < limit)
+        return hits, more
+
+    def _nearest(self, tracer, rays, plane=True):
+        """_Hits of each ray's nearest hit that counts (_counts), by ray, with its
+        plane's hit where `plane` (_hits): Tracer.trace's, or where that does not count
+        the nearest of the ray's list (_list)."""
+        found = tracer.trace(rays.o, rays.kd, outputs=("uv",) if plane else ())
+        hit = np.flatnonzero(found.prim != MISS)
+        tri, t32 = found.prim[hit].astype(np.int64), _dist(rays, hit, found.t[hit])
+        counts = self._counts(rays, hit, tri, t32)
+        ray, tri, t32 = hit[counts], tri[counts], t32[counts]
+        # trace's barycentrics where they are wanted (_near_edges), else none
+        u32, v32 = (found.u[ray], found.v[ray]) if plane else (t32 * np.nan,) * 2
+        hits = self._hits(rays, ray, tri, t32, u32, v32, plane)
+        if counts.all():
+            return hits
+        again, _ = self._list(tracer, rays, hit[~counts], 1, plane)
+        hits = _Hits(*(np.concatenate(c) for c in zip(hits, again)))
+        return hits.take(np.argsort(hits.ray, kind="stable"))
+
+    def _first_points(self, tracer, rays):
         """(ray, tri, t) of the rays that hit, by ray: the first point each hits
-        (_distinct) and there its lowest triangle index; (h,) int64, int64, and with
-        `locations` t (h,) float64 (else None). Tracer.trace's nearest hit is that
-        triangle but where the ray passes through an edge or a vertex: its float32 test
+        (_distinct) and there its lowest triangle index; (h,) int64, int64, float64 (t
+        the distance to the triangle's plane: _hits). _nearest's triangle is that one
+        but where the ray passes through an edge or a vertex: kdray's float32 test
         orders the triangles there by their t's roundings, not by index. So rays whose
-        hit is that near an edge of its triangle (_near_edges) list their hits again up
-        to just past it (_window)."""
-        hits = tracer.trace(rays.o, rays.kd, outputs=("uv",))
-        ray = np.flatnonzero(hits.prim != MISS)
-        tri = hits.prim[ray].astype(np.int64)
-        t32 = _dist(rays, ray, hits.t[ray])
-        t = self._t64(rays, ray, tri, t32) if locations else None
-        near = np.flatnonzero(self._near_edges(rays, ray, tri, hits.u[ray], hits.v[ray]))
+        hit is that near an edge of its triangle (_near_edges) list all their hits
+        again: the triangles through that point may lie anywhere in the list, as their
+        float32 t may round far from it where the ray grazes them (and pass a t_max
+        their float64 t is within)."""
+        hits = self._nearest(tracer, rays)
+        ray, tri, t = hits.ray, hits.tri.copy(), hits.t.copy()
+        near = np.flatnonzero(self._near_edges(rays, hits))
         if near.size == 0:
             return ray, tri, t
-        r = ray[near]
-        t_max = self._window(rays.o[r], t32[near]) / rays.length[r]
-        again = tracer.intersections(rays.o[r], rays.kd[r], t_max=t_max)
-        r2 = r[again.ray]
-        ray2, tri2, t2 = self._distinct(rays, r2, again.prim.astype(np.int64),
-                                        _dist(rays, r2, again.t))
+        again, _ = self._list(tracer, rays, ray[near], None)
+        ray2, tri2, t2 = self._distinct(rays, again.ray, again.tri, again.t)
         first = np.flatnonzero(np.diff(ray2, prepend=-1) != 0)
         at = np.searchsorted(ray, ray2[first])
         tri[at] = tri2[first]
-        if locations:
-            t[at] = t2[first]
+        t[at] = t2[first]
         return ray, tri, t
 
-    def _near_edges(self, rays, ray, tri, u, v):
-        """(h,) bool: whether each hit (ray, tri, barycentrics u, v of its second and
-        third vertices: float32) lies within SAME_TRIANGLE_RTOL times the scene's size
-        of an edge of its triangle (u, v and 1 - u - v allowed 2^-20 for their
-        rounding), where another triangle may share the point."""
-        u, v = u.astype(np.float64), v.astype(np.float64)
+    def _near_edges(self, rays, hits):
+        """(h,) bool: whether each of `hits` (_Hits) lies within SAME_TRIANGLE_RTOL times
+        the scene's size of an edge of its triangle, where another triangle may share
+        the point: by its float64 barycentrics or kdray's (these allowed 2^-20 for
+        float32's rounding; the float64 ones hold where a ray meets the triangle at a
+        grazing angle, at which kdray's triangles, moved by their rounding, move the hit
+        far along the plane)."""
+        u, v = hits.u32.astype(np.float64), hits.v32.astype(np.float64)
         weights = np.stack([1.0 - u - v, u, v], axis=1) - 2.0 ** -20       # (h, 3)
-        tol = SAME_TRIANGLE_RTOL * self._sizes(rays.o[ray])
-        return (weights <= tol[:, None] * self._inverse_altitudes[tri]).any(axis=1)
+        weights = np.fmin(weights, np.stack([1.0 - hits.u - hits.v, hits.u, hits.v], axis=1))
+        tol = SAME_TRIANGLE_RTOL * self._sizes(rays.o[hits.ray])
+        return (weights <= tol[:, None] * self._inverse_altitudes[hits.tri]).any(axis=1)
 
     @caching.cache_decorator
     def _inverse_altitudes(self):
         """(m, 3) float64: 1 / each face's altitude from vertex k to the opposite edge
         (a barycentric weight k over a distance from that edge); inf for a degenerate
         face."""
-        p = np.asarray(self.mesh.vertices, dtype=np.float64)[np.asarray(self.mesh.faces)]
+        p = self._triangles
         # the altitude: twice the area over the edge's length
         area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
         edges = np.linalg.norm(p[:, [2, 0, 1]] - p[:, [1, 2, 0]], axis=2)
@@ -310,42 +399,28 @@ class RayMeshIntersector:
             inverse = edges / area2[:, None]
         return np.where(np.isnan(inverse), np.inf, inverse)
 
-    def _window(self, o, t):
-        """(h,) float64 distance for rays (origins o (h, 3)) that hit at distance t
-        (float32's t: _dist): just past every hit that may be the same point
-        (SAME_TRIANGLE_RTOL of the scene's size beyond, twice, and 2^-20 of t for
-        float32's rounding)."""
-        return t + 2.0 * SAME_TRIANGLE_RTOL * self._sizes(o) + 2.0 ** -20 * np.abs(t)
-
     def _points(self, tracer, rays, limit):
         """(ray, tri, t) of every distinct hit point of each ray, at most `limit` (None:
         all) a ray, sorted by ray then t: (h,) int64, int64, float64."""
         o = rays.o
-        hits = tracer.intersections(o, rays.kd, max_hits=limit)
-        ray, tri, t = self._distinct(rays, hits.ray, hits.prim.astype(np.int64),
-                                     _dist(rays, hits.ray, hits.t))
-        if limit is None:
+        hits, more = self._list(tracer, rays, np.arange(len(o)), limit)
+        ray, tri, t = self._distinct(rays, hits.ray, hits.tri, hits.t)
+        cut = np.flatnonzero(more)
+        if limit is None or cut.size == 0:
             return ray, tri, t
-        # A ray cut at `limit` triangles is listed again: with fewer than `limit` points
-        # (its triangles shared points) every hit, to keep its first `limit` points;
-        # with `limit`, when its last hit is near an edge (_near_edges), up to just past
-        # it (_window): its point's other triangles (ordered by their float32 t's
-        # roundings) may lie past the cut and have a lower index.
+        # A ray cut at `limit` triangles is listed again, every hit, to keep its first
+        # `limit` points: with fewer than `limit` points (its triangles shared points),
+        # and with `limit` when its last hit is near an edge (_near_edges): its point's
+        # other triangles (ordered by their float32 t's roundings) may lie past the cut
+        # and have a lower index.
         points = np.bincount(ray, minlength=len(o))
-        cut = np.flatnonzero(hits.counts == limit)
-        end = hits.offsets[cut + 1] - 1                 # each cut ray's last hit
-        relist = (points[cut] < limit) | self._near_edges(
-            rays, cut, hits.prim[end].astype(np.int64), hits.u[end], hits.v[end])
-        redo, end = cut[relist], end[relist]
+        end = np.searchsorted(hits.ray, cut, side="right") - 1     # each cut ray's last
+        relist = (points[cut] < limit) | self._near_edges(rays, hits.take(end))
+        redo = cut[relist]
         if redo.size == 0:
             return ray, tri, t
-        last = _dist(rays, redo, hits.t[end])
-        t_max = np.where(points[redo] < limit, np.inf,
-                         self._window(o[redo], last) / rays.length[redo])
-        again = tracer.intersections(o[redo], rays.kd[redo], t_max=t_max)
-        r2 = redo[again.ray]
-        ray2, tri2, t2 = self._distinct(rays, r2, again.prim.astype(np.int64),
-                                        _dist(rays, r2, again.t))
+        again, _ = self._list(tracer, rays, redo, None)
+        ray2, tri2, t2 = self._distinct(rays, again.ray, again.tri, again.t)
         starts = np.searchsorted(ray2, ray2, side="left")
         keep = np.arange(len(ray2)) - starts < limit
         old = ~np.isin(ray, redo)
@@ -355,13 +430,12 @@ class RayMeshIntersector:
         order = np.lexsort((t, ray))
         return ray[order], tri[order], t[order]
 
-    def _distinct(self, rays, ray, tri, t32):
-        """The hits (ray, tri, t32: (h,) each, ray sorted; t32 float32's t as a distance,
-        _dist) merged to one a point: sorted by (ray, float64 t, tri), a hit is the
+    def _distinct(self, rays, ray, tri, t):
+        """The hits (ray, tri, t: (h,) each; t the float64 distance to the triangle's
+        plane, _hits) merged to one a point: sorted by (ray, t, tri), a hit is the
         previous one's point when their t differ by at most SAME_POINT_RTOL * size, or
         SAME_TRIANGLE_RTOL * size for triangles sharing a vertex; a point keeps its
         lowest triangle index. Returns (ray, tri, t) sorted by ray then t."""
-        t = self._t64(rays, ray, tri, t32)
         order = np.lexsort((tri, t, ray))
         ray, tri, t = ray[order], tri[order], t[order]
         if len(ray) < 2:
@@ -372,10 +446,8 @@ class RayMeshIntersector:
         same = same_ray & (step <= SAME_POINT_RTOL * size)
         near = np.flatnonzero(same_ray & ~same & (step <= SAME_TRIANGLE_RTOL * size))
         if near.size:
-            vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
-            faces = np.asarray(self.mesh.faces)
-            a = vertices[faces[tri[near]]]
-            b = vertices[faces[tri[near + 1]]]
+            a = self._triangles[tri[near]]
+            b = self._triangles[tri[near + 1]]
             # a shared vertex: equal coordinates (a mesh whose vertices are not merged
             # shares none by index)
             shared = (a[:, :, None, :] == b[:, None, :, :]).all(axis=3).any(axis=(1, 2))
@@ -455,6 +527,25 @@ class _Rays(typing.NamedTuple):
     d: np.ndarray
     kd: np.ndarray
     length: np.ndarray
+
+
+class _Hits(typing.NamedTuple):
+    """Hits of the rays of a query, (h,) each (RayMeshIntersector._hits): the ray
+    (int64), the triangle (int64, a row of mesh.faces), the distance at kdray's float32
+    t (float64) and kdray's barycentrics (float32), and where the unit ray meets the
+    triangle's plane in float64: the distance t and barycentrics u, v."""
+    ray: np.ndarray
+    tri: np.ndarray
+    t32: np.ndarray
+    u32: np.ndarray
+    v32: np.ndarray
+    t: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+    def take(self, index):
+        """The hits at `index` (a bool mask or indices)."""
+        return _Hits(*(a[index] for a in self))
 
 
 def _dist(rays, ray, t):
