@@ -822,6 +822,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
             if value is not None:
                 raise click.UsageError(f"{name} goes with --samples")
         resolution = 128 if resolution is None else resolution
+        _sdf.check_grid(resolution, padding, occupancy)     # bad values: before any work
     elif occupancy or resolution is not None:
         raise click.UsageError(f"{'--occupancy' if occupancy else '--resolution'} makes a "
                                f"grid; it cannot be combined with --samples")
@@ -838,7 +839,6 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OpenMeshWarning)     # said once above
         if samples is None:
-            _sdf.grid_frame(tracer, resolution, padding)       # bad values: before any work
             what = "occupancy" if occupancy else "signed distances"
             total = resolution ** 3
             shown = [0]

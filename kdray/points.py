@@ -129,7 +129,11 @@ def spatial_grid(lo, hi):
     point's cell on axis k ((float32(p) - lo) * scale, clamped to 0 .. GRID_CELLS - 1;
     kernels/point_order.cl computes it alike)."""
     lo = np.asarray(lo, dtype=np.float64)
-    scale = GRID_CELLS / np.maximum(np.asarray(hi, np.float64) - lo, np.finfo(np.float64).tiny)
+    with np.errstate(divide="ignore", over="ignore"):
+        scale = GRID_CELLS / (np.asarray(hi, np.float64) - lo)
+    # a flat box's axis: the largest float32, so that a point on it is in cell 0 and
+    # one beside it clamped (infinity would make 0 * inf a NaN)
+    scale = np.minimum(scale, np.finfo(np.float32).max)
     return lo.astype(np.float32), scale.astype(np.float32)
 
 

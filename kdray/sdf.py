@@ -57,11 +57,7 @@ def check_grid(resolution, padding, occupancy=False):
         raise KdrayError(f"resolution must be an integer, got {resolution!r}")
     if not 2 <= resolution <= MAX_RESOLUTION:
         raise KdrayError(f"resolution must be from 2 to {MAX_RESOLUTION}, got {resolution}")
-    if isinstance(padding, bool) or not isinstance(padding, (int, float, np.integer, np.floating)):
-        raise KdrayError(f"padding must be a number, got {padding!r}")
-    padding = float(padding)
-    if not (np.isfinite(padding) and padding >= 0):
-        raise KdrayError(f"padding must be a finite number >= 0, got {padding!r}")
+    padding = _check_padding(padding)
     n = int(resolution)
     slab = max(1, SLAB_POINTS // (n * n))
     check_host_memory(n ** 3 * (1 if occupancy else 4) + slab * n * n * 64, f"a {n}^3 grid",
@@ -69,10 +65,21 @@ def check_grid(resolution, padding, occupancy=False):
     return n, padding
 
 
-def grid_frame(tracer, resolution, padding):
+def _check_padding(padding):
+    """padding as a float; KdrayError unless a finite number >= 0."""
+    if isinstance(padding, bool) or not isinstance(padding, (int, float, np.integer, np.floating)):
+        raise KdrayError(f"padding must be a number, got {padding!r}")
+    padding = float(padding)
+    if not (np.isfinite(padding) and padding >= 0):
+        raise KdrayError(f"padding must be a finite number >= 0, got {padding!r}")
+    return padding
+
+
+def grid_frame(tracer, resolution, padding, occupancy=False):
     """(origin (3,) float64, spacing) of an N^3 grid over the tracer's scene box padded
-    by `padding` times its largest side on each side (`check_grid`'s checks first)."""
-    resolution, padding = check_grid(resolution, padding, occupancy=True)
+    by `padding` times its largest side on each side (`check_grid`'s checks first, for
+    float32 distances or with `occupancy` uint8 flags)."""
+    resolution, padding = check_grid(resolution, padding, occupancy)
     lo, hi = tracer.tree.world_box()
     with np.errstate(all="ignore"):         # a side beyond float32's range: refused below
         side = float((hi - lo).max()) * (1.0 + 2.0 * padding)
@@ -95,8 +102,8 @@ def sdf_grid(tracer, resolution, padding=0.1, sign="winding", occupancy=False,
     (points done, points in all) after each slab. KdrayError when the grid does not fit
     in memory (saying how much it needs)."""
     _points._check_sign(sign)
-    n, _ = check_grid(resolution, padding, occupancy)
-    origin, spacing = grid_frame(tracer, resolution, padding)
+    origin, spacing = grid_frame(tracer, resolution, padding, occupancy)
+    n = int(resolution)
     slab = max(1, SLAB_POINTS // (n * n))
     grid = Grid(np.empty((n, n, n), dtype=np.uint8 if occupancy else np.float32), origin,
                 spacing, sign)
@@ -118,11 +125,11 @@ def sdf_grid(tracer, resolution, padding=0.1, sign="winding", occupancy=False,
 def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="winding",
                 seed=0):
     """(points (count, 3) float64 world, sdf (count,) float32) as DeepSDF samples them:
-    round(count * (1 - uniform)) points on the surface, uniform by area, moved by
-    Gaussian noise of deviation sigma (world units; None: 1/200 of the scene box's
-    diagonal), and the rest uniform in the scene box padded by `padding` times its
-    largest side; their signed distances (negative inside, `sign`). The same seed gives
-    the same samples."""
+    round(count * uniform) points uniform in the scene box padded by `padding` times its
+    largest side on each side (each axis's range widened so), the rest on the surface,
+    uniform by area, moved by Gaussian noise of deviation sigma (world units; None:
+    1/200 of the scene box's diagonal); their signed distances (negative inside,
+    `sign`). The surface's points come first. The same seed gives the same samples."""
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
         raise KdrayError(f"the sample count must be an integer >= 1, got {count!r}")
     if isinstance(uniform, bool) or not isinstance(uniform, (int, float, np.integer, np.floating)):
@@ -131,7 +138,14 @@ def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="windi
     if not 0.0 <= uniform <= 1.0:
         raise KdrayError(f"uniform must be a fraction from 0 to 1, got {uniform!r}")
     _points._check_sign(sign)
+    padding = _check_padding(padding)
     lo, hi = tracer.tree.world_box()
+    with np.errstate(over="ignore"):
+        reach = padding * float((hi - lo).max())
+        box_lo, box_hi = lo - reach, hi + reach
+    if not (np.all(np.abs(box_lo) <= FLOAT32_MAX) and np.all(np.abs(box_hi) <= FLOAT32_MAX)):
+        raise KdrayError(f"padding {padding!r} makes a box beyond float32's range (the "
+                         f"distances are float32)")
     if sigma is None:
         sigma = float(np.linalg.norm(hi - lo)) / 200.0
     if isinstance(sigma, bool) or not isinstance(sigma, (int, float, np.integer, np.floating)):
@@ -159,8 +173,7 @@ def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="windi
     t = tris[which]
     surface = t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0])
     surface += rng.normal(scale=sigma, size=surface.shape)
-    origin, spacing = grid_frame(tracer, 2, padding)
-    box = origin + spacing * rng.random((n_uniform, 3))
+    box = box_lo + (box_hi - box_lo) * rng.random((n_uniform, 3))
     p = np.concatenate([surface, box])
     if sign == "parity":
         _points._warn_open(tracer)

@@ -532,6 +532,50 @@ def test_sdf_command(tmp_path, capsys):
 
 
 
+def test_sdf_command_checks_the_grids_memory_before_any_work(tmp_path, capsys, monkeypatch):
+    """The memory a grid needs is said for its own values: 4 bytes a point for
+    distances, 1 for occupancy (the audit's case: 65 GiB said for a float32 grid)."""
+    monkeypatch.setattr("kdray.host.available_memory", lambda: 20 * 2**30)
+    v, f = icosphere(0)
+    mesh = tmp_path / "ball.obj"
+    mesh.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    out = tmp_path / "grid.npz"
+    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--resolution", 3000)
+    assert code == 1 and "3000^3 grid needs about 101" in err and "Traceback" not in err
+    code, _, err = run(capsys, "sdf", mesh, "-o", out, "--resolution", 3000, "--occupancy")
+    assert code == 1 and "3000^3 grid needs about 25" in err and not out.exists()
+
+
+def test_samples_uniform_in_the_padded_box_not_the_cube(tracers):
+    """sdf_samples' uniform points lie in the scene's box widened by padding times its
+    largest side on each axis (a 4 x 1 x 0 rectangle: not the grid's 4.8-wide cube),
+    and fill it; round(count * uniform) of them, after the surface's."""
+    v = np.array([[0, 0, 0], [4, 0, 0], [4, 1, 0], [0, 1, 0]], dtype=np.float64)
+    tracer = tracers(build(v, np.array([[0, 1, 2], [0, 2, 3]])))
+    p, _ = sdf_samples(tracer, 4000, sigma=0.0, uniform=0.5, padding=0.1, seed=1)
+    box = p[2000:]
+    assert (p[:2000, 2] == 0).all()                    # the surface's, sigma 0
+    lo, hi = np.array([-0.4, -0.4, -0.4]), np.array([4.4, 1.4, 0.4])
+    assert (box >= lo).all() and (box <= hi).all()
+    assert (box.min(axis=0) < lo + 0.05).all() and (box.max(axis=0) > hi - 0.05).all()
+    assert len(sdf_samples(tracer, 5, uniform=0.5, seed=1)[0]) == 5
+
+
+def test_flat_scene_queries_warn_of_nothing(tracers):
+    """A scene whose box is flat on an axis: the points' Morton grid (4096 points or
+    more) has no overflow to warn of, and the answers are right."""
+    v = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]], dtype=np.float64)
+    tracer = tracers(build(v, np.array([[0, 1, 2], [0, 2, 3]])))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        grid = sdf_grid(tracer, 16, 0.1)
+    x = grid.origin[:, None] + grid.spacing * np.arange(16)
+    q = np.stack(np.meshgrid(*x, indexing="ij"), axis=-1)
+    want = np.linalg.norm(q - np.clip(q, [0, 0, 0], [10, 10, 0]), axis=-1)
+    assert np.allclose(np.abs(grid.values), want, rtol=1e-6, atol=1e-6)
+
+
 def test_sdf_progress_only_on_a_terminal(tmp_path, capsys, monkeypatch):
     """`kdray sdf` shows a large grid's progress as the other steps' (Steps.live: on a
     terminal, without -q; docs/interface.md), not on a file or pipe, with or without
