@@ -543,8 +543,8 @@ def _colmap_image_records(text, path):
 
 
 def _colmap_cameras(text, path):
-    """CAMERA_ID -> (line number, MODEL, WIDTH, HEIGHT, PARAMS), as text: a camera is
-    checked when an image uses it."""
+    """CAMERA_ID (_colmap_id) -> (line number, MODEL, WIDTH, HEIGHT, PARAMS), as text: a
+    camera is checked when an image uses it."""
     cameras = {}
     for line_no, line in enumerate(text.split("\n"), 1):
         fields = line.split()
@@ -553,12 +553,21 @@ def _colmap_cameras(text, path):
         if len(fields) < 4:
             raise CameraError(f"camera file {path}: line {line_no}: expected CAMERA_ID MODEL "
                               f"WIDTH HEIGHT PARAMS..., found {len(fields)} values.")
-        camera_id = fields[0]
+        camera_id = _colmap_id(fields[0])
         if camera_id in cameras:
-            raise CameraError(f"camera file {path}: line {line_no}: camera {camera_id} is "
+            raise CameraError(f"camera file {path}: line {line_no}: camera {fields[0]} is "
                               f"already on line {cameras[camera_id][0]}.")
         cameras[camera_id] = (line_no, *fields[1:4], fields[4:])
     return cameras
+
+
+def _colmap_id(text):
+    """A CAMERA_ID as COLMAP reads it, an integer (so "01" is camera 1), or where it is
+    not one its text."""
+    try:
+        return int(text)
+    except ValueError:
+        return text
 
 
 def _colmap_view(fields, cameras, path, line_no, cameras_path):
@@ -566,9 +575,9 @@ def _colmap_view(fields, cameras, path, line_no, cameras_path):
     name = PurePosixPath(raw_name.replace("\\", "/")).stem
     _check_name(name, path, f"line {line_no} (NAME {_show(raw_name)})")
     label = f"line {line_no}: image {name}"
-    if camera_id not in cameras:
+    if _colmap_id(camera_id) not in cameras:
         raise _fail(path, label, f"camera {camera_id} is not in {cameras_path}.")
-    cam_line, model, width, height, params = cameras[camera_id]
+    cam_line, model, width, height, params = cameras[_colmap_id(camera_id)]
     camera = f"camera {camera_id} ({cameras_path.name} line {cam_line})"
     if model not in _COLMAP_MODELS:
         raise _fail(path, label, f"camera model {model} of {camera} {_NOT_SUPPORTED}.")

@@ -454,6 +454,17 @@ def test_colmap_one_line_per_image_is_refused(tmp_path):
     assert [v.name for v in views] == ["last"]
 
 
+def test_colmap_camera_ids_are_integers(tmp_path):
+    """COLMAP reads CAMERA_ID as an integer: an image's 07 is camera 7, and 7 and 07 in
+    cameras.txt are one camera twice."""
+    cameras = "7 SIMPLE_PINHOLE 4 2 2 2 1\n"
+    views = read_cameras(colmap(tmp_path, cameras, f"{image_line('b.jpg', '07')}\n\n"))
+    np.testing.assert_array_equal(views[0].camera.K, [[2, 0, 2], [0, 2, 1], [0, 0, 1]])
+    twice = colmap(tmp_path, cameras + "07 PINHOLE 4 2 2 2 2 1\n",
+                   f"{image_line('b.jpg', 7)}\n\n", "twice")
+    assert error(twice).endswith("line 2: camera 07 is already on line 1.")
+
+
 def test_colmap_duplicates_and_missing_files(tmp_path):
     images = f"{image_line('cam0/0001.png')}\n\n{image_line('cam1/0001.jpg', image_id=2)}\n\n"
     message = error(colmap(tmp_path, CAMERAS_TXT, images))
