@@ -7,6 +7,7 @@
     hits = tracer.trace(origins, directions)        # t, prim, u, v, normal
     tracer.occluded(origins, directions)            # any hit; also count, contains,
     tracer.intersections(origins, directions)       # every hit (kdray.rays)
+    origins = kdray.offset_origins(tree, points, prim, directions)   # rays leaving a surface
     camera = kdray.Camera.look_at(eye, target)
     images = tracer.render(camera, aovs=("depth", "id"))
     scan = tracer.scan(kdray.Lidar.from_json("lidar.json"), sensor_to_world)  # range image
@@ -31,12 +32,13 @@ from .load import load
 from .mesh import Mesh
 from .rays import Intersections
 from .points import ClosestPoints
+from .spawn import offset_origins
 from .hits import Hits
 from .trace import Tracer
 from .tree import BuildParams, KdTree
 
 __version__ = "0.1.0"
 
-__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Intersections", "ClosestPoints", "Camera", "Lidar",
+__all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Intersections", "ClosestPoints", "offset_origins", "Camera", "Lidar",
            "KdrayError", "MeshError", "TreeError", "TreeFileError", "DeviceError",
            "KernelBuildError", "CameraError", "OutputError", "ParameterError"]
