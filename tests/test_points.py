@@ -504,11 +504,16 @@ def test_grids_and_samples(tracers):
     assert np.array_equal(flat[0], sdf_samples(tracer, 100, sigma=0.0, uniform=0.0, seed=3)[0])
 
 
+def write_obj(path, v, f):
+    """path, written as an OBJ of vertices v (n, 3) and faces f (m, 3) (0-based)."""
+    path.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    return path
+
+
 def test_sdf_command(tmp_path, capsys):
     v, f = icosphere(1)
-    mesh = tmp_path / "ball.obj"
-    mesh.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v)
-                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    mesh = write_obj(tmp_path / "ball.obj", v, f)
     out = tmp_path / "grid.npz"
     code, stdout, _ = run(capsys, "sdf", mesh, "-o", out, "--resolution", 9)
     assert code == 0 and "9^3 grid" in stdout
@@ -537,9 +542,7 @@ def test_sdf_command_checks_the_grids_memory_before_any_work(tmp_path, capsys, m
     distances, 1 for occupancy (the audit's case: 65 GiB said for a float32 grid)."""
     monkeypatch.setattr("kdray.host.available_memory", lambda: 20 * 2**30)
     v, f = icosphere(0)
-    mesh = tmp_path / "ball.obj"
-    mesh.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v)
-                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    mesh = write_obj(tmp_path / "ball.obj", v, f)
     out = tmp_path / "grid.npz"
     code, _, err = run(capsys, "sdf", mesh, "-o", out, "--resolution", 3000)
     assert code == 1 and "3000^3 grid needs about 101" in err and "Traceback" not in err
@@ -582,9 +585,7 @@ def test_sdf_progress_only_on_a_terminal(tmp_path, capsys, monkeypatch):
     -q: it printed it whatever stderr was."""
     from kdray import cli
     v, f = icosphere(1)
-    mesh = tmp_path / "ball.obj"
-    mesh.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in v)
-                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    mesh = write_obj(tmp_path / "ball.obj", v, f)
     out = tmp_path / "grid.npz"
     # 162^3 points, past SDF_PROGRESS_POINTS; capsys's stderr is no terminal
     code, _, err = run(capsys, "sdf", mesh, "-o", out, "--resolution", 162, "--occupancy")
