@@ -4,6 +4,7 @@ Errors: library code raises KdrayError subclasses; here they become one line on
 stderr and exit code 1 (click's usage errors exit 2). `--debug` shows tracebacks.
 """
 import contextlib
+import io
 import logging
 import os
 import sys
@@ -549,9 +550,12 @@ def _read_rays(path):
     file of RAY_ARRAYS, or an (N, 6) .npy or text file (origin x y z, direction x y z a
     row, as Open3D's rays). KdrayError for anything else; the shapes are checked here,
     the values (finite, nonzero directions, ranges) by the queries."""
+    from .validate import is_pipe, read_pipe
     if str(path).endswith(".npz"):
         try:
-            with np.load(path, allow_pickle=False) as f:
+            # a zip is read by seeking: a pipe's bytes are read first
+            source = io.BytesIO(read_pipe(path)) if is_pipe(path) else path
+            with np.load(source, allow_pickle=False) as f:
                 arrays = {k: np.asarray(f[k]) for k in f.files}
         except FileNotFoundError:
             raise KdrayError(f"rays file {path} does not exist") from None
@@ -708,6 +712,19 @@ def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tre
     click.echo(f"wrote {output} ({n:,} rays, {summary})")
 
 
+def _warn_parity(scene, tree, sign):
+    """With sign "parity", one log line when SCENE's tree has open edges (the point
+    queries' OpenMeshWarning, which the commands then ignore, as a log line)."""
+    from .points import open_edges
+    if sign != "parity":
+        return
+    edges = open_edges(tree)
+    if edges:
+        log.warning("%s has %d open edges: --sign parity is undefined where a point's "
+                    "ray leaves through a hole (--sign winding is meant for such meshes)",
+                    scene, edges)
+
+
 POINT_QUERIES = ("closest", "distance", "signed", "winding", "occupancy")
 """`kdray points`' queries: Tracer.closest_points, distance, signed_distance,
 winding_number and occupancy."""
@@ -742,6 +759,7 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
            **kw):
     """The point queries at the points of a file: nearest surface points, distances,
     signed distances, winding numbers or occupancy (docs/interface.md, "kdray points")."""
+    from .points import OpenMeshWarning
     params = _build_kwargs(kw)
     check_output(output, inputs=(scene, tree_file, points_file), what="-o")
     measures = query in ("closest", "distance", "signed")
@@ -754,7 +772,9 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
     at = _read_points(points_file)
     n = len(at)
     step, tracer = _scene_tracer(scene, tree_file, params, device, double=precision == "double")
-    with step(f"{query} of {n:,} points"):
+    _warn_parity(scene, tracer.tree, sign if query in ("signed", "occupancy") else None)
+    with step(f"{query} of {n:,} points"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", OpenMeshWarning)     # _warn_parity's
         if query == "closest":
             c = tracer.closest_points(at, precision=precision, **limit)
             arrays = {"point": c.point, "distance": c.distance, "prim": c.prim, "u": c.u,
@@ -813,7 +833,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
     """Signed distances of SCENE (negative inside) on a grid, or at points sampled near
     its surface (docs/conventions.md, "Point queries")."""
     from . import sdf as _sdf
-    from .points import OpenMeshWarning, open_edges
+    from .points import OpenMeshWarning
     from .trace import Tracer
     params = _build_kwargs(kw)
     check_output(output, inputs=(scene, tree_file), what="-o")
@@ -828,16 +848,11 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
                                f"grid; it cannot be combined with --samples")
     step = Steps()
     tree = _scene_tree(step, scene, tree_file, params)
-    if sign == "parity":
-        edges = open_edges(tree)
-        if edges:
-            log.warning("%s has %d open edges: --sign parity is undefined where a point's "
-                        "ray leaves through a hole (--sign winding is meant for such meshes)",
-                        scene, edges)
+    _warn_parity(scene, tree, sign)
     with step("setting up the device"):
         tracer = Tracer(tree, device=device)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", OpenMeshWarning)     # said once above
+        warnings.simplefilter("ignore", OpenMeshWarning)     # _warn_parity's
         if samples is None:
             what = "occupancy" if occupancy else "signed distances"
             total = resolution ** 3

@@ -10,6 +10,7 @@ the dataset runs: what it refuses is refused before anything is read or computed
 """
 import os
 import secrets
+import stat
 from pathlib import Path
 
 from .errors import OutputError
@@ -56,7 +57,8 @@ def same_file(a, b):
 def check_output(path, inputs=(), others=(), what="output"):
     """OutputError, before any work, for an output file `path` that cannot be written
     whole: a NUL byte, a folder (`.`, `dir/`, an existing folder), a name too long for
-    its temporary file (name_problem), a folder that does not exist or cannot be
+    its temporary file (name_problem), a device, a pipe or a socket (a file renamed
+    over its name would replace it), a folder that does not exist or cannot be
     written, or the same file as one of `inputs` (it would be overwritten) or of
     `others` (other outputs of the same run: one would replace the other). None
     entries of inputs and others are skipped."""
@@ -69,6 +71,14 @@ def check_output(path, inputs=(), others=(), what="output"):
     problem = name_problem(name)
     if problem:
         raise OutputError(f"{what} {text}: {problem}")
+    try:
+        mode = os.stat(text).st_mode
+    except (OSError, ValueError):
+        mode = None
+    if mode is not None and not stat.S_ISREG(mode):
+        # written whole, a file is renamed over the name: it would replace the node
+        raise OutputError(f"{what} {text}: is a device, a pipe or a socket, not a file; "
+                          "kdray writes files whole")
     folder = os.path.dirname(os.path.abspath(text))
     if not os.path.isdir(folder):
         raise OutputError(f"{what} {text}: the folder {folder} does not exist")

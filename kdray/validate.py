@@ -14,6 +14,7 @@ holds) is a one-line error of the caller's class naming the source and the limit
 Floats beyond float64's range (1e999) are read as inf, as NaN and Infinity are: the
 caller's checks then refuse them naming the field ("cx must be finite").
 """
+import io
 import json
 import math
 import numbers
@@ -93,13 +94,45 @@ def parse_json(text, source, error):
 def check_not_device(path, source, error):
     """`error` "<source> is a device, not a file" for a character or block device
     (/dev/zero, /dev/urandom: a read to the end would never end). Files and pipes
-    pass; a path that cannot be looked at passes too (its reader says why)."""
+    (is_pipe) pass; a path that cannot be looked at passes too (its reader says why)."""
     try:
         mode = os.stat(path).st_mode
     except (OSError, ValueError, TypeError):
         return
     if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
         raise error(f"{source} is a device, not a file.")
+
+
+def is_pipe(path):
+    """Whether path is a pipe (a FIFO, or /dev/stdin from one): read as a stream, once,
+    where a file is mapped or sought in."""
+    try:
+        return stat.S_ISFIFO(os.stat(path).st_mode)
+    except (OSError, ValueError, TypeError):
+        return False
+
+
+def read_pipe(path):
+    """The bytes a pipe gives until it ends."""
+    with open(path, "rb") as f:
+        return f.read()
+
+
+def npy_stream(data):
+    """A seekable stream of the .npy bytes `data` whose header was checked against
+    their size first (as np.load's memory map of a file checks it), so that a header
+    that claims 10^12 rows is refused, not allocated: ValueError."""
+    stream = io.BytesIO(data)
+    version = np.lib.format.read_magic(stream)
+    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                   else np.lib.format.read_array_header_2_0)
+    shape, _, dtype = read_header(stream)
+    need = stream.tell() + math.prod(shape) * dtype.itemsize
+    if need > len(data):
+        raise ValueError(f"its header's {shape} {dtype} needs {need:,} bytes, it holds "
+                         f"{len(data):,}")
+    stream.seek(0)
+    return stream
 
 
 def read_text(path, source, error):
@@ -173,7 +206,10 @@ def read_npy(path, source, error):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            mapped = np.load(path, mmap_mode="r", allow_pickle=False)
+            if is_pipe(path):
+                mapped = np.load(npy_stream(read_pipe(path)), allow_pickle=False)
+            else:
+                mapped = np.load(path, mmap_mode="r", allow_pickle=False)
             if not isinstance(mapped, np.ndarray):
                 raise ValueError(f"not one array ({type(mapped).__name__})")
             if mapped.dtype.kind not in "fiu":

@@ -81,3 +81,19 @@ def test_verbose_with_a_tree_file_and_cull_refused_with_it(tmp_path):
     assert "kdray: the tree holds 2 of 3 input triangles" in err
     code, _, err = kdray_cli("render", scene, "--tree", tree, "--cull", "-o", tmp_path / "two.exr")
     assert code == 2 and "--cull" in err
+
+
+def test_points_say_parity_on_open_meshes_once_as_a_log_line(tmp_path):
+    """--sign parity on a mesh with open edges: one `kdray: ` line on stderr (none with
+    -q), not Python's warning naming click's source line; as `kdray sdf` does."""
+    mesh = tmp_path / "tri.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "p.txt").write_text("0.2 0.2 1\n")
+    for query in ("signed", "occupancy"):
+        for quiet in ((), ("-q",)):
+            code, _, err = kdray_cli(*quiet, "points", mesh, "--points", tmp_path / "p.txt",
+                                     "-o", tmp_path / "o.npz", "--query", query, "--sign",
+                                     "parity")
+            assert code == 0 and err.splitlines() == ([] if quiet else [
+                f"kdray: {mesh} has 3 open edges: --sign parity is undefined where a point's "
+                "ray leaves through a hole (--sign winding is meant for such meshes)"])

@@ -7,11 +7,14 @@ kdray.validate (JSON, float32 ranges), kdray.camera (every camera's values and
 sides), kdray.lidar (specs, poses, scan memory), kdray.dataset.Job and read_jobs
 (jobs), kdray.builder.check_params (build parameters).
 """
+import io
 import json
 import os
 import shutil
+import stat
 import subprocess
 import sys
+import threading
 import warnings
 from pathlib import Path
 
@@ -71,6 +74,64 @@ def refused(capsys, folder, *argv, words=()):
         assert w in err, (w, err)
     assert snapshot(folder) == before
     return err
+
+
+# -- pipes --------------------------------------------------------------------------------
+
+def feed(path, data):
+    """A FIFO made at path, which a thread fills with the bytes `data` (a shell's pipe)."""
+    os.mkfifo(path)
+    threading.Thread(target=Path(path).write_bytes, args=(data,), daemon=True).start()
+
+
+def npy_bytes(array):
+    buffer = io.BytesIO()
+    np.save(buffer, array)
+    return buffer.getvalue()
+
+
+def test_npy_and_npz_inputs_are_read_from_pipes(capsys, folder):
+    """A .npy points file and .npy and .npz rays files that are pipes are read as the
+    same files are (docs/interface.md: "files and pipes are read"); a pipe's .npy whose
+    header claims more than it holds is refused, not allocated."""
+    points = np.array([[0.1, 0.5, 0.1], [0.5, 0.5, 0.5], [5.0, 5.0, 5.0]])
+    np.save("p.npy", points)
+    feed("pipe.npy", npy_bytes(points))
+    assert run(capsys, "contains", "c.obj", "--points", "p.npy", "-o", "a.npy")[0] == 0
+    assert run(capsys, "contains", "c.obj", "--points", "pipe.npy", "-o", "b.npy")[0] == 0
+    assert np.array_equal(np.load("a.npy"), np.load("b.npy"))
+    rays = np.concatenate([points, np.tile([[0.0, 0.0, 1.0]], (3, 1))], axis=1)
+    np.save("r.npy", rays)
+    os.remove("pipe.npy")
+    feed("pipe.npy", npy_bytes(rays))
+    np.savez("r.npz", origins=rays[:, :3], directions=rays[:, 3:])
+    buffer = io.BytesIO()
+    np.savez(buffer, origins=rays[:, :3], directions=rays[:, 3:])
+    feed("pipe.npz", buffer.getvalue())
+    for source, out in (("r.npy", "c.npz"), ("pipe.npy", "d.npz"), ("pipe.npz", "e.npz")):
+        assert run(capsys, "cast", "c.obj", "--rays", source, "-o", out)[0] == 0
+    for out in ("d.npz", "e.npz"):
+        with np.load("c.npz") as a, np.load(out) as b:
+            assert all(np.array_equal(a[k], b[k]) for k in a.files)
+    claim = io.BytesIO()
+    np.lib.format.write_array_header_1_0(claim, {"descr": "<f8", "fortran_order": False,
+                                                 "shape": (10 ** 12, 3)})
+    claim = claim.getvalue() + points.tobytes()
+    os.remove("pipe.npy")
+    feed("pipe.npy", claim)
+    refused(capsys, folder, "contains", "c.obj", "--points", "pipe.npy", "-o", "f.npy",
+            words=["cannot be read as a .npy file", "needs"])
+
+
+def test_outputs_that_are_pipes_are_refused(capsys, folder):
+    """-o naming a FIFO (or a device) is refused before any work: kdray writes a file
+    whole and renames it over the name, which would replace the node (as root,
+    /dev/null itself)."""
+    Path("pts.txt").write_text("0.1 0.5 0.1\n")
+    os.mkfifo("o.npy")
+    refused(capsys, folder, "contains", "c.obj", "--points", "pts.txt", "-o", "o.npy",
+            words=["-o o.npy: is a device, a pipe or a socket, not a file"])
+    assert stat.S_ISFIFO(os.stat("o.npy").st_mode)
 
 
 # -- outputs: collisions, folders, names -------------------------------------------------
