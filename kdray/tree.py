@@ -29,6 +29,7 @@ split position and box of the tree is in the same units. `world(x)` converts.
 import dataclasses
 import math
 import os
+import stat
 
 import numpy as np
 
@@ -83,6 +84,17 @@ def auto_K_T(n_tris):
     lo, hi = (math.log2(n) for n in AUTO_K_T_TRIS)
     x = min(max((math.log2(max(n_tris, 1)) - lo) / (hi - lo), 0.0), 1.0)
     return K_T_SMALL + x * (K_T_LARGE - K_T_SMALL)
+
+
+COVERAGE_LEAVES = 64
+"""The leaves a coverage point lies in on average, at most (`validate`'s coverage
+check; KdTree.point_leaves' limit)."""
+
+MAX_COORDINATE = 2.0 ** 28
+"""The largest |coordinate| of a tree's triangles, in units of its scale
+(kdray.builder.prepare.SCALE_FREE): the float32 triangle test's products of three
+coordinates overflow from 2^42.7, so a scene is stored within 2^28 of its origin,
+where its rays may start 2^14 of its size away."""
 
 
 @dataclasses.dataclass(eq=False)
@@ -199,22 +211,36 @@ class KdTree:
 
     @classmethod
     def load(cls, path):
-        """Read a tree file. The header's counts are checked against the file's size
-        before the body is read."""
+        """Read a tree file (or a pipe). The header is read first: a bad magic, an
+        unknown version or a short header is refused from it, and its counts are checked
+        against a file's size before the body is read (a pipe's body is read up to them
+        and one byte more)."""
         from .validate import check_not_device
         path = os.fspath(path)
         check_not_device(path, path, TreeFileError)
         try:
-            size = os.path.getsize(path)
             with open(path, "rb") as f:
                 head = f.read(layout.HEADER_SIZE)
+                need = None
                 if len(head) == layout.HEADER_SIZE and head[:8] == layout.MAGIC:
                     need = layout.header_file_size(head)
-                    if need is not None and size != need:
-                        raise TreeFileError(
-                            f"{path}: {size} bytes, but its counts need {need} "
-                            f"(truncated or corrupt)")
-                data = head + f.read()
+                if need is None:
+                    # refused by the header alone: a short file, a bad magic or version
+                    # (the checksum's room added, so that decode reads them)
+                    room = layout.CHECKSUM_SIZE if len(head) == layout.HEADER_SIZE else 0
+                    cls.from_bytes(head + bytes(room), name=path)
+                    raise TreeFileError(f"{path}: not a kdray tree file")
+                info = os.fstat(f.fileno())
+                if stat.S_ISREG(info.st_mode):
+                    size = info.st_size
+                    body = f.read() if size == need else b""
+                else:
+                    body = f.read(need - len(head) + 1)
+                    size = len(head) + len(body)
+                if size != need:
+                    raise TreeFileError(f"{path}: {size} bytes, but its counts need {need} "
+                                        f"(truncated or corrupt)")
+                data = head + body
         except OSError as e:
             raise TreeFileError(f"{path}: cannot read ({e.strerror or e})") from None
         except ValueError:                      # a NUL byte in the path
@@ -320,9 +346,25 @@ class KdTree:
                 and 1 <= p.max_depth <= layout.MAX_DEPTH_LIMIT):
             raise TreeError("build parameters out of range")
         leaf = layout.is_leaf(t.nodes)
-        ends = layout.leaf_offset(t.nodes[leaf]).astype(np.int64) + layout.n_prims(t.nodes[leaf])
+        counts = layout.n_prims(t.nodes[leaf]).astype(np.int64)
+        starts = layout.leaf_offset(t.nodes[leaf]).astype(np.int64)
+        ends = starts + counts
         if len(ends) and int(ends.max()) > len(t.leaf_tris):
             raise TreeError("a leaf's triangle range runs past leaf_tris")
+        # the leaves' ranges split leaf_tris in node order, as the builder lays them
+        # out: no range shared (a file whose leaves all list one range would make
+        # a device copy a reference, gigabytes from a small file)
+        full = counts > 0
+        if (int(counts.sum()) != len(t.leaf_tris)
+                or np.any(starts[full] != (np.cumsum(counts) - counts)[full])):
+            raise TreeError("the leaves' triangle ranges do not split leaf_tris in node order")
+        if len(t.triangles) == 0 or np.any(
+                np.bincount(t.leaf_tris, minlength=len(t.triangles)) == 0):
+            raise TreeError("a triangle is listed in no leaf (or the tree has none)")
+        if np.abs(t.bounds).max() > MAX_COORDINATE:
+            raise TreeError(f"the scene lies {float(np.abs(t.bounds).max()):.3g} from its origin "
+                            f"in units of its scale; at most {MAX_COORDINATE:.3g} (2^28): "
+                            f"the kernels' products of coordinates would overflow")
         if not np.all(np.isfinite(layout.split(t.nodes[~leaf]))):
             raise TreeError("a split position is not finite")
         depth, _, _ = self._topology()
@@ -376,7 +418,9 @@ class KdTree:
         pts = np.where(flat[:, None, :], tri[:, None, 0, :], pts).reshape(-1, 3)
         pts = np.clip(pts, self.bounds[0], self.bounds[1])
         owner = np.repeat(np.arange(m), weights.shape[1])
-        leaves = point_leaves(self.nodes, pts)
+        # a point lies in one leaf, or a few where split planes meet: a bound far
+        # above any builder's tree, far below the memory of a hostile one's
+        leaves = point_leaves(self.nodes, pts, limit=COVERAGE_LEAVES * len(pts) + 2 ** 20)
         pt_idx, leaf_idx = leaves
         # (leaf node, triangle) pairs that the tree lists
         is_leaf = layout.is_leaf(self.nodes)
@@ -426,10 +470,12 @@ class KdTree:
         }
 
 
-def point_leaves(nodes, points):
+def point_leaves(nodes, points, limit=None):
     """Locate points in the tree; a point on a split plane goes to both sides.
 
     nodes : (n, 2) uint32;  points : (k, 3) float64 relative to the origin.
+    limit : None, or the most (point, node) pairs the walk may hold at once: TreeError
+        beyond it (splits that repeat one plane send a point on it down every path).
     Returns (point_index, leaf_node) : two (j,) int64 arrays, every pair of a point
     and a leaf whose closed box holds it.
     """
@@ -451,6 +497,9 @@ def point_leaves(nodes, points):
         go_above = c >= s
         pi = np.concatenate([pi[go_below], pi[go_above]])
         node = np.concatenate([node[go_below] + 1, above_all[node[go_above]]])
+        if limit is not None and len(pi) + sum(map(len, out_p)) > limit:
+            raise TreeError(f"points on split planes lie in more than {limit:,} leaves in "
+                            f"all ({len(points):,} points): splits repeat a plane")
     return np.concatenate(out_p), np.concatenate(out_n)
 
 

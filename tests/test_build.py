@@ -211,6 +211,20 @@ def test_origin_is_centre_of_the_used_vertices():
     check_tree(tree, v, f)
 
 
+def test_an_origin_or_scale_that_puts_coordinates_beyond_2_28_is_refused():
+    """build's origin and scale place the stored triangles; where they leave one
+    beyond 2^28 in the tree's units the kernels' float32 products overflow (a triangle
+    1e30 across at scale 1 was missed by a ray through it), so build refuses them."""
+    rng = np.random.default_rng(2)
+    v, f = soup(rng, 30)
+    with pytest.raises(MeshError, match="at most 2.68e\\+08 \\(2\\^28\\)"):
+        build(v * 1e30, f, scale=1.0)
+    with pytest.raises(MeshError, match="1e\\+10 from the origin"):
+        build(v, f, origin=np.array([0.0, 0.0, 1e10]))
+    assert build(v * 1e30, f).scale == 2.0 ** 100
+    build(v, f, origin=np.array([0.0, 0.0, 1e8]))       # within 2^28: kept
+
+
 def test_a_vertex_float32_cannot_hold_leaves_out_its_triangles_only():
     """A vertex beyond float32's range (1e39) neither places nor sizes the tree: its
     triangles are left out, as a non-finite vertex's, and the others kept."""

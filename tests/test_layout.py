@@ -103,6 +103,49 @@ def test_other_version_and_magic(tmp_path):
         KdTree.from_bytes(b"PLY\n" + bytes(200))
 
 
+def feed_pipe(path, data, hold):
+    """A FIFO made at path; a thread writes `data` into it, then keeps it open until
+    the event `hold` is set (or 60 s), as a pipe whose writer has not finished."""
+    import os
+    import threading
+
+    os.mkfifo(path)
+
+    def write():
+        with open(path, "wb") as f:
+            f.write(data)
+            f.flush()
+            hold.wait(60)
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    return writer
+
+
+def test_tree_files_from_pipes(tmp_path):
+    """A tree file through a pipe loads as the file does (its size is what its header
+    says, read up to it); a bad version or magic is refused from the header alone,
+    before the rest, which a pipe may never end (nor a huge file be worth reading)."""
+    import threading
+    golden = GOLDEN.read_bytes()
+    done = threading.Event()
+    done.set()                                      # the writers below end at once
+    feed_pipe(tmp_path / "tree.pipe", golden, done)
+    assert KdTree.load(tmp_path / "tree.pipe") == KdTree.load(GOLDEN)
+    for at, value, match in ((8, 4, "version 4"), (0, ord("Q"), "not a kdray tree")):
+        data = bytearray(golden)
+        data[at] = value
+        hold = threading.Event()
+        writer = feed_pipe(tmp_path / f"bad{at}.pipe", bytes(data[:layout.HEADER_SIZE]), hold)
+        with pytest.raises(TreeFileError, match=match):
+            KdTree.load(tmp_path / f"bad{at}.pipe")
+        assert writer.is_alive()                    # refused before the pipe ended
+        hold.set()
+    short = golden[:-1]
+    feed_pipe(tmp_path / "short.pipe", short, done)
+    with pytest.raises(TreeFileError, match=f"{len(short)} bytes, but its counts need"):
+        KdTree.load(tmp_path / "short.pipe")
+
+
 def _resealed(tree_bytes_editor):
     """Bytes of the golden tree after an edit, with a valid checksum (a hostile file)."""
     import hashlib

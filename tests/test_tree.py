@@ -40,6 +40,30 @@ def test_broken_trees_are_caught(name, tree):
         tree.validate()
 
 
+@pytest.mark.parametrize("name, tree", [
+    ("no triangle", broken(nodes=layout.make_leaf([0], [0]), leaf_tris=np.zeros(0, np.uint32),
+                           triangles=np.zeros((0, 3, 3), np.float32),
+                           tri_ids=np.zeros(0, np.uint32), depth=0)),
+    ("a triangle in no leaf", broken(leaf_tris=np.array([0, 0], dtype=np.uint32))),
+    ("leaves share a range", broken(nodes=np.concatenate([
+        two_leaf_tree().nodes[:1], layout.make_leaf([2], [0]), layout.make_leaf([2], [0])]))),
+    ("ranges out of node order", broken(nodes=np.concatenate([
+        two_leaf_tree().nodes[:1], layout.make_leaf([1], [1]), layout.make_leaf([1], [0])]),
+        leaf_tris=np.array([1, 0], dtype=np.uint32))),
+    ("coordinates beyond 2^28", broken(
+        triangles=two_leaf_tree().triangles * np.float32(1e9),
+        bounds=two_leaf_tree().bounds * np.float32(1e9),
+        nodes=two_leaf_tree().nodes)),
+])
+def test_broken_trees_are_caught_without_the_coverage_check(name, tree):
+    """What a hostile tree file held that KdTree.load (validate without the coverage
+    check) passed, and a Tracer then crashed on (no triangle listed: wide.py), or made
+    gigabytes of device copies of (shared ranges), or traced wrong (coordinates whose
+    products overflow float32)."""
+    with pytest.raises(TreeError):
+        tree.validate(coverage_samples=None)
+
+
 def test_stats_of_a_known_tree():
     s = two_leaf_tree().stats()
     assert s["nodes"] == 3 and s["leaves"] == 2 and s["empty_leaves"] == 0
@@ -54,3 +78,41 @@ def test_stats_of_a_known_tree():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert huge.stats()["sah_cost"] == np.inf
+
+
+def comb_tree(depth, m):
+    """A complete tree of `depth` levels whose every split is x = 0, over m triangles
+    lying in that plane, listed in its first and last leaves: a point on the plane
+    lies in every leaf (2^depth of them)."""
+    n = 2 ** (depth + 1) - 1
+    nodes = np.zeros((n, 2), np.uint32)
+    leaves = []
+
+    def make(i, d):
+        if d == depth:
+            leaves.append(i)
+            return i + 1
+        above = make(i + 1, d + 1)
+        nodes[i] = layout.make_interior([0], [0.0], [above])[0]
+        return make(above, d + 1)
+    make(0, 0)
+    for leaf in leaves:
+        count, first = (m, 0) if leaf == leaves[0] else (m, m) if leaf == leaves[-1] else (0, 0)
+        nodes[leaf] = layout.make_leaf([count], [first])[0]
+    tris = np.zeros((m, 3, 3), np.float32)
+    tris[:, :, 1:] = np.random.default_rng(0).random((m, 3, 2))
+    return dataclasses.replace(
+        two_leaf_tree(), nodes=nodes, leaf_tris=np.tile(np.arange(m, dtype=np.uint32), 2),
+        triangles=tris, tri_ids=np.arange(m, dtype=np.uint32), n_input_tris=m,
+        bounds=np.array([[-1, 0, 0], [1, 1, 1]], np.float32), depth=depth,
+        params=dataclasses.replace(two_leaf_tree().params, max_depth=64))
+
+
+def test_coverage_of_splits_that_repeat_a_plane_is_bounded():
+    """validate's coverage check walks its points to every leaf that holds them: a tree
+    whose splits repeat one plane (which no build makes, and a small file can) sends a
+    point on it to every leaf. Past COVERAGE_LEAVES a point on average it is refused,
+    before its pairs take the memory (depth 17 over 5,000 triangles: 7e9 pairs)."""
+    comb_tree(3, 20).validate()                     # 8 leaves a point: within the bound
+    with pytest.raises(TreeError, match="splits repeat a plane"):
+        comb_tree(12, 50).validate()

@@ -27,8 +27,8 @@ import os
 
 import numpy as np
 
-from ..errors import ParameterError
-from ..tree import BuildParams, KdTree
+from ..errors import MeshError, ParameterError
+from ..tree import MAX_COORDINATE, BuildParams, KdTree
 # modules, not their functions, under the modules' names: kdray.builder.prepare is
 # the module (a function of the same name would shadow it)
 from . import prepare, scratch, subdivide
@@ -150,7 +150,9 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         build subtrees; the tree is the same for any number;
     scale : None (1 for scenes 2^-28 .. 2^28 across, else the power of two nearest
         the size: kdray.builder.prepare.scale_for) or a power of two: the unit of the
-        stored triangles (KdTree.scale). Like origin, for a tree over part of a mesh;
+        stored triangles (KdTree.scale). Like origin, for a tree over part of a mesh
+        (MeshError where the two leave a stored coordinate beyond 2^28:
+        kdray.tree.MAX_COORDINATE);
     keep_double : also keep the input's float64 triangles (KdTree.triangles64, 72
         bytes a triangle) for Tracer.trace and render with precision="double".
 
@@ -179,6 +181,11 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
     pool = kept_pool(threads)
     mesh = prepare.prepare(vertices, faces, origin, pool=pool, threads=threads,
                            scale=scale)
+    far = float(np.abs(mesh.bounds).max())
+    if far > MAX_COORDINATE:            # only with an origin or a scale given
+        raise MeshError(f"the triangles lie {far:.3g} from the origin in units of the scale "
+                        f"{mesh.scale:.3g}; at most {MAX_COORDINATE:.3g} (2^28), where "
+                        f"the kernels' products of coordinates stay within float32")
     params = params.resolved(len(mesh.triangles))
     # The events are the builder's two event stacks, with room to grow (about 1.5
     # times the root's events each; `subdivide.split_keys`).
