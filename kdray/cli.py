@@ -384,6 +384,8 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
                   params=check_params(params))
         from .camera_files import read_cameras
         read_cameras(job.cameras)            # a bad camera file: one line, nothing written
+        if not os.path.exists(scene):        # nor a folder made for a scene not there
+            raise KdrayError(f"{scene}: no such file")
         _run_jobs([job], workers, scheduler, device, no_cache, overwrite)
         return
     for clash in ("workers", "scheduler", "no_cache", "overwrite"):

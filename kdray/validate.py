@@ -220,8 +220,8 @@ def read_npy(path, source, error):
     except FileNotFoundError:
         raise error(f"{source} does not exist.") from None
     except Exception as e:          # np.load on hostile bytes: any of a dozen classes
-        raise error(f"{source} cannot be read as a .npy file: "
-                    f"{getattr(e, 'strerror', None) or one_line(e) or type(e).__name__}.") from None
+        why = getattr(e, 'strerror', None) or one_line(e) or type(e).__name__
+        raise error(f"{source} cannot be read as a .npy file: {why.rstrip('.')}.") from None
 
 
 def check_numbers(value, name, error, depth=4):

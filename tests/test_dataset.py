@@ -243,6 +243,15 @@ def test_bad_camera_file_is_one_line_and_writes_nothing(capsys, tmp_path):
         code, _, err = run_cli(capsys, "render", real_mesh("teapot.obj"), "--cameras", cams,
                                *more)
         assert code == 2 and f"--cameras cannot be combined with {name}" in err, more
+    # a scene that is not there: one line, and no folder made for it
+    good = tmp_path / "good.json"
+    good.write_text(json.dumps([{"name": "a", "width": 4, "height": 4,
+                                 "K": [[2, 0, 2], [0, 2, 2], [0, 0, 1]],
+                                 "cam_to_world": np.eye(4).tolist()}]))
+    code, _, err = run_cli(capsys, "render", tmp_path / "nope.obj", "--cameras", good,
+                           "-o", tmp_path / "views")
+    assert code == 1 and err.count("\n") == 1 and "nope.obj: no such file" in err
+    assert not (tmp_path / "views").exists()
 
 
 def test_tree_cache(tmp_path, caplog, monkeypatch):
