@@ -521,7 +521,7 @@ def _read_table(path, what):
     """The numbers of a .npy file, or of a text file (rows of numbers): a 2-D array,
     float64 from text; KdrayError naming `what` for a file that cannot be read."""
     from .validate import check_not_device, read_npy
-    if str(path).endswith(".npy"):
+    if str(path).lower().endswith(".npy"):          # as .NPY too
         return read_npy(path, f"{what} file {path}", KdrayError)
     check_not_device(path, f"{what} file {path}", KdrayError)
     try:
@@ -553,7 +553,7 @@ def _read_rays(path):
     row, as Open3D's rays). KdrayError for anything else; the shapes are checked here,
     the values (finite, nonzero directions, ranges) by the queries."""
     from .validate import is_pipe, read_pipe
-    if str(path).endswith(".npz"):
+    if str(path).lower().endswith(".npz"):
         try:
             # a zip is read by seeking: a pipe's bytes are read first
             source = io.BytesIO(read_pipe(path)) if is_pipe(path) else path

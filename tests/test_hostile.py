@@ -108,9 +108,11 @@ def test_npy_and_npz_inputs_are_read_from_pipes(capsys, folder):
     buffer = io.BytesIO()
     np.savez(buffer, origins=rays[:, :3], directions=rays[:, 3:])
     feed("pipe.npz", buffer.getvalue())
-    for source, out in (("r.npy", "c.npz"), ("pipe.npy", "d.npz"), ("pipe.npz", "e.npz")):
+    Path("R.NPY").write_bytes(npy_bytes(rays))       # the extension in any case
+    for source, out in (("r.npy", "c.npz"), ("pipe.npy", "d.npz"), ("pipe.npz", "e.npz"),
+                        ("R.NPY", "g.npz")):
         assert run(capsys, "cast", "c.obj", "--rays", source, "-o", out)[0] == 0
-    for out in ("d.npz", "e.npz"):
+    for out in ("d.npz", "e.npz", "g.npz"):
         with np.load("c.npz") as a, np.load(out) as b:
             assert all(np.array_equal(a[k], b[k]) for k in a.files)
     claim = io.BytesIO()
