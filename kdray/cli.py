@@ -542,9 +542,11 @@ def _read_points(path):
     return points
 
 
-RAY_ARRAYS = ("origins", "directions", "t_min", "t_max")
+RAY_ARRAYS = ("origins", "directions", "t_min", "t_max", "prim")
 """The arrays of a .npz rays file (`kdray cast`): origins (N, 3) or (3,), directions
-(N, 3), and optionally t_min and t_max, (N,) or one number."""
+(N, 3), and optionally t_min and t_max, (N,) or one number, and prim, (N,) or one
+integer: the input triangle each origin lies on, which its ray leaves (the origins are
+moved off it: kdray.offset_origins)."""
 
 
 def _read_rays(path):
@@ -568,7 +570,7 @@ def _read_rays(path):
         missing = [k for k in RAY_ARRAYS[:2] if k not in arrays]
         if extra or missing:
             raise KdrayError(f"{path}: a rays .npz file holds origins, directions and "
-                             f"optionally t_min and t_max; "
+                             f"optionally t_min, t_max and prim; "
                              + (f"{', '.join(missing)} missing" if missing
                                 else f"{', '.join(extra)} unknown"))
         for k, a in arrays.items():
@@ -582,6 +584,9 @@ def _read_rays(path):
             if k in arrays and arrays[k].shape not in ((), (len(d),)):
                 raise KdrayError(f"{path}: {k} must be one number or ({len(d)},), got "
                                  f"{arrays[k].shape}")
+        if "prim" in arrays and arrays["prim"].dtype.kind not in "iu":
+            raise KdrayError(f"{path}: prim must hold integers (input triangle ids), got "
+                             f"{arrays['prim'].dtype}")
         return arrays
     rays = _read_table(path, "rays")
     if rays.dtype.kind not in "fiu" or rays.ndim != 2 or rays.shape[1] != 6:
@@ -691,6 +696,13 @@ def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tre
         except KdrayError as e:         # the file's values: say which file
             raise KdrayError(f"{rays_file}: {e}") from None
     step, tracer = _scene_tracer(scene, tree_file, params, device, double=precision == "double")
+    if "prim" in rays:                  # rays that leave the triangles their origins lie on
+        from .spawn import offset_origins
+        try:
+            o = offset_origins(tracer.tree, np.broadcast_to(o, d.shape), np.broadcast_to(
+                rays["prim"], (n,)), d)
+        except KdrayError as e:         # the file's values: say which file
+            raise KdrayError(f"{rays_file}: {e}") from None
     with step(f"casting {n:,} rays ({query})"):
         if query == "nearest":
             hits = tracer.trace(o, d, precision=precision, **ranges)

@@ -13,6 +13,7 @@ from kdray import ray_order as kray_order
 from kdray import rays as krays
 from kdray.builder import build
 from kdray.errors import KdrayError
+from kdray.layout import MISS
 from kdray.load import load
 from kdray.points import spatial_order
 from kdray.reference import all_hits
@@ -775,6 +776,42 @@ def test_contains_command(tmp_path, capsys):
         code, _, err = run(capsys, "contains", SCENES / "sphere.obj", *argv)
         assert code == 1 and err.count("\n") == 1 and err.startswith("kdray: error:")
     assert np.load(tmp_path / "p.npy").shape == (3, 3)          # the input is kept
+
+
+def test_cast_command_moves_origins_off_the_triangles_they_leave(tmp_path, capsys):
+    """A rays .npz file's `prim` names the triangle each origin lies on: its ray leaves
+    it (kdray.offset_origins). From float64 points on a closed sphere's triangles,
+    rays leaving along their outward normals hit nothing with it; without it some hit
+    the triangle they start on. A bad prim names the file."""
+    from helpers import run
+    from kdray.spawn import offset_origins
+    mesh = load(SCENES / "sphere.obj")
+    tree = build(mesh.vertices, mesh.faces)
+    tri = mesh.vertices[mesh.faces]
+    rng = np.random.default_rng(8)
+    prim = rng.integers(0, len(tri), 400)
+    w = rng.dirichlet(np.ones(3), len(prim))
+    o = np.einsum("nk,nkc->nc", w, tri[prim])
+    d = np.cross(tri[prim, 1] - tri[prim, 0], tri[prim, 2] - tri[prim, 0])
+    d *= np.sign(np.einsum("ij,ij->i", d, o))[:, None]        # outward: the sphere's centre 0
+    np.savez(tmp_path / "left.npz", origins=o, directions=d, prim=prim)
+    np.savez(tmp_path / "plain.npz", origins=o, directions=d)
+    np.savez(tmp_path / "bad.npz", origins=o, directions=d, prim=prim + len(tri))
+    np.savez(tmp_path / "float.npz", origins=o, directions=d, prim=prim.astype(float))
+    got = {}
+    for name in ("left", "plain"):
+        code, _, err = run(capsys, "cast", SCENES / "sphere.obj", "--rays", tmp_path / f"{name}.npz",
+                           "-o", tmp_path / f"{name}_out.npz", "--query", "nearest")
+        assert code == 0, err
+        with np.load(tmp_path / f"{name}_out.npz") as f:
+            got[name] = f["prim"]
+    assert (got["left"] == MISS).all() and (got["plain"] == prim).sum() > 40
+    want = Tracer(tree).trace(offset_origins(tree, o, prim, d), d)
+    np.testing.assert_array_equal(got["left"], want.prim)
+    for name in ("bad", "float"):
+        code, _, err = run(capsys, "cast", SCENES / "sphere.obj", "--rays", tmp_path / f"{name}.npz",
+                           "-o", tmp_path / "x.npz")
+        assert code == 1 and err.startswith(f"kdray: error: {tmp_path / name}.npz: "), err
 
 
 def test_cast_command(tmp_path, capsys):
