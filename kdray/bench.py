@@ -93,6 +93,8 @@ def parse_setting(name):
         except ValueError:
             raise ParameterError(f"setting {name!r}: {key} must be {'an integer' if kind is int else 'a number'}, "
                                  f"got {value!r}") from None
+        if key == "refine" and val not in (0, 1):
+            raise ParameterError(f"setting {name!r}: refine must be 0 or 1, got {value!r}")
         (build if key in BUILD_KEYS else kernel)[key] = val
     return Setting(name, tuple(sorted(build.items())), tuple(sorted(kernel.items())))
 
@@ -216,7 +218,6 @@ def run(scenes, size=(512, 512), repeat=5, sample=10000, settings=None, device=N
         raise ParameterError(f"--offset must be a finite number, got {offset}")
     width, height = size
     n_rays = width * height
-    rng = np.random.default_rng(seed)
     build(np.eye(3), np.array([[0, 1, 2]]))                       # compile the builder first
     rows = []
     for path in scenes:
@@ -228,6 +229,8 @@ def run(scenes, size=(512, 512), repeat=5, sample=10000, settings=None, device=N
         lo, hi = mesh.bounds
         camera = Camera.frame(lo, hi, width, height)
         o, d = camera.rays()
+        # a scene's sample depends on it and the options only, not on the scenes before
+        rng = np.random.default_rng(seed)
         idx = np.sort(rng.choice(n_rays, size=min(sample, n_rays), replace=False))
         trees = {}
         with step(f"{name}: float64 reference on {len(idx):,} rays"):

@@ -69,6 +69,17 @@ def test_bench_offset_far_from_origin():
     assert rows[0]["disagree"] == 0 and rows[0]["depth_p99"] < 1e-5
 
 
+def test_a_scenes_figures_do_not_depend_on_the_scenes_before_it():
+    """Each scene's rays are sampled from the seed alone: the sphere's row is the same
+    after the cornell box as on its own (it was another sample, depth p99 2x apart)."""
+    keys = ("disagree", "prim_diff", "depth_p99", "depth_max", "normal_p99_deg",
+            "normal_max_deg")
+    kw = dict(size=(48, 32), repeat=1, sample=300, settings="kdray,kdray:refine=0")
+    alone = bench.run([SCENES / "sphere.obj"], **kw)
+    after = bench.run([SCENES / "cornell.obj", SCENES / "sphere.obj"], **kw)[2:]
+    assert [[r[k] for k in keys] for r in alone] == [[r[k] for k in keys] for r in after]
+
+
 def test_bench_without_a_scene_says_what_to_pass(capsys):
     code, out, err = run(capsys, "bench", *SMALL)
     assert code == 2 and out == ""
@@ -82,6 +93,8 @@ def test_bench_without_a_scene_says_what_to_pass(capsys):
     ("kdray:K_T", "'K_T' is not KEY=VALUE"),
     ("kdray:stack=x", "stack must be an integer"),
     ("open3d", "bench/bench_error.py"),
+    ("kdray:refine=2", "refine must be 0 or 1"),
+    ("kdray:refine=-1", "refine must be 0 or 1"),
 ])
 def test_bench_bad_setting_is_one_line(capsys, settings, words):
     code, out, err = run(capsys, "bench", SCENES / "sphere.obj", *SMALL, "--settings", settings)
