@@ -55,7 +55,7 @@ CHUNK = 1 << 18
 stay within some 100 MB however many hits there are."""
 
 
-def hits_double(triangles64, prim, origins, directions, rays=None, origin=None):
+def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, tree=None):
     """(t (N,), uv (N, 2)) float64 of N rays at the triangles the kernels found.
 
     triangles64 : (n_input_tris, 3, 3) float64 world (KdTree.triangles64);
@@ -63,7 +63,11 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None):
     origins, directions : (N, 3) float64, or with `rays` ((N,) int64) rows of them:
     ray i is origins[rays[i]], directions[rays[i]]; with origin ((3,) float64) the
     origins are relative to it, and so are the triangles taken. t is +inf and uv 0 on
-    a miss. Host memory: 24 bytes a ray for the answers, and CHUNK rays' temporaries.
+    a miss. tree : the KdTree the hits are of, or None: where a float64 triangle has
+    no plane the ray meets (its vertices collinear in float64 though not in the
+    tree's float32 copy, which the kernel hit; or the ray in its plane), t, u, v come
+    from that float32 copy's plane, in float64 (else they stay NaN or inf).
+    Host memory: 24 bytes a ray for the answers, and CHUNK rays' temporaries.
     """
     from .layout import MISS
     t = np.full(len(prim), np.inf)
@@ -75,7 +79,22 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None):
         if origin is not None:
             tri = tri - origin
         t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(tri, origins[at], directions[at])
+    bad = np.flatnonzero((prim != MISS) & ~(np.isfinite(t) & np.isfinite(uv).all(axis=1)))
+    if tree is not None and bad.size:
+        at = bad if rays is None else rays[bad]
+        tri = stored_triangles(tree, prim[bad])
+        if origin is not None:
+            tri = tri - origin
+        t[bad], uv[bad, 0], uv[bad, 1] = plane_hits(tri, origins[at], directions[at])
     return t, uv
+
+
+def stored_triangles(tree, ids):
+    """(k, 3, 3) float64 world: the tree's float32 triangles of input ids `ids` ((k,),
+    each one the tree keeps)."""
+    stored = np.full(tree.n_input_tris, -1, dtype=np.int64)
+    stored[np.asarray(tree.tri_ids, dtype=np.int64)] = np.arange(len(tree.tri_ids))
+    return tree.world(np.asarray(tree.triangles, dtype=np.float64)[stored[ids]])
 
 
 def need_double(tree):

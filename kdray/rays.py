@@ -858,7 +858,7 @@ def _double(tracer, hits, origins, directions):
     _check_hits_memory(n * (8 + 24 + 8 + 16 + 28), n, len(hits.offsets) - 1,
                        "in double precision")
     ray = hits.ray
-    t, uv = hits_double(tracer.tree.triangles64, hits.prim, o, d, rays=ray)
+    t, uv = hits_double(tracer.tree.triangles64, hits.prim, o, d, rays=ray, tree=tracer.tree)
     order = np.lexsort((hits.prim, t, ray))
     return Intersections(hits.offsets, t[order], hits.prim[order], uv[order, 0],
                          uv[order, 1], object_table=hits.object_table)

@@ -330,12 +330,13 @@ def double_bytes_per_pixel(aovs):
     return 72 + 24 + 1 + sum(size.get(a, 0) for a in aovs)
 
 
-def double_images(ids, camera, triangles64, aovs):
+def double_images(ids, camera, triangles64, aovs, tree=None):
     """The AOVs of DOUBLE_AOVS in `aovs` in float64, from each pixel's exact float64
     ray (Camera.rays) and the float64 triangle the kernel found (kdray.double).
 
     ids : (H*W,) uint32 input triangle id per pixel, MISS on a miss;
-    triangles64 : (n_input_tris, 3, 3) float64 world (KdTree.triangles64).
+    triangles64 : (n_input_tris, 3, 3) float64 world (KdTree.triangles64); tree: as
+    kdray.double.hits_double takes it (where a float64 triangle has no plane).
     Returns {name: array}: depth, distance (H, W) float64 (+inf on a miss), position
     (H, W, 3) float64 (NaN on a miss), bary (H, W, 2) float64 (0 on a miss).
     """
@@ -343,7 +344,7 @@ def double_images(ids, camera, triangles64, aovs):
     w, h = int(camera.width), int(camera.height)
     o, d = camera.rays()
     hit = ids != MISS
-    t, uv = hits_double(triangles64, ids, o, d)
+    t, uv = hits_double(triangles64, ids, o, d, tree=tree)
     result = {}
     for name in aovs:
         if name == "depth":

@@ -684,7 +684,7 @@ class Tracer:
         """`hits` with t, u, v (float64) recomputed from the float64 triangles."""
         d = np.asarray(directions, dtype=np.float64)
         o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
-        t, uv = hits_double(self.tree.triangles64, hits.prim, o, d)
+        t, uv = hits_double(self.tree.triangles64, hits.prim, o, d, tree=self.tree)
         return Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal,
                     object_table=hits.object_table)
 
@@ -788,8 +788,9 @@ class Tracer:
         fisheye and equirectangular cameras' from a ray map (render.MAP_MODELS: the lens
         inverted once per intrinsics on the host, in float64, then rounded to float32
         like a pinhole's directions), the orthographic camera's from K and the pose;
-        with precision="double" every model but the pinhole is traced from its float64
-        rays (Camera.rays).
+        with precision="double" the opencv, fisheye and equirectangular models are
+        traced from their float64 rays (Camera.rays), and the orthographic's hits are
+        its single render's (t, u, v from its rays relative to the tree's origin).
         """
         check_class(camera, Camera, "camera")
         double = wants_double(precision, self.tree)
@@ -807,7 +808,7 @@ class Tracer:
                               f"a {w}x{h} render of {', '.join(aovs)} in double precision")
             images = self.render(camera, kernel_aovs)
             exact = _render.double_images(images["id"].reshape(-1), camera,
-                                          self.tree.triangles64, aovs)
+                                          self.tree.triangles64, aovs, tree=self.tree)
             return {a: exact[a] if a in exact else images[a] for a in aovs}
         w, h = int(camera.width), int(camera.height)
         if w < 1 or h < 1:
@@ -882,28 +883,30 @@ class Tracer:
         return entry
 
     def _render_model(self, camera, aovs, precision):
-        """`render` of a camera that is not a pinhole (kdray.lens): its float64 rays
-        (Camera.rays) made on the host, traced by `trace` (refined in double against
-        those rays where the device has it), and a `valid` image."""
+        """`render` of a camera that is not a pinhole (kdray.lens) in double precision:
+        its float64 rays (Camera.rays) made on the host, traced by `trace` (an
+        orthographic camera's hits taken from its single render), and a `valid`
+        image."""
         w, h = int(camera.width), int(camera.height)
         check_host_memory(w * h * (_render.host_bytes_per_pixel(aovs) + _render.MODEL_RAY_BYTES),
                           f"a {w}x{h} {camera.model} render of {', '.join(aovs)}")
         o, d, valid = camera._model_rays(valid=True, copy=False)   # one origin: no copy
-        origins = o.reshape(h, w, 3) if camera.model == "orthographic" else camera.eye
-        # an orthographic pixel's origin in world float64 loses its offset's last digits
-        # far from the world's origin (a 1e-4 at 1e12): its t, u, v are taken from the
-        # rays and triangles relative to the tree's origin (below), as the
-        # single-precision render makes them, so the trace finds the triangles only
-        relative = camera.model == "orthographic" and precision == "double"
-        # image-shaped: traced in blocks of pixels, as render_camera traces them
-        hits = self.trace(origins, d.reshape(h, w, 3),
-                          precision="single" if relative else precision,
-                          outputs=("normal",) if relative else TRACE_OUTPUTS)._reshaped((h * w,))
-        if relative:
+        if camera.model == "orthographic":
+            # a pixel's origin in world float64 loses its offset's last digits far from
+            # the world's origin (a 1e-4 at 1e12): the triangles and normals are the
+            # single render's, whose kernel makes the rays relative to the tree's
+            # origin, and t, u, v come from those rays and triangles in float64
+            found = self.render(camera, ("id", "normal"))
+            prim = found["id"].reshape(-1)
             c = self.tree.origin
             o_rel = camera._model_rays(valid=False, origin=c)[0]
-            t, uv = hits_double(self.tree.triangles64, hits.prim, o_rel, d, origin=c)
-            hits = dataclasses.replace(hits, t=t, u=uv[:, 0], v=uv[:, 1])
+            t, uv = hits_double(self.tree.triangles64, prim, o_rel, d, origin=c, tree=self.tree)
+            hits = Hits(t, prim, uv[:, 0], uv[:, 1], found["normal"].reshape(-1, 3),
+                        object_table=self.tree.objects)
+        else:
+            # image-shaped: traced in blocks of pixels, as render_camera traces them
+            hits = self.trace(camera.eye, d.reshape(h, w, 3), precision=precision,
+                              outputs=TRACE_OUTPUTS)._reshaped((h * w,))
         return _render.ray_images(hits, o, d, valid, camera, aovs)
 
     def render_many(self, cameras, aovs=DEFAULT_AOVS, precision="single"):

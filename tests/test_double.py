@@ -167,3 +167,54 @@ def test_cli_precision_double(capsys, tmp_path):
     code, _, err = run(capsys, "render", SCENES / "cornell.obj", "--tree", tmp_path / "t.kdt",
                        "-o", tmp_path / "bad.exr", "--precision", "double")
     assert code == 1 and "is not the mesh of" in err and err.count("\n") == 1
+
+
+def test_orthographic_double_render_far_away_keeps_the_single_renders_hits():
+    """An orthographic camera's pixels far from the world's origin (a sphere 1e-3 across
+    at 1e12): its double render names the triangles of its single render (whose
+    kernel makes the rays relative to the tree), every bary inside its triangle; it
+    had traced the world float64 origins, whose offsets had lost their last digits
+    (505 of 1024 ids differed, bary down to -1.18)."""
+    from kdray.load import load
+    mesh = load(SCENES / "sphere.obj")
+    off = np.array([1e12, -6e11, 4e11])
+    v = mesh.vertices * 1e-3 + off
+    tracer = Tracer(build(v, mesh.faces, keep_double=True))
+    pose = np.eye(4)
+    pose[:3, 3] = off + [0.0, 0.0, -3e-3]
+    K = np.array([[32 / 2.4e-3, 0, 16], [0, 32 / 2.4e-3, 16], [0, 0, 1]])
+    camera = Camera.from_intrinsics(K, pose, 32, 32, model="orthographic")
+    single = tracer.render(camera, aovs="id,depth")
+    double = tracer.render(camera, aovs="id,depth,bary", precision="double")
+    assert np.array_equal(single["id"], double["id"]) and (single["id"] != MISS).sum() > 400
+    hit = double["id"] != MISS
+    u, w = double["bary"][..., 0][hit], double["bary"][..., 1][hit]
+    assert u.min() > -1e-9 and w.min() > -1e-9 and (1 - u - w).min() > -1e-9
+    assert np.allclose(double["depth"][hit], single["depth"][hit], rtol=1e-5)
+
+
+def test_a_triangle_collinear_in_float64_takes_its_float32_copys_plane():
+    """A triangle whose float64 vertices are collinear (no plane) while its float32 copy
+    is not (the tree keeps it, the kernel hits it): the double answers' t, u, v come
+    from the copy's plane in float64, not NaN."""
+    v = np.array([[0.7012481689453125, 0.2739229202270508, 0.022272109985351562],
+                  [1.2408215962350368, 1.8895817659795284, -2.3957808427512646],
+                  [2.3199684508144855, 5.120899457484484, -7.231886748224497],
+                  [5.0, 5.0, 5.0], [6.0, 5.0, 5.0], [5.0, 6.0, 5.0]])
+    assert not np.cross(v[1] - v[0], v[2] - v[0]).any()
+    tree = build(v, np.array([[0, 1, 2], [3, 4, 5]]), keep_double=True)
+    assert 0 in tree.tri_ids
+    stored = tree.world(tree.triangles[list(tree.tri_ids).index(0)].astype(np.float64))
+    n = np.cross(stored[1] - stored[0], stored[2] - stored[0])
+    n /= np.linalg.norm(n)
+    o = np.random.default_rng(1).dirichlet([5, 5, 5], 500) @ stored + 0.5 * n
+    d = np.broadcast_to(-n, o.shape)
+    tracer = Tracer(tree)
+    single = tracer.trace(o, d)
+    double = tracer.trace(o, d, precision="double")
+    hit = double.prim == 0
+    assert hit.sum() > 50 and np.array_equal(single.prim, double.prim)
+    assert np.allclose(double.t[hit], single.t[hit], rtol=1e-6)
+    assert np.isfinite(double.u[hit]).all() and np.isfinite(double.v[hit]).all()
+    listed = tracer.intersections(o, d, precision="double")
+    assert np.isfinite(listed.t).all() and np.isfinite(listed.u).all()
