@@ -9,7 +9,12 @@ computes where on that triangle, from its float64 vertices: t from the triangle'
 plane, u and v as the barycentrics of o + t d in it. The arithmetic is taken relative
 to the triangle's first vertex, so that its error is a few float64 roundings of the
 ray's distance to that vertex (relative to t: about 1e-16 times that distance over t,
-divided by the cosine of the angle of incidence).
+divided by the cosine of the angle of incidence). Where that ratio passes
+CANCELLATION (a triangle much larger than t: a ground plane under a small object),
+t is computed again in double-double arithmetic (Dekker's error-free sums and
+products, about 106 bits: the edges and the origin's offset exact, the plane's
+products carried in two parts), which holds it to a few float64 roundings of the
+exact t up to triangles 2^50 times t.
 """
 import numpy as np
 
@@ -27,6 +32,76 @@ def _cross(a, b):
                      a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
 
 
+CANCELLATION = 8.0
+"""plane_hits' t is computed again in double-double where |n| |v0 - o| over |n . (v0 -
+o)| (the plane's cancellation: the triangle's reach from the hit over t cos) passes
+this: more than 3 of float64's bits lost (below, t's error is at most some 8 times a
+few roundings). Double-double costs about 1.1 us a hit on a Zen 4 core, plain
+float64 0.17 (2^20 random triangles, ad hoc): taken for the hits that need it only."""
+
+_SPLIT = 134217729.0
+"""2^27 + 1: Veltkamp's split of a float64 into two halves of 26 bits (no fma in numpy)."""
+
+
+def _two_sum(a, b):
+    """(s, e): s = fl(a + b) and a + b = s + e exactly (Knuth)."""
+    s = a + b
+    bb = s - a
+    return s, (a - (s - bb)) + (b - bb)
+
+
+def _two_prod(a, b):
+    """(p, e): p = fl(a b) and a b = p + e exactly (Dekker, with Veltkamp's split)."""
+    p = a * b
+    ca, cb = _SPLIT * a, _SPLIT * b
+    ah, bh = ca - (ca - a), cb - (cb - b)
+    al, bl = a - ah, b - bh
+    return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
+
+
+def _dd_add(x, y):
+    """The double-double sum of x and y ((hi, lo) pairs of arrays)."""
+    s, e = _two_sum(x[0], y[0])
+    e = e + (x[1] + y[1])
+    hi = s + e
+    return hi, e - (hi - s)
+
+
+def _dd_mul(x, y):
+    """The double-double product of x and y ((hi, lo) pairs of arrays)."""
+    p, e = _two_prod(x[0], y[0])
+    e = e + (x[0] * y[1] + x[1] * y[0])
+    hi = p + e
+    return hi, e - (hi - p)
+
+
+def _dd_dot(x, y):
+    """The double-double dot product of 3-vectors of (hi, lo) pairs."""
+    return _dd_add(_dd_add(_dd_mul(x[0], y[0]), _dd_mul(x[1], y[1])), _dd_mul(x[2], y[2]))
+
+
+def _t_double_double(tri, o, d):
+    """(k,) float64 t of rays o + t d at the planes of triangles tri ((k, 3, 3)), from
+    double-double arithmetic: the edges v1 - v0, v2 - v0 and the offset v0 - o are
+    exact as pairs (_two_sum), the normal and the dot products carry about 106 bits,
+    and the quotient is corrected once by its remainder."""
+    def minus(a, b):
+        return [_two_sum(a[:, k], -b[:, k]) for k in range(3)]
+    e1, e2, a = minus(tri[:, 1], tri[:, 0]), minus(tri[:, 2], tri[:, 0]), minus(tri[:, 0], o)
+
+    def neg(x):
+        return -x[0], -x[1]
+    n = [_dd_add(_dd_mul(e1[(k + 1) % 3], e2[(k + 2) % 3]),
+                 neg(_dd_mul(e1[(k + 2) % 3], e2[(k + 1) % 3]))) for k in range(3)]
+    zero = np.zeros(len(d))
+    num = _dd_dot(n, a)
+    den = _dd_dot(n, [(d[:, k], zero) for k in range(3)])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        q = num[0] / den[0]
+        rest = _dd_add(num, neg(_dd_mul((q, zero), den)))
+        return q + rest[0] / den[0]
+
+
 def plane_hits(triangles, origins, directions):
     """(t, u, v), (k,) float64 each: where rays o + t d meet the planes of their
     triangles, P = (1 - u - v) v0 + u v1 + v v2.
@@ -42,7 +117,12 @@ def plane_hits(triangles, origins, directions):
     a = tri[:, 0] - o
     n = _cross(e1, e2)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        t = _dot(n, a) / _dot(n, d)
+        ahead = _dot(n, a)
+        t = ahead / _dot(n, d)
+        lost = np.sqrt(_dot(n, n) * _dot(a, a)) > CANCELLATION * np.abs(ahead)
+    if lost.any():
+        t[lost] = _t_double_double(tri[lost], o[lost], d[lost])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         h = t[:, None] * d - a                       # the hit point relative to v0
         nn = _dot(n, n)
         u = _dot(_cross(h, e2), n) / nn
