@@ -172,9 +172,7 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, 
 def stored_triangles(tree, ids):
     """(k, 3, 3) float64 world: the tree's float32 triangles of input ids `ids` ((k,),
     each one the tree keeps)."""
-    stored = np.full(tree.n_input_tris, -1, dtype=np.int64)
-    stored[np.asarray(tree.tri_ids, dtype=np.int64)] = np.arange(len(tree.tri_ids))
-    return tree.world(np.asarray(tree.triangles, dtype=np.float64)[stored[ids]])
+    return tree.world(np.asarray(tree.triangles, dtype=np.float64)[tree.stored_index()[ids]])
 
 
 def need_double(tree):

@@ -59,10 +59,7 @@ def offset_origins(tree, points, prim, directions):
     if np.any(~miss & ((prim < 0) | (prim >= tree.n_input_tris))):
         raise ParameterError(f"prim must name input triangles 0 .. {tree.n_input_tris - 1} "
                              f"(or be MISS)")
-    # each input id's triangle in the tree (-1: dropped)
-    stored = np.full(tree.n_input_tris, -1, dtype=np.int64)
-    stored[np.asarray(tree.tri_ids, dtype=np.int64)] = np.arange(len(tree.tri_ids))
-    k = np.where(miss, -1, stored[np.where(miss, 0, prim)])
+    k = np.where(miss, -1, tree.stored_index()[np.where(miss, 0, prim)])    # -1: dropped
     with np.errstate(invalid="ignore", over="ignore"):
         ok = (k >= 0) & np.isfinite(p).all(axis=1) & np.isfinite(d).all(axis=1) \
             & (d != 0).any(axis=1)

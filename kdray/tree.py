@@ -179,6 +179,13 @@ class KdTree:
                             f"{len(self.tri_ids):,} differ)")
         return dataclasses.replace(self, triangles64=t64)
 
+    def stored_index(self):
+        """(n_input_tris,) int64: the row of `triangles` holding each input triangle,
+        -1 for one the tree left out (degenerate or not finite)."""
+        stored = np.full(self.n_input_tris, -1, dtype=np.int64)
+        stored[np.asarray(self.tri_ids, dtype=np.int64)] = np.arange(len(self.tri_ids))
+        return stored
+
     def world(self, relative):
         """float64 world coordinates of points relative to the tree: origin + scale * x
         (any shape ending in 3)."""
