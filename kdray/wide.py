@@ -79,6 +79,8 @@ def binary_bvh(tree):
     listed = np.zeros(len(tree.triangles), bool)
     listed[np.asarray(tree.leaf_tris, np.intp)] = True
     listed = np.flatnonzero(listed)
+    if len(listed) == 0:        # a hand-made tree (KdTree.validate refuses it): no BVH
+        raise KdrayError("the tree lists no triangle: there is nothing to trace")
     t = np.asarray(tree.triangles, np.float32)[listed]
     boxes = np.concatenate([np.minimum(np.minimum(t[:, 0], t[:, 1]), t[:, 2]),
                             np.maximum(np.maximum(t[:, 0], t[:, 1]), t[:, 2])], axis=1)

@@ -112,6 +112,17 @@ typedef struct {
     KdWideStack *stack;
 } KdWideRay;
 
+/* 1 / d (inv) as the slab test takes it: NaN where d is not 0 but below 2^-128, where
+ * 1 / d overflows to +-inf though a plane's t, (plane + c) / d, is finite (a crossing
+ * far along the ray would be lost: packet.cl's kd_inverse_far); a NaN slab loses every
+ * compare, which only keeps a child. (d = +-0 keeps its +-inf: the ray parallel to
+ * the slab's planes never crosses them.) */
+KD_INLINE
+float kd_wide_inverse(float d, float inv)
+{
+    return (d != 0.0f && kd_abs(inv) == INFINITY) ? NAN : inv;
+}
+
 /* Start ray o + t d over t_min < t < t_max (relative to the tree, finite, d not 0) at
  * the root; reach: the scene box's largest |coordinate|. */
 KD_INLINE
@@ -139,9 +150,9 @@ void kd_wide_start(KdWideRay *r, KdWideStack *stack, float3 o, float3 d, float t
     /* going down an axis: inv < 0 (d = -0 gives -inf) */
     bool down_x = inv.x < 0.0f, down_y = inv.y < 0.0f, down_z = inv.z < 0.0f;
     r->planes = kd_wide_planes((down_x ? 1u : 0u) | (down_y ? 2u : 0u) | (down_z ? 4u : 0u));
-    r->ix = (float8)(inv.x);
-    r->iy = (float8)(inv.y);
-    r->iz = (float8)(inv.z);
+    r->ix = (float8)(kd_wide_inverse(d.x, inv.x));
+    r->iy = (float8)(kd_wide_inverse(d.y, inv.y));
+    r->iz = (float8)(kd_wide_inverse(d.z, inv.z));
     /* the pad: KD_WIDE_PAD of |o| + reach (and a floor for a scene at the origin);
      * the roundings of (pad - o) and of (plane + c) are at most 2^-23 of it */
     float a = kd_max(kd_max(kd_abs(o.x), kd_abs(o.y)), kd_abs(o.z));
@@ -356,9 +367,11 @@ void kd_packet_wide_start(KdPacketWide *p, const KdPacket *r, uint octant, float
     bool down_x = (octant & 1u) != 0u, down_y = (octant & 2u) != 0u,
          down_z = (octant & 4u) != 0u;
     p->planes = kd_wide_planes(octant);
-    p->ix = r->d_inv[0];
-    p->iy = r->d_inv[1];
-    p->iz = r->d_inv[2];
+    /* kd_wide_inverse's NaN, lane by lane */
+    floatP inf = (floatP)(INFINITY), nan = (floatP)(NAN);
+    p->ix = kd_selectP(r->d_inv[0], nan, (r->d[0] != 0.0f) & (kd_absP(r->d_inv[0]) == inf));
+    p->iy = kd_selectP(r->d_inv[1], nan, (r->d[1] != 0.0f) & (kd_absP(r->d_inv[1]) == inf));
+    p->iz = kd_selectP(r->d_inv[2], nan, (r->d[2] != 0.0f) & (kd_absP(r->d_inv[2]) == inf));
     floatP a = kd_maxP(kd_maxP(kd_absP(r->o[0]), kd_absP(r->o[1])), kd_absP(r->o[2]));
     floatP pad = (a + reach) * KD_WIDE_PAD + 0x1p-120f;
     floatP px = down_x ? pad : -pad, py = down_y ? pad : -pad, pz = down_z ? pad : -pad;

@@ -23,6 +23,7 @@ import trees
 from helpers import (SCENES, camera_for, check_hits, force_ray_order, random_rays, soup,
                      split_plane_rays)
 from kdray import layout
+from kdray.layout import MISS
 from kdray.errors import KdrayError
 from kdray.load import load
 from kdray.trace import PACKETS, Tracer, max_local_size, pocl_item_bytes
@@ -255,6 +256,38 @@ def test_subnormal_direction_crosses_a_split_far_away(runtime):
     assert np.all(base.prim >= len(f) // 2) and np.all(base.t == np.float32(z))
     for packet in PACKETS:
         same_hits(Tracer(tree, device=runtime.spec, packet=packet).trace(o, d), base)
+
+
+def test_directions_below_2_128_cross_the_wide_nodes_boxes(runtime):
+    """The same line traced with directions scaled down to components below 2^-128 (1 /
+    d overflows to inf, while a box's planes are crossed at finite t) from beside a
+    wide node's box: the wide nodes' walk, lone rays and packets, finds the k-d walk's
+    hits, occlusions and counts (it had culled the box: every such hit lost)."""
+    if runtime.simulator:
+        pytest.skip("Oclgrind runs the GPU path, one ray a work-item: no wide nodes")
+    from kdray.builder import build
+    rng = np.random.default_rng(0)
+    side = np.array([[-1.0, -1, 0], [-0.9, -1, 0], [-1.0, 1, 0]]) + np.zeros((16, 1, 1))
+    side[:, :, 1] += np.arange(16)[:, None] * 0.01
+    xs = np.linspace(0, 1, 17)
+    strip = np.array([[[xs[i], -1, 0], [xs[i + 1], -1, 0], [xs[i], 1, 0]] for i in range(16)])
+    tri = np.concatenate([side, strip])
+    tree = build(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3))
+    grid = np.stack(np.meshgrid(np.linspace(-0.5, -0.3, 16), np.linspace(-0.9, 0.9, 16)), -1)
+    o = np.concatenate([grid.reshape(-1, 2), np.ones((256, 1))], axis=1)
+    o += rng.normal(size=o.shape) * 1e-3 * [1, 1, 0]
+    for scale in (1.0, 1e-30, 5e-39, 3e-39):
+        d = np.tile([0.8 * scale, 0.0, -1.0 * scale], (256, 1))
+        base_tracer = Tracer(tree, device=runtime.spec, packet=1)
+        base = base_tracer.trace(o, d)
+        assert (base.prim != MISS).sum() > 100
+        for packet in PACKETS:
+            tracer = Tracer(tree, device=runtime.spec, packet=packet)
+            same_hits(tracer.trace(o, d), base)
+            same_hits(tracer.trace(o.reshape(16, 16, 3), d.reshape(16, 16, 3))._reshaped((256,)),
+                      base)
+            assert np.array_equal(tracer.occluded(o, d), base.prim != MISS)
+            assert np.array_equal(tracer.count(o, d), base_tracer.count(o, d))
 
 
 def test_the_scene_box_never_decides_a_hit(runtime):

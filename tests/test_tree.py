@@ -116,3 +116,15 @@ def test_coverage_of_splits_that_repeat_a_plane_is_bounded():
     comb_tree(3, 20).validate()                     # 8 leaves a point: within the bound
     with pytest.raises(TreeError, match="splits repeat a plane"):
         comb_tree(12, 50).validate()
+
+
+def test_wide_nodes_of_a_tree_that_lists_no_triangle_are_refused():
+    """A hand-made tree whose leaves list no triangle (validate refuses it; the
+    constructor does not check): its wide nodes are a KdrayError, not a crash (the
+    BVH builder wrote past an empty queue)."""
+    from kdray.errors import KdrayError
+    from kdray.wide import wide_nodes
+    tree = dataclasses.replace(two_leaf_tree(), nodes=layout.make_leaf([0], [0]),
+                               leaf_tris=np.zeros(0, np.uint32), depth=0)
+    with pytest.raises(KdrayError, match="lists no triangle"):
+        wide_nodes(tree, 16, 0)
