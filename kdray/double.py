@@ -135,7 +135,26 @@ CHUNK = 1 << 18
 stay within some 100 MB however many hits there are."""
 
 
-def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, tree=None):
+ON_PLANE = 2.0 ** -50
+"""A double-precision hit does not count where its ray's origin lies on the hit
+triangle's float64 plane within this share of the origin's distance to its farthest
+vertex (8 float64 roundings: the origin's own rounding, a point sampled on the
+triangle), as the float32 test's t must pass its own rounding error
+(`hits_double(..., on_plane=True)`; kdray.rays.nearest_in_range)."""
+
+
+def _on_plane(tri, o):
+    """(k,) bool: whether each origin o (k, 3) lies on its triangle's (k, 3, 3) plane
+    within ON_PLANE of its reach (a degenerate triangle: False)."""
+    n = _cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    reach = np.abs(tri - o[:, None, :]).max(axis=(1, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        off = np.abs(_dot(n, tri[:, 0] - o)) / np.sqrt(_dot(n, n))
+    return off <= ON_PLANE * reach
+
+
+def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, tree=None,
+                on_plane=False):
     """(t (N,), uv (N, 2)) float64 of N rays at the triangles the kernels found.
 
     triangles64 : (n_input_tris, 3, 3) float64 world (KdTree.triangles64);
@@ -147,11 +166,14 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, 
     no plane the ray meets (its vertices collinear in float64 though not in the
     tree's float32 copy, which the kernel hit; or the ray in its plane), t, u, v come
     from that float32 copy's plane, in float64 (else they stay NaN or inf).
+    on_plane : also return (N,) bool, the hits whose ray's origin lies on the float64
+    triangle's plane (_on_plane, ON_PLANE), from the same gathered triangles.
     Host memory: 24 bytes a ray for the answers, and CHUNK rays' temporaries.
     """
     from .layout import MISS
     t = np.full(len(prim), np.inf)
     uv = np.zeros((len(prim), 2))
+    at_origin = np.zeros(len(prim), dtype=bool)
     for a in range(0, len(prim), CHUNK):
         hit = np.flatnonzero(prim[a:a + CHUNK] != MISS) + a
         at = hit if rays is None else rays[hit]
@@ -159,6 +181,8 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, 
         if origin is not None:
             tri = tri - origin
         t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(tri, origins[at], directions[at])
+        if on_plane:
+            at_origin[hit] = _on_plane(tri, origins[at])
     bad = np.flatnonzero((prim != MISS) & ~(np.isfinite(t) & np.isfinite(uv).all(axis=1)))
     if tree is not None and bad.size:
         at = bad if rays is None else rays[bad]
@@ -166,7 +190,7 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, 
         if origin is not None:
             tri = tri - origin
         t[bad], uv[bad, 0], uv[bad, 1] = plane_hits(tri, origins[at], directions[at])
-    return t, uv
+    return (t, uv, at_origin) if on_plane else (t, uv)
 
 
 def stored_triangles(tree, ids):

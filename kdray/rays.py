@@ -794,9 +794,112 @@ def intersections(tracer, origins, directions, t_min=0.0, t_max=np.inf, max_hits
                               for a in range(0, rays.n, GUESS_CHUNK)])
     hits.t *= np.float32(tracer._scale)      # a power of two: exact
     if double:
-        hits = _double(tracer, hits, origins, directions)
+        hits, at_origin = _double(tracer, hits, origins, directions)
+        hits = _in_range(tracer, hits, at_origin, origins, directions, t_min, t_max, max_hits)
     hits.shape = None if len(rays.shape) == 1 else rays.shape
     return hits
+
+
+def _flat_t(t, n):
+    """(n,) float64 view of a t range's end: a number, or an array of the rays' shape."""
+    t = np.asarray(t, dtype=np.float64)
+    return np.broadcast_to(t.reshape(-1) if t.ndim else t, (n,))
+
+
+def _flat_rays(origins, directions):
+    """(o, d): (N, 3) float64 each (o broadcast from one origin)."""
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    return np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape), d
+
+
+def _counted64(t, at_origin, lo, hi):
+    """(h,) bool: whether each double-precision hit counts: lo < t < hi (float64 t)
+    and its ray's origin not on its float64 plane (kdray.double.ON_PLANE: a ray from a
+    point on its triangle meets that plane at about t = 0, on either side)."""
+    return (t > lo) & (t < hi) & ~at_origin
+
+
+def _in_range(tracer, hits, at_origin, origins, directions, t_min, t_max, max_hits):
+    """Double-precision `hits` (Intersections sorted by float64 t; at_origin, _double's)
+    less those that do not count (_counted64): the float32 test found them in (t_min,
+    t_max), but
+    the float64 triangle, within float32 rounding of the tree's, puts them outside or
+    at the origin (a ray from a point on its triangle). A ray whose list was cut at
+    max_hits and lost hits so is listed again with room for as many more (and they
+    dropped alike), so that it keeps its max_hits nearest that count."""
+    o, d = _flat_rays(origins, directions)
+    n = len(d)
+    lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
+    ray = hits.ray
+    keep = _counted64(hits.t, at_origin, lo[ray], hi[ray])
+    if keep.all():
+        return hits
+    lost = np.bincount(ray[~keep], minlength=n)
+    parts = [(ray[keep], hits.t[keep], hits.prim[keep], hits.u[keep], hits.v[keep])]
+    # rays cut at max_hits that lost hits (none can have more hits than the tree has
+    # triangles: intersections' bound)
+    again = np.zeros(0, np.int64)
+    if max_hits is not None and max_hits < len(tracer.tree.triangles):
+        again = np.flatnonzero((np.diff(hits.offsets) == max_hits) & (lost > 0))
+    if again.size:
+        more = intersections(tracer, o[again], d[again], lo[again], hi[again],
+                             max_hits + int(lost[again].max()), "double")
+        take = np.arange(len(more.t)) - more.offsets[more.ray] < max_hits
+        old = ~np.isin(parts[0][0], again)
+        parts = [tuple(a[old] for a in parts[0]),
+                 (again[more.ray[take]], more.t[take], more.prim[take], more.u[take],
+                  more.v[take])]
+    ray, t, prim, u, v = (np.concatenate(c) for c in zip(*parts))
+    order = np.argsort(ray, kind="stable")             # each ray's hits stay in t order
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(ray, minlength=n))])
+    return Intersections(offsets, t[order], prim[order], u[order], v[order],
+                         object_table=hits.object_table)
+
+
+def _kernel_normal(tri):
+    """(k, 3) float32 unit normals of float32 triangles (k, 3, 3) as the kernels make
+    them (ops.h: kd_normalize(kd_cross(p1 - p0, p2 - p0)), each operation in float32
+    in the same order)."""
+    a, b = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    c = np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                  a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+    c = c / np.abs(c).max(axis=1, keepdims=True)
+    return c / np.sqrt((c[:, :1] * c[:, :1] + c[:, 1:2] * c[:, 1:2]) + c[:, 2:] * c[:, 2:])
+
+
+def nearest_in_range(tracer, hits, at_origin, origins, directions, t_min, t_max):
+    """Tracer.trace's double-precision `hits` (Hits, float64 t, u, v; at_origin (N,)
+    bool, hits_double's) with each hit that does not count (_counted64) replaced by the
+    ray's nearest that does (its
+    list's first, `intersections`), or a miss; that hit's normal is its triangle's,
+    computed on the host as the kernel computes it."""
+    from .layout import MISS
+    n = len(hits.t)
+    lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
+    o, d = _flat_rays(origins, directions)
+    out = np.flatnonzero((hits.prim != MISS) & ~_counted64(hits.t, at_origin, lo, hi))
+    if out.size == 0:
+        return hits
+    listed = intersections(tracer, o[out], d[out], lo[out], hi[out], 1, "double")
+    found = np.diff(listed.offsets) > 0
+    rows, first = out[found], listed.offsets[:-1][found]
+    t, prim = hits.t.copy(), hits.prim.copy()
+    t[out], prim[out] = np.inf, MISS
+    t[rows], prim[rows] = listed.t[first], listed.prim[first]
+    answers = {"t": t, "prim": prim}
+    for name, value in (("u", listed.u), ("v", listed.v)):
+        if getattr(hits, name) is not None:
+            a = getattr(hits, name).copy()
+            a[out] = 0.0
+            a[rows] = value[first]
+            answers[name] = a
+    if hits.normal is not None:
+        normal = hits.normal.copy()
+        normal[out] = 0.0
+        tri = tracer.tree.triangles[tracer.tree.stored_index()[listed.prim[first]]]
+        normal[rows] = _kernel_normal(tri)
+        answers["normal"] = normal
+    return dataclasses.replace(hits, **answers)
 
 
 def _listed(tracer, rays, max_hits):
@@ -848,8 +951,9 @@ def _concatenated(parts):
 
 
 def _double(tracer, hits, origins, directions):
-    """hits with t, u, v in float64 (kdray.double.hits_double) and sorted again by (t,
-    input id) within each ray."""
+    """(hits with t, u, v in float64 (kdray.double.hits_double) and sorted again by (t,
+    input id) within each ray, (H,) bool in that order: the hits whose ray's origin
+    lies on their float64 plane)."""
     from .double import hits_double
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
@@ -858,7 +962,8 @@ def _double(tracer, hits, origins, directions):
     _check_hits_memory(n * (8 + 24 + 8 + 16 + 28), n, len(hits.offsets) - 1,
                        "in double precision")
     ray = hits.ray
-    t, uv = hits_double(tracer.tree.triangles64, hits.prim, o, d, rays=ray, tree=tracer.tree)
+    t, uv, at_origin = hits_double(tracer.tree.triangles64, hits.prim, o, d, rays=ray,
+                                   tree=tracer.tree, on_plane=True)
     order = np.lexsort((hits.prim, t, ray))
     return Intersections(hits.offsets, t[order], hits.prim[order], uv[order, 0],
-                         uv[order, 1], object_table=hits.object_table)
+                         uv[order, 1], object_table=hits.object_table), at_origin[order]

@@ -609,7 +609,9 @@ class Tracer:
         t_min, t_max = _rays.check_t(t_min, "t_min", shape), _rays.check_t(t_max, "t_max", shape)
         hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
         if double:
-            hits = self._double_hits(hits, origins, directions)
+            hits, at_origin = self._double_hits(hits, origins, directions, on_plane=True)
+            hits = _rays.nearest_in_range(self, hits, at_origin, origins, directions, t_min,
+                                          t_max)
             if "uv" not in outputs:
                 hits = dataclasses.replace(hits, u=None, v=None)
         return hits if len(shape) == 1 else hits._reshaped(shape)
@@ -680,13 +682,17 @@ class Tracer:
         block of 4 x packet / 4 pixels the fewest rows."""
         return self._widths.width(origins, directions, min_rows=self.packet // 4)
 
-    def _double_hits(self, hits, origins, directions):
-        """`hits` with t, u, v (float64) recomputed from the float64 triangles."""
+    def _double_hits(self, hits, origins, directions, on_plane=False):
+        """`hits` with t, u, v (float64) recomputed from the float64 triangles; with
+        on_plane, and (N,) bool: the hits whose ray's origin lies on their float64 plane
+        (kdray.double.hits_double)."""
         d = np.asarray(directions, dtype=np.float64)
         o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
-        t, uv = hits_double(self.tree.triangles64, hits.prim, o, d, tree=self.tree)
-        return Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal,
+        t, uv, *at_origin = hits_double(self.tree.triangles64, hits.prim, o, d,
+                                        tree=self.tree, on_plane=on_plane)
+        hits = Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal,
                     object_table=hits.object_table)
+        return (hits, at_origin[0]) if on_plane else hits
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False,
                outputs=KERNEL_OUTPUTS, image_w=0, while_running=None, any_hit=False):

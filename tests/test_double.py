@@ -255,3 +255,41 @@ def test_t_of_triangles_far_larger_than_t_is_exact_to_a_few_roundings():
         exact = (sum(n[i] * (P[0][i] - O[i]) for i in range(3))
                  / sum(n[i] * D[i] for i in range(3)))
         assert abs(Fraction(t[k]) - exact) <= 4 * np.spacing(float(exact)), k
+
+
+def test_double_hits_at_the_origin_do_not_count():
+    """Rays from float64 points on a mesh's faces (trimesh.sample), given as they are:
+    in double precision a hit whose float64 t is not in (t_min, t_max), or whose origin
+    lies on its float64 plane (within ON_PLANE), does not count, and the ray takes its
+    next hit: the same hits, t and normals as from offset_origins' origins, which need
+    no such rule. Rays from points off the surface keep the single hits."""
+    import trimesh
+    import kdray
+    torus = trimesh.creation.torus(1.0, 0.3, major_sections=24, minor_sections=12)
+    for mesh in (trimesh.creation.icosphere(2), torus):
+        tree = build(mesh.vertices, mesh.faces, keep_double=True)
+        tracer = Tracer(tree)
+        o, face = trimesh.sample.sample_surface(mesh, 800, seed=4)
+        normal = mesh.face_normals[face]
+        rng = np.random.default_rng(4)
+        d = rng.normal(size=o.shape)
+        for dd in (normal, -normal, d, -d):
+            got = tracer.trace(o, dd, precision="double")
+            assert not (got.prim == face).any() and (got.t > 0).all()
+            want = tracer.trace(kdray.offset_origins(tree, o, face, dd), dd)
+            assert np.array_equal(got.prim, want.prim)
+            assert np.array_equal(got.normal, want.normal)
+            hit = got.hit                # t: the float64 plane's, from the rays as given
+            from kdray.double import plane_hits
+            t = plane_hits(tree.triangles64[got.prim[hit]], o[hit], dd[hit])[0]
+            np.testing.assert_array_equal(got.t[hit], t)
+            listed = tracer.intersections(o, dd, precision="double")
+            assert not (listed.prim == face[listed.ray]).any() and (listed.t > 0).all()
+            nearest = tracer.intersections(o, dd, max_hits=1, precision="double")
+            assert np.array_equal(nearest.prim, got.prim[hit])
+            two = tracer.intersections(o, dd, max_hits=2, precision="double")
+            rank = np.arange(len(listed.t)) - listed.offsets[listed.ray]
+            assert np.array_equal(two.prim, listed.prim[rank < 2])
+        inside = o - 0.01 * normal                       # off the surface: no change
+        single = tracer.trace(inside, d)
+        assert np.array_equal(tracer.trace(inside, d, precision="double").prim, single.prim)
