@@ -822,11 +822,10 @@ def _counted64(t, at_origin, lo, hi):
 def _in_range(tracer, hits, at_origin, origins, directions, t_min, t_max, max_hits):
     """Double-precision `hits` (Intersections sorted by float64 t; at_origin, _double's)
     less those that do not count (_counted64): the float32 test found them in (t_min,
-    t_max), but
-    the float64 triangle, within float32 rounding of the tree's, puts them outside or
-    at the origin (a ray from a point on its triangle). A ray whose list was cut at
-    max_hits and lost hits so is listed again with room for as many more (and they
-    dropped alike), so that it keeps its max_hits nearest that count."""
+    t_max), but the float64 triangle, within float32 rounding of the tree's, puts them
+    outside or at the origin (a ray from a point on its triangle). A ray whose list
+    was cut at max_hits and lost hits so is listed again with room for as many more
+    (and they dropped alike), so that it keeps its max_hits nearest that count."""
     o, d = _flat_rays(origins, directions)
     n = len(d)
     lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
@@ -870,9 +869,8 @@ def _kernel_normal(tri):
 def nearest_in_range(tracer, hits, at_origin, origins, directions, t_min, t_max):
     """Tracer.trace's double-precision `hits` (Hits, float64 t, u, v; at_origin (N,)
     bool, hits_double's) with each hit that does not count (_counted64) replaced by the
-    ray's nearest that does (its
-    list's first, `intersections`), or a miss; that hit's normal is its triangle's,
-    computed on the host as the kernel computes it."""
+    ray's nearest that does (its list's first, `intersections`), or a miss; that hit's
+    normal is its triangle's, computed on the host as the kernel computes it."""
     from .layout import MISS
     n = len(hits.t)
     lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
