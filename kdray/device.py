@@ -410,7 +410,7 @@ def _pick(items, key, what, names, aliases=None):
     """One of `items` by index ("1"), by a case-insensitive substring of its name, or by
     one of its `aliases` (equal, case-insensitive)."""
     key = key.strip()
-    if key.isdigit():
+    if key.isascii() and key.isdigit():        # not "²", whose isdigit() int() refuses
         i = int(key)
         if i >= len(items):
             raise DeviceError(f"no OpenCL {what} {i} (there are {len(items)}: "

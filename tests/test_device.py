@@ -413,3 +413,11 @@ def test_kdray_bind_threads_0_sets_no_variable(impl):
     assert words[:4] == ["None", "None", "True", "True"], out
     if impl == "pocl":
         assert words[4] == "False", out
+
+
+def test_device_specs_of_other_digits_are_one_line(capsys):
+    """A --device or PYOPENCL_CTX part that Python's isdigit() takes but int() refuses
+    ("²") is a name that matches nothing: one line, no traceback."""
+    for spec in ("²", "2:²", "١"):
+        with pytest.raises(DeviceError, match="no OpenCL platform matches|no OpenCL device"):
+            kdevice.choose_device(spec)
