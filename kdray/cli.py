@@ -1009,9 +1009,12 @@ def setup(device):
 @click.option("--clear", is_flag=True, help="Remove every cached tree.")
 def cache(clear):
     """Show (or --clear) the tree cache of kdray batch and render --cameras:
-    KDRAY_CACHE_DIR, default ~/.cache/kdray/trees."""
+    KDRAY_CACHE_DIR, else $XDG_CACHE_HOME/kdray/trees, else ~/.cache/kdray/trees."""
     from .cache import TreeCache
     trees = TreeCache()
+    if trees.folder.exists() and not trees.folder.is_dir():
+        raise OutputError(f"the tree cache {trees.folder} is a file, not a folder "
+                          f"(KDRAY_CACHE_DIR names the cache's folder)")
     if clear:
         files, size = trees.clear()
         click.echo(f"removed {files} trees ({size / 2**20:.1f} MiB) from {trees.folder}")

@@ -367,6 +367,13 @@ def test_setup_and_cache_commands(capsys, tmp_path, cache_dir):
     assert code == 0 and f"{cache_dir}: 1 trees" in out
     code, out, _ = run_cli(capsys, "cache", "--clear")
     assert code == 0 and "removed 1 trees" in out
+    # a cache "folder" that is a file: one line, not "0 trees"
+    cache_dir.rename(tmp_path / "gone")
+    cache_dir.write_text("not a folder")
+    for more in ((), ("--clear",)):
+        code, out, err = run_cli(capsys, "cache", *more)
+        assert code == 1 and out == "" and err.count("\n") == 1 and "is a file" in err
+    assert cache_dir.read_text() == "not a folder"
 
 
 # -- Dask --------------------------------------------------------------------------------
