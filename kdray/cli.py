@@ -984,9 +984,12 @@ def setup(device):
     and the camera models' inversions, so that the first render does not wait for
     them."""
     from . import builder, lens
+    from .device import choose_device
     from .trace import Tracer
     from .work_sizes import STACK_SIZES
     step = Steps()
+    if device is not None:
+        choose_device(device)           # a --device that does not work: before the builder
     if builder.compiled():
         click.echo("tree builder: compiled already")
     else:

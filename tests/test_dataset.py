@@ -356,7 +356,14 @@ def test_verbose_logs_a_line_per_view(tmp_path, cache_dir):
     assert code == 0 and err == "" and "3 of 3 views rendered" in out
 
 
-def test_setup_and_cache_commands(capsys, tmp_path, cache_dir):
+def test_setup_and_cache_commands(capsys, tmp_path, cache_dir, monkeypatch):
+    # a --device that is not there: refused before the builder is looked at
+    from kdray import builder
+    compiled = builder.compiled
+    monkeypatch.setattr(builder, "compiled", lambda: pytest.fail("the builder came first"))
+    code, out, err = run_cli(capsys, "setup", "--device", "no-such-platform")
+    assert code == 1 and out == "" and "no-such-platform" in err
+    monkeypatch.setattr(builder, "compiled", compiled)
     code, out, err = run_cli(capsys, "setup")
     assert code == 0, err
     assert "tree builder: compiled" in out and "kernels: compiled for" in out
