@@ -193,6 +193,26 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, 
     return (t, uv, at_origin) if on_plane else (t, uv)
 
 
+def flat_rays64(origins, directions):
+    """(o, d): (N, 3) float64 each of rays given as (..., 3) directions and origins of
+    their shape or one (3,) origin (broadcast: a view)."""
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    return np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape), d
+
+
+def double_hits(tree, hits, origins, directions, on_plane=False):
+    """(Hits, at_origin): `hits` (kdray.Hits of the rays origins, directions) with t, u,
+    v recomputed in float64 from the tree's float64 triangles (hits_double), and with
+    on_plane (N,) bool, the hits whose ray's origin lies on their float64 plane (else
+    None)."""
+    from .hits import Hits
+    o, d = flat_rays64(origins, directions)
+    t, uv, *at_origin = hits_double(tree.triangles64, hits.prim, o, d, tree=tree,
+                                    on_plane=on_plane)
+    return (Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal,
+                 object_table=hits.object_table), at_origin[0] if on_plane else None)
+
+
 def stored_triangles(tree, ids):
     """(k, 3, 3) float64 world: the tree's float32 triangles of input ids `ids` ((k,),
     each one the tree keeps)."""

@@ -32,7 +32,7 @@ import numpy as np
 
 from . import device as _device
 from . import point_order, ray_input
-from .double import wants_double
+from .double import flat_rays64, wants_double
 from .errors import DeviceError, KdrayError
 from .host import check_host_memory, page_aligned_empty, take_rows
 from .points import SORT_FROM, check_points, spatial_order
@@ -806,12 +806,6 @@ def _flat_t(t, n):
     return np.broadcast_to(t.reshape(-1) if t.ndim else t, (n,))
 
 
-def _flat_rays(origins, directions):
-    """(o, d): (N, 3) float64 each (o broadcast from one origin)."""
-    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    return np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape), d
-
-
 def _counted64(t, at_origin, lo, hi):
     """(h,) bool: whether each double-precision hit counts: lo < t < hi (float64 t)
     and its ray's origin not on its float64 plane (kdray.double.ON_PLANE: a ray from a
@@ -826,7 +820,7 @@ def _in_range(tracer, hits, at_origin, origins, directions, t_min, t_max, max_hi
     outside or at the origin (a ray from a point on its triangle). A ray whose list
     was cut at max_hits and lost hits so is listed again with room for as many more
     (and they dropped alike), so that it keeps its max_hits nearest that count."""
-    o, d = _flat_rays(origins, directions)
+    o, d = flat_rays64(origins, directions)
     n = len(d)
     lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
     ray = hits.ray
@@ -874,7 +868,7 @@ def nearest_in_range(tracer, hits, at_origin, origins, directions, t_min, t_max)
     from .layout import MISS
     n = len(hits.t)
     lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
-    o, d = _flat_rays(origins, directions)
+    o, d = flat_rays64(origins, directions)
     out = np.flatnonzero((hits.prim != MISS) & ~_counted64(hits.t, at_origin, lo, hi))
     if out.size == 0:
         return hits
@@ -953,8 +947,7 @@ def _double(tracer, hits, origins, directions):
     input id) within each ray, (H,) bool in that order: the hits whose ray's origin
     lies on their float64 plane)."""
     from .double import hits_double
-    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-    o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
+    o, d = flat_rays64(origins, directions)
     n = len(hits.prim)
     # the rays' index, t and uv, the order and its sort's keys, the four answers
     _check_hits_memory(n * (8 + 24 + 8 + 16 + 28), n, len(hits.offsets) - 1,

@@ -330,6 +330,23 @@ def double_bytes_per_pixel(aovs):
     return 72 + 24 + 1 + sum(size.get(a, 0) for a in aovs)
 
 
+def orthographic_hits(tree, camera, directions, found):
+    """Hits of an orthographic camera's pixels in double precision (Tracer.render):
+    the triangles and normals its single render `found` (images "id" and "normal")
+    names, whose kernel makes the rays relative to the tree's origin (a pixel's world
+    float64 origin far from the world's origin loses its offset's last digits: a 1e-4
+    at 1e12), and t, u, v from those rays relative to it (Camera._model_rays) and the
+    tree's float64 triangles (kdray.double.hits_double). directions : (H*W, 3)."""
+    from .double import hits_double
+    from .hits import Hits
+    prim = found["id"].reshape(-1)
+    c = tree.origin
+    o_rel = camera._model_rays(valid=False, origin=c)[0]
+    t, uv = hits_double(tree.triangles64, prim, o_rel, directions, origin=c, tree=tree)
+    return Hits(t, prim, uv[:, 0], uv[:, 1], found["normal"].reshape(-1, 3),
+                object_table=tree.objects)
+
+
 def double_images(ids, camera, triangles64, aovs, tree=None):
     """The AOVs of DOUBLE_AOVS in `aovs` in float64, from each pixel's exact float64
     ray (Camera.rays) and the float64 triangle the kernel found (kdray.double).

@@ -33,7 +33,7 @@ from . import rays as _rays
 from . import points as _points
 from . import render as _render
 from .camera import Camera
-from .double import hits_double, wants_double
+from .double import double_hits, wants_double
 from .errors import DeviceError, KdrayError
 from .hits import TRACE_OUTPUTS, Hits, kernel_outputs  # noqa: F401 (kdray.trace.*, as before)
 from .host import PAGE, check_host_memory, huge_page_copy, huge_page_empty, page_aligned_empty
@@ -609,7 +609,7 @@ class Tracer:
         t_min, t_max = _rays.check_t(t_min, "t_min", shape), _rays.check_t(t_max, "t_max", shape)
         hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
         if double:
-            hits, at_origin = self._double_hits(hits, origins, directions, on_plane=True)
+            hits, at_origin = double_hits(self.tree, hits, origins, directions, on_plane=True)
             hits = _rays.nearest_in_range(self, hits, at_origin, origins, directions, t_min,
                                           t_max)
             if "uv" not in outputs:
@@ -681,18 +681,6 @@ class Tracer:
         """(width, search) for (N, 3) rays: ray_grid.ImageWidths.width, a packet's
         block of 4 x packet / 4 pixels the fewest rows."""
         return self._widths.width(origins, directions, min_rows=self.packet // 4)
-
-    def _double_hits(self, hits, origins, directions, on_plane=False):
-        """`hits` with t, u, v (float64) recomputed from the float64 triangles; with
-        on_plane, and (N,) bool: the hits whose ray's origin lies on their float64 plane
-        (kdray.double.hits_double)."""
-        d = np.asarray(directions, dtype=np.float64)
-        o = np.broadcast_to(np.asarray(origins, dtype=np.float64).reshape(-1, 3), d.shape)
-        t, uv, *at_origin = hits_double(self.tree.triangles64, hits.prim, o, d,
-                                        tree=self.tree, on_plane=on_plane)
-        hits = Hits(t=t, prim=hits.prim, u=uv[:, 0], v=uv[:, 1], normal=hits.normal,
-                    object_table=hits.object_table)
-        return (hits, at_origin[0]) if on_plane else hits
 
     def _trace(self, origins, directions, t_min=0.0, t_max=np.inf, stats=False,
                outputs=KERNEL_OUTPUTS, image_w=0, while_running=None, any_hit=False):
@@ -897,18 +885,9 @@ class Tracer:
         check_host_memory(w * h * (_render.host_bytes_per_pixel(aovs) + _render.MODEL_RAY_BYTES),
                           f"a {w}x{h} {camera.model} render of {', '.join(aovs)}")
         o, d, valid = camera._model_rays(valid=True, copy=False)   # one origin: no copy
-        if camera.model == "orthographic":
-            # a pixel's origin in world float64 loses its offset's last digits far from
-            # the world's origin (a 1e-4 at 1e12): the triangles and normals are the
-            # single render's, whose kernel makes the rays relative to the tree's
-            # origin, and t, u, v come from those rays and triangles in float64
-            found = self.render(camera, ("id", "normal"))
-            prim = found["id"].reshape(-1)
-            c = self.tree.origin
-            o_rel = camera._model_rays(valid=False, origin=c)[0]
-            t, uv = hits_double(self.tree.triangles64, prim, o_rel, d, origin=c, tree=self.tree)
-            hits = Hits(t, prim, uv[:, 0], uv[:, 1], found["normal"].reshape(-1, 3),
-                        object_table=self.tree.objects)
+        if camera.model == "orthographic":          # its world origins lose digits
+            hits = _render.orthographic_hits(self.tree, camera, d,
+                                             self.render(camera, ("id", "normal")))
         else:
             # image-shaped: traced in blocks of pixels, as render_camera traces them
             hits = self.trace(camera.eye, d.reshape(h, w, 3), precision=precision,
@@ -965,7 +944,7 @@ class Tracer:
         # beams are an image (rows beams, columns azimuth steps): traced in blocks.
         hits, _ = self._trace(origin, directions, t_max=lidar.max_range * (1 + 2.0**-16),
                               outputs=("T", "ID"), image_w=lidar.shape[1])
-        hits = self._double_hits(hits, origin, directions)
+        hits, _ = double_hits(self.tree, hits, origin, directions)
         return scan_images(lidar, origin, directions, hits.t, hits.prim, self.tree.objects)
 
     def _scan_on_device(self, lidar, pose):
