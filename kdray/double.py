@@ -216,7 +216,7 @@ def double_hits(tree, hits, origins, directions, on_plane=False):
 def stored_triangles(tree, ids):
     """(k, 3, 3) float64 world: the tree's float32 triangles of input ids `ids` ((k,),
     each one the tree keeps)."""
-    return tree.world(np.asarray(tree.triangles, dtype=np.float64)[tree.stored_index()[ids]])
+    return tree.world(np.asarray(tree.triangles)[tree.stored_index()[ids]].astype(np.float64))
 
 
 def need_double(tree):

@@ -67,7 +67,7 @@ def offset_origins(tree, points, prim, directions):
         return p
     rows = np.flatnonzero(ok)
     origin, scale = np.asarray(tree.origin, dtype=np.float64), float(tree.scale)
-    tri = np.asarray(tree.triangles, dtype=np.float64)[k[rows]]          # relative, exact
+    tri = np.asarray(tree.triangles)[k[rows]].astype(np.float64)       # relative, exact
     rel = (p[rows] - origin) / scale
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n /= np.linalg.norm(n, axis=1)[:, None]
