@@ -365,6 +365,57 @@ def scan_images(lidar, origin, directions, t, prim, objects):
             "points": points.reshape(shape + (3,))}
 
 
+
+def scan(tracer, lidar, pose, precision="single"):
+    """Tracer.scan: the range image of `lidar` at `pose` (its docstring) on `tracer`
+    (kdray.Tracer). The render kernel makes the rays from the Lidar's direction map;
+    with precision="double" the float64 rays are traced from the host."""
+    from .double import double_hits, wants_double
+    from .validate import check_class
+    check_class(lidar, Lidar, "lidar")
+    if not wants_double(precision, tracer.tree):
+        return _scan_on_device(tracer, lidar, check_pose(pose))
+    origin, directions = lidar.rays(pose)
+    # a little beyond max_range, so that the kernel's float32 t cannot lose a hit
+    # just inside it; scan_images cuts at max_range with the final t. Only t and
+    # the triangle are computed: a scan has no normal or barycentric image. The
+    # beams are an image (rows beams, columns azimuth steps): traced in blocks.
+    hits, _ = tracer._trace(origin, directions, t_max=lidar.max_range * (1 + 2.0**-16),
+                            outputs=("T", "ID"), image_w=lidar.shape[1])
+    hits, _ = double_hits(tracer.tree, hits, origin, directions)
+    return scan_images(lidar, origin, directions, hits.t, hits.prim, tracer.tree.objects)
+
+
+def _scan_on_device(tracer, lidar, pose):
+    """`scan` with the rays made by render_camera from the Lidar's direction map:
+    rows are beams, columns azimuth steps; only t and the triangle are computed."""
+    from . import render
+    from .errors import KdrayError
+    from .host import page_aligned_empty
+    from .validate import check_float32
+    rows, columns = lidar.shape
+    map32, map_buf, _ = tracer._kept_map(
+        ("lidar", lidar.to_json()),
+        lambda: (np.ascontiguousarray(lidar.directions(), dtype=np.float32), None))
+    M = beam_rotation(pose).astype(np.float32)
+    eye = (pose[:3, 3] - tracer._origin) / tracer._scale
+    # a lidar far from a small scene: the kernel's float32 cannot hold where it is
+    check_float32(eye, "the lidar's position relative to the tree (in its units)", KdrayError)
+    eye = eye.astype(np.float32)
+    camera_buf = tracer._buffer(np.concatenate([M.reshape(9), eye]))
+    n = rows * columns
+    outputs = ("T", "ID")
+    out = {k: page_aligned_empty(shape, dtype)
+           for k, (shape, dtype) in render.output_shapes(n, outputs).items()}
+    tracer._render_rows(camera_buf, map_buf, columns, rows, outputs, out, "map")
+    # the kernel's rays on the host, for the hit points: the map turned by M in
+    # float32 with the kernel's arithmetic, from the eye as the kernel has it
+    d = np.empty((n, 3))
+    for r, component in enumerate(render.turn(M, map32)):
+        d[:, r] = component
+    origin = tracer._origin + tracer._scale * eye.astype(np.float64)
+    return scan_images(lidar, origin, d, out["T"], out["ID"], tracer.tree.objects)
+
 # -- PLY ---------------------------------------------------------------------------------
 
 PLY_FIELDS = (("x", "<f8", "double"), ("y", "<f8", "double"), ("z", "<f8", "double"),

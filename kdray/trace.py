@@ -40,12 +40,12 @@ from .host import PAGE, check_host_memory, huge_page_copy, huge_page_empty, page
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BLOCK,
                      device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
                      triangle_copies)
-from .lidar import Lidar
+from . import lidar as _lidar
 from .ray_grid import ImageWidths
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import KdTree
-from .validate import check_class, check_float32, whole_or_none
+from .validate import check_class, whole_or_none
 from .wide import stack_groups, wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
                          default_stack_size, default_work_sizes, max_local_size,
@@ -932,47 +932,7 @@ class Tracer:
         by the pose; hits are refined in double where the device has it. With
         precision="double" the float64 rays (Lidar.rays) are traced from the host.
         """
-        from .lidar import check_pose, scan_images
-        check_class(lidar, Lidar, "lidar")
-        double = wants_double(precision, self.tree)
-        if not double:
-            return self._scan_on_device(lidar, check_pose(pose))
-        origin, directions = lidar.rays(pose)
-        # a little beyond max_range, so that the kernel's float32 t cannot lose a hit
-        # just inside it; scan_images cuts at max_range with the final t. Only t and
-        # the triangle are computed: a scan has no normal or barycentric image. The
-        # beams are an image (rows beams, columns azimuth steps): traced in blocks.
-        hits, _ = self._trace(origin, directions, t_max=lidar.max_range * (1 + 2.0**-16),
-                              outputs=("T", "ID"), image_w=lidar.shape[1])
-        hits, _ = double_hits(self.tree, hits, origin, directions)
-        return scan_images(lidar, origin, directions, hits.t, hits.prim, self.tree.objects)
-
-    def _scan_on_device(self, lidar, pose):
-        """`scan` with the rays made by render_camera from the Lidar's direction map:
-        rows are beams, columns azimuth steps; only t and the triangle are computed."""
-        from .lidar import beam_rotation, scan_images
-        rows, columns = lidar.shape
-        map32, map_buf, _ = self._kept_map(
-            ("lidar", lidar.to_json()),
-            lambda: (np.ascontiguousarray(lidar.directions(), dtype=np.float32), None))
-        M = beam_rotation(pose).astype(np.float32)
-        eye = (pose[:3, 3] - self._origin) / self._scale
-        # a lidar far from a small scene: the kernel's float32 cannot hold where it is
-        check_float32(eye, "the lidar's position relative to the tree (in its units)", KdrayError)
-        eye = eye.astype(np.float32)
-        camera_buf = self._buffer(np.concatenate([M.reshape(9), eye]))
-        n = rows * columns
-        outputs = ("T", "ID")
-        out = {k: page_aligned_empty(shape, dtype)
-               for k, (shape, dtype) in _render.output_shapes(n, outputs).items()}
-        self._render_rows(camera_buf, map_buf, columns, rows, outputs, out, "map")
-        # the kernel's rays on the host, for the hit points: the map turned by M in
-        # float32 with the kernel's arithmetic, from the eye as the kernel has it
-        d = np.empty((n, 3))
-        for r, component in enumerate(_render.turn(M, map32)):
-            d[:, r] = component
-        origin = self._origin + self._scale * eye.astype(np.float64)
-        return scan_images(lidar, origin, d, out["T"], out["ID"], self.tree.objects)
+        return _lidar.scan(self, lidar, pose, precision)
 
 
 def rays_per_launch(global_mem, max_alloc, tree_bytes, widths, cap=None):
