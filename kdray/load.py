@@ -45,7 +45,7 @@ import numpy as np
 
 from .errors import MeshError, one_line
 from .mesh import Mesh, check_objects
-from .off import read_off
+from .off import Malformed, read_off
 from .ply import read_binary_ply
 
 log = logging.getLogger(__name__)
@@ -79,7 +79,7 @@ def load(path):
         obj = None                  # an OBJ's bytes, read once for both its reads
         try:
             if ext == "obj":
-                obj = _read(path, zipped)
+                obj = _text(_read(path, zipped))
                 obj = _obj_plain(obj) or obj
                 _obj_zero_index(obj)
                 obj = _obj_absolute(obj) or obj
@@ -94,13 +94,29 @@ def load(path):
                                          skip_materials=True)
             elif scene is None:
                 scene = trimesh.load(path, force="scene", process=False, skip_materials=True)
-        except IndexError as e:
-            raise MeshError(f"{path}: a face refers to a vertex that does not exist ({one_line(e)})") from None
+        except MeshError:
+            raise
         except Exception as e:  # trimesh raises many kinds for a malformed file
-            scene = _polygons_scene(read_binary_ply, path, zipped) if ext == "ply" else None
+            scene = None
+            if isinstance(e, (UnicodeError, ImportError)) and ext in ("ply", "stl"):
+                scene = _text_scene(path, zipped, file_name, ext)
+            if scene is None and ext == "ply":
+                scene = _polygons_scene(read_binary_ply, path, zipped)
+            if scene is None and isinstance(e, IndexError):
+                raise MeshError(f"{path}: a face refers to a vertex that does not exist "
+                                f"({one_line(e)})") from None
             if scene is None:
                 raise MeshError(f"{path}: cannot be read as a mesh ({type(e).__name__}: "
                                 f"{one_line(e)})") from None
+        if ext == "ply":
+            _ply_check_counts(scene, path)
+            if _ply_sizes_differ(scene):
+                # a binary PLY of faces of several sizes that trimesh read as all of the
+                # first face's size (their indices in all as many as that): misread
+                scene = _polygons_scene(read_binary_ply, path, zipped)
+                if scene is None:
+                    raise MeshError(f"{path}: its faces are of several sizes, in a PLY "
+                                    f"layout kdray cannot read")
         ranks = None
         if ext in ("glb", "gltf"):
             header = _gltf_header(path, zipped, ext)
@@ -128,13 +144,17 @@ def load(path):
 def _polygons_scene(read, path, zipped):
     """A trimesh Scene of the one mesh that `read` (bytes -> (vertices, polygons):
     kdray.ply.read_binary_ply for a binary PLY of faces of several sizes, which
-    trimesh's reader refuses; kdray.off.read_off) makes of the file, its polygons split
-    in file order (`split_polygons`); None where it cannot read it (trimesh's reader, or
-    its error, then stands)."""
+    trimesh's reader refuses or misreads; kdray.off.read_off) makes of the file, its
+    polygons split in file order (`split_polygons`); None where it cannot read it
+    (trimesh's reader, or its error, then stands). MeshError for a file `read` knows
+    to be malformed (kdray.off.Malformed): trimesh's looser reader would take what it
+    could of it without a word."""
     import struct
     import trimesh
     try:
         vertices, polygons = read(_read(path, zipped))
+    except Malformed as e:
+        raise MeshError(f"{path}: malformed ({one_line(e)})") from None
     except (ValueError, OverflowError, struct.error, OSError, EOFError, zlib.error):
         return None
     faces = split_polygons(polygons) if polygons else None
@@ -193,6 +213,84 @@ def _scene_arrays(scene, path, ranks=None):
     return vertices, faces, objects, tuple(names)
 
 
+_BOM = b"\xef\xbb\xbf"
+
+
+def _text(data):
+    """A text mesh file's bytes as trimesh's readers take them: a UTF-8 byte-order mark
+    taken off (trimesh would read the first line as an unknown keyword, and an OBJ's
+    first vertex would be lost) and bytes that are not UTF-8 (a comment or a name in
+    another encoding) made U+FFFD, where trimesh would refuse the file or need an
+    optional module to guess its encoding."""
+    if data.startswith(_BOM):
+        data = data[len(_BOM):]
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        data = data.decode("utf-8", "replace").encode("utf-8")
+    return data
+
+
+def _text_scene(path, zipped, file_name, ext):
+    """trimesh's Scene of an ASCII PLY or STL file read through `_text`, or None where
+    the file is binary (its body is not text) or still cannot be read."""
+    import trimesh
+    data = _read(path, zipped)
+    head = data[:data.find(b"end_header")] if ext == "ply" else data[:512]
+    if ext == "ply" and b"format ascii" not in head:
+        return None
+    try:
+        return trimesh.load(_named_stream(_text(data), file_name), file_type=ext,
+                            force="scene", process=False, skip_materials=True)
+    except Exception:  # the caller reports the first read's error
+        return None
+
+
+def _ply_elements(scene):
+    """The raw PLY elements trimesh kept of each mesh of the scene: a list of dicts
+    {element name: {"length": the header's count, "data": {property: array}}}."""
+    raws = [g.metadata.get("_ply_raw") for g in scene.geometry.values()]
+    return [raw for raw in raws if isinstance(raw, dict)]
+
+
+def _ply_check_counts(scene, path):
+    """MeshError where a PLY element holds fewer items than its header counts (trimesh
+    reads an ASCII file that ends early without a word)."""
+    for raw in _ply_elements(scene):
+        for name, element in raw.items():
+            try:
+                count = int(element["length"])
+                held = {len(v) for v in element["data"].values()}
+            except (KeyError, TypeError, ValueError, AttributeError):
+                continue
+            if held and min(held) < count:
+                raise MeshError(f"{path}: malformed (its header counts {count} {name} "
+                                f"elements, the file holds {min(held)})")
+
+
+def _ply_sizes_differ(scene):
+    """Whether trimesh read a binary PLY's faces as all of one size (k) where the file's
+    counts say otherwise: the first face of another size is read where it lies, so its
+    count, not k, shows it."""
+    from .ply import INDEX_NAMES
+    for raw in _ply_elements(scene):
+        try:
+            lists = raw["face"]["data"]
+        except (KeyError, TypeError):
+            continue
+        for key in INDEX_NAMES:
+            try:
+                rows = lists[key]
+            except (KeyError, ValueError, IndexError, TypeError):
+                continue
+            names = getattr(getattr(rows, "dtype", None), "names", None)
+            if names and "f0" in names and "f1" in names:
+                width = rows["f1"].reshape(len(rows), -1).shape[1]
+                if (rows["f0"] != width).any():
+                    return True
+    return False
+
+
 def _gltf_header(path, zipped, ext):
     """The JSON of a .glb (its first chunk) or .gltf file, or None where it cannot be
     read so (trimesh's read then says what is wrong)."""
@@ -218,11 +316,17 @@ GLTF_FAN = 6
 
 def _gltf_check(header, path):
     """MeshError for the parts of a glTF file trimesh's reader gets wrong without a
-    word: TRIANGLE_FAN primitives (left out) and sparse accessors (read without their
-    sparse values) of a triangle primitive's positions or indices. Points and lines
+    word: a node's mesh that the file does not have (the node left out), TRIANGLE_FAN
+    primitives (left out) and sparse accessors (read without their sparse values) of a
+    triangle primitive's positions or indices. Points and lines
     (modes 0-3) hold no triangles and are left out."""
     try:
-        for k, mesh in enumerate(header.get("meshes", [])):
+        meshes = header.get("meshes", [])
+        for k, node in enumerate(header.get("nodes", [])):
+            if "mesh" in node and not 0 <= node["mesh"] < len(meshes):
+                raise MeshError(f"{path}: node {k} refers to mesh {node['mesh']}, and the "
+                                f"file has {len(meshes)}")
+        for k, mesh in enumerate(meshes):
             for primitive in mesh.get("primitives", []):
                 mode = primitive.get("mode", 4)
                 if mode == GLTF_FAN:

@@ -13,11 +13,15 @@ or the next), then a vertex a line and a face a line (its corner count, its corn
 import numpy as np
 
 
+class Malformed(ValueError):
+    """An ASCII OFF file that kdray reads but whose counts, lines or indices are wrong."""
+
+
 def read_off(data):
     """(vertices (n, 3) float64, polygons: a list of (k,) int64 index arrays in file
-    order) of an ASCII OFF file's bytes. ValueError (or OverflowError, for a number
-    past int64) for anything else: another dimension, a binary file, counts or lines it
-    cannot read, an index out of range."""
+    order) of an ASCII OFF file's bytes. Malformed (a ValueError) for counts, lines or
+    indices that are wrong; ValueError (or OverflowError, for a number past int64) for
+    a file it does not read: no OFF keyword, another dimension, a binary file."""
     lines = []
     for line in data.decode("ascii", "replace").splitlines():
         words = line.split("#", 1)[0].split()
@@ -29,23 +33,24 @@ def read_off(data):
     if "4" in keyword or "n" in keyword or (len(lines[0]) > 1 and lines[0][1] == "BINARY"):
         raise ValueError(f"an OFF file kdray does not read ({' '.join(lines[0])})")
     if len(lines[0]) == 1 and len(lines) < 2:
-        raise ValueError("no vertex and face counts")
+        raise Malformed("no vertex and face counts")
     head, at = (lines[0][1:], 1) if len(lines[0]) > 1 else (lines[1], 2)
     if len(head) < 2:
-        raise ValueError("no vertex and face counts")
+        raise Malformed("no vertex and face counts")
     n_vertices, n_faces = int(head[0]), int(head[1])
     if n_vertices < 0 or n_faces < 0 or at + n_vertices + n_faces > len(lines):
-        raise ValueError("the file ends before its counts of vertices and faces")
+        raise Malformed("the file ends before its counts of vertices and faces (kdray "
+                        "reads a vertex a line and a face a line)")
     vertices = np.array([words[:3] for words in lines[at:at + n_vertices]], dtype=np.float64)
     if vertices.shape != (n_vertices, 3):
-        raise ValueError("a vertex line with fewer than 3 numbers")
+        raise Malformed("a vertex line with fewer than 3 numbers")
     polygons = []
     for words in lines[at + n_vertices:at + n_vertices + n_faces]:
         k = int(words[0])
         if k < 0 or len(words) < k + 1:
-            raise ValueError(f"a face line with fewer corners than its count: {' '.join(words)}")
+            raise Malformed(f"a face line with fewer corners than its count: {' '.join(words)}")
         corners = np.array(words[1:k + 1], dtype=np.int64)
         if k and (corners.min() < 0 or corners.max() >= n_vertices):
-            raise ValueError(f"a face refers to a vertex that does not exist: {' '.join(words)}")
+            raise Malformed(f"a face refers to a vertex that does not exist: {' '.join(words)}")
         polygons.append(corners)
     return vertices, polygons

@@ -402,3 +402,92 @@ def test_non_mesh_and_unreadable_files(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "access", lambda p, m: False if str(p) == str(secret) else real_access(p, m))
     with pytest.raises(MeshError, match="permission denied"):
         load(secret)
+
+
+def test_text_files_with_a_bom_or_bytes_not_utf8(tmp_path):
+    """A UTF-8 byte-order mark does not cost an OBJ its first vertex, and a comment in
+    another encoding (a Latin-1 byte) does not make an OBJ, ASCII STL or ASCII PLY
+    unreadable (trimesh would ask an optional module to guess the encoding)."""
+    bom = tmp_path / "bom.obj"
+    bom.write_bytes(b"\xef\xbb\xbfv 5 5 5\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert load(bom).triangles.tolist() == [[[5, 5, 5], [0, 0, 0], [1, 0, 0]]]
+    files = {
+        "obj": b"# caf\xe9\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+        "stl": (b"solid caf\xe9\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+                b"vertex 0 1 0\nendloop\nendfacet\nendsolid caf\xe9\n"),
+        "ply": (b"ply\nformat ascii 1.0\ncomment caf\xe9\nelement vertex 3\nproperty float x\n"
+                b"property float y\nproperty float z\nelement face 1\n"
+                b"property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+    }
+    for ext, data in files.items():
+        p = tmp_path / f"latin.{ext}"
+        p.write_bytes(data)
+        assert load(p).triangles.tolist() == [[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], ext
+
+
+@pytest.mark.parametrize("faces, flags", [
+    ([[0, 1, 2], [0, 1], [0, 1, 2, 3]], False),          # 3 + 2 + 4 indices = 3 x 3
+    ([[0, 1, 2, 3], [0, 1, 4], [0, 1, 2, 3, 4]], False),  # 4 + 3 + 5 = 3 x 4
+    ([[0, 1, 2, 3], [0, 1, 4], [0, 1, 2, 3, 4]], True),   # and a property after the list
+])
+def test_binary_ply_of_several_sizes_that_trimesh_misreads(tmp_path, faces, flags):
+    """A binary PLY of faces of several sizes whose indices number as many as if every
+    face had the first's size: trimesh reads it without an error, wrongly; kdray sees
+    the counts and reads it itself."""
+    import struct
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty float x\n"
+            "property float y\nproperty float z\nelement face %d\n"
+            "property list uchar int vertex_indices\n%send_header\n"
+            % (len(faces), "property int flags\n" if flags else ""))
+    body = v.tobytes() + b"".join(struct.pack("<B%di" % len(f), len(f), *f)
+                                  + (struct.pack("<i", 7) if flags else b"") for f in faces)
+    p = tmp_path / "mixed.ply"
+    p.write_bytes(head.encode() + body)
+    want = []
+    for f in faces:
+        splits = [] if len(f) < 3 else ([(0, 1, 2), (2, 3, 0)] if len(f) == 4 else
+                                        [(0, k, k + 1) for k in range(1, len(f) - 1)])
+        want += [[f[a] for a in s] for s in splits]
+    assert load(p).faces.tolist() == want
+
+
+@pytest.mark.parametrize("name, text, message", [
+    ("short_face.off", "OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2\n", "fewer corners"),
+    ("few_faces.off", "OFF\n4 3 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n",
+     "ends before its counts"),
+    ("few_faces.ply", "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+     "property float z\nelement face 5\nproperty list uchar int vertex_indices\nend_header\n"
+     "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n", "counts 5 face elements, the file holds 2"),
+])
+def test_files_that_hold_less_than_they_say(tmp_path, name, text, message):
+    """An OFF or ASCII PLY file whose lines hold less than its counts say is malformed
+    (a MeshError), not read as far as it goes by trimesh's looser readers."""
+    p = tmp_path / name
+    p.write_text(text)
+    with pytest.raises(MeshError, match=f"{name}: malformed.*{message}"):
+        load(p)
+
+
+def test_gltf_node_of_a_mesh_the_file_lacks(tmp_path):
+    """A glTF node whose mesh index the file does not have is a MeshError, not a node
+    left out without a word."""
+    import base64
+    import json
+    import struct
+    buf = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+    g = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 1]}],
+         "nodes": [{"name": "A", "mesh": 0}, {"name": "B", "mesh": 5}],
+         "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+         "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                        "min": [0, 0, 0], "max": [1, 1, 0]}],
+         "bufferViews": [{"buffer": 0, "byteLength": 36}],
+         "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64,"
+                      + base64.b64encode(buf).decode()}]}
+    p = tmp_path / "dangling.gltf"
+    p.write_text(json.dumps(g))
+    with pytest.raises(MeshError, match="node 1 refers to mesh 5, and the file has 1"):
+        load(p)
+    g["nodes"][1]["mesh"] = 0
+    p.write_text(json.dumps(g))
+    assert len(load(p).faces) == 2
