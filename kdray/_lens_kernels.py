@@ -10,8 +10,10 @@ kept inside a bisection bracket [0, reach] (the radial map is increasing up to l
 the error is `stop` times the tolerance or the iterate stops moving; then, for opencv
 with a tangential part, Newton's method on the full 2D model from that point (which
 may leave the bracket: a pixel beyond g(limit) may still have its point inside limit,
-so only a radial model refuses those at once). The result is checked: distortion within
-tol (1 + rd) of the pixel's point, radius below `limit`, and a positive Jacobian.
+so only a radial model refuses those at once), each step halved until it brings the
+distortion nearer, and once more from the pixel's own point where the first did not
+end in a solution. The result is checked: distortion within tol (1 + rd) of the
+pixel's point, radius below `limit`, and a positive Jacobian.
 """
 import math
 
@@ -65,6 +67,49 @@ def _distort(x, y, k1, k2, p1, p2, k3, k4, k5, k6):
 
 
 @njit(cache=True)
+def _newton_2d(xi, yi, ai, bi, bound, k, max_iterations):
+    """(x, y) whose distortion (k: k1 k2 p1 p2 k3 k4 k5 k6) is within `bound` of the
+    pixel's point (ai, bi): Newton's method on the 2D model from (xi, yi), each step
+    halved (up to 30 times) until it brings the distortion nearer, where the whole
+    step would not (it is taken whole where no halving does)."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7]
+    for _ in range(max_iterations):
+        xd, yd, j00, j01, j10, j11 = _distort(xi, yi, k1, k2, p1, p2, k3, k4, k5, k6)
+        fx, fy = xd - ai, yd - bi
+        error = math.sqrt(fx * fx + fy * fy)
+        if not (error > bound):
+            break
+        det = j00 * j11 - j01 * j10
+        if det == 0.0:
+            break           # a fold: refused by _solved (its Jacobian is not positive)
+        dx = (j11 * fx - j01 * fy) / det
+        dy = (j00 * fy - j10 * fx) / det
+        t = 1.0
+        for _ in range(30):
+            xn, yn = xi - t * dx, yi - t * dy
+            xd, yd, _, _, _, _ = _distort(xn, yn, k1, k2, p1, p2, k3, k4, k5, k6)
+            if math.sqrt((xd - ai) ** 2 + (yd - bi) ** 2) < error:
+                break
+            t *= 0.5
+        else:
+            xn, yn = xi - dx, yi - dy
+        if abs(xn - xi) + abs(yn - yi) <= 1e-16 * (abs(xi) + abs(yi)):
+            return xn, yn   # moving by roundings: as near as float64 gets
+        xi, yi = xn, yn
+    return xi, yi
+
+
+@njit(cache=True)
+def _solved(xi, yi, ai, bi, tol, limit, k):
+    """Whether (xi, yi) is the pixel's point's (ai, bi) inverse: its distortion within
+    tol of it, its radius below limit, the Jacobian there positive."""
+    xd, yd, j00, j01, j10, j11 = _distort(xi, yi, k[0], k[1], k[2], k[3], k[4], k[5], k[6], k[7])
+    fx, fy = xd - ai, yd - bi
+    return (math.sqrt(fx * fx + fy * fy) <= tol and math.sqrt(xi * xi + yi * yi) < limit
+            and j00 * j11 - j01 * j10 > 0.0)
+
+
+@njit(cache=True)
 def _pixel_point(i, Kinv, width):
     """(a, b) = K^-1 (u, v, 1) of pixel i (row-major), u, v its centre."""
     u = (i % width) + 0.5
@@ -113,24 +158,13 @@ def opencv_rays(Kinv, width, R, k, limit, g_limit, reach, tol, stop, max_iterati
             scale = s
         xi, yi = ai * s, bi * s
         if tangential:
-            for _ in range(max_iterations):
-                xd, yd, j00, j01, j10, j11 = _distort(xi, yi, k1, k2, p1, p2, k3, k4, k5, k6)
-                fx, fy = xd - ai, yd - bi
-                if not (math.sqrt(fx * fx + fy * fy) > bound):
-                    break
-                det = j00 * j11 - j01 * j10
-                if det == 0.0:
-                    break           # a fold: refused below (its Jacobian is not positive)
-                xn = xi - (j11 * fx - j01 * fy) / det
-                yn = yi - (j00 * fy - j10 * fx) / det
-                if abs(xn - xi) + abs(yn - yi) <= 1e-16 * (abs(xi) + abs(yi)):
-                    xi, yi = xn, yn
-                    break           # moving by roundings: as near as float64 gets
-                xi, yi = xn, yn
-        xd, yd, j00, j01, j10, j11 = _distort(xi, yi, k1, k2, p1, p2, k3, k4, k5, k6)
-        fx, fy = xd - ai, yd - bi
-        ok = (math.sqrt(fx * fx + fy * fy) <= tol * (1.0 + rd)
-              and math.sqrt(xi * xi + yi * yi) < limit and j00 * j11 - j01 * j10 > 0.0)
+            xi, yi = _newton_2d(xi, yi, ai, bi, bound, k, max_iterations)
+        ok = _solved(xi, yi, ai, bi, tol * (1.0 + rd), limit, k)
+        if tangential and not ok:
+            # the radial start may lie by a pole of the rational part, from where the
+            # 2D iteration does not come back: again from the pixel's own point
+            xi, yi = _newton_2d(ai, bi, ai, bi, bound, k, max_iterations)
+            ok = _solved(xi, yi, ai, bi, tol * (1.0 + rd), limit, k)
         valid[i] = ok
         if ok:
             _store(d, i, R, xi, yi, 1.0)

@@ -514,8 +514,19 @@ class Camera:
         [i, i + 1) x [j, j + 1) and its centre is (i + 0.5, j + 0.5). depth is the
         camera-z (negative behind the camera); for a fisheye or equirectangular camera
         the distance from the eye (the model's forward map: kdray.lens.project_camera).
+        points: (n, 3) or one point (3,), numbers (integers or floats); CameraError for
+        anything else (bools and strings are refused, not converted).
         """
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        check_numbers(points, "the points to project", CameraError)
+        try:
+            a = np.asarray(points)
+        except (ValueError, TypeError) as e:          # a ragged list
+            raise CameraError(f"the points to project must be an (n, 3) array of numbers "
+                              f"({str(e).splitlines()[0][:120]}).") from None
+        if a.dtype.kind not in "fiu" or not (a.shape == (3,) or (a.ndim == 2 and a.shape[1] == 3)):
+            raise CameraError(f"the points to project must be an (n, 3) array of numbers, "
+                              f"got shape {a.shape} dtype {a.dtype}.")
+        points = a.astype(np.float64).reshape(-1, 3)
         cam = (points - self.eye) @ self.rotation  # R^T (p - eye), row by row
         if self.model != "pinhole":
             return lens.project_camera(self.model, self.K, self.distortion, cam, self.width)

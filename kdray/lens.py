@@ -402,7 +402,8 @@ def _model_rays(model, K, distortion, width, height):
 
 def _in_longitudes(a, left, span):
     """Longitudes a (n,) in (-pi, pi], each turned by the whole turns that bring it into
-    [left, left + span] where any does (the first such), else as they are."""
+    [left, left + span] (left a number or (n,)) where any does (the first such), else
+    as they are."""
     turn = 2.0 * math.pi
     moved = a + turn * np.ceil((left - a) / turn)        # the least a + k turn >= left
     return np.where(((a < left) | (a > left + span)) & (moved <= left + span), moved, a)
@@ -432,9 +433,11 @@ def project_camera(model, K, distortion, points, width=None):
             depth = np.sqrt(x * x + y * y + z * z)
         elif model == "equirectangular":
             a = np.arctan2(x, z)
-            if width is not None:
-                a = _in_longitudes(a, -K[0, 2] / K[0, 0], width / K[0, 0])
             b = np.arctan2(y, np.hypot(x, z))
+            if width is not None:
+                # the image's left edge at the point's latitude (with skew s it moves
+                # with the row: fx a + s b + cx = 0)
+                a = _in_longitudes(a, -(K[0, 1] * b + K[0, 2]) / K[0, 0], width / K[0, 0])
             depth = np.sqrt(x * x + y * y + z * z)
         elif model == "orthographic":
             a, b, depth = x, y, z

@@ -607,3 +607,51 @@ def test_models_at_any_offset_and_scale(room, model, distortion, f):
             front = cam[:, 2] > 1e-3 * np.linalg.norm(cam, axis=1)
             error = np.abs(_opencv_project(camera, points[front]) - _pixel_centres(hit)[front])
             assert error.max() < 5e-4, error.max()
+
+
+def test_opencv_tangential_pixel_started_by_a_pole():
+    """A pixel of a rational model with strong tangential terms whose radial start lies
+    by the rational part's pole, from where the plain 2D Newton iteration did not come
+    back (it was marked as having no ray): its point exists inside the monotonic limit
+    with a positive Jacobian, and the ray lands on the pixel's centre (cv2)."""
+    K = np.array([[4.232683194697468, 0.0, 7.787741417357325],
+                  [0.0, 3.6000978948369675, 0.10211359096307993], [0.0, 0.0, 1.0]])
+    dist = [0.16867770845857036, -0.05897077463538707, -0.04117635286066404,
+            -0.05433603942805479, -0.06255656481057915, 0.42064369202110313,
+            -0.09165392346644177, -0.10095228967708235]
+    w, h = 15, 20
+    cam = Camera(w, h, K, np.eye(4), "opencv", dist)
+    _, d, valid = cam.rays(valid=True)
+    k = 0 * w + 13
+    assert valid[k]
+    pixel, _ = cv2.projectPoints(d[k][None], np.zeros(3), np.zeros(3), K, np.array(dist))
+    np.testing.assert_allclose(pixel.ravel(), [13.5, 0.5], atol=1e-9)
+    ok = np.flatnonzero(valid)
+    pixels, _ = cv2.projectPoints(d[ok], np.zeros(3), np.zeros(3), K, np.array(dist))
+    centres = np.stack([ok % w + 0.5, ok // w + 0.5], axis=1)
+    np.testing.assert_allclose(pixels.reshape(-1, 2), centres, atol=1e-6)
+
+
+def test_equirectangular_with_skew_projects_its_own_rays_home():
+    """With skew the image's left edge moves with the row: every pixel's own ray
+    projects onto its centre (a turn away before, for some)."""
+    w, h = 64, 32
+    K = lens.equirectangular_K(w, h)
+    K[0, 1] = 3.0
+    cam = Camera(w, h, K, np.eye(4), "equirectangular")
+    o, d, valid = cam.rays(valid=True)
+    pixels, _ = cam.project(o[valid] + d[valid])
+    k = np.flatnonzero(valid)
+    np.testing.assert_allclose(pixels, np.stack([k % w + 0.5, k // w + 0.5], axis=1), atol=1e-9)
+
+
+@pytest.mark.parametrize("points", [[["1", "2", "3"]], [[True, False, True]], "abc",
+                                    [1.0, 2.0], np.ones((2, 2, 3)), [[1, 2, 3], [4, 5]]])
+def test_project_refuses_what_is_not_points(points):
+    """Camera.project takes (n, 3) or (3,) numbers; strings and bools are refused, not
+    converted, and other shapes are a CameraError, not numpy's ValueError."""
+    cam = Camera(10, 10, [[10, 0, 5], [0, 10, 5], [0, 0, 1]], np.eye(4))
+    with pytest.raises(CameraError, match="points to project"):
+        cam.project(points)
+    pixels, depth = cam.project([0, 0, 1])
+    assert pixels.tolist() == [[5.0, 5.0]] and depth.tolist() == [1.0]
