@@ -95,10 +95,19 @@ def check_output(path, inputs=(), others=(), what="output"):
 
 def atomic_write(path, write):
     """Call write(tmp_path) for a fresh temporary file beside `path`, flush it to disk,
-    then rename it over `path`. OSError -> OutputError naming `path`."""
+    then rename it over `path`. OSError -> OutputError naming `path`; OutputError
+    before anything is written where `path` is a device, a pipe or a socket (the rename
+    would replace it: /dev/null made a plain file, by a root user's Python call)."""
     text = os.fspath(path)
     if "\0" in text or os.path.basename(text.rstrip(os.sep)) in ("", ".", ".."):
         raise OutputError(f"cannot write {text!r}: not a file name.")
+    try:
+        mode = os.stat(text).st_mode
+    except (OSError, ValueError):
+        mode = None
+    if mode is not None and not stat.S_ISREG(mode):
+        raise OutputError(f"cannot write {text}: it is a device, a pipe, a socket or a "
+                          "folder, not a file; kdray writes files whole")
     path = Path(path)
     tmp = temporary_path(path)
     try:

@@ -136,6 +136,22 @@ def test_outputs_that_are_pipes_are_refused(capsys, folder):
     assert stat.S_ISFIFO(os.stat("o.npy").st_mode)
 
 
+def test_python_writers_refuse_pipes(folder):
+    """The library's own writers (a tree file, a camera file, a lidar's points) refuse
+    a FIFO as the CLI does, and leave it a FIFO: a file renamed over it would replace
+    it (as root, /dev/null itself)."""
+    os.mkfifo("node")
+    mesh = kdray.load("c.obj")
+    tree = kdray.build(mesh.vertices, mesh.faces)
+    camera = kdray.Camera.look_at(CAMERA["eye"], CAMERA["target"], (0, 1, 0), 60, 16, 12)
+    images = kdray.Tracer(tree).scan(kdray.Lidar.from_dict(LIDAR), np.array(POSE, float))
+    for write in (lambda: tree.save("node"), lambda: camera.to_json("node"),
+                  lambda: kdray.lidar.write_points_ply("node", images)):
+        with pytest.raises(OutputError, match="node: it is a device, a pipe"):
+            write()
+        assert stat.S_ISFIFO(os.stat("node").st_mode)
+
+
 # -- outputs: collisions, folders, names -------------------------------------------------
 
 @pytest.mark.parametrize("preview", ["out.exr", "./out.exr", "sub/../out.exr", "link.exr"])
