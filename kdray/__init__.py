@@ -26,8 +26,8 @@ from . import cull
 from .builder import build
 from .camera import Camera
 from .lidar import Lidar
-from .errors import (CameraError, DeviceError, KdrayError, KernelBuildError, MeshError,
-                     OutputError, ParameterError, TreeError, TreeFileError)
+from .errors import (CameraError, DatasetError, DeviceError, KdrayError, KernelBuildError,
+                     MeshError, OutputError, ParameterError, TreeError, TreeFileError)
 from .load import load
 from .mesh import Mesh
 from .rays import Intersections
@@ -41,4 +41,4 @@ __version__ = "0.1.0"
 
 __all__ = ["load", "build", "cull", "Mesh", "KdTree", "BuildParams", "Tracer", "Hits", "Intersections", "ClosestPoints", "offset_origins", "Camera", "Lidar",
            "KdrayError", "MeshError", "TreeError", "TreeFileError", "DeviceError",
-           "KernelBuildError", "CameraError", "OutputError", "ParameterError"]
+           "KernelBuildError", "CameraError", "OutputError", "ParameterError", "DatasetError"]

@@ -56,7 +56,7 @@ import numpy as np
 from . import lens
 from .errors import CameraError, one_line
 from .files import atomic_write
-from .validate import check_float32, check_numbers, read_json, read_npy, read_text
+from .validate import check_bool, check_float32, check_numbers, read_json, read_npy, read_text
 
 ORTHONORMAL_TOL = 1e-6
 """Largest |R^T R - I| entry and |det R - 1| accepted for a pose's rotation."""
@@ -467,7 +467,9 @@ class Camera:
         and directions (H*W, 3) float64: camera-z 1 (not normalized) for pinhole and
         opencv cameras, unit for the other models; NaN for a pixel with no ray. With
         valid=True also (H*W,) bool: the pixel has a ray (every pixel of a pinhole).
+        valid must be True or False (CameraError otherwise).
         """
+        valid = check_bool(valid, "valid", CameraError)
         if self.model != "pinhole":
             return self._model_rays(valid)
         M = self.rotation @ np.linalg.inv(self.K)

@@ -1069,7 +1069,13 @@ def main(argv=None):
     try:
         cli.main(args=argv, prog_name="kdray", standalone_mode=False)
     except click.exceptions.Abort:
-        click.echo("kdray: interrupted", err=True)
+        # click turns a Ctrl-C inside a command into Abort (its KeyboardInterrupt the
+        # context: the traceback --debug shows)
+        if debug:
+            import traceback
+            traceback.print_exc()
+        else:
+            click.echo("kdray: interrupted", err=True)
         sys.exit(130)
     except click.ClickException as e:
         e.show()

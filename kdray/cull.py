@@ -29,7 +29,7 @@ import logging
 import numpy as np
 
 from .builder import build
-from .builder.prepare import FLOAT32_MAX, mesh_origin, mesh_scale, prepare
+from .builder.prepare import FLOAT32_MAX, check_origin, mesh_origin, mesh_scale, prepare
 from .errors import MeshError
 from .mesh import check_arrays
 
@@ -88,9 +88,11 @@ def cull_faces(vertices, faces, camera, origin=None):
     Returns (k,) int64 ascending face indices: every triangle a ray can reach, and
     possibly some it cannot (see the module docstring); every face for a camera that is
     not a pinhole (kdray.lens: no frustum of planes bounds its rays). Raises MeshError
-    for bad arrays.
+    for bad arrays, ParameterError for an origin that is not 3 finite numbers.
     """
     v, f = check_arrays(vertices, faces)
+    if origin is not None:
+        origin = check_origin(origin)
     if getattr(camera, "model", "pinhole") != "pinhole":
         return np.arange(len(f), dtype=np.int64)
     used = np.zeros(len(v), dtype=bool)

@@ -110,6 +110,8 @@ class Job:
             raise DatasetError(f"precision must be 'single' or 'double', got {self.precision!r}")
         if not isinstance(self.params, BuildParams):
             raise DatasetError(f"params must be a kdray.BuildParams, got {self.params!r}")
+        # its values checked as kdray.build checks them, now, not in run() as a failed job
+        object.__setattr__(self, "params", check_params(dataclasses.asdict(self.params)))
 
     def files(self, name):
         """The files of view `name`: [OUTPUT/name.exr] (+ OUTPUT/name.png)."""

@@ -458,6 +458,9 @@ def choose_device(spec=None):
     named by spec fails its probe (never a silent switch to another device), or when no
     device works: one line naming each device's failure and its remedy.
     """
+    if spec is not None and not isinstance(spec, str):
+        raise DeviceError(f"the device must be None or a --device string such as \"0:1\", "
+                          f"got {spec!r:.60}")
     platforms = _platforms()
     if spec is None:
         spec = os.environ.get("PYOPENCL_CTX")

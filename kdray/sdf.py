@@ -17,7 +17,7 @@ import numpy as np
 from . import points as _points
 from .errors import KdrayError
 from .host import check_host_memory
-from .validate import FLOAT32_MAX
+from .validate import FLOAT32_MAX, check_bool
 
 MAX_RESOLUTION = 4096
 """The most samples a grid's side takes (4096^3 float32 values are 256 GiB)."""
@@ -51,8 +51,10 @@ class Grid:
 
 def check_grid(resolution, padding, occupancy=False):
     """(resolution, padding) checked: KdrayError for a resolution that is not an integer
-    from 2 to MAX_RESOLUTION, a padding that is negative or not finite, or a grid
-    that does not fit in the host's memory (saying how much it needs)."""
+    from 2 to MAX_RESOLUTION, a padding that is negative or not finite, occupancy not
+    True or False, or a grid that does not fit in the host's memory (saying how much it
+    needs)."""
+    occupancy = check_bool(occupancy, "occupancy", KdrayError)
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
         raise KdrayError(f"resolution must be an integer, got {resolution!r}")
     if not 2 <= resolution <= MAX_RESOLUTION:

@@ -451,6 +451,11 @@ class Tracer:
         whose walks any larger stack holds, and left out where this Tracer's local size
         would not fit it), which the on-disk program cache (pyopencl's or the
         driver's) then holds for other trees (`kdray setup`). Returns the Tracer."""
+        stack_sizes = tuple(stack_sizes)
+        for size in stack_sizes:
+            if (isinstance(size, bool) or not isinstance(size, (int, np.integer))
+                    or size not in STACK_SIZES):
+                raise KdrayError(f"stack_sizes must be some of {STACK_SIZES}, got {size!r:.40}")
         self._compile_one(aovs, trace, precision)
         for size in stack_sizes:
             if ((size, size) == (self.stack_size, self.packet_stack_size)     # built above

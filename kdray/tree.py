@@ -312,6 +312,7 @@ class KdTree:
         """Check the structural invariants; raise TreeError naming the first broken one.
 
         coverage_samples=None skips the (slower) coverage check; the file loader does.
+        Else an integer >= 0 (TreeError otherwise), as seed.
 
         - array shapes and dtypes; indices in range (children, leaf ranges, leaf
           triangle indices, tri_ids < n_input_tris); finite splits and triangles;
@@ -322,6 +323,10 @@ class KdTree:
           centroid and `coverage_samples` random points, clipped to the scene box)
           lie in a leaf that lists the triangle.
         """
+        for value, name in ((coverage_samples, "coverage_samples"), (seed, "seed")):
+            if value is not None and (isinstance(value, bool)
+                                      or not isinstance(value, (int, np.integer)) or value < 0):
+                raise TreeError(f"{name} must be an integer >= 0, got {value!r:.40}")
         t = self
         if t.nodes.ndim != 2 or t.nodes.shape[1] != 2 or t.nodes.dtype != np.uint32 or len(t.nodes) < 1:
             raise TreeError("nodes must be a non-empty (n, 2) uint32 array")

@@ -185,6 +185,14 @@ def real_number(value, name, error):
         return math.inf if value > 0 else -math.inf
 
 
+def check_bool(value, name, error):
+    """bool(value) for True or False (numpy's bool too); `error` for anything else
+    ("no", 0, None), which is refused, not taken for its truth."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise error(f"{name} must be True or False, got {value!r:.60}")
+    return bool(value)
+
+
 def whole_or_none(value, name, error):
     """None, or int(value) for an integer >= 1 (numpy's too); `error` for anything else
     (nan, "8", 1.5, True)."""

@@ -249,16 +249,22 @@ def test_a_vertex_float32_cannot_hold_is_left_out_at_any_scale():
 
 
 def test_build_arguments_keep_their_types():
-    """keep_double is a bool, not anything truthy; a scale beyond float64 or float face
-    indices beyond int64 are the builder's MeshError, with no numpy warning."""
+    """keep_double is a bool, not anything truthy; a scale that is not a power of two
+    or an origin that is not 3 finite numbers is a ParameterError (a parameter, as the
+    SAH's), float face indices beyond int64 the builder's MeshError, with no numpy
+    warning."""
     v, f = np.eye(3), np.array([[0, 1, 2]])
     with pytest.raises(ParameterError, match="keep_double must be True or False"):
         build(v, f, keep_double="no")
     assert build(v, f, keep_double=np.bool_(True)).triangles64 is not None
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        with pytest.raises(MeshError, match="scale must be a power of two"):
-            build(v, f, scale=2 ** 1025)
+        for scale in (2 ** 1025, 3.0, "1", -2.0):
+            with pytest.raises(ParameterError, match="scale must be a power of two"):
+                build(v, f, scale=scale)
+        for origin in ((1, 2), (np.nan, 0, 0), "abc"):
+            with pytest.raises(ParameterError, match="origin must be 3 finite numbers"):
+                build(v, f, origin=origin)
         with pytest.raises(MeshError, match="vertex index out of range"):
             build(v, np.array([[0, 1, 1e20]]))
 

@@ -518,6 +518,41 @@ def test_api_jobs_keep_their_types():
             Job(**{"scene": "s.obj", "cameras": "c.json", "output": "o", **fields})
 
 
+def test_api_flags_sizes_and_params_keep_their_types(folder):
+    """Found by the docs' audit: a flag given "no" was taken for its truth, a device
+    given as a number for its digits, stack sizes and sample counts of other types got
+    past or failed with Python's errors, a BuildParams of strings failed only when its
+    job ran, an origin of letters was numpy's error. Each is a KdrayError now, and
+    kdray.DatasetError is exported as the other errors are."""
+    from kdray.cull import cull_faces
+    from kdray.dataset import Job
+    from kdray.device import choose_device
+    from kdray.sdf import sdf_grid
+    mesh = kdray.load("c.obj")
+    tree = kdray.build(mesh.vertices, mesh.faces)
+    tracer = kdray.Tracer(tree)
+    camera = kdray.Camera.look_at(CAMERA["eye"], CAMERA["target"], (0, 1, 0), 60, 16, 12)
+    for call, error, words in (
+            (lambda: sdf_grid(tracer, 4, occupancy="no"), KdrayError, "occupancy must be True or False"),
+            (lambda: camera.rays(valid="no"), CameraError, "valid must be True or False"),
+            (lambda: choose_device(2), kdray.DeviceError, "a --device string"),
+            (lambda: tracer.compile(stack_sizes=("8",)), KdrayError, "stack_sizes must be some of"),
+            (lambda: tracer.compile(stack_sizes=(1000,)), KdrayError, "stack_sizes must be some of"),
+            (lambda: tracer.compile(stack_sizes=(0,)), KdrayError, "stack_sizes must be some of"),
+            (lambda: tree.validate(coverage_samples="4"), kdray.TreeError, "coverage_samples must be"),
+            (lambda: cull_faces(mesh.vertices, mesh.faces, camera, origin="x"), ParameterError,
+             "origin must be 3 finite numbers"),
+            (lambda: Job(scene="s.obj", cameras="c.json", output="o",
+                         params=kdray.BuildParams(K_I="20")), ParameterError, "K_I must be a number"),
+            (lambda: Job(scene="s.obj", cameras="c.json", output="o",
+                         params=kdray.BuildParams(max_depth=3.0)), ParameterError, "max_depth")):
+        with pytest.raises(error, match=words):
+            call()
+    assert kdray.DatasetError is DatasetError and "DatasetError" in kdray.__all__
+    assert camera.rays(valid=np.bool_(True))[2].all()
+    tree.validate(coverage_samples=np.int64(2))
+
+
 def test_api_paths_with_nul_or_no_name(tmp_path):
     from kdray.camera_files import read_cameras
     from kdray.images import write_exr

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from .. import layout
-from ..errors import MeshError
+from ..errors import MeshError, ParameterError
 from ..mesh import check_arrays
 from .threads import run_jobs
 
@@ -209,8 +209,23 @@ def _is_scale(value):
         return False
 
 
+def check_origin(origin):
+    """A given origin as (3,) float64: ParameterError unless 3 finite numbers (bools
+    and strings are refused, not converted)."""
+    given = origin
+    try:
+        origin = np.asarray(origin)
+    except ValueError:                          # a ragged list
+        origin = np.zeros(0)
+    if (origin.dtype.kind not in "fiu" or origin.shape != (3,)
+            or not np.isfinite(origin.astype(np.float64)).all()):
+        raise ParameterError(f"origin must be 3 finite numbers, got {given!r:.80}")
+    return origin.astype(np.float64)
+
+
 def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
-    """Validate mesh arrays and make the kept float32 triangles; raises MeshError.
+    """Validate mesh arrays and make the kept float32 triangles; raises MeshError (the
+    arrays) or ParameterError (an origin or scale that is not one).
 
     origin, scale : None (the centre of the used vertices' box; `mesh_scale`) or the
         values to use instead, so that a subset of a mesh keeps the float32
@@ -232,21 +247,13 @@ def prepare(vertices, faces, origin=None, pool=None, threads=1, scale=None):
             raise MeshError("no triangles left after removing degenerate ones (no vertex "
                             "that float32 holds)")
     else:
-        given = origin
-        try:
-            origin = np.asarray(origin)
-        except ValueError:                          # a ragged list
-            origin = np.zeros(0)
-        if (origin.dtype.kind not in "fiu" or origin.shape != (3,)
-                or not np.isfinite(origin.astype(np.float64)).all()):
-            raise MeshError(f"origin must be 3 finite numbers, got {given!r}")
-        origin = origin.astype(np.float64)
+        origin = check_origin(origin)
 
     if scale is None:
         scale = mesh_scale(v, f, used_box)
     elif (isinstance(scale, bool) or not isinstance(scale, (int, float, np.integer, np.floating))
           or not _is_scale(scale)):
-        raise MeshError(f"scale must be a power of two from 2^-126 to 2^127, got {scale!r:.60}")
+        raise ParameterError(f"scale must be a power of two from 2^-126 to 2^127, got {scale!r:.60}")
     scale = float(scale)
 
     tri = np.empty((m, 3, 3), dtype=np.float32)
