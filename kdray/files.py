@@ -71,12 +71,7 @@ def check_output(path, inputs=(), others=(), what="output"):
     problem = name_problem(name)
     if problem:
         raise OutputError(f"{what} {text}: {problem}")
-    try:
-        mode = os.stat(text).st_mode
-    except (OSError, ValueError):
-        mode = None
-    if mode is not None and not stat.S_ISREG(mode):
-        # written whole, a file is renamed over the name: it would replace the node
+    if _not_a_file(text):
         raise OutputError(f"{what} {text}: is a device, a pipe or a socket, not a file; "
                           "kdray writes files whole")
     folder = os.path.dirname(os.path.abspath(text))
@@ -93,6 +88,15 @@ def check_output(path, inputs=(), others=(), what="output"):
                               "one would replace the other")
 
 
+def _not_a_file(text):
+    """Whether path `text` exists and is not a regular file (a device, a pipe, a socket,
+    a folder): a file written whole and renamed over its name would replace it."""
+    try:
+        return not stat.S_ISREG(os.stat(text).st_mode)
+    except (OSError, ValueError):
+        return False
+
+
 def atomic_write(path, write):
     """Call write(tmp_path) for a fresh temporary file beside `path`, flush it to disk,
     then rename it over `path`. OSError -> OutputError naming `path`; OutputError
@@ -101,11 +105,7 @@ def atomic_write(path, write):
     text = os.fspath(path)
     if "\0" in text or os.path.basename(text.rstrip(os.sep)) in ("", ".", ".."):
         raise OutputError(f"cannot write {text!r}: not a file name.")
-    try:
-        mode = os.stat(text).st_mode
-    except (OSError, ValueError):
-        mode = None
-    if mode is not None and not stat.S_ISREG(mode):
+    if _not_a_file(text):
         raise OutputError(f"cannot write {text}: it is a device, a pipe, a socket or a "
                           "folder, not a file; kdray writes files whole")
     path = Path(path)

@@ -272,22 +272,13 @@ def _ply_sizes_differ(scene):
     """Whether trimesh read a binary PLY's faces as all of one size (k) where the file's
     counts say otherwise: the first face of another size is read where it lies, so its
     count, not k, shows it."""
-    from .ply import INDEX_NAMES
     for raw in _ply_elements(scene):
-        try:
-            lists = raw["face"]["data"]
-        except (KeyError, TypeError):
-            continue
-        for key in INDEX_NAMES:
-            try:
-                rows = lists[key]
-            except (KeyError, ValueError, IndexError, TypeError):
-                continue
-            names = getattr(getattr(rows, "dtype", None), "names", None)
-            if names and "f0" in names and "f1" in names:
-                width = rows["f1"].reshape(len(rows), -1).shape[1]
-                if (rows["f0"] != width).any():
-                    return True
+        rows = _ply_index_lists(raw)
+        names = getattr(getattr(rows, "dtype", None), "names", None)
+        if names and "f0" in names and "f1" in names:
+            width = rows["f1"].reshape(len(rows), -1).shape[1]
+            if (rows["f0"] != width).any():
+                return True
     return False
 
 
@@ -429,19 +420,25 @@ def split_polygons(polygons):
 def _ply_polygons(geom):
     """The polygons of a mesh trimesh read from a PLY file (its raw element data): an
     (n, k) array or a sequence of index arrays; None for other meshes."""
-    raw = geom.metadata.get("_ply_raw")
+    lists = _ply_index_lists(geom.metadata.get("_ply_raw"))
+    names = getattr(getattr(lists, "dtype", None), "names", None)
+    return lists["f1"] if names and "f1" in names else lists    # binary: (count, indices)
+
+
+def _ply_index_lists(raw):
+    """The face element's index lists in trimesh's raw PLY data (`raw`, a dict of
+    elements): an (n, k) array, a sequence of index arrays, or for a binary file a
+    structured array of (count "f0", indices "f1"); None where there are none."""
+    from .ply import INDEX_NAMES
     try:
         data = raw["face"]["data"]
     except (KeyError, TypeError, IndexError, ValueError):
         return None
-    from .ply import INDEX_NAMES
     for key in INDEX_NAMES:
         try:
-            lists = data[key]
+            return data[key]
         except (KeyError, TypeError, IndexError, ValueError):
             continue
-        names = getattr(getattr(lists, "dtype", None), "names", None)
-        return lists["f1"] if names and "f1" in names else lists    # binary: (count, indices)
     return None
 
 
