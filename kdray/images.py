@@ -85,7 +85,26 @@ names, object i's at index i, when `write_exr` is given them."""
 
 
 def _channel_arrays(images, path):
-    """[(channel name, (H, W) array '<f4' or '<u4')] for the AOVs in `images`."""
+    """[(channel name, (H, W) array '<f4' or '<u4')] for the AOVs in `images`, and
+    their size (H, W); OutputError naming `path` for images that are not AOVs of one
+    size and their types."""
+    channels = []
+    for aov, array in _checked_images(images, path).items():
+        names = CHANNELS[aov]
+        if aov in UINT_CHANNELS:
+            channels.append((names[0], array.astype("<u4")))
+        else:
+            array = array.astype("<f4")
+            if array.ndim == 2:
+                array = array[..., None]
+            channels.extend((name, array[..., c]) for c, name in enumerate(names))
+    return channels, channels[0][1].shape
+
+
+def _checked_images(images, path):
+    """{AOV: array} of `images` (a dict of AOVs, as render returns), in CHANNELS'
+    order: OutputError naming `path` unless each is an AOV of its shape, all of one
+    size of at least 1 x 1, integers (ids, objects; valid 0 or 1) or reals."""
     if not isinstance(images, dict) or not images:
         raise OutputError(f"cannot write {path}: no images given.")
     unknown = [name for name in images if name not in CHANNELS]
@@ -94,7 +113,7 @@ def _channel_arrays(images, path):
             f"cannot write {path}: unknown AOV {unknown[0]!r}; valid AOVs are {', '.join(CHANNELS)}."
         )
     size = None
-    channels = []
+    checked = {}
     for aov in CHANNELS:
         if aov not in images:
             continue
@@ -114,19 +133,16 @@ def _channel_arrays(images, path):
         if aov in UINT_CHANNELS:
             if array.dtype.kind not in "iub":
                 raise OutputError(f"cannot write {path}: {aov} must be an integer array, got {array.dtype}.")
-            if array.size and (array.min() < 0 or array.max() > MISS):
-                raise OutputError(f"cannot write {path}: {aov} values must fit in uint32.")
-            channels.append((names[0], array.astype("<u4")))
-        else:
-            if array.dtype.kind not in "fiub":
-                raise OutputError(f"cannot write {path}: {aov} must be a real array, got {array.dtype}.")
-            array = array.astype("<f4")
-            if array.ndim == 2:
-                array = array[..., None]
-            channels.extend((name, array[..., c]) for c, name in enumerate(names))
+            top = 1 if aov == "valid" else MISS
+            if array.size and (array.min() < 0 or array.max() > top):
+                raise OutputError(f"cannot write {path}: {aov} values must "
+                                  + ("be 0 or 1 (a bool array)." if aov == "valid" else "fit in uint32."))
+        elif array.dtype.kind not in "fiub":
+            raise OutputError(f"cannot write {path}: {aov} must be a real array, got {array.dtype}.")
+        checked[aov] = array
     if size[0] < 1 or size[1] < 1:
         raise OutputError(f"cannot write {path}: images have no pixels ({size[1]}x{size[0]}).")
-    return channels, size
+    return checked
 
 
 # OpenEXR writing ----------------------------------------------------------------------
@@ -670,7 +686,9 @@ def preview_rgb(images):
 
 
 def write_preview(path, images):
-    """Write an 8-bit RGB PNG of `images` for people (see `preview_rgb`), atomically."""
+    """Write an 8-bit RGB PNG of `images` for people (see `preview_rgb`), atomically.
+    OutputError naming `path` for images write_exr would refuse too."""
+    images = _checked_images(images, path)
     try:
         rgb = np.ascontiguousarray(preview_rgb(images))
     except OutputError as exc:

@@ -208,11 +208,20 @@ def host_bytes_per_pixel(aovs):
     """Host bytes a render of `aovs` needs per pixel: kernel outputs, images, and the
     float64 rays that `distance` and `position` are computed from."""
     size = {"depth": 4, "distance": 4, "normal": 12, "bary": 8, "id": 4, "position": 12,
-            "object": 4}
+            "object": 8}                # the image and its lookup's temporary
     total = sum(size[a] for a in aovs) + 4
+    if "object" in aovs and "id" not in aovs:
+        total += 4                      # the kernel's ids it is looked up from
     if "distance" in aovs or "position" in aovs:
         total += 12 + 8 + 24 + 24
     return total
+
+
+MAP_BYTES = 80
+"""Host bytes per pixel that making a camera model's ray map takes at its peak
+(`ray_map`: kdray.lens's float64 pixel points, directions and their temporaries, the
+float32 map and the valid mask; an equirectangular camera's about 70, measured by
+tracemalloc)."""
 
 
 def output_shapes(n, outputs):
@@ -267,9 +276,14 @@ def images(out, camera, origin, aovs, scale=1.0, objects=None, map32=None):
     return result
 
 
-MODEL_RAY_BYTES = 3 * 24 + 1
-"""Host bytes per pixel of a camera model's rays (Camera.rays: float64 origins and
-directions, and the camera-axis directions they are made from) and its valid mask."""
+MODEL_RAY_BYTES = 3 * 24 + 1 + 104
+"""Host bytes per pixel of a camera model's rays in double precision (Camera.rays:
+float64 origins and directions, and the camera-axis directions they are made from),
+its valid mask, and the float64 hits traced from them with their temporaries."""
+
+ORTHOGRAPHIC_BYTES = 128
+"""Host bytes per pixel an orthographic camera's double render adds (`orthographic_hits`:
+its single render's ids and normals, and the float64 planes' arithmetic)."""
 
 
 def ray_images(hits, origins, directions, valid, camera, aovs):
@@ -324,10 +338,11 @@ def double_bytes_per_pixel(aovs):
     """Host bytes per pixel that `double_images` needs for `aovs` beside the kernel's
     images: the float64 rays (Camera.rays: origins, directions and the camera-axis
     directions they are made from), t and uv (depth and bary are views of them), the
-    hit mask, and distance and position with their numpy temporaries (kdray.double's
-    own are bounded by its CHUNK)."""
+    hit mask, the float64 hits' arithmetic (t, u, v and their temporaries: 64, by
+    tracemalloc), and distance and position with their numpy temporaries
+    (kdray.double's own are bounded by its CHUNK)."""
     size = {"distance": 8 + 24 + 8, "position": 24 + 4 * 24}
-    return 72 + 24 + 1 + sum(size.get(a, 0) for a in aovs)
+    return 72 + 24 + 1 + 64 + sum(size.get(a, 0) for a in aovs)
 
 
 def orthographic_hits(tree, camera, directions, found):

@@ -817,7 +817,8 @@ class Tracer:
         if n >= 1 << 32 or tile_slots(w, min(h, max(1, MAX_RAYS_PER_LAUNCH // w))) >= 1 << 32:
             raise KdrayError(f"{w}x{h} pixels are too many for one render (at most 2^32 - 1, "
                              f"rows padded to {_render.RENDER_TILE[0]} columns)")
-        check_host_memory(n * _render.host_bytes_per_pixel(aovs),
+        check_host_memory(n * (_render.host_bytes_per_pixel(aovs)
+                               + (_render.MAP_BYTES if camera.model in _render.MAP_MODELS else 0)),
                           f"a {w}x{h} render of {', '.join(aovs)}")
         outputs = _render.kernel_outputs(aovs)
         out = {k: page_aligned_empty(shape, dtype)
@@ -887,7 +888,9 @@ class Tracer:
         orthographic camera's hits taken from its single render), and a `valid`
         image."""
         w, h = int(camera.width), int(camera.height)
-        check_host_memory(w * h * (_render.host_bytes_per_pixel(aovs) + _render.MODEL_RAY_BYTES),
+        check_host_memory(w * h * (_render.host_bytes_per_pixel(aovs) + _render.MODEL_RAY_BYTES
+                                   + (_render.ORTHOGRAPHIC_BYTES
+                                      if camera.model == "orthographic" else 0)),
                           f"a {w}x{h} {camera.model} render of {', '.join(aovs)}")
         o, d, valid = camera._model_rays(valid=True, copy=False)   # one origin: no copy
         if camera.model == "orthographic":          # its world origins lose digits

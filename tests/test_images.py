@@ -635,14 +635,21 @@ def test_unwritable_destinations(tmp_path):
         ({"object": np.full((2, 2), -1)}, "object values must fit in uint32"),
         ({"depth": np.ones((0, 3))}, "no pixels"),
         ({"depth": np.full((2, 2), "x")}, "real"),
+        ({"depth": np.ones((2, 2)), "valid": np.full((2, 2), 2)}, "valid values must be 0 or 1"),
+        ({"depth": np.ones((2, 2)), "normal": np.ones((3, 3, 3))}, "3x3 pixels but other"),
+        ([("depth", np.ones((2, 2)))], "no images"),
     ],
 )
 def test_bad_images(tmp_path, aovs, match):
-    path = tmp_path / "bad.exr"
-    with pytest.raises(OutputError, match=match) as info:
-        write_exr(path, aovs)
-    assert "bad.exr" in str(info.value)
-    assert not path.exists()
+    """write_exr and write_preview refuse the same images with the same OutputError
+    (write_preview once passed them to numpy: a ValueError, or a PNG of panels of two
+    sizes)."""
+    for write, name in ((write_exr, "bad.exr"), (write_preview, "bad.png")):
+        path = tmp_path / name
+        with pytest.raises(OutputError, match=match) as info:
+            write(path, aovs)
+        assert name in str(info.value)
+        assert not path.exists()
 
 
 # Previews -----------------------------------------------------------------------------------
