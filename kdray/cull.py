@@ -30,7 +30,7 @@ import numpy as np
 
 from .builder import build
 from .builder.prepare import FLOAT32_MAX, check_origin, mesh_origin, mesh_scale, prepare
-from .errors import MeshError
+from .errors import MeshError, ParameterError
 from .mesh import check_arrays
 
 log = logging.getLogger(__name__)
@@ -104,7 +104,8 @@ def cull_faces(vertices, faces, camera, origin=None):
         origin = mesh_origin(v, f)
     eye = np.asarray(camera.cam_to_world, dtype=np.float64)[:3, 3]
     rotation = np.asarray(camera.cam_to_world, dtype=np.float64)[:3, :3]
-    size = max(np.linalg.norm(v[used] - origin, axis=1).max(), np.linalg.norm(eye - origin))
+    with np.errstate(over="ignore", invalid="ignore"):     # an origin of 1e300: inf, all kept
+        size = max(np.linalg.norm(v[used] - origin, axis=1).max(), np.linalg.norm(eye - origin))
     abs_margin = SCENE_MARGIN * size
 
     planes, angle_margin = _frustum(camera)
@@ -139,10 +140,14 @@ def build_for_camera(vertices, faces, camera, **build_params):
     len(tree.tri_ids) of those).
     When the camera sees nothing the builder keeps (nothing, or only degenerate
     triangles), one unreachable triangle (the first non-degenerate one) is kept so that
-    the tree is not empty: every ray misses.
+    the tree is not empty: every ray misses (n_left_out then m - 1: that one counts as
+    kept). ParameterError for an `origin` among build_params.
     Raises MeshError (as build does) when the mesh has no usable triangle.
     """
     v, f = check_arrays(vertices, faces)
+    if "origin" in build_params:
+        raise ParameterError("build_for_camera takes the whole mesh's origin; origin is "
+                             "not one of its build parameters")
     origin = mesh_origin(v, f)
     if origin is None:
         prepare(v, f)                                           # raises build's MeshError

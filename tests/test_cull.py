@@ -155,3 +155,19 @@ def test_mesh_origin_is_the_builders(rng):
     assert mesh_origin(vertices, faces).tolist() == origin.tolist()
     tree, _ = build_for_camera(vertices, faces, kdray.Camera.look_at((5, -2, 0), (5, -2, 1e5)))
     assert tree.origin.tolist() == origin.tolist()
+
+
+def test_build_for_camera_refuses_an_origin_and_huge_origins_keep_quiet():
+    """build_for_camera takes the whole mesh's origin: one given is a ParameterError
+    (Python's TypeError before); cull_faces with an origin of 1e300 keeps every face
+    without numpy's overflow warnings."""
+    import warnings
+    vertices, faces = real_mesh_arrays("spot.obj")
+    lo, hi = scene_box(vertices, faces)
+    camera = _cameras(lo, hi)["away"]
+    with pytest.raises(kdray.ParameterError, match="origin"):
+        build_for_camera(vertices, faces, camera, origin=(0.0, 0.0, 0.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        kept = cull_faces(vertices, faces, camera, origin=[1e300, 0.0, 0.0])
+    assert len(kept) == len(faces)
