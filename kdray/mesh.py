@@ -94,7 +94,7 @@ def check_objects(objects, object_names, n_tris):
     return np.array(o, dtype=np.uint32, order="C"), names
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class Mesh:
     vertices: np.ndarray
     faces: np.ndarray
@@ -103,6 +103,19 @@ class Mesh:
     """(m,) uint32; None when constructed: every triangle object 0."""
     object_names: tuple = None
     """None when constructed: one object, named after the mesh."""
+
+    def __eq__(self, other):
+        """Equal arrays (values, dtypes and shapes), name and object names: a Mesh
+        compares as its pickled or copied twin does (dataclass equality of numpy
+        arrays raised)."""
+        if not isinstance(other, Mesh):
+            return NotImplemented
+        return (self.name == other.name and self.object_names == other.object_names
+                and all(a.dtype == b.dtype and np.array_equal(a, b)
+                        for a, b in ((self.vertices, other.vertices), (self.faces, other.faces),
+                                     (self.objects, other.objects))))
+
+    __hash__ = None                     # arrays: a Mesh is not a dictionary key
 
     def __post_init__(self):
         if self.objects is None:

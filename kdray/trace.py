@@ -873,13 +873,18 @@ class Tracer:
         """(map32, its device buffer, valid) kept under `key` (the MAPS_KEPT most
         recently used); make() -> (map32 (n, 3) float32, valid (n,) bool or None) when
         it is not kept."""
-        entry = self._maps.pop(key, None)
+        # the maps are shared with with_tree's Tracers and threads: changed under the
+        # lock, made outside it (a lens's inversion takes a while)
+        with self._lock:
+            entry = self._maps.get(key)
         if entry is None:
             map32, valid = make()
             entry = (map32, self._buffer(map32.reshape(-1)), valid)
+        with self._lock:
+            entry = self._maps.pop(key, entry)      # another thread's, made meanwhile
             while len(self._maps) >= MAPS_KEPT:
                 self._maps.pop(next(iter(self._maps)))
-        self._maps[key] = entry             # the most recent last
+            self._maps[key] = entry                 # the most recent last
         return entry
 
     def _render_model(self, camera, aovs, precision):

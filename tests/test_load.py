@@ -491,3 +491,18 @@ def test_gltf_node_of_a_mesh_the_file_lacks(tmp_path):
     g["nodes"][1]["mesh"] = 0
     p.write_text(json.dumps(g))
     assert len(load(p).faces) == 2
+
+
+def test_meshes_compare_by_their_arrays():
+    """A Mesh equals its pickled and deep-copied twins (dataclass equality of numpy
+    arrays raised ValueError), differs where an array, the name or the object names
+    differ, and is not hashable."""
+    import copy
+    import pickle
+    m = Mesh.from_arrays(np.eye(3), [[0, 1, 2]], name="m")
+    assert m == pickle.loads(pickle.dumps(m)) == copy.deepcopy(m)
+    assert m != Mesh.from_arrays(np.eye(3) * 2, [[0, 1, 2]], name="m")
+    assert m != Mesh.from_arrays(np.eye(3), [[0, 1, 2]], name="n")
+    assert m != "m"
+    with pytest.raises(TypeError):
+        hash(m)
