@@ -915,6 +915,19 @@ class Tracer:
         for camera in cameras:
             yield self.render(camera, aovs, precision)
 
+    def __reduce__(self):
+        """A Tracer is not pickled or deep-copied (its OpenCL context, queue and buffers
+        belong to this process): its tree is, and another process makes its own Tracer
+        of it. copy.copy shares everything (`with_tree`)."""
+        raise TypeError("a kdray.Tracer holds this process's OpenCL context and cannot be "
+                        "pickled or deep-copied; pickle its tree (Tracer.tree) and make a "
+                        "Tracer of it in the other process")
+
+    def __copy__(self):
+        other = object.__new__(type(self))
+        other.__dict__.update(self.__dict__)
+        return other
+
     def with_tree(self, tree):
         """A Tracer of another tree on this one's device, context and queue, with its
         packet width, work sizes and refinement, sharing its compiled programs (a tree

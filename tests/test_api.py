@@ -59,3 +59,19 @@ def test_builder_modules_are_not_shadowed():
         module = importlib.import_module(f"kdray.builder.{info.name}")
         assert isinstance(getattr(kdray.builder, info.name), types.ModuleType), info.name
         assert getattr(kdray.builder, info.name) is module
+
+
+def test_a_tracer_is_not_pickled_but_its_tree_is():
+    """Pickling (or deep-copying) a Tracer says to pickle its tree (pyopencl's "cannot
+    pickle 'Context' object" before); copy.copy still shares it, as with_tree does."""
+    import copy
+    import pickle
+    import numpy as np
+    import pytest
+    tracer = kdray.Tracer(kdray.build(np.eye(3), [[0, 1, 2]]))
+    for call in (lambda: pickle.dumps(tracer), lambda: copy.deepcopy(tracer)):
+        with pytest.raises(TypeError, match=r"pickle its tree \(Tracer.tree\)"):
+            call()
+    tree = pickle.loads(pickle.dumps(tracer.tree))
+    o, d = np.array([[0.2, 0.2, -1.0]]), np.array([[0.0, 0.0, 1.0]])
+    assert kdray.Tracer(tree).trace(o, d).t.tolist() == copy.copy(tracer).trace(o, d).t.tolist()
