@@ -91,11 +91,14 @@ bench: bench-deps
 	$(BIN)/python bench/bench_queries.py --meshes $(BENCH_MESHES)
 	$(BIN)/python bench/bench_embree.py --meshes $(BENCH_MESHES) --occluded
 
-# Everything in BENCHMARKS.md: the above, the stiff cases beside Open3D and embreex,
-# build scaling to 6M triangles, what leaving out saves, the cold start, and datasets
-# (views per second beside Open3D, per-scene overhead, Dask workers), calls after an
-# idle moment.
+# The rest of BENCHMARKS.md's tables that a script makes whole: the above, the stiff
+# cases beside Open3D and embreex, build scaling to 6M triangles, what leaving out
+# saves, the cold start, datasets (views per second beside Open3D, per-scene overhead,
+# Dask workers), calls after an idle moment, and the point queries beside Open3D, Warp
+# and trimesh. The others (lidar, camera models, first calls, SAH costs, wide nodes,
+# A/B runs in turns) have their own commands there.
 bench-all: bench
+	$(BIN)/python bench/bench_points.py
 	$(BIN)/python bench/bench_stiff.py
 	$(BIN)/python bench/bench_build.py
 	$(BIN)/python bench/bench_leave_out.py
