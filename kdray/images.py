@@ -308,7 +308,8 @@ def write_exr(path, images, camera=None, object_names=None, lidar=None, sensor_t
              `read_lidar` reads them back exactly) and the images must be the lidar's
              (beams, columns).
     Raises OutputError naming `path` for bad arrays, a camera or lidar of another size,
-    bad object names, a missing or unwritable folder, or a failed write.
+    both a camera and a lidar, a sensor_to_world without its lidar, bad object names, a
+    missing or unwritable folder, or a failed write.
     """
     channels, (height, width) = _channel_arrays(images, path)
     names = _object_names_header(images, object_names, path)
@@ -326,6 +327,12 @@ def write_exr(path, images, camera=None, object_names=None, lidar=None, sensor_t
             )
         check_camera_header(camera, path)
         header.update(_camera_header(camera, images))
+    if lidar is not None and camera is not None:
+        raise OutputError(f"cannot write {path}: a scan's file holds its lidar instead of a "
+                          "camera; give one of them.")
+    if lidar is None and sensor_to_world is not None:
+        raise OutputError(f"cannot write {path}: sensor_to_world is a lidar's pose; give "
+                          "the lidar with it.")
     if lidar is not None:
         header.update(_lidar_header(lidar, sensor_to_world, (height, width), images, path))
     # The binding reads each array's buffer in C order whatever its strides (openexr

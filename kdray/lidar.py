@@ -209,6 +209,9 @@ class Lidar:
             else:
                 raise ParameterError("elevations (a list of degrees) or channels, fov_up and "
                                      "fov_down is missing")
+            if "azimuth_offsets" in spec and spec["azimuth_offsets"] is None:
+                # as horizontal_fov's null: leave the key out for no offsets
+                raise ParameterError("azimuth_offsets must be a list of degrees, got null")
             return cls(elevations, spec["columns"], spec["max_range"],
                        spec.get("horizontal_fov", 360.0), spec.get("azimuth_offsets"))
         except ParameterError as e:

@@ -436,3 +436,23 @@ def test_max_beams_is_accepted():
     lidar = Lidar.from_dict({"channels": MAX_BEAMS, "fov_up": 45, "fov_down": -45, "columns": 2,
                              "max_range": 1})
     assert lidar.directions().shape == (2 * MAX_BEAMS, 3)
+
+
+def test_null_offsets_and_a_scan_header_beside_a_camera_are_refused(tmp_path):
+    """azimuth_offsets: null is refused as horizontal_fov: null is (it meant no offsets);
+    write_exr refuses a lidar and a camera together (a scan's file holds its lidar
+    instead of a camera) and a sensor_to_world without its lidar (dropped before)."""
+    from kdray.errors import OutputError
+    from kdray.images import write_exr
+    with pytest.raises(ParameterError, match="azimuth_offsets must be a list"):
+        Lidar.from_dict({**SPEC, "azimuth_offsets": None})
+    lidar = Lidar.from_dict({**SPEC, "channels": 2, "columns": 3})
+    images = {"range": np.ones((2, 3), np.float32)}
+    camera = kdray.Camera(3, 2, [[3, 0, 1.5], [0, 3, 1], [0, 0, 1]], np.eye(4))
+    with pytest.raises(OutputError, match="instead of a camera"):
+        write_exr(tmp_path / "a.exr", images, camera=camera, lidar=lidar, sensor_to_world=np.eye(4))
+    with pytest.raises(OutputError, match="give the lidar with it"):
+        write_exr(tmp_path / "b.exr", images, sensor_to_world=np.eye(4))
+    assert not list(tmp_path.iterdir())
+    write_exr(tmp_path / "c.exr", images, lidar=lidar, sensor_to_world=np.eye(4))
+    assert read_lidar(tmp_path / "c.exr")[0] == lidar
