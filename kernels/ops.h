@@ -23,6 +23,17 @@ KD_INLINE bool kd_isnan(float x) { return x != x; }
 KD_INLINE
 bool kd_finite3(float3 v) { return v.x - v.x == 0.0f && v.y - v.y == 0.0f && v.z - v.z == 0.0f; }
 
+/* A direction no ray takes: every component below float32's smallest normal number
+ * (FLT_MIN, 2^-126) in magnitude, 0 included. Such a ray misses, as a zero one does:
+ * its inverse and shear (1 / d) would overflow, and a wide walk's slab tests, NaN on
+ * every axis, would take the empty slots of its nodes for met (a crash); a device
+ * that flushes subnormals to zero would see a zero direction anyway. */
+KD_INLINE
+bool kd_no_direction(float3 d)
+{
+    return kd_abs(d.x) < FLT_MIN && kd_abs(d.y) < FLT_MIN && kd_abs(d.z) < FLT_MIN;
+}
+
 KD_INLINE
 float3 kd_cross(float3 a, float3 b)
 {

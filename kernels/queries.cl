@@ -422,7 +422,7 @@ KD_INLINE
 bool kd_walk_range(float3 bmin, float3 bmax, float3 o, float3 d, float t_min, float t_max,
                    float *t_enter, float *t_exit)
 {
-    if (!(kd_finite3(o) && kd_finite3(d)) || (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f))
+    if (!(kd_finite3(o) && kd_finite3(d)) || kd_no_direction(d))
         return false;
     *t_enter = t_min;
     *t_exit = t_max;

@@ -318,7 +318,7 @@ bool trace_ray(__global const KdNode *nodes, uint n_nodes,
     hit->u = 0.0f;
     hit->v = 0.0f;
     hit->tri = KD_NO_HIT;
-    if (!(kd_finite3(o) && kd_finite3(d)) || (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f))
+    if (!(kd_finite3(o) && kd_finite3(d)) || kd_no_direction(d))
         return false;
 
     /* Compute the ray's parametric range inside the scene box, clipped to [t_min, t_max] */

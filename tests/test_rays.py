@@ -68,6 +68,40 @@ def test_occluded_is_traces_hit(runtime, teapot_tree):
     assert tracer.occluded(o[:60].reshape(6, 10, 3), d[:60].reshape(6, 10, 3)).shape == (6, 10)
 
 
+@pytest.mark.parametrize("packet", [None, 1])
+def test_directions_below_float32s_normals_miss(runtime, teapot_tree, packet):
+    """A direction whose every component is below FLT_MIN (2^-126) in magnitude misses,
+    as a zero one does, in every query and path, and the other rays' answers are
+    those of the same rays alone. Scaled by 1e-40, such rays crashed the process in
+    packet programs: a wide walk's slab tests, NaN on every axis, took its nodes'
+    empty slots for met and read a leaf at a garbage address."""
+    tree = teapot_tree
+    o, d = random_rays(tree, 64, seed=11)
+    d = d / np.linalg.norm(d, axis=1)[:, None]
+    tiny = d.copy()
+    tiny[::3] *= 1e-40                   # every component subnormal in float32
+    tiny[1::6] *= 1e-39
+    mixed = d.copy()
+    mixed[::4, 0] = 2.0 ** -120          # one component a normal number: a ray
+    mixed[::4, 1:] *= 1e-40
+    kw = {} if packet is None else {"packet": packet}
+    tracer = Tracer(tree, device=runtime.spec, **kw)
+    gone = np.zeros(len(d), bool)
+    gone[::3] = gone[1::6] = True
+    alone = tracer.trace(o[~gone], d[~gone])
+    hits = tracer.trace(o, tiny)
+    assert not hits.hit[gone].any()
+    np.testing.assert_array_equal(hits.t[~gone], alone.t)
+    np.testing.assert_array_equal(hits.prim[~gone], alone.prim)
+    assert not tracer.occluded(o, tiny)[gone].any()
+    assert not tracer.count(o, tiny)[gone].any()
+    lists = tracer.intersections(o, tiny)
+    assert not np.isin(np.flatnonzero(gone), lists.ray).any()
+    np.testing.assert_array_equal(tracer.count(o, tiny)[~gone], tracer.count(o[~gone], d[~gone]))
+    tracer.trace(o, mixed)              # answers of their own; no crash
+    tracer.count(o, mixed)
+
+
 def test_occluded_stops_at_any_hit_in_packets_and_lanes(runtime, teapot_tree):
     """occluded with one t range for all is trace's traversal stopping at the first hit
     it finds (ANY_HIT; rays that share no path through the wide nodes): rays from one
