@@ -29,7 +29,9 @@
  * only): a hit counts once per input id. count_rays keeps the ids it has counted in
  * KD_SEEN private slots; a ray with more distinct hits counts every hit found, its
  * count then marked KD_COUNT_RAW (an upper bound, which list_rays, deduplicating in
- * its own slots, makes exact). The walk's node decisions are traverse.cl's (the same
+ * its own slots, makes exact). A wide walk meets each triangle once (the wide nodes
+ * hold each in one leaf): its count keeps no ids and is exact however many
+ * (KdQuery.unique). The walk's node decisions are traverse.cl's (the same
  * slack), so it visits every leaf the nearest hit's traversal may.
  *
  * Options (-D): STACK_SIZE (at least the tree's depth + 1), LOCAL_SIZE, RUN (rays a
@@ -119,6 +121,9 @@ typedef struct {
     bool nearest_k;                      /* list (set by list_rays): the slots want the
                                           * cap nearest hits only, not whether there are
                                           * more: the walk may end (kd_list_done) */
+    bool unique;                         /* count: the walk meets each triangle once (a
+                                          * wide walk: the wide nodes hold each triangle
+                                          * in one leaf), so no ids need keeping */
     uint n;                              /* distinct hits */
     uint raw;                            /* count: hits found, copies included; list:
                                           * 1 when a hit found no slot */
@@ -144,6 +149,11 @@ KD_INLINE
 void kd_count_hit(KdQuery *q, uint id, int facing)
 {
     q->raw++;
+    if (q->unique) {                     /* no copies: every hit is a distinct one */
+        q->n++;
+        q->winding += facing;
+        return;
+    }
     if (q->n > KD_SEEN)                  /* past the slots: every hit counts (raw) */
         return;
     for (uint j = 0; j < q->n; j++)
@@ -525,6 +535,8 @@ void kd_wide_walks(uint query, __global const uint *wide, __global const float *
         if (i + 1u < n)
             kd_wide_query_start(&b, &sb, src, t_mins, t_maxs, t_step, ids[ib], bmin, bmax,
                                 reach);
+        q[ia].unique = true;             /* (ib is ia where there is no second ray) */
+        q[ib].unique = true;
         while (a.top | b.top) {
             if (a.top)
                 kd_wide_query_step(query, &a, &q[ia], wide, tris, tri_ids);
@@ -925,6 +937,7 @@ void kd_query_start(KdQuery *q, bool crossing)
     q->n = 0u;
     q->raw = 0u;
     q->winding = 0;
+    q->unique = false;
 }
 
 /* packet programs with KD_WIDE take the tree's wide nodes after n_nodes (wide.cl) */
@@ -1076,9 +1089,11 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
         kd_walk_block(KD_COUNT, crossing != 0u, KD_WALK_ARGS, ids, m, q);
         for (uint l = 0; l < m; l++)
             out[ids[l]] = q[l].fault ? KD_WALK_FAULT
-                        : crossing == KD_WINDING ? (q[l].n > KD_SEEN ? KD_WINDING_RAW
-                                                                     : as_uint(q[l].winding))
-                        : (q[l].n > KD_SEEN ? q[l].raw | KD_COUNT_RAW : q[l].n);
+                        : crossing == KD_WINDING
+                            ? (q[l].n > KD_SEEN && !q[l].unique ? KD_WINDING_RAW
+                                                                : as_uint(q[l].winding))
+                        : (q[l].n > KD_SEEN && !q[l].unique ? q[l].raw | KD_COUNT_RAW
+                                                            : q[l].n);
     }
 }
 #endif

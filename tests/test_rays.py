@@ -1008,3 +1008,25 @@ def test_trace_takes_a_t_range_a_ray(runtime, teapot_tree):
         for query in (tracer.trace, tracer.occluded, tracer.count, tracer.intersections):
             with pytest.raises(KdrayError):
                 query(o45, d45, wrong, hi45)
+
+
+@pytest.mark.parametrize("packet", [None, 1])
+def test_counts_past_the_kept_ids_are_exact(runtime, packet):
+    """A ray through 100 stacked copies of a quad (away from its diagonal) crosses it
+    100 times, more than the kernel keeps ids of: a wide walk (packet programs) meets
+    each triangle once and counts them as it goes, a k-d walk's rays are listed again;
+    both exact, and equal to intersections' lists."""
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    copies = 100
+    v = np.tile(quad, (copies, 1))
+    f = (np.arange(copies)[:, None, None] * 4 + np.array([[0, 1, 2], [0, 2, 3]])).reshape(-1, 3)
+    kw = {} if packet is None else {"packet": packet}
+    tracer = Tracer(build(v, f), device=runtime.spec, **kw)
+    rng = np.random.default_rng(8)
+    n = runtime.small(300, 20)
+    xy = 0.05 + 0.9 * rng.random((n, 2))
+    xy[:, 1] = np.where(np.abs(xy[:, 0] - xy[:, 1]) < 0.01, xy[:, 1] + 0.02, xy[:, 1])
+    o = np.column_stack([xy, -np.ones(n)])
+    d = np.tile([0.0, 0.0, 1.0], (n, 1))
+    assert (tracer.count(o, d) == copies).all()
+    assert (np.diff(tracer.intersections(o, d).offsets) == copies).all()
