@@ -23,15 +23,17 @@ KD_INLINE bool kd_isnan(float x) { return x != x; }
 KD_INLINE
 bool kd_finite3(float3 v) { return v.x - v.x == 0.0f && v.y - v.y == 0.0f && v.z - v.z == 0.0f; }
 
-/* A direction no ray takes: every component below float32's smallest normal number
- * (FLT_MIN, 2^-126) in magnitude, 0 included. Such a ray misses, as a zero one does:
- * its inverse and shear (1 / d) would overflow, and a wide walk's slab tests, NaN on
- * every axis, would take the empty slots of its nodes for met (a crash); a device
- * that flushes subnormals to zero would see a zero direction anyway. */
+/* A direction no ray takes: 0, or so short that the inverse of its largest component
+ * overflows (every component below about 2^-128 in magnitude). Such a ray misses, as a
+ * zero one does: its shear (1 / d[kz]) is infinite, and a wide walk's slab tests, NaN
+ * on every axis (wide.cl, kd_wide_inverse), would take the empty slots of its nodes
+ * for met (a crash). Where the largest component's inverse is finite, its slab keeps
+ * the walk right (a zero component's inverse is +-inf, not NaN). */
 KD_INLINE
 bool kd_no_direction(float3 d)
 {
-    return kd_abs(d.x) < FLT_MIN && kd_abs(d.y) < FLT_MIN && kd_abs(d.z) < FLT_MIN;
+    float m = kd_max(kd_abs(d.x), kd_max(kd_abs(d.y), kd_abs(d.z)));
+    return !(1.0f / m < INFINITY);
 }
 
 KD_INLINE

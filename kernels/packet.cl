@@ -988,7 +988,8 @@ void trace_packet(__global const KdNode *nodes, uint n_nodes,
     intP finite = (ox - ox == 0.0f) & (oy - oy == 0.0f) & (oz - oz == 0.0f)
                   & (dx - dx == 0.0f) & (dy - dy == 0.0f) & (dz - dz == 0.0f);
     /* (kd_no_direction, lane by lane) */
-    on &= finite & ~((kd_absP(dx) < FLT_MIN) & (kd_absP(dy) < FLT_MIN) & (kd_absP(dz) < FLT_MIN));
+    on &= finite & ((floatP)(1.0f) / kd_maxP(kd_absP(dx), kd_maxP(kd_absP(dy), kd_absP(dz)))
+                    < (floatP)(INFINITY));
     floatP t_enter = t_min, t_exit = t_max;
     on &= kd_slabP(ox, dx, bmin.x, bmax.x, &t_enter, &t_exit);
     on &= kd_slabP(oy, dy, bmin.y, bmax.y, &t_enter, &t_exit);

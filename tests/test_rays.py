@@ -69,12 +69,13 @@ def test_occluded_is_traces_hit(runtime, teapot_tree):
 
 
 @pytest.mark.parametrize("packet", [None, 1])
-def test_directions_below_float32s_normals_miss(runtime, teapot_tree, packet):
-    """A direction whose every component is below FLT_MIN (2^-126) in magnitude misses,
-    as a zero one does, in every query and path, and the other rays' answers are
-    those of the same rays alone. Scaled by 1e-40, such rays crashed the process in
-    packet programs: a wide walk's slab tests, NaN on every axis, took its nodes'
-    empty slots for met and read a leaf at a garbage address."""
+def test_directions_too_short_to_invert_miss(runtime, teapot_tree, packet):
+    """A direction whose largest component's float32 inverse overflows (every component
+    below about 2^-128) misses, as a zero one does, in every query and path, and the
+    other rays' answers are those of the same rays alone. Scaled by 1e-40, such rays
+    crashed the process in packet programs: a wide walk's slab tests, NaN on every
+    axis, took its nodes' empty slots for met and read a leaf at a garbage address.
+    (tests/test_runtimes.py: rays just above that bound keep their hits.)"""
     tree = teapot_tree
     o, d = random_rays(tree, 64, seed=11)
     d = d / np.linalg.norm(d, axis=1)[:, None]
