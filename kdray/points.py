@@ -413,6 +413,7 @@ def occupancy(tracer, points, sign="winding", precision="single"):
     within NEAR_SURFACE of the surface (`inside`)."""
     _check_sign(sign)
     if sign == "parity":
+        check_points(points)            # bad points: their error, not the warning first
         _warn_open(tracer)
     return inside(tracer, points, sign, precision)
 
@@ -461,6 +462,7 @@ def signed_distance(tracer, points, sign="winding", max_distance=np.inf, precisi
     Beyond max_distance: +inf outside, -inf inside."""
     _check_sign(sign)
     if sign == "parity":
+        check_points(points)            # bad points: their error, not the warning first
         _warn_open(tracer)
     return signed(tracer, points, sign, max_distance, precision)
 

@@ -396,6 +396,10 @@ def test_parity_on_an_open_mesh_warns(tracers):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         tracer.occupancy(np.zeros((1, 3)))            # winding: no warning
+        # bad points are their own error, with no warning before it
+        for call in (tracer.occupancy, tracer.signed_distance):
+            with pytest.raises(KdrayError):
+                call(np.zeros((1, 2)), sign="parity")
         # the hole is a quarter of a face: 1/24 of the centre's solid angle
         assert abs(tracer.winding_number(np.zeros((1, 3)))[0] - 23 / 24) < 1e-4
 
