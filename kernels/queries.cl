@@ -121,9 +121,10 @@ typedef struct {
     bool nearest_k;                      /* list (set by list_rays): the slots want the
                                           * cap nearest hits only, not whether there are
                                           * more: the walk may end (kd_list_done) */
-    bool unique;                         /* count: the walk meets each triangle once (a
-                                          * wide walk: the wide nodes hold each triangle
-                                          * in one leaf), so no ids need keeping */
+    bool unique;                         /* the walk meets each triangle once (a wide
+                                          * walk: the wide nodes hold each triangle in
+                                          * one leaf): a count keeps no ids, a list looks
+                                          * for no copies */
     uint n;                              /* distinct hits */
     uint raw;                            /* count: hits found, copies included; list:
                                           * 1 when a hit found no slot */
@@ -206,16 +207,19 @@ void kd_slot_insert(KdQuery *q, uint j, float t, float u, float v, uint tri,
 }
 
 /* list: the hit (t, u, v) of copy `tri` into the ray's slots, kept sorted by (t, input
- * id), unless its triangle is there already; with every slot taken (max_hits) it
+ * id), unless its triangle is there already (looked for only where the walk may meet
+ * copies: not in a wide walk, KdQuery.unique); with every slot taken (max_hits) it
  * replaces the last one if it comes before it. A copy dropped so is never taken
  * later: the last slot only moves nearer. */
 KD_INLINE
 void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const uint *tri_ids)
 {
-    uint id = tri_ids[tri];
-    for (uint j = 0; j < q->n; j++)
-        if (tri_ids[q->tri[j]] == id)
-            return;
+    if (!q->unique) {                    /* a k-d walk: copies of a triangle in other leaves */
+        uint id = tri_ids[tri];
+        for (uint j = 0; j < q->n; j++)
+            if (tri_ids[q->tri[j]] == id)
+                return;
+    }
     uint j = q->n;
     if (j == q->cap) {
         q->raw = 1u;                     /* a triangle beyond the cap: more hits than slots */
