@@ -519,15 +519,12 @@ class Camera:
         points: (n, 3) or one point (3,), numbers (integers or floats); CameraError for
         anything else (bools and strings are refused, not converted).
         """
-        check_numbers(points, "the points to project", CameraError)
-        try:
-            a = np.asarray(points)
-        except (ValueError, TypeError) as e:          # a ragged list
-            raise CameraError(f"the points to project must be an (n, 3) array of numbers "
-                              f"({str(e).splitlines()[0][:120]}).") from None
-        if a.dtype.kind not in "fiu" or not (a.shape == (3,) or (a.ndim == 2 and a.shape[1] == 3)):
+        from .ray_input import numbers
+        check_numbers(points, "the points to project", CameraError)   # [[1, True, 2]]
+        a = numbers("the points to project", points, CameraError)
+        if not (a.shape == (3,) or (a.ndim == 2 and a.shape[1] == 3)):
             raise CameraError(f"the points to project must be an (n, 3) array of numbers, "
-                              f"got shape {a.shape} dtype {a.dtype}.")
+                              f"got shape {a.shape}.")
         points = a.astype(np.float64).reshape(-1, 3)
         cam = (points - self.eye) @ self.rotation  # R^T (p - eye), row by row
         if self.model != "pinhole":

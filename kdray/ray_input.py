@@ -34,16 +34,16 @@ t range where it has one of its own (8), rounded up. `flat_rays` checks the host
 them for every ray before anything is made."""
 
 
-def numbers(name, values):
+def numbers(name, values, error=KdrayError):
     """np.asarray(values), an array of numbers (integers or floats; bools, strings,
-    complex numbers and objects are refused, never converted): KdrayError naming
-    `name` otherwise, a ragged list too."""
+    complex numbers and objects are refused, never converted): `error` naming `name`
+    otherwise, a ragged list too."""
     try:
         a = np.asarray(values)
     except (ValueError, TypeError) as e:          # a ragged list
-        raise KdrayError(f"{name} must be an array of numbers ({str(e).splitlines()[0][:120]})") from None
+        raise error(f"{name} must be an array of numbers ({str(e).splitlines()[0][:120]})") from None
     if a.dtype.kind not in "fiu":
-        raise KdrayError(f"{name} must be an array of numbers, got dtype {a.dtype}")
+        raise error(f"{name} must be an array of numbers, got dtype {a.dtype}")
     return a
 
 

@@ -45,7 +45,7 @@ from .ray_grid import ImageWidths
 from .ray_order import ray_order
 from .render import DEFAULT_AOVS
 from .tree import KdTree
-from .validate import check_class, whole_or_none
+from .validate import check_bool, check_class, whole_or_none
 from .wide import stack_groups, wide_nodes
 from .work_sizes import (PACKETS, POCL_ITEM_BYTES, STACK_SIZES, default_packet,  # noqa: F401 (kdray.trace.* names)
                          default_stack_size, default_work_sizes, max_local_size,
@@ -133,8 +133,7 @@ class Tracer:
                             (batch_size, "batch_size"), (groups, "groups")))
         if device is not None and not isinstance(device, str):
             raise KdrayError(f"device must be None or a --device string, got {device!r:.60}")
-        if not isinstance(refine, (bool, np.bool_)):
-            raise KdrayError(f"refine must be True or False, got {refine!r:.60}")
+        refine = check_bool(refine, "refine", KdrayError)
         self.context, self.device = _device.create_context(device)
         self.queue = cl.CommandQueue(self.context)
         self.packet = int(default_packet(self.device) if packet is None else packet)

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import MeshError, ParameterError
 from ..tree import MAX_COORDINATE, BuildParams, KdTree
+from ..validate import check_bool
 # modules, not their functions, under the modules' names: kdray.builder.prepare is
 # the module (a function of the same name would shadow it)
 from . import prepare, scratch, subdivide
@@ -161,8 +162,7 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
     or when no triangle is left; ParameterError (a ValueError) for parameters out of range.
     """
     params = check_params(K_T, K_I, empty_bonus, max_depth, leaf_size)
-    if not isinstance(keep_double, (bool, np.bool_)):
-        raise ParameterError(f"keep_double must be True or False, got {keep_double!r:.60}")
+    keep_double = check_bool(keep_double, "keep_double", ParameterError)
 
     if threads is None:
         threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
