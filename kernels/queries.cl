@@ -123,8 +123,7 @@ typedef struct {
                                           * more: the walk may end (kd_list_done) */
     bool unique;                         /* the walk meets each triangle once (a wide
                                           * walk: the wide nodes hold each triangle in
-                                          * one leaf): a count keeps no ids, a list looks
-                                          * for no copies */
+                                          * one leaf): a count keeps no ids */
     uint n;                              /* distinct hits */
     uint raw;                            /* count: hits found, copies included; list:
                                           * 1 when a hit found no slot */
@@ -207,29 +206,41 @@ void kd_slot_insert(KdQuery *q, uint j, float t, float u, float v, uint tri,
 }
 
 /* list: the hit (t, u, v) of copy `tri` into the ray's slots, kept sorted by (t, input
- * id), unless its triangle is there already (looked for only where the walk may meet
- * copies: not in a wide walk, KdQuery.unique); with every slot taken (max_hits) it
- * replaces the last one if it comes before it. A copy dropped so is never taken
- * later: the last slot only moves nearer. */
+ * id); with every slot taken (max_hits) it replaces the last one if it comes before it.
+ * Its place is found from the end (a few steps: the walks take leaves near first, so a
+ * hit mostly comes after those listed). A copy of a triangle listed already (a k-d
+ * walk meets a triangle in every leaf that holds it) is the same ray through the same
+ * test of the same vertices, so it has its twin's t bit for bit (the rule that makes
+ * packets and lone rays agree) and sorts next to it: it is dropped where the slot
+ * before its place holds its (t, input id). So a hit costs no scan of the whole list
+ * (a ray through k stacked triangles cost k^2 / 2 compares). A hit dropped at the cap,
+ * and its copies, never come back: the last slot only moves nearer. */
 KD_INLINE
 void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const uint *tri_ids)
 {
-    if (!q->unique) {                    /* a k-d walk: copies of a triangle in other leaves */
-        uint id = tri_ids[tri];
-        for (uint j = 0; j < q->n; j++)
-            if (tri_ids[q->tri[j]] == id)
-                return;
-    }
-    uint j = q->n;
-    if (j == q->cap) {
-        q->raw = 1u;                     /* a triangle beyond the cap: more hits than slots */
-        if (j == 0u || !kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids))
-            return;
+    uint n = q->n, j = n;
+    while (j > 0u && kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids))
         j--;
+    if (j > 0u && q->t[j - 1u] == t && tri_ids[q->tri[j - 1u]] == tri_ids[tri])
+        return;                          /* a copy of a hit listed */
+    if (n == q->cap) {
+        q->raw = 1u;                     /* a triangle beyond the cap: more hits than slots */
+        if (j == n)
+            return;                      /* after the last slot */
+        n--;                             /* the last slot's hit is dropped */
     } else {
-        q->n++;
+        q->n = n + 1u;
     }
-    kd_slot_insert(q, j, t, u, v, tri, tri_ids);
+    for (; n > j; n--) {
+        q->t[n] = q->t[n - 1u];
+        q->uv[2u * n] = q->uv[2u * n - 2u];
+        q->uv[2u * n + 1u] = q->uv[2u * n - 1u];
+        q->tri[n] = q->tri[n - 1u];
+    }
+    q->t[j] = t;
+    q->uv[2u * j] = u;
+    q->uv[2u * j + 1u] = v;
+    q->tri[j] = tri;
 }
 
 #ifdef PACKET

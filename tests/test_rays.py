@@ -1031,3 +1031,48 @@ def test_counts_past_the_kept_ids_are_exact(runtime, packet):
     d = np.tile([0.0, 0.0, 1.0], (n, 1))
     assert (tracer.count(o, d) == copies).all()
     assert (np.diff(tracer.intersections(o, d).offsets) == copies).all()
+
+
+@pytest.mark.parametrize("walk", ["one ray", "packets", "wide"])
+def test_long_lists_through_copies_are_each_triangle_once(runtime, walk):
+    """Rays through 40 stacked quads that k-d splits cut into copies (small triangles
+    scattered among them put the planes there), some along the stack, some on a split
+    plane, some across it: every triangle hit is listed once, in (t, input id) order,
+    as the float64 brute force lists them, however the rays walk (a k-d walk lone or
+    as packets meets a quad in every leaf that holds it; a wide walk once), and a
+    k-nearest list is the whole list's start. (A copy is found next to its twin, by its
+    own t: kd_list_hit.)"""
+    rng = np.random.default_rng(31)
+    k = 40
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    v = np.concatenate([quad + [0, 0, z] for z in np.arange(k) + 0.5])
+    f = (np.arange(k)[:, None, None] * 4 + np.array([[0, 1, 2], [0, 2, 3]])).reshape(-1, 3)
+    m = runtime.small(600, 120)
+    centre = rng.uniform([0.02, 0.02, 0.0], [0.98, 0.98, k], (m, 1, 3))
+    small = (centre + rng.normal(0.0, 0.01, (m, 3, 3))).reshape(-1, 3)
+    v = np.concatenate([v, small])
+    f = np.concatenate([f, len(quad) * k + np.arange(3 * m).reshape(-1, 3)])
+    tree = build(v, f, K_T=10)                      # a fine tree: quads in many leaves
+    kw = {"packet": 1} if walk == "one ray" else {}
+    tracer = Tracer(tree, device=runtime.spec, **kw)
+    tracer._alone_spread = {"one ray": None, "packets": 1e30, "wide": -1.0}[walk]
+    tracer._poison_outputs = True
+    n = runtime.small(300, 40)
+    xy = rng.uniform(0.05, 0.95, (n, 2))
+    xy[::3, 0] = small[rng.integers(0, len(small), len(xy[::3])), 0]   # on a split plane
+    o = np.column_stack([xy, np.full(n, -1.0)])
+    d = np.tile([0.0, 0.0, 1.0], (n, 1))
+    d[1::4, :2] = rng.normal(0.0, 0.02, (len(d[1::4]), 2))             # across the planes
+    hits = tracer.intersections(o, d)
+    ref_ray, ref_prim, ref_t, _, _ = all_hits(v[f], o, d)
+    assert np.array_equal(hits.offsets, np.concatenate([[0], np.cumsum(np.bincount(ref_ray, minlength=n))]))
+    assert np.array_equal(hits.prim, ref_prim)
+    assert np.allclose(hits.t, ref_t, rtol=RTOL_T, atol=0)
+    along = np.ones(n, bool)
+    along[1::4] = False
+    assert (hits.counts[along] >= k).all()          # every quad, each once
+    for cap in (3, 50):
+        few = tracer.intersections(o, d, max_hits=cap)
+        keep = np.arange(len(hits.t)) - np.repeat(hits.offsets[:-1], hits.counts) < cap
+        assert np.array_equal(few.prim, hits.prim[keep]) and np.array_equal(few.t, hits.t[keep])
+
