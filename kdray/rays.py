@@ -34,7 +34,7 @@ from . import device as _device
 from . import point_order, ray_input
 from .double import flat_rays64, wants_double
 from .errors import DeviceError, KdrayError
-from .host import check_host_memory, page_aligned_empty, take_rows
+from .host import available_memory, check_host_memory, page_aligned_empty, take_rows
 from .points import SORT_FROM, check_points, spatial_order
 from .ray_order import ray_order
 from .tree import object_ids
@@ -112,6 +112,12 @@ its query's state in private memory (about 200 bytes: 13 KB a work-item)."""
 HIT_BYTES = 16
 """Host bytes of one listed hit: t (4), u and v (8), prim (4); ray and object are
 made on the host when asked (8 bytes each)."""
+
+COUNT_LIST_BYTES = 1 << 30
+"""The most host memory the hits listed to count rays with many take at once (`_counts`,
+whose answers need none of them after; and no more than a quarter of what is
+available): the rays are listed in groups that fit, so that a count's memory does not
+grow with its hits."""
 
 
 @dataclasses.dataclass(eq=False)
@@ -499,13 +505,27 @@ def _counts(tracer, rays, crossing):
     _check_fault(out[marked] == WALK_FAULT, "count")
     counts = out.view(np.int32)
     raw = marked[(out[marked] & np.uint32(COUNT_RAW)) != 0]
-    if raw.size:
-        # more distinct hits than the kernel keeps ids of: listed, which deduplicates
-        sub = rays.subset(raw)
-        caps = (out[raw] & ~np.uint32(COUNT_RAW)).astype(np.int64)
-        listed, _ = _list(tracer, sub, caps, crossing)
-        counts[raw] = np.diff(listed.offsets)
+    # more distinct hits than the kernel keeps ids of: listed, which deduplicates, a
+    # group of rays at a time (COUNT_LIST_BYTES; every hit found, copies too, a slot)
+    caps = (out[raw] & ~np.uint32(COUNT_RAW)).astype(np.int64)
+    have = available_memory()
+    most = COUNT_LIST_BYTES if have is None else min(COUNT_LIST_BYTES, have // 4)
+    for group in _groups(caps, most // (HIT_BYTES + 4)):
+        listed, _ = _list(tracer, rays.subset(raw[group]), caps[group], crossing)
+        counts[raw[group]] = np.diff(listed.offsets)
     return counts
+
+
+def _groups(sizes, most):
+    """Slices of consecutive entries of sizes ((k,) int64) whose sums are at most `most`
+    (one entry a group where it alone is more), in order."""
+    ends = np.cumsum(sizes)
+    start = 0
+    while start < len(sizes):
+        before = int(ends[start - 1]) if start else 0
+        stop = max(start + 1, int(np.searchsorted(ends, before + most, side="right")))
+        yield slice(start, stop)
+        start = stop
 
 
 def count(tracer, origins, directions, t_min=0.0, t_max=np.inf):

@@ -1076,3 +1076,30 @@ def test_long_lists_through_copies_are_each_triangle_once(runtime, walk):
         keep = np.arange(len(hits.t)) - np.repeat(hits.offsets[:-1], hits.counts) < cap
         assert np.array_equal(few.prim, hits.prim[keep]) and np.array_equal(few.t, hits.t[keep])
 
+
+@pytest.mark.parametrize("packet", [1, None], ids=["one ray", "packets"])
+def test_counts_take_no_memory_for_their_hits(tracers, monkeypatch, packet):
+    """Rays that meet more triangles than the kernel keeps ids of in a k-d walk are
+    counted by listing their hits, a group of rays at a time that fits in memory: a
+    count whose hits would not fit at once (here 20,000 rays x 100 quads, 40 MB of
+    lists, with 12 MB available) is still counted, exactly, with no error."""
+    import kdray.host
+    k = 100
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    v = np.concatenate([quad + [0, 0, z] for z in range(k)])
+    f = (np.arange(k)[:, None, None] * 4 + np.array([[0, 1, 2], [0, 2, 3]])).reshape(-1, 3)
+    tracer = tracers(build(v, f), packet=packet)
+    tracer._alone_spread = 1e30                       # packets: the k-d walk
+    rng = np.random.default_rng(4)
+    n = 20000
+    xy = rng.uniform(0.05, 0.95, (n, 2))
+    xy[:, 1] = np.where(np.abs(xy[:, 0] - xy[:, 1]) < 0.02, 0.5 * xy[:, 1], xy[:, 1])
+    o = np.column_stack([xy, np.full(n, -1.0)])
+    d = np.tile([0.0, 0.0, 1.0], (n, 1))
+    for module in (kdray.host, krays):
+        monkeypatch.setattr(module, "available_memory", lambda: 12 << 20)
+    assert (tracer.count(o, d) == k).all()
+    assert (tracer.count(o, d, t_max=np.where(np.arange(n) % 2, 50.5, np.inf)) ==
+            np.where(np.arange(n) % 2, 50, k)).all()          # t = z + 1 < 50.5
+    with pytest.raises(KdrayError, match="list fewer rays"):
+        tracer.intersections(o, d)                    # the lists themselves do not fit
