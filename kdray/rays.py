@@ -493,9 +493,12 @@ def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
     return hits.hit.reshape(shape)
 
 
-def _counts(tracer, rays, crossing):
-    """(N,) int32 exact counts of distinct triangles hit (crossing: the count's rule):
-    the kernel's output itself, seen as int32, the few marked rays mended in place."""
+def _count_pass(tracer, rays, crossing):
+    """(counts, raw) of count_rays over `rays` (crossing: the count's rule): counts
+    (N,) int32, the kernel's output itself, each ray's distinct triangles hit, but for
+    the rays `raw` ((k,) int64) whose count was lost (kernels/queries.cl,
+    kd_count_hit: more hits than it keeps, KD_SEEN, far out of their order): theirs is
+    every hit found, copies included, a bound on their distinct hits."""
     out = page_aligned_empty((rays.n,), np.uint32)
     for start, stop in _launches(tracer, rays, [4]):
         _launch(tracer, "count_rays", rays, start, stop, (np.uint32(crossing),),
@@ -503,11 +506,18 @@ def _counts(tracer, rays, crossing):
     # one pass finds the marked rays (COUNT_RAW, WALK_FAULT), then only they are read
     marked = np.flatnonzero(out >= np.uint32(WALK_FAULT))
     _check_fault(out[marked] == WALK_FAULT, "count")
-    counts = out.view(np.int32)
     raw = marked[(out[marked] & np.uint32(COUNT_RAW)) != 0]
-    # more distinct hits than the kernel keeps ids of: listed, which deduplicates, a
-    # group of rays at a time (COUNT_LIST_BYTES; every hit found, copies too, a slot)
-    caps = (out[raw] & ~np.uint32(COUNT_RAW)).astype(np.int64)
+    out[raw] &= ~np.uint32(COUNT_RAW)
+    return out.view(np.int32), raw
+
+
+def _counts(tracer, rays, crossing):
+    """(N,) int32 exact counts of distinct triangles hit (crossing: the count's rule):
+    `_count_pass`'s, its rays whose count was lost mended in place."""
+    counts, raw = _count_pass(tracer, rays, crossing)
+    # listed, which deduplicates, a group of rays at a time (COUNT_LIST_BYTES; every
+    # hit found, copies too, a slot)
+    caps = counts[raw].astype(np.int64)
     have = available_memory()
     most = COUNT_LIST_BYTES if have is None else min(COUNT_LIST_BYTES, have // 4)
     for group in _groups(caps, most // (HIT_BYTES + 4)):
@@ -541,8 +551,9 @@ WINDING = 2
 """count_rays' `crossing` argument for crossings summed with their facings (KD_WINDING;
 0: every triangle hit, 1: crossings)."""
 WINDING_RAW = 0x7FFFFFFF
-"""count_rays' mark of a ray with more crossings than it keeps ids of (KD_SEEN) in its
-winding mode (kernels/queries.cl, KD_WINDING)."""
+"""count_rays' mark of a ray whose count was lost (kernels/queries.cl, kd_count_hit:
+more crossings than it keeps, KD_SEEN, coming far out of their order) in its winding
+mode (KD_WINDING)."""
 
 
 def _contains_rays(tracer, p):
@@ -584,7 +595,8 @@ def crossing_windings(tracer, points):
     of `contains` (contains_directions) with its crossings' facings summed, +1 where
     the ray leaves through a triangle's front and -1 where it enters (kernels/queries.cl,
     kd_facing): on a closed, consistently oriented mesh the exact winding number of the
-    point (points.closed_cycle). WINDING_RAW for a ray with more than 32 crossings."""
+    point (points.closed_cycle). WINDING_RAW for a ray whose count was lost (more than
+    32 crossings far out of their order in a k-d walk, kernels/queries.cl)."""
     rays, order = _contains_rays(tracer, points)
     out = page_aligned_empty((rays.n,), np.uint32)
     for start, stop in _launches(tracer, rays, [4]):
@@ -926,8 +938,10 @@ def _listed(tracer, rays, max_hits):
     redo = () if final else np.flatnonzero(more)
     if not len(redo):
         return _gathered(tracer, n, first, slots)
-    # the rays with more: their whole lists in their places
+    # the rays with more: their whole lists in their places (all of them: the answer)
     again = _relisted(tracer, rays, redo, max_hits)
+    if len(redo) == rays.n:
+        return again
     n[redo] = again.counts
     # the whole list, and the index of the relisted hits in it (and its making's)
     total = int(n.sum())
@@ -941,9 +955,11 @@ def _listed(tracer, rays, max_hits):
 
 def _relisted(tracer, rays, redo, max_hits):
     """The Intersections of rays `redo` ((k,) int64) in full (their max_hits nearest):
-    counted, then listed with as many slots."""
+    counted, then listed with as many slots; a ray whose count was lost gets one a hit
+    found, copies too (`_count_pass`), the slots its copies leave empty then dropped,
+    not counted exactly by a list of its own first."""
     sub = rays.subset(redo)
-    caps = _counts(tracer, sub, False).astype(np.int64)
+    caps = _count_pass(tracer, sub, False)[0].astype(np.int64)
     if max_hits is not None:
         np.minimum(caps, int(max_hits), out=caps)
     return _list(tracer, sub, caps, nearest_k=True)[0]

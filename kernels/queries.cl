@@ -26,10 +26,11 @@
  *
  * A triangle in several leaves has a copy in each (layout.h), and a ray that reaches
  * two of them finds the same hit twice (the test depends on the ray and the triangle
- * only): a hit counts once per input id. count_rays keeps the ids it has counted in
- * KD_SEEN private slots; a ray with more distinct hits counts every hit found, its
- * count then marked KD_COUNT_RAW (an upper bound, which list_rays, deduplicating in
- * its own slots, makes exact). A wide walk meets each triangle once (the wide nodes
+ * only): a hit counts once per input id. count_rays keeps the KD_SEEN greatest hits
+ * it has counted (t and input id) in private slots, where a copy finds its twin; a
+ * ray whose hits come so far out of order that a copy's twin may have been dropped
+ * (kd_count_hit) counts every hit found, its count then marked KD_COUNT_RAW (an upper
+ * bound, which list_rays, deduplicating in its own slots, makes exact). A wide walk meets each triangle once (the wide nodes
  * hold each in one leaf): its count keeps no ids and is exact however many
  * (KdQuery.unique). The walk's node decisions are traverse.cl's (the same
  * slack), so it visits every leaf the nearest hit's traversal may.
@@ -78,7 +79,7 @@
  * (a float4 hint, as render.cl's floatP hint for packets). Others ignore it. */
 #define KD_NO_LANES __attribute__((vec_type_hint(float4)))
 
-#define KD_SEEN 32u                     /* input ids count_rays keeps, per ray */
+#define KD_SEEN 32u                     /* hits count_rays keeps, per ray (2^k) */
 #define KD_COUNT_RAW 0x80000000u         /* count_rays: the count is every hit found */
 #define KD_WALK_FAULT 0x40000000u        /* the walk met a corrupt tree (never otherwise) */
 #define KD_LIST_MORE 0x20000000u         /* list_rays: the ray has more hits than its slots */
@@ -128,7 +129,15 @@ typedef struct {
     uint raw;                            /* count: hits found, copies included; list:
                                           * 1 when a hit found no slot */
     int winding;                         /* count: the crossings' facings summed */
-    uint seen[KD_SEEN];                  /* count: the input ids counted */
+    bool lost;                           /* count: a hit may have been a copy of one
+                                          * dropped from seen (kd_count_hit): n is
+                                          * lost, raw still counts */
+    uint kept, head;                     /* count: the entries of seen in use, the
+                                          * least's slot */
+    float floor_t;                       /* count: the greatest (t, input id) dropped */
+    uint floor_id;                       /* from seen (t -inf: none) */
+    float seen_t[KD_SEEN];               /* count: the KD_SEEN greatest hits counted, */
+    uint seen[KD_SEEN];                  /* (t, input id), a sorted ring */
     /* list: the ray's slots, cap of them, n used, sorted by (t, input id): in the
      * caller's buffers, or with LIST_SLOTS in private memory (list_first) */
 #ifdef LIST_SLOTS
@@ -143,10 +152,28 @@ typedef struct {
     uint cap;
 } KdQuery;
 
-/* count: one more hit of input id `id` (facing: kd_facing's, for crossings), counted
- * unless counted already. */
+/* count: whether (t, id) comes before (t2, id2), or is it (or_equal) */
 KD_INLINE
-void kd_count_hit(KdQuery *q, uint id, int facing)
+bool kd_count_before(float t, uint id, float t2, uint id2, bool or_equal)
+{
+    return t < t2 || (t == t2 && (id < id2 || (or_equal && id == id2)));
+}
+
+/* count: one more hit, at t of input id `id` (facing: kd_facing's, for crossings),
+ * counted unless counted already. A k-d walk meets a triangle in every leaf that holds
+ * a copy of it, and a copy's hit has its twin's (t, id) bit for bit (kd_list_hit).
+ * seen keeps the KD_SEEN greatest hits counted, sorted by (t, id) in a ring (entry i
+ * at (head + i) % KD_SEEN), floor the greatest dropped from it: a hit after the floor
+ * is a copy exactly where its place in seen follows its (t, id) (its twin, as great,
+ * was never dropped); one at or before the floor may be a dropped hit's copy, and the
+ * count is lost (raw then counts every hit found, which list_rays makes exact). The
+ * walks take leaves near first, so hits mostly come in t order, each put in place
+ * in a step or two and copies soon after their twins: a ray through thousands of
+ * stacked triangles keeps its count. */
+#define KD_SEEN_AT(q, i) (((q)->head + (i)) & (KD_SEEN - 1u))
+
+KD_INLINE
+void kd_count_hit(KdQuery *q, uint id, float t, int facing)
 {
     q->raw++;
     if (q->unique) {                     /* no copies: every hit is a distinct one */
@@ -154,15 +181,39 @@ void kd_count_hit(KdQuery *q, uint id, int facing)
         q->winding += facing;
         return;
     }
-    if (q->n > KD_SEEN)                  /* past the slots: every hit counts (raw) */
+    if (q->lost)
         return;
-    for (uint j = 0; j < q->n; j++)
-        if (q->seen[j] == id)
-            return;
-    if (q->n < KD_SEEN)
-        q->seen[q->n] = id;
-    q->n++;                              /* KD_SEEN + 1: overflowed */
+    if (kd_count_before(t, id, q->floor_t, q->floor_id, true)) {
+        q->lost = true;
+        return;
+    }
+    uint j = q->kept;
+    while (j > 0u && kd_count_before(t, id, q->seen_t[KD_SEEN_AT(q, j - 1u)],
+                                     q->seen[KD_SEEN_AT(q, j - 1u)], false))
+        j--;
+    if (j > 0u && q->seen_t[KD_SEEN_AT(q, j - 1u)] == t && q->seen[KD_SEEN_AT(q, j - 1u)] == id)
+        return;                          /* a copy of a hit counted */
+    q->n++;
     q->winding += facing;
+    if (q->kept == KD_SEEN) {
+        if (j == 0u) {                   /* the least of them all: dropped at once */
+            q->floor_t = t;
+            q->floor_id = id;
+            return;
+        }
+        q->floor_t = q->seen_t[q->head]; /* the least kept dropped for it */
+        q->floor_id = q->seen[q->head];
+        q->head = KD_SEEN_AT(q, 1u);
+        q->kept--;
+        j--;
+    }
+    for (uint i = q->kept; i > j; i--) {
+        q->seen_t[KD_SEEN_AT(q, i)] = q->seen_t[KD_SEEN_AT(q, i - 1u)];
+        q->seen[KD_SEEN_AT(q, i)] = q->seen[KD_SEEN_AT(q, i - 1u)];
+    }
+    q->seen_t[KD_SEEN_AT(q, j)] = t;
+    q->seen[KD_SEEN_AT(q, j)] = id;
+    q->kept++;
 }
 
 /* The side triangle (p0, p1, p2) turns to the ray where intersect_triangle's crossing
@@ -331,7 +382,7 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                     continue;
                 uint tri = first + i0 + j;
                 if (query == KD_COUNT)
-                    kd_count_hit(q, tri_ids[tri], 0);
+                    kd_count_hit(q, tri_ids[tri], t.s[j], 0);
                 else
                     kd_list_hit(q, tri, t.s[j], V.s[j] / det.s[j], W.s[j] / det.s[j], tri_ids);
             }
@@ -357,7 +408,7 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                                                true, &t, &u, &v))
                 continue;
             if (query == KD_COUNT)
-                kd_count_hit(q, tri_ids[tri],
+                kd_count_hit(q, tri_ids[tri], t,
                              kd_facing(shear, o, kd_vertex(tris, tri, 0),
                                        kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2)));
             else
@@ -374,7 +425,7 @@ bool kd_query_leaf(uint query, KdNode leaf, __global const float *tris,
                                 tri_ids, q->crossing, &t, &u, &v))
             continue;
         if (query == KD_COUNT)
-            kd_count_hit(q, tri_ids[tri],
+            kd_count_hit(q, tri_ids[tri], t,
                          q->crossing ? kd_facing(shear, o, kd_vertex(tris, tri, 0),
                                                  kd_vertex(tris, tri, 1), kd_vertex(tris, tri, 2))
                                      : 0);
@@ -666,7 +717,7 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
             if (query == KD_LIST)
                 kd_list_hit(&q[l], tri, t.s[l], V.s[l] / det.s[l], W.s[l] / det.s[l], tri_ids);
             else
-                kd_count_hit(&q[l], id, 0);
+                kd_count_hit(&q[l], id, t.s[l], 0);
         } else {
             RayShear sl;
             float3 ol;
@@ -678,7 +729,7 @@ void kd_packet_query_tri(uint query, bool crossing, uint tri, __global const flo
             if (query == KD_LIST)
                 kd_list_hit(&q[l], tri, th, u, v, tri_ids);
             else
-                kd_count_hit(&q[l], id, kd_facing(&sl, ol, p0, p1, p2));
+                kd_count_hit(&q[l], id, th, kd_facing(&sl, ol, p0, p1, p2));
         }
     } while (lanes);
 }
@@ -953,6 +1004,11 @@ void kd_query_start(KdQuery *q, bool crossing)
     q->raw = 0u;
     q->winding = 0;
     q->unique = false;
+    q->lost = false;
+    q->kept = 0u;
+    q->head = 0u;
+    q->floor_t = -INFINITY;
+    q->floor_id = 0u;
 }
 
 /* packet programs with KD_WIDE take the tree's wide nodes after n_nodes (wide.cl) */
@@ -1093,9 +1149,9 @@ void kd_walk_block(uint query, bool crossing, KD_QUERY_ARGS, const uint *ids, ui
 
 #if !defined(LIST_SLOTS) && !defined(KD_ONLY_LIST_RAYS)
 /* out[k]: the number of distinct triangles ray k hits (crossing 1: under the count's
- * rule), or every hit found | KD_COUNT_RAW when they were more than KD_SEEN, or
+ * rule), or every hit found | KD_COUNT_RAW when the count was lost (kd_count_hit), or
  * KD_WALK_FAULT. crossing 2 (KD_WINDING): the crossings' facings summed (kd_facing), an
- * int, or KD_WINDING_RAW when they were more than KD_SEEN, or KD_WALK_FAULT. */
+ * int, or KD_WINDING_RAW when the count was lost, or KD_WALK_FAULT. */
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
 {
@@ -1105,10 +1161,8 @@ void count_rays(KD_QUERY_ARGS, uint crossing, __global uint *out)
         for (uint l = 0; l < m; l++)
             out[ids[l]] = q[l].fault ? KD_WALK_FAULT
                         : crossing == KD_WINDING
-                            ? (q[l].n > KD_SEEN && !q[l].unique ? KD_WINDING_RAW
-                                                                : as_uint(q[l].winding))
-                        : (q[l].n > KD_SEEN && !q[l].unique ? q[l].raw | KD_COUNT_RAW
-                                                            : q[l].n);
+                            ? (q[l].lost ? KD_WINDING_RAW : as_uint(q[l].winding))
+                        : (q[l].lost ? q[l].raw | KD_COUNT_RAW : q[l].n);
     }
 }
 #endif

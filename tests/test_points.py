@@ -339,8 +339,7 @@ def test_winding_sign_on_closed_meshes_is_the_crossings_integer(runtime, spot):
     """On a closed, consistently oriented mesh the winding sign comes from one ray's
     crossings summed with their facings (kdray.rays.crossing_windings): the exact
     integer, so the generalized winding number's sign wherever that is near an integer;
-    overlapping and inside-out components count as the winding number counts them;
-    rays with more crossings than the kernel keeps fall back to the generalized one."""
+    overlapping and inside-out components count as the winding number counts them."""
     from kdray import rays as krays
     v, f, tree = spot
     tracer = Tracer(tree, device=runtime.spec)
@@ -368,15 +367,15 @@ def test_winding_sign_on_closed_meshes_is_the_crossings_integer(runtime, spot):
     assert tracer.occupancy(q, sign="parity")[0] == False   # noqa: E712 (even crossings)
 
     # 34 nested spheres: the centre's ray crosses them all, more than the kernel keeps
-    # ids of: exact where the ray walks the wide nodes (packet programs: each triangle
-    # in one leaf, so no ids are needed), marked raw where it walks the k-d tree
+    # hits of: exact where the ray walks the wide nodes (packet programs: each triangle
+    # in one leaf, so none need be kept) and where it walks the k-d tree (its hits come
+    # in t order: kd_count_hit); tests/test_rays.py has rays whose count is lost
     b, fb = icosphere(0)
     shells = build(np.concatenate([b * (1 + 0.1 * k) for k in range(34)]),
                    np.concatenate([fb + k * len(b) for k in range(34)]))
     tracer = Tracer(shells, device=runtime.spec)
     centre = np.array([[0.01, 0.02, 0.03]])
-    wide = tracer.packet > 1
-    assert krays.crossing_windings(tracer, centre)[0] == (34 if wide else krays.WINDING_RAW)
+    assert krays.crossing_windings(tracer, centre)[0] == 34
     assert tracer.occupancy(centre)[0] and abs(tracer.winding_number(centre)[0] - 34) < 1e-3
 
 

@@ -13,11 +13,13 @@ from kdray import ray_order as kray_order
 from kdray import rays as krays
 from kdray.builder import build
 from kdray.errors import KdrayError
+from kdray import layout
 from kdray.layout import MISS
 from kdray.load import load
 from kdray.points import spatial_order
 from kdray.reference import all_hits
 from kdray.trace import PACKETS, Tracer
+from kdray.tree import BuildParams, KdTree
 
 
 @pytest.fixture(scope="module")
@@ -637,7 +639,7 @@ def test_a_corrupt_tree_is_reported_not_walked_on(runtime, teapot_tree, packet):
 
 
 def test_many_hits_a_ray_are_counted_exactly(tracers):
-    """More distinct hits than the kernel keeps ids of (KD_SEEN): listed to count."""
+    """More distinct hits than the kernel keeps (KD_SEEN)."""
     k = 80
     z = np.arange(k, dtype=float)
     v = np.concatenate([np.stack([np.full(k, -1.0), np.full(k, -1.0), z], 1),
@@ -656,12 +658,12 @@ def test_many_hits_a_ray_are_counted_exactly(tracers):
 
 @pytest.mark.parametrize("packet", [1, None], ids=["one ray", "lanes"])
 def test_more_crossings_than_kept_ids_count_by_the_crossing_rule(tracers, packet):
-    """A ray with more crossings than count_rays keeps ids of (KD_SEEN) is counted by
-    listing its crossings, under the count's rule: through 20 nested grid cubes along
-    an axis, each face crossed at a vertex that 4 to 6 triangles share (and on the
-    diagonal, at edges two share), 40 crossings, where every triangle hit would be
-    many more; as few as 10 cubes (20 crossings, no listing) agree. The listing lists
-    crossings however many slots it has."""
+    """A ray with more crossings than count_rays keeps hits of (KD_SEEN) is counted
+    under the count's rule: through 20 nested grid cubes along an axis, each face
+    crossed at a vertex that 4 to 6 triangles share (and on the diagonal, at edges two
+    share), 40 crossings, where every triangle hit would be many more; as few as 10
+    cubes (20 crossings) agree. The listing that mends a lost count (kd_count_hit)
+    lists crossings however many slots it has."""
     v, f = grid_cube(1)
     vs, fs = [], []
     for k in range(1, 21):
@@ -1014,9 +1016,10 @@ def test_trace_takes_a_t_range_a_ray(runtime, teapot_tree):
 @pytest.mark.parametrize("packet", [None, 1])
 def test_counts_past_the_kept_ids_are_exact(runtime, packet):
     """A ray through 100 stacked copies of a quad (away from its diagonal) crosses it
-    100 times, more than the kernel keeps ids of: a wide walk (packet programs) meets
-    each triangle once and counts them as it goes, a k-d walk's rays are listed again;
-    both exact, and equal to intersections' lists."""
+    100 times, more than the kernel keeps hits of: a wide walk (packet programs) meets
+    each triangle once and counts them as it goes, a k-d walk keeps the greatest hits
+    counted or, where they come too far out of their (t, id) order (these tie in t),
+    lists them again; both exact, and equal to intersections' lists."""
     quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
     copies = 100
     v = np.tile(quad, (copies, 1))
@@ -1071,6 +1074,11 @@ def test_long_lists_through_copies_are_each_triangle_once(runtime, walk):
     along = np.ones(n, bool)
     along[1::4] = False
     assert (hits.counts[along] >= k).all()          # every quad, each once
+    # counts find their copies too (kd_count_hit), of every hit and of crossings
+    rays = krays._Rays(tracer, o, d, 0.0, np.inf)
+    assert np.array_equal(krays._counts(tracer, rays, False), hits.counts)
+    crossed = all_hits(v[f], o, d, crossing=True)[0]
+    assert np.array_equal(tracer.count(o, d), np.bincount(crossed, minlength=n))
     for cap in (3, 50):
         few = tracer.intersections(o, d, max_hits=cap)
         keep = np.arange(len(hits.t)) - np.repeat(hits.offsets[:-1], hits.counts) < cap
@@ -1103,3 +1111,68 @@ def test_counts_take_no_memory_for_their_hits(tracers, monkeypatch, packet):
             np.where(np.arange(n) % 2, 50, k)).all()          # t = z + 1 < 50.5
     with pytest.raises(KdrayError, match="list fewer rays"):
         tracer.intersections(o, d)                    # the lists themselves do not fit
+
+
+@pytest.mark.parametrize("walk", ["one ray", "packets"])
+def test_counts_of_hits_out_of_order_are_mended(runtime, walk):
+    """A k-d walk keeps the KD_SEEN greatest hits it has counted, (t, input id), to find
+    copies by (kd_count_hit). 40 nested cubes in one leaf, tested outermost first,
+    give a ray from the centre its crossings from the last: after the 32nd each comes
+    before all those kept, its count is lost and mended by listing (a winding left to
+    the generalized winding number); tested innermost first, it counts as it goes.
+    Both exact, as the float64 brute force has them."""
+    v, f = grid_cube(1)
+    sizes = np.arange(1, 41) * 0.026
+    rng = np.random.default_rng(12)
+    n = runtime.small(64, 16)
+    o = rng.uniform(-1e-3, 1e-3, (n, 3))
+    d = np.tile([0.31, 0.52, 0.79], (n, 1))
+    if walk == "packets":
+        d[:, 0] = np.where(np.arange(n) % 2, 0.02, -0.02)   # two octants: the k-d walk
+    for outer_first in (True, False):
+        order = sizes[::-1] if outer_first else sizes
+        vs = np.concatenate([v * s for s in order])
+        fs = np.concatenate([f + len(v) * i for i in range(len(order))])
+        tree = build(vs, fs, K_T=1e9)                       # one leaf, in input order
+        assert tree.stats()["nodes"] == 1
+        kw = {"packet": 1} if walk == "one ray" else {}
+        tracer = Tracer(tree, device=runtime.spec, **kw)
+        tracer._alone_spread = 1e30 if walk == "packets" else None   # k-d packets
+        counts, raw = krays._count_pass(tracer, krays._Rays(tracer, o, d, 0.0, np.inf), True)
+        assert len(raw) == (n if outer_first else 0)
+        if not outer_first:
+            assert (counts == 40).all()
+        assert (tracer.count(o, d) == 40).all()
+        ref_ray, ref_prim, _, _, _ = all_hits(vs[fs], o, d)
+        hits = tracer.intersections(o, d)
+        assert np.array_equal(hits.ray, ref_ray) and np.array_equal(hits.prim, ref_prim)
+        if walk == "one ray":
+            w = krays.crossing_windings(tracer, o[:4])
+            assert (w == (krays.WINDING_RAW if outer_first else 40)).all()
+            assert tracer.occupancy(o[:4]).all()
+
+
+def test_a_copy_met_after_its_twin_was_dropped_is_not_counted_twice(runtime):
+    """A hand-made tree split at x = 0: a large triangle (id 0) in both leaves, hit in
+    the first; the second leaf's 33 triangles, all hit after it and tested before its
+    copy there, push it out of the hits the count keeps (KD_SEEN): its copy then comes
+    at or before the greatest dropped, the count is lost and mended by listing, not
+    counted twice."""
+    big = [[-1.5, -5.0, -4.0], [-1.5, 5.0, -4.0], [0.5, 0.0, 4.0]]    # x = -0.5 + z / 4
+    small = [[[x, -1.0, -1.0], [x, 1.0, -1.0], [x, 0.0, 1.0]] for x in 0.1 + 0.01 * np.arange(33)]
+    tris = np.array([big] + small, dtype=np.float32)
+    m = len(tris)
+    nodes = np.concatenate([layout.make_interior([0], [0.0], [2]), layout.make_leaf([1], [0]),
+                            layout.make_leaf([m], [1])])
+    flat = tris.reshape(-1, 3)
+    tree = KdTree(nodes=nodes, leaf_tris=np.array([0] + list(range(1, m)) + [0], dtype=np.uint32),
+                  triangles=tris, tri_ids=np.arange(m, dtype=np.uint32), origin=np.zeros(3),
+                  bounds=np.stack([flat.min(0), flat.max(0)]), n_input_tris=m, depth=1,
+                  params=BuildParams(K_T=15.0, max_depth=4))
+    tree.validate()
+    tracer = Tracer(tree, device=runtime.spec, packet=1)
+    o, d = np.array([[-2.0, 0.1, 0.2]]), np.array([[1.0, 0.0, 0.0]])
+    counts, raw = krays._count_pass(tracer, krays._Rays(tracer, o, d, 0.0, np.inf), False)
+    assert raw.tolist() == [0]
+    assert tracer.count(o, d).tolist() == [m]
+    assert tracer.intersections(o, d).prim.tolist() == list(range(m))
