@@ -10,7 +10,7 @@ Every JSON input of kdray (camera files and lists, lidar specs, jobs files, the 
 in tree files and EXR headers) is read here: JSON that Python's parser cannot take
 (nesting 1,000 deep: RecursionError; integers of over 4,300 digits: ValueError) or
 that kdray cannot use (nesting deeper than JSON_MAX_DEPTH, an integer no float64
-holds) is a one-line error of the caller's class naming the source and the limit.
+holds, a key given twice in one object) is a one-line error of the caller's class naming the source and the limit.
 Floats beyond float64's range (1e999) are read as inf, as NaN and Infinity are: the
 caller's checks then refuse them naming the field ("cx must be finite").
 """
@@ -60,6 +60,17 @@ def _parse_int(text):
     return value
 
 
+def _unique_keys(pairs):
+    """An object's dict, refusing a key given twice (Python's parser keeps the last one
+    silently; which one another reader keeps is its own choice: RFC 8259, 4)."""
+    data = dict(pairs)
+    if len(data) < len(pairs):
+        seen = set()
+        key = next(k for k, _ in pairs if k in seen or seen.add(k))
+        raise _Refused(f"the key {json.dumps(key)[:60]} is given twice in one object")
+    return data
+
+
 def _depth_beyond(data, limit):
     """True when `data` (parsed JSON) nests arrays and objects more than `limit` deep;
     an explicit stack, no recursion."""
@@ -78,7 +89,7 @@ def parse_json(text, source, error):
     (a KdrayError class) "<source> is not valid JSON: ..." or "<source>: ..." for text
     that breaks them."""
     try:
-        data = json.loads(text, parse_int=_parse_int)
+        data = json.loads(text, parse_int=_parse_int, object_pairs_hook=_unique_keys)
     except _Refused as e:
         raise error(f"{source}: {e}") from None
     except RecursionError:

@@ -272,7 +272,7 @@ def test_a_newline_in_a_message_stays_on_one_line(capsys, folder):
     refused(capsys, folder, "render", "no\nsuch.obj", "-o", "x.exr", words=["no\\nsuch.obj"])
 
 
-# -- JSON: nesting and huge integers --------------------------------------------------------
+# -- JSON: nesting, huge integers, keys given twice ----------------------------------------
 
 def _jobs_line(build):
     return '{"scene": "c.obj", "cameras": "cam.json", "output": "o", "build": ' + build + '}\n'
@@ -282,6 +282,7 @@ def _jobs_line(build):
     (DEEP, ["JSON nested more than 32 deep (JSON_MAX_DEPTH)"]),
     (DIGITS, ["an integer of 5000 digits", "309"]),
     ("9" * 400, ["an integer of 400 digits"]),          # past float64: OverflowError before
+    ('{"a": 1, "a": 2}', ['the key "a" is given twice in one object']),   # the last won
 ])
 @pytest.mark.parametrize("surface", ["camera", "cameras", "lidar", "batch"])
 def test_json_that_python_cannot_take(capsys, folder, surface, value, words):
