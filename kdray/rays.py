@@ -113,6 +113,12 @@ HIT_BYTES = 16
 """Host bytes of one listed hit: t (4), u and v (8), prim (4); ray and object are
 made on the host when asked (8 bytes each)."""
 
+COUNT_FIRST = 1 << 12
+"""The rays with many hits `intersections` counts first, then twice as many at a time,
+so that lists that cannot fit in memory are refused once the hits counted so far do
+not fit, not after every ray is counted (a million rays through 40,000 stacked
+triangles take minutes to count)."""
+
 COUNT_LIST_BYTES = 1 << 30
 """The most host memory the hits listed to count rays with many take at once (`_counts`,
 whose answers need none of them after; and no more than a quarter of what is
@@ -957,11 +963,23 @@ def _relisted(tracer, rays, redo, max_hits):
     """The Intersections of rays `redo` ((k,) int64) in full (their max_hits nearest):
     counted, then listed with as many slots; a ray whose count was lost gets one a hit
     found, copies too (`_count_pass`), the slots its copies leave empty then dropped,
-    not counted exactly by a list of its own first."""
+    not counted exactly by a list of its own first. Counted COUNT_FIRST rays first,
+    then twice as many at a time: KdrayError once the hits counted so far do not fit
+    in memory."""
     sub = rays.subset(redo)
-    caps = _count_pass(tracer, sub, False)[0].astype(np.int64)
-    if max_hits is not None:
-        np.minimum(caps, int(max_hits), out=caps)
+    caps = np.empty(sub.n, dtype=np.int64)
+    start, step = 0, COUNT_FIRST
+    while start < sub.n:
+        stop = min(sub.n, start + step)
+        part = caps[start:stop]
+        part[:] = _count_pass(tracer, sub.subset(slice(start, stop)), False)[0]
+        if max_hits is not None:
+            np.minimum(part, int(max_hits), out=part)
+        # _list's check of the lists, on the hits counted so far
+        counted = int(caps[:stop].sum())
+        _check_hits_memory(counted * (HIT_BYTES + 4) + sub.n * 12, counted, stop,
+                           "counted so far")
+        start, step = stop, 2 * step
     return _list(tracer, sub, caps, nearest_k=True)[0]
 
 
