@@ -214,10 +214,15 @@ def _relative(tracer, p):
     return rel
 
 
-def _state(tracer):
-    """The point queries' data of the Tracer's tree (a dict the Tracer empties when it
-    takes a tree, Tracer._upload), made when first needed."""
-    return tracer._point_queries
+def _made(tracer, key, make):
+    """The point queries' datum `key` of the Tracer's tree, make() the first time (kept
+    in a dict the Tracer empties when it takes a tree, Tracer._upload): under the
+    Tracer's lock, so that threads sharing it make each once."""
+    state = tracer._point_queries
+    with tracer._lock:
+        if key not in state:
+            state[key] = make()
+        return state[key]
 
 
 def _program(tracer, geometry64, outputs=()):
@@ -251,25 +256,23 @@ def _need_fp64(tracer):
 def _tris64(tracer):
     """The device buffer of the input's float64 triangles, relative to the tree's origin
     in its units (9 doubles an input id)."""
-    state = _state(tracer)
-    if "tris64" not in state:
+    def make():
         t64 = (np.asarray(tracer.tree.triangles64, dtype=np.float64) - tracer._origin) / tracer._scale
-        state["tris64"] = tracer._tree_buffer(t64.reshape(-1))
-    return state["tris64"]
+        return tracer._tree_buffer(t64.reshape(-1))
+    return _made(tracer, "tris64", make)
 
 
 def _slack(tracer):
     """How far (tree units) the float64 triangles may lie outside the float32 ones the
     tree's regions bound: the largest distance between a float64 vertex and its float32
     copy, doubled, plus a float rounding of the scene's size."""
-    state = _state(tracer)
-    if "slack" not in state:
+    def make():
         tree = tracer.tree
         t64 = (np.asarray(tree.triangles64, dtype=np.float64)[tree.tri_ids] - tracer._origin) / tracer._scale
         gap = np.abs(t64 - np.asarray(tree.triangles, dtype=np.float64)).max(initial=0.0)
         size = float(np.abs(np.asarray(tree.bounds, dtype=np.float64)).max())
-        state["slack"] = 2.0 * float(np.sqrt(3.0) * gap) + size * 2.0 ** -23
-    return state["slack"]
+        return 2.0 * float(np.sqrt(3.0) * gap) + size * 2.0 ** -23
+    return _made(tracer, "slack", make)
 
 
 def _launch(tracer, entry, kernel_name, n, args, outputs):
@@ -431,10 +434,7 @@ def inside(tracer, points, sign, precision="single"):
     (where the two agree; on an open one parity stays the float32 copies')."""
     from .rays import contains, crossing_windings, WINDING_RAW
     double = wants_double(precision, tracer.tree)
-    state = _state(tracer)
-    if "closed_cycle" not in state:
-        state["closed_cycle"] = closed_cycle(tracer.tree)
-    closed = state["closed_cycle"]
+    closed = _made(tracer, "closed_cycle", lambda: closed_cycle(tracer.tree))
     if sign == "parity" and not (double and closed):
         return contains(tracer, points)
     if not closed:
@@ -505,11 +505,9 @@ def open_edges(tree):
 
 
 def _warn_open(tracer):
-    state = _state(tracer)
-    if "open_edges" not in state:
-        state["open_edges"] = open_edges(tracer.tree)
-    if state["open_edges"]:
-        warnings.warn(f"sign='parity' on a mesh with {state['open_edges']} open edges: a "
+    n_open = _made(tracer, "open_edges", lambda: open_edges(tracer.tree))
+    if n_open:
+        warnings.warn(f"sign='parity' on a mesh with {n_open} open edges: a "
                       f"point's sign is undefined where its ray leaves through a hole; "
                       f"sign='winding' is meant for such meshes", OpenMeshWarning,
                       stacklevel=_caller_level())
@@ -621,11 +619,9 @@ def winding_moments(nodes, tris, tri_ids, depth, parent):
 
 def _winding_data(tracer):
     """(moments buffer, owned buffer) of the tracer's tree, made once."""
-    state = _state(tracer)
-    if "winding" not in state:
+    def make():
         nodes, tris, tri_ids = device_triangles(tracer.tree, tracer.packet)
         depth, parent, _ = tracer.tree._topology()
         moments, owned = winding_moments(nodes, tris, tri_ids, depth, parent)
-        state["winding"] = (tracer._tree_buffer(moments.reshape(-1)),
-                            tracer._tree_buffer(owned))
-    return state["winding"]
+        return tracer._tree_buffer(moments.reshape(-1)), tracer._tree_buffer(owned)
+    return _made(tracer, "winding", make)

@@ -126,3 +126,33 @@ def test_with_tree_keeps_the_point_queries_of_each_tree_apart():
     again = {"winding": first.winding_number(p_first), "inside": first.occupancy(p_first),
              "closest": first.closest_points(p_first, precision="double").prim}
     assert all(np.array_equal(again[k], mine[k]) for k in mine)
+
+
+def test_threads_make_a_trees_point_query_data_once(monkeypatch):
+    """Two threads' first point queries on one Tracer make its winding moments and
+    float64 triangles once (points._made, under the Tracer's lock): each was made by
+    every thread that found it missing, the slower one's kept."""
+    from kdray import points as kpoints
+    made = {"winding": 0, "tris64": 0}
+    moments = kpoints.winding_moments
+
+    def slow_moments(*args):
+        made["winding"] += 1
+        time.sleep(0.3)                         # the other thread finds them missing
+        return moments(*args)
+    monkeypatch.setattr(kpoints, "winding_moments", slow_moments)
+    tracer = _tracer("spot.obj", keep_double=True)
+    buffer = tracer._tree_buffer
+
+    def counted_buffer(array):
+        if array.dtype == np.float64:
+            made["tris64"] += 1
+            time.sleep(0.3)
+        return buffer(array)
+    monkeypatch.setattr(tracer, "_tree_buffer", counted_buffer)
+    p = _points(tracer.tree, 500, 3)
+    got = _together([lambda: tracer.winding_number(p), lambda: tracer.winding_number(p),
+                     lambda: tracer.closest_points(p, precision="double").prim,
+                     lambda: tracer.closest_points(p, precision="double").prim])
+    assert made == {"winding": 1, "tris64": 1}
+    assert np.array_equal(got[0], got[1]) and np.array_equal(got[2], got[3])
