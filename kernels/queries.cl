@@ -238,17 +238,26 @@ int kd_facing(const RayShear *s, float3 o, float3 p0, float3 p1, float3 p2)
     return positive ? -1 : 1;
 }
 
-/* list: the hit (t, u, v) of copy `tri` into slot j of the ray's or before it, the
- * slots before j that come after it in (t, input id) order moved up one. */
+/* list: where the hit (t, copy `tri`) goes among slots 0 .. j - 1, looked for from j
+ * back: the first slot that comes after it in (t, input id) order. */
 KD_INLINE
-void kd_slot_insert(KdQuery *q, uint j, float t, float u, float v, uint tri,
-                    __global const uint *tri_ids)
+uint kd_slot_place(const KdQuery *q, uint j, float t, uint tri, __global const uint *tri_ids)
 {
-    for (; j > 0u && kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids); j--) {
-        q->t[j] = q->t[j - 1u];
-        q->uv[2u * j] = q->uv[2u * j - 2u];
-        q->uv[2u * j + 1u] = q->uv[2u * j - 1u];
-        q->tri[j] = q->tri[j - 1u];
+    while (j > 0u && kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids))
+        j--;
+    return j;
+}
+
+/* list: slots j .. end - 1 moved up one (over slot end), and the hit (t, u, v) of copy
+ * `tri` put in slot j. */
+KD_INLINE
+void kd_slot_put(KdQuery *q, uint end, uint j, float t, float u, float v, uint tri)
+{
+    for (; end > j; end--) {
+        q->t[end] = q->t[end - 1u];
+        q->uv[2u * end] = q->uv[2u * end - 2u];
+        q->uv[2u * end + 1u] = q->uv[2u * end - 1u];
+        q->tri[end] = q->tri[end - 1u];
     }
     q->t[j] = t;
     q->uv[2u * j] = u;
@@ -269,9 +278,7 @@ void kd_slot_insert(KdQuery *q, uint j, float t, float u, float v, uint tri,
 KD_INLINE
 void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const uint *tri_ids)
 {
-    uint n = q->n, j = n;
-    while (j > 0u && kd_before(t, tri, q->t[j - 1u], q->tri[j - 1u], tri_ids))
-        j--;
+    uint n = q->n, j = kd_slot_place(q, n, t, tri, tri_ids);
     if (j > 0u && q->t[j - 1u] == t && tri_ids[q->tri[j - 1u]] == tri_ids[tri])
         return;                          /* a copy of a hit listed */
     if (n == q->cap) {
@@ -282,16 +289,7 @@ void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const
     } else {
         q->n = n + 1u;
     }
-    for (; n > j; n--) {
-        q->t[n] = q->t[n - 1u];
-        q->uv[2u * n] = q->uv[2u * n - 2u];
-        q->uv[2u * n + 1u] = q->uv[2u * n - 1u];
-        q->tri[n] = q->tri[n - 1u];
-    }
-    q->t[j] = t;
-    q->uv[2u * j] = u;
-    q->uv[2u * j + 1u] = v;
-    q->tri[j] = tri;
+    kd_slot_put(q, n, j, t, u, v, tri);
 }
 
 #ifdef PACKET
@@ -1209,7 +1207,7 @@ void kd_list_finish(KdQuery *q, uint k, __global const float *tris,
         float t = q->t[j], u = q->uv[2u * j], v = q->uv[2u * j + 1u];
         kd_refine_hit(o, d, kd_vertex(tris, tri, 0), kd_vertex(tris, tri, 1),
                       kd_vertex(tris, tri, 2), t_min, t_max, &t, &u, &v);
-        kd_slot_insert(q, j, t, u, v, tri, tri_ids);
+        kd_slot_put(q, j, kd_slot_place(q, j, t, tri, tri_ids), t, u, v, tri);
     }
 #endif
     for (uint j = 0; j < q->n; j++)
