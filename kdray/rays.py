@@ -385,6 +385,7 @@ def _program(tracer, kernel, world=None):
         defines["PACKET_STACK_SIZE"] = tracer.packet_stack_size
         if tracer._plain_vector_ops:
             defines["KD_PLAIN_VECTOR_OPS"] = None
+        defines.update(tracer._packet_rules())
         # rays that share no path walk the tree's wide nodes (kernels/wide.cl)
         defines["KD_WIDE"] = None
         defines["WIDE_STACK"] = tracer._wide()[1]

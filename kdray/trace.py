@@ -311,13 +311,7 @@ class Tracer:
             if self._plain_vector_ops:
                 defines["KD_PLAIN_VECTOR_OPS"] = None
             defines["PACKET_STACK_SIZE"] = self.packet_stack_size
-            # the tests' overrides of the packet rules, as float literals
-            for name, value in (("KD_LANE_RATIO", self._lane_ratio),
-                                ("KD_CULL_LANE_RATIO", self._cull_lane_ratio),
-                                ("KD_ALONE_SPREAD", self._alone_spread),
-                                ("KD_ALONE_TURN", self._alone_turn)):
-                if value is not None:
-                    defines[name] = f"{min(float(value), 1e30):.9e}f"
+            defines.update(self._packet_rules())
             if wide and not stats:
                 defines["KD_WIDE"] = None
                 defines["WIDE_STACK"] = self._wide()[1]
@@ -386,6 +380,14 @@ class Tracer:
         if n:
             cl.enqueue_copy(self.queue, whole[:n], buffer)
         return whole
+
+    def _packet_rules(self):
+        """The tests' overrides of packet.cl's rules, -D float literals for every packet
+        program (the queries' too): {} unless a test set them."""
+        rules = (("KD_LANE_RATIO", self._lane_ratio), ("KD_ALONE_TURN", self._alone_turn),
+                 ("KD_CULL_LANE_RATIO", self._cull_lane_ratio),
+                 ("KD_ALONE_SPREAD", self._alone_spread))
+        return {name: f"{min(float(v), 1e30):.9e}f" for name, v in rules if v is not None}
 
     @_one_at_a_time
     def _built(self, source, defines, kernels):
