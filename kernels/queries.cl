@@ -30,10 +30,11 @@
  * it has counted (t and input id) in private slots, where a copy finds its twin; a
  * ray whose hits come so far out of order that a copy's twin may have been dropped
  * (kd_count_hit) counts every hit found, its count then marked KD_COUNT_RAW (an upper
- * bound, which list_rays, deduplicating in its own slots, makes exact). A wide walk meets each triangle once (the wide nodes
- * hold each in one leaf): its count keeps no ids and is exact however many
- * (KdQuery.unique). The walk's node decisions are traverse.cl's (the same
- * slack), so it visits every leaf the nearest hit's traversal may.
+ * bound, which list_rays, deduplicating in its own slots, makes exact). A wide walk
+ * meets each triangle once (the wide nodes hold each in one leaf): its count keeps no
+ * hits and is exact however many (KdQuery.unique). The walk's node decisions are
+ * traverse.cl's (the same slack), so it visits every leaf the nearest hit's traversal
+ * may.
  *
  * Options (-D): STACK_SIZE (at least the tree's depth + 1), LOCAL_SIZE, RUN (rays a
  * work-item takes: consecutive, or a band of an image's pixels, kd_block_rays), REFINE
@@ -124,7 +125,7 @@ typedef struct {
                                           * more: the walk may end (kd_list_done) */
     bool unique;                         /* the walk meets each triangle once (a wide
                                           * walk: the wide nodes hold each triangle in
-                                          * one leaf): a count keeps no ids */
+                                          * one leaf): a count keeps no hits */
     uint n;                              /* distinct hits */
     uint raw;                            /* count: hits found, copies included; list:
                                           * 1 when a hit found no slot */
@@ -152,7 +153,7 @@ typedef struct {
     uint cap;
 } KdQuery;
 
-/* count: whether (t, id) comes before (t2, id2), or is it (or_equal) */
+/* count: whether (t, id) comes before (t2, id2) (or_equal: or is the same) */
 KD_INLINE
 bool kd_count_before(float t, uint id, float t2, uint id2, bool or_equal)
 {
@@ -191,7 +192,8 @@ void kd_count_hit(KdQuery *q, uint id, float t, int facing)
     while (j > 0u && kd_count_before(t, id, q->seen_t[KD_SEEN_AT(q, j - 1u)],
                                      q->seen[KD_SEEN_AT(q, j - 1u)], false))
         j--;
-    if (j > 0u && q->seen_t[KD_SEEN_AT(q, j - 1u)] == t && q->seen[KD_SEEN_AT(q, j - 1u)] == id)
+    uint before = KD_SEEN_AT(q, j - 1u);
+    if (j > 0u && q->seen_t[before] == t && q->seen[before] == id)
         return;                          /* a copy of a hit counted */
     q->n++;
     q->winding += facing;
@@ -272,9 +274,9 @@ void kd_slot_put(KdQuery *q, uint end, uint j, float t, float u, float v, uint t
  * walk meets a triangle in every leaf that holds it) is the same ray through the same
  * test of the same vertices, so it has its twin's t bit for bit (the rule that makes
  * packets and lone rays agree) and sorts next to it: it is dropped where the slot
- * before its place holds its (t, input id). So a hit costs no scan of the whole list
- * (a ray through k stacked triangles cost k^2 / 2 compares). A hit dropped at the cap,
- * and its copies, never come back: the last slot only moves nearer. */
+ * before its place holds its (t, input id). So a hit costs its steps back to its
+ * place, not a scan of the whole list. A hit dropped at the cap, and its copies, never
+ * come back: the last slot only moves nearer. */
 KD_INLINE
 void kd_list_hit(KdQuery *q, uint tri, float t, float u, float v, __global const uint *tri_ids)
 {
