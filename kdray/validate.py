@@ -10,7 +10,8 @@ Every JSON input of kdray (camera files and lists, lidar specs, jobs files, the 
 in tree files and EXR headers) is read here: JSON that Python's parser cannot take
 (nesting 1,000 deep: RecursionError; integers of over 4,300 digits: ValueError) or
 that kdray cannot use (nesting deeper than JSON_MAX_DEPTH, an integer no float64
-holds, a key given twice in one object) is a one-line error of the caller's class naming the source and the limit.
+holds, a key given twice in one object) is a one-line error of the caller's class
+naming the source and the limit.
 Floats beyond float64's range (1e999) are read as inf, as NaN and Infinity are: the
 caller's checks then refuse them naming the field ("cx must be finite").
 """
