@@ -77,15 +77,22 @@ double3 kd_cross_d(double3 a, double3 b)
 #define KD_PASS_GEOMETRY
 #endif
 
+/* Whether point a comes before point b: by x, then y, then z */
+KD_INLINE
+bool kd_lower_d(double3 a, double3 b)
+{
+    return a.x < b.x || (a.x == b.x && (a.y < b.y || (a.y == b.y && a.z < b.z)));
+}
+
 /* The point q of segment (a, b) nearest p, as p - q, and *s its place from a (0: a,
  * 1: b). The same bits whichever way round the segment is given (it is taken from
- * its lower end, x then y then z, first): a point beyond the edge two triangles
- * share is exactly as near to both, so that the lower input id wins (kd_nearest_
- * triangle). At an end, p minus that end: a vertex's own offset in every triangle. */
+ * its lower end, kd_lower_d, first): a point beyond the edge two triangles share is
+ * exactly as near to both, so that the lower input id wins (kd_nearest_triangle). At
+ * an end, p minus that end: a vertex's own offset in every triangle. */
 KD_INLINE
 double3 kd_closest_on_segment(double3 p, double3 a, double3 b, double *s)
 {
-    bool swap = b.x < a.x || (b.x == a.x && (b.y < a.y || (b.y == a.y && b.z < a.z)));
+    bool swap = kd_lower_d(b, a);
     double3 lo = swap ? b : a, hi = swap ? a : b;
     double3 e = p - lo, ab = hi - lo;
     double den = kd_dot_d(ab, ab);
@@ -125,25 +132,33 @@ double3 kd_closest_on_edges(double3 p, double3 a, double3 b, double3 c, double *
     return e_bc;
 }
 
-/* The point q of triangle (a, b, c) nearest p, q = a + u (b - a) + v (c - a), by the
+/* kd_closest_on_triangle of a triangle whose vertices come in kd_lower_d's order.
+ * The point q of triangle (a, b, c) nearest p, q = a + u (b - a) + v (c - a), by the
  * Voronoi region of p (Ericson, Real-Time Collision Detection, 5.1.5). Returns p - q,
  * made from p's offsets to the vertices (not from q), and *d2 its squared length: in
  * the face's region the squared distance to the plane, (n . (p - a))^2 / n . n. So
- * their rounding is relative to the triangle's size, not to the coordinates'. An
- * edge's point is kd_closest_on_segment's (the same bits in both triangles that share
- * the edge). The nearest edge's point is taken instead of the region's (the plane's
- * is never farther than the exact distance, an edge's never nearer):
+ * their rounding is relative to the triangle's size, not to the coordinates'. The
+ * face's region is told by va, vb, vc, the areas of (q, b, c), (a, q, c), (a, b, q)
+ * times 2 n . n: Ericson's differences of products of dot products (Lagrange's
+ * identity) cancel as the triangle's smallest angle squared, which put points of thin
+ * triangles in an edge's region while their nearest point lay inside the face (1e-3
+ * of the distance at an angle of 5e-8), so they are n . (edge x offset), whose
+ * rounding is the triangle's size times 2^-52 or so whatever its angles. An edge's
+ * point is kd_closest_on_segment's (the same bits in both triangles that share the
+ * edge). The nearest edge's point is taken instead of the region's (the plane's is
+ * never farther than the exact distance, an edge's never nearer):
  * - everywhere in a sliver (its angle at a below 2^-26: n = ab x ac's direction, and
  *   the regions' tests, lost to rounding), which lies within its width of its edges
  *   (off by at most that width, where the point is that near its inside);
- * - where p may lie in an edge's region (va, vb or vc within 2^-44 of their scale,
- *   the longest edge squared times p's largest offset squared: some 32 times their
- *   rounding) and the edge's distance is the plane's to 2^-50 of it, or both within
- *   2^-50 of that offset of 0: so that a point on an edge two triangles share is
- *   exactly as near to both, and the lower input id wins. */
+ * - where p may lie in an edge's region (va, vb or vc within 2^-44 of the longest
+ *   edge squared times p's largest offset squared, far above their rounding, a few
+ *   2^-53 of |n| times an edge times an offset) and the edge's distance is the
+ *   plane's to 2^-50 of it, or both within 2^-50 of that offset of 0: so that a point
+ *   on an edge two triangles share is exactly as near to both, and the lower input
+ *   id wins. */
 KD_INLINE
-double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, double *u,
-                               double *v, double *d2)
+double3 kd_closest_in_order(double3 p, double3 a, double3 b, double3 c, double *u,
+                            double *v, double *d2)
 {
     double3 ab = b - a, ac = c - a, ap = p - a;
     double3 n = kd_cross_d(ab, ac);
@@ -158,7 +173,7 @@ double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, doubl
     } else {
         double3 bp = p - b;
         double d3 = kd_dot_d(ab, bp), d4 = kd_dot_d(ac, bp);
-        double vc = d1 * d4 - d3 * d2_;
+        double vc = kd_dot_d(n, kd_cross_d(ab, ap));
         if (d3 >= 0.0 && d4 <= d3) {                  /* vertex b */
             *u = 1.0; *v = 0.0;
             e = bp;
@@ -169,8 +184,8 @@ double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, doubl
         } else {
             double3 cp = p - c;
             double d5 = kd_dot_d(ab, cp), d6 = kd_dot_d(ac, cp);
-            double vb = d5 * d2_ - d1 * d6;
-            double va = d3 * d6 - d5 * d4;
+            double vb = kd_dot_d(n, kd_cross_d(ap, ac));
+            double va = kd_dot_d(n, kd_cross_d(c - b, bp));
             if (d6 >= 0.0 && d5 <= d6) {              /* vertex c */
                 *u = 0.0; *v = 1.0;
                 e = cp;
@@ -205,6 +220,36 @@ double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, doubl
         }
     }
     *d2 = kd_dot_d(e, e);
+    return e;
+}
+
+/* Vertices x, y and their given places kx, ky swapped unless x comes first */
+#define KD_ORDER_PAIR(x, y, kx, ky)                                                      \
+    if (kd_lower_d(y, x)) {                                                                \
+        double3 x_ = x;                                                                    \
+        uint k_ = kx;                                                                      \
+        x = y; y = x_; kx = ky; ky = k_;                                                   \
+    }
+
+/* The point q of triangle (a, b, c) nearest p, q = a + u (b - a) + v (c - a): p - q,
+ * with *d2 its squared length (kd_closest_in_order). The vertices are taken in
+ * kd_lower_d's order, so that a triangle given twice, its vertices in any order, is
+ * measured alike, bit for bit, and the lower input id wins (kd_nearest_triangle); u
+ * and v are then the weights of b and c. */
+KD_INLINE
+double3 kd_closest_on_triangle(double3 p, double3 a, double3 b, double3 c, double *u,
+                               double *v, double *d2)
+{
+    uint ka = 0u, kb = 1u, kc = 2u;
+    KD_ORDER_PAIR(a, b, ka, kb)
+    KD_ORDER_PAIR(b, c, kb, kc)
+    KD_ORDER_PAIR(a, b, ka, kb)
+    double su, sv;
+    double3 e = kd_closest_in_order(p, a, b, c, &su, &sv, d2);
+    double sw = 1.0 - su - sv;
+    /* the given second and third vertices' weights */
+    *u = kb == 1u ? su : (kc == 1u ? sv : sw);
+    *v = kb == 2u ? su : (kc == 2u ? sv : sw);
     return e;
 }
 

@@ -205,6 +205,90 @@ def test_slivers_are_as_near_as_their_edges(tracers):
         assert np.abs(got.distance - want).max() <= 2e-15
 
 
+def exact_d2(p, tri):
+    """The exact squared distance (a Fraction) from point p (3,) to triangle tri (3, 3):
+    the plane's where p's projection lies in the triangle (by the signs of its edge
+    functions, in rationals), else the nearest edge's."""
+    from fractions import Fraction
+    P, A, B, C = ([Fraction(float(x)) for x in q] for q in (p, *tri))
+
+    def sub(x, y):
+        return [i - j for i, j in zip(x, y)]
+
+    def dot(x, y):
+        return sum(i * j for i, j in zip(x, y))
+
+    def cross(x, y):
+        return [x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]]
+
+    def seg(a, b):
+        ab, ap = sub(b, a), sub(P, a)
+        s = min(max(dot(ap, ab) / dot(ab, ab), Fraction(0)), Fraction(1))
+        return dot(sub(ap, [s * x for x in ab]), sub(ap, [s * x for x in ab]))
+
+    n = cross(sub(B, A), sub(C, A))
+    h = dot(n, sub(P, A)) / dot(n, n)
+    q = sub(P, [h * x for x in n])
+    if all(dot(n, cross(sub(y, x), sub(q, x))) >= 0 for x, y in ((A, B), (B, C), (C, A))):
+        return h * h * dot(n, n)
+    return min(seg(A, B), seg(B, C), seg(C, A))
+
+
+@pytest.mark.parametrize("width", [2.0 ** -25, 1e-7, 1e-6])
+def test_thin_triangles_are_measured_from_their_face(tracers, width):
+    """A thin triangle (not a sliver: its smallest angle, about `width`, above 2^-26),
+    with points near its face: each region of the point is told from the exact one to
+    the triangle's size times 2^-52 or so (Ericson's products of dot products had put
+    points in an edge's region, 1e-3 of their distance away at 2^-25), so the distance
+    is the exact one (in rationals) to 1e-15 of the size, in both precisions, and the
+    point is its u, v's to the float32 rounding of u and v."""
+    rng = np.random.default_rng(21)
+    a, b = np.zeros(3), np.array([1.0, 0.5, 0.25])
+    side = np.cross(b, [0.3, -0.5, 0.8])
+    side /= np.linalg.norm(side)
+    c = 0.5 * b + width * side
+    tri = np.vstack([a, b, c]).astype(np.float32).astype(np.float64)   # both precisions'
+    tracer = tracers(build(tri, np.array([[0, 1, 2]]), origin=np.zeros(3), keep_double=True))
+    normal = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+    normal /= np.linalg.norm(normal)
+    w = rng.dirichlet([1, 1, 1], 60)
+    w[:20, 2] *= 1e-3                                  # near the long edges
+    w /= w.sum(axis=1, keepdims=True)
+    p = w @ tri + rng.uniform(-3, 3, (60, 1)) * width * normal
+    want = np.array([float(exact_d2(q, tri)) for q in p]) ** 0.5
+    for precision in ("double", "single"):
+        got = tracer.closest_points(p, precision=precision)
+        assert (got.prim == 0).all()
+        # single: rounded to float32 once, half an ulp at most
+        tol = 1e-15 + (0.0 if precision == "double" else 2.0 ** -24 * want)
+        assert (np.abs(got.distance - want) <= tol).all(), np.abs(got.distance - want).max()
+        at = ((1 - got.u - got.v)[:, None] * tri[0] + got.u[:, None] * tri[1]
+              + got.v[:, None] * tri[2])
+        assert np.abs(at - got.point).max() <= 2.0 ** -22
+
+
+def test_a_triangle_given_twice_ties_in_any_vertex_order(tracers):
+    """The same triangle given six times, its vertices in each order (either
+    orientation), is measured alike, bit for bit: of points nearest it the lowest of
+    its input ids wins (it had depended on which vertex came first)."""
+    from itertools import permutations
+    rng = np.random.default_rng(22)
+    tri = rng.normal(size=(3, 3))
+    others = rng.normal(size=(5, 3, 3)) + 3.0
+    copies = np.array([tri[list(k)] for k in permutations(range(3))])
+    order = rng.permutation(len(others) + len(copies))
+    tris = np.concatenate([others, copies])[order]
+    first = int(np.flatnonzero(order >= len(others)).min())      # the copies' lowest id
+    v = tris.reshape(-1, 3)
+    tracer = tracers(build(v, np.arange(len(v)).reshape(-1, 3), keep_double=True))
+    p = rng.dirichlet([1, 1, 1], 1000) @ tri + rng.normal(size=(1000, 3)) * 0.3
+    d2 = reference.point_triangle_d2(p, tris)
+    mine = d2[:, order >= len(others)].min(axis=1) < 0.5 * d2[:, order < len(others)].min(axis=1)
+    assert mine.sum() > 900
+    for precision in ("double", "single"):
+        assert (tracer.closest_points(p[mine], precision=precision).prim == first).all()
+
+
 def test_max_distance_and_misses(tracers, spot):
     v, f, tree = spot
     tracer = tracers(tree)
