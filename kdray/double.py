@@ -137,17 +137,20 @@ stay within some 100 MB however many hits there are."""
 
 ON_PLANE = 2.0 ** -50
 """A double-precision hit does not count where its ray's origin lies on the hit
-triangle's float64 plane within this share of the origin's distance to its farthest
-vertex (8 float64 roundings: the origin's own rounding, a point sampled on the
-triangle), as the float32 test's t must pass its own rounding error
-(`hits_double(..., on_plane=True)`; kdray.rays.nearest_in_range)."""
+triangle's float64 plane within this share of the larger of the origin's distance to
+its farthest vertex and the origin's largest world coordinate (8 float64 roundings of
+either: a point sampled on the triangle, a + u (b - a) + v (c - a), is off its plane
+by the rounding of its world coordinates, which exceed the triangle's size where the
+mesh lies far from the world's origin), as the float32 test's t must pass its own
+rounding error (`hits_double(..., on_plane=True)`; kdray.rays.nearest_in_range)."""
 
 
 def _on_plane(tri, o):
     """(k,) bool: whether each origin o (k, 3) lies on its triangle's (k, 3, 3) plane
-    within ON_PLANE of its reach (a degenerate triangle: False)."""
+    within ON_PLANE of its reach, or of its own largest coordinate where that is more;
+    both in world coordinates (a degenerate triangle: False)."""
     n = _cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    reach = np.abs(tri - o[:, None, :]).max(axis=(1, 2))
+    reach = np.maximum(np.abs(tri - o[:, None, :]).max(axis=(1, 2)), np.abs(o).max(axis=1))
     with np.errstate(invalid="ignore", divide="ignore"):
         off = np.abs(_dot(n, tri[:, 0] - o)) / np.sqrt(_dot(n, n))
     return off <= ON_PLANE * reach

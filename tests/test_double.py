@@ -262,11 +262,14 @@ def test_double_hits_at_the_origin_do_not_count():
     in double precision a hit whose float64 t is not in (t_min, t_max), or whose origin
     lies on its float64 plane (within ON_PLANE), does not count, and the ray takes its
     next hit: the same hits, t and normals as from offset_origins' origins, which need
-    no such rule. Rays from points off the surface keep the single hits."""
+    no such rule. Rays from points off the surface keep the single hits. Also far from
+    the world's origin (1e6 of the mesh's size), where a sampled point is off its
+    plane by its world coordinates' rounding (the own face had been hit there)."""
     import trimesh
     import kdray
     torus = trimesh.creation.torus(1.0, 0.3, major_sections=24, minor_sections=12)
-    for mesh in (trimesh.creation.icosphere(2), torus):
+    far = trimesh.Trimesh(torus.vertices + [1e6, -2e5, 3e5], torus.faces, process=False)
+    for mesh in (trimesh.creation.icosphere(2), torus, far):
         tree = build(mesh.vertices, mesh.faces, keep_double=True)
         tracer = Tracer(tree)
         o, face = trimesh.sample.sample_surface(mesh, 800, seed=4)

@@ -54,7 +54,7 @@ Which hits, and the differences from embree's intersector on purpose:
   float32 test decides it), SAME_TRIANGLE_RTOL times that size.
 - A hit counts where the ray meets the hit triangle's plane, in float64 from the
   mesh's vertices, at t > 0, and not where its origin lies on that plane (within
-  SAME_POINT_RTOL of the scene's size): a ray from a float64 point on the surface
+  SAME_POINT_RTOL of the scene's size, _sizes): a ray from a float64 point on the surface
   does not hit the triangles through it, whichever side of them kdray's float32
   triangles put it (embree's may, at t = 0), and a ray in a triangle's plane misses
   it. intersects_any is whether a ray has a hit that counts (_nearest).
@@ -113,8 +113,17 @@ __all__ = ["RayMeshIntersector"]
 SAME_POINT_RTOL = 2.0 ** -40
 """Two hits of one ray are one point (with locations) when their distances along the
 ray differ by at most this times the scene's size (the largest coordinate of the ray's
-origin and of the mesh's box, from the box's centre): 4096 float64 roundings, the
-error of t computed from two planes through the same point."""
+origin and of the mesh's box, from the box's centre, or WORLD_SHARE of the origin's
+world coordinates where that is more): 4096 float64 roundings, the error of t
+computed from two planes through the same point."""
+
+WORLD_SHARE = 2.0 ** -8
+"""The share of a ray origin's largest world coordinate that counts in the scene's size
+(so 2^-48 of it, 32 float64 roundings, in SAME_POINT_RTOL's tolerances): a point
+sampled on a face in world coordinates (trimesh.sample) is off its plane by the
+rounding of those coordinates, and the planes' offsets carry theirs, which exceed
+2^-40 of the mesh's own size where the mesh lies more than some 10^3 of its sizes from
+the world's origin."""
 
 SAME_TRIANGLE_RTOL = 2.0 ** -20
 """... and for two triangles that share a vertex, at most this times that size: 16
@@ -459,11 +468,12 @@ class RayMeshIntersector:
 
     def _sizes(self, o):
         """(h,) float64 the scene's size a ray (origins o (h, 3)) sees: the largest
-        coordinate of its origin and of the mesh's box, from the box's centre."""
+        coordinate of its origin and of the mesh's box, from the box's centre, or
+        WORLD_SHARE of its origin's largest world coordinate where that is more."""
         bounds = np.asarray(self.mesh.bounds, dtype=np.float64)
         centre = bounds.mean(axis=0)
         box = np.abs(bounds - centre).max()
-        return np.fmax(row_abs_max(o - centre), box)
+        return np.fmax(np.fmax(row_abs_max(o - centre), box), WORLD_SHARE * row_abs_max(o))
 
     # -- pickling and copies: without OpenCL objects --------------------------------------
 
