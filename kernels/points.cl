@@ -138,12 +138,13 @@ double3 kd_closest_on_edges(double3 p, double3 a, double3 b, double3 c, double *
  * made from p's offsets to the vertices (not from q), and *d2 its squared length: in
  * the face's region the squared distance to the plane, (n . (p - a))^2 / n . n. So
  * their rounding is relative to the triangle's size, not to the coordinates'. The
- * face's region is told by va, vb, vc, the areas of (q, b, c), (a, q, c), (a, b, q)
- * times 2 n . n: Ericson's differences of products of dot products (Lagrange's
- * identity) cancel as the triangle's smallest angle squared, which put points of thin
- * triangles in an edge's region while their nearest point lay inside the face (1e-3
- * of the distance at an angle of 5e-8), so they are n . (edge x offset), whose
- * rounding is the triangle's size times 2^-52 or so whatever its angles. An edge's
+ * face's region is told by va, vb, vc, the signed areas of (q, b, c), (a, q, c),
+ * (a, b, q) times 2 |n| (so va / n . n is q's weight of a): Ericson's differences of
+ * products of dot products (Lagrange's identity) cancel as the triangle's smallest
+ * angle squared, which put points of thin triangles in an edge's region while their
+ * nearest point lay inside the face (1e-3 of the distance at an angle of 5e-8), so
+ * they are n . (edge x offset), whose rounding is the triangle's size times 2^-52 or
+ * so whatever its angles. An edge's
  * point is kd_closest_on_segment's (the same bits in both triangles that share the
  * edge). The nearest edge's point is taken instead of the region's (the plane's is
  * never farther than the exact distance, an edge's never nearer):
@@ -223,7 +224,7 @@ double3 kd_closest_in_order(double3 p, double3 a, double3 b, double3 c, double *
     return e;
 }
 
-/* Vertices x, y and their given places kx, ky swapped unless x comes first */
+/* Vertices x, y and their given places kx, ky swapped where y comes before x */
 #define KD_ORDER_PAIR(x, y, kx, ky)                                                      \
     if (kd_lower_d(y, x)) {                                                                \
         double3 x_ = x;                                                                    \
