@@ -45,7 +45,7 @@ from pathlib import Path
 from .errors import DatasetError, KdrayError, MeshError, OutputError, ParameterError
 from .render import DEFAULT_AOVS, parse_aovs
 from .tree import BuildParams
-from .validate import parse_json, read_text
+from .validate import check_bool, parse_json, read_text, whole_or_none
 
 log = logging.getLogger(__name__)
 
@@ -201,8 +201,7 @@ def check_jobs(jobs):
     """DatasetError for jobs whose scene or camera file does not exist, or two jobs
     that write one output folder; each job named by its source (a jobs file's "JOBS,
     line N"), else "job N"."""
-    where = [job.source or f"job {i + 1}" for i, job in enumerate(jobs)]
-    seen = {}
+    where = _job_names(jobs)
     for i, job in enumerate(jobs):
         for what in ("scene", "cameras"):
             p = getattr(job, what)
@@ -213,7 +212,21 @@ def check_jobs(jobs):
                                    f"({e.strerror or e})") from None
             if not found:
                 raise DatasetError(f"{where[i]}: the {what} file {p} does not exist")
-        key = os.path.normcase(os.path.realpath(job.output))   # symlinks resolved
+    check_distinct_outputs(jobs)
+
+
+def _job_names(jobs):
+    """Each job's name in messages: its source (a jobs file's "JOBS, line N"), else
+    "job N"."""
+    return [job.source or f"job {i + 1}" for i, job in enumerate(jobs)]
+
+
+def check_distinct_outputs(jobs):
+    """DatasetError for two jobs that write one output folder (symlinks resolved)."""
+    where = _job_names(jobs)
+    seen = {}
+    for i, job in enumerate(jobs):
+        key = os.path.normcase(os.path.realpath(job.output))
         if key in seen:
             first, _, line = where[seen[key]].rpartition("line ")
             both = (f"{first}lines {line} and {where[i].rpartition('line ')[2]}" if first
@@ -606,7 +619,8 @@ def check_workers(workers):
     if (isinstance(workers, bool) or not isinstance(workers, numbers.Integral)
             or not 0 <= workers <= most):
         raise ParameterError(f"workers must be an integer from 1 to {most} ({WORKERS_PER_CPU} "
-                             f"a CPU of the {cpus} this process may run on), got {workers!r}")
+                             f"a CPU of the {cpus} this process may run on; 0 or None: this "
+                             f"process), got {workers!r:.60}")
     return int(workers)
 
 
@@ -620,13 +634,18 @@ def run(jobs, workers=None, scheduler=None, device=None, cache=None, overwrite=F
     device : --device spec for every process; cache : kdray.cache.TreeCache or None
     overwrite : render views whose files exist too
     progress : a Progress, or None (quiet)
-    chunk : views per Dask task (default: enough tasks for 4 per worker, at most 16
-        views each)
+    chunk : None or an integer >= 1, views per Dask task (default: enough tasks for 4
+        per worker, at most 16 views each)
     Raises OutputError (before anything is written) for output folders that cannot be
-    used, ParameterError for workers out of range (check_workers); a failing scene,
+    used, DatasetError for two jobs that write one folder (check_distinct_outputs),
+    ParameterError for workers out of range (check_workers), an overwrite that is not
+    True or False or a chunk that is not None or an integer >= 1; a failing scene,
     camera file or view is its report's error.
     """
     workers = check_workers(workers)
+    overwrite = check_bool(overwrite, "overwrite", ParameterError)
+    chunk = whole_or_none(chunk, "chunk", ParameterError)
+    check_distinct_outputs(jobs)
     check_outputs(jobs)
     planned = plan(jobs, overwrite)
     total = sum(len(todo) for _, todo in planned)
@@ -729,7 +748,8 @@ def _task_views(job, views, overwrite, _tree_done=None):
     """A Dask task: render and write some of a job's views on this worker. Returns
     (seconds, rendered, skipped, errors, [(name, seconds)], cached): skipped, the views
     whose files were there by then (a task run again after its worker died had written
-    them); cached as JobReport.tree_cached for this worker's scene."""
+    them: _run_dask counts them rendered); cached as JobReport.tree_cached for this
+    worker's scene."""
     done = []
     seconds, rendered, skipped, errors, cached = _worker_renderer().render_views(
         job, views, overwrite, on_view=lambda name, s: done.append((name, s)))
@@ -752,6 +772,57 @@ def local_cluster(workers, quiet=False):
                                         else logging.ERROR)
 
 
+def _task_failed(report, kind, n, e, progress):
+    """A Dask task of `report`'s job failed with `e` (kind "tree" or "views", n views):
+    its error into the report, once. A KdrayError as the worker raised it; anything
+    else (KilledWorker: its workers kept dying; a bug) named by the job's scene and
+    its type, once a type: every task of a job whose workers die fails alike, each
+    naming its own task."""
+    if isinstance(e, KdrayError):
+        if kind == "tree" or not any(str(e) in err for err in report.errors):
+            report.errors.append(str(e))
+    else:
+        kind_of = f"{report.job.scene}: {type(e).__name__}"
+        if not any(err.startswith(kind_of + ":") for err in report.errors):
+            report.errors.append(f"{kind_of}: {e}")
+    if kind == "views":
+        progress.advance(n)
+
+
+def _task_done(report, kind, n, result, progress):
+    """A Dask task's result (_task_tree's or _task_views') into `report`."""
+    if kind == "tree":
+        seconds, cached = result
+        report.add(seconds)
+        report.tree_cached = cached
+        return
+    seconds, rendered, skipped, errors, done, cached = result
+    if report.tree_cached is None:   # without a tree task (no cache): the workers'
+        report.tree_cached = cached
+    report.add(seconds)
+    # a task's views were all missing when the run began (plan): those it found written
+    # were written in this run, by its own attempt on a worker that died
+    report.rendered += rendered + skipped
+    report.errors.extend(errors)
+    for name, s in done:
+        progress.view(report.job, name, s)
+    progress.advance(n - len(done))
+
+
+def _scheduler_address(path):
+    """The "address" of a Dask scheduler file (`dask scheduler --scheduler-file` writes
+    one: a JSON object); DatasetError for a file that is not one (Dask's own reader
+    fails on them with an AssertionError or a TypeError)."""
+    source = f"the Dask scheduler file {path}"
+    data = parse_json(read_text(path, source, DatasetError), source, DatasetError)
+    address = data.get("address") if isinstance(data, dict) else None
+    if not isinstance(address, str) or not address:
+        raise DatasetError(f"{source} holds no scheduler address (a JSON object with an "
+                           f"\"address\" string, as `dask scheduler --scheduler-file` "
+                           f"writes)")
+    return address
+
+
 def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, chunk):
     distributed = _dask()
     quiet = not log.isEnabledFor(logging.DEBUG)
@@ -760,9 +831,9 @@ def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, c
     cluster = None
     if scheduler:
         # an address, or the file `dask scheduler --scheduler-file` writes
-        where = {"scheduler_file": scheduler} if os.path.isfile(scheduler) else {"address": scheduler}
+        address = _scheduler_address(scheduler) if os.path.isfile(scheduler) else scheduler
         try:
-            client = distributed.Client(**where, timeout="30s")
+            client = distributed.Client(address=address, timeout="30s")
         except (OSError, TimeoutError, ValueError) as e:
             raise DatasetError(f"cannot reach the Dask scheduler {scheduler}: {e}") from None
         n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
@@ -787,35 +858,12 @@ def _run_dask(planned, workers, scheduler, device, cache, overwrite, progress, c
                 futures[f] = (index, "views", len(part))
         for future in distributed.as_completed(list(futures)):
             index, kind, n = futures[future]
-            report = planned[index][0]
             try:
                 result = future.result()
-            except KdrayError as e:
-                if kind == "tree" or not any(str(e) in err for err in report.errors):
-                    report.errors.append(str(e))
-                if kind == "views":
-                    progress.advance(n)
+            except Exception as e:          # KdrayError; a worker that died too often; a bug
+                _task_failed(planned[index][0], kind, n, e, progress)
                 continue
-            except Exception as e:          # a worker that died too often, a bug
-                report.errors.append(f"{type(e).__name__}: {e}")
-                if kind == "views":
-                    progress.advance(n)
-                continue
-            if kind == "tree":
-                seconds, cached = result
-                report.add(seconds)
-                report.tree_cached = cached
-                continue
-            seconds, rendered, skipped, errors, done, cached = result
-            if report.tree_cached is None:   # without a tree task (no cache): the workers'
-                report.tree_cached = cached
-            report.add(seconds)
-            report.rendered += rendered
-            report.skipped += skipped
-            report.errors.extend(errors)
-            for name, s in done:
-                progress.view(report.job, name, s)
-            progress.advance(n - len(done))
+            _task_done(planned[index][0], kind, n, result, progress)
     finally:
         client.close()
         if cluster is not None:

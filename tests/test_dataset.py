@@ -422,9 +422,9 @@ def test_dask_worker_killed_loses_nothing(tmp_path, monkeypatch):
 
 def test_a_task_run_again_counts_the_views_it_finds(tmp_path, monkeypatch):
     """A Dask task run again (its worker died after writing some of its views) finds
-    those views written: it reports them as already there, so that a job's views
-    rendered and already there add up to its views (they were dropped: "145 of 150
-    views rendered, 0 already there" with all 150 written)."""
+    those views written and reports them (skipped), so that the job's report counts
+    every view (they were dropped: "145 of 150 views rendered, 0 already there" with
+    all 150 written); the run counts them rendered (test_task_results_in_the_report)."""
     from kdray.camera_files import read_cameras
     renderer = dataset.Renderer()                       # this process as the worker
     monkeypatch.setattr(dataset, "_worker_renderer", lambda: renderer)
@@ -436,6 +436,69 @@ def test_a_task_run_again_counts_the_views_it_finds(tmp_path, monkeypatch):
     seconds, rendered, skipped, errors, done, cached = dataset._task_views(job, views[:5], False)
     assert (rendered, skipped, errors, len(done)) == (2, 3, [], 2)
     assert cached is None                               # the scene kept from the first task
+
+
+def test_task_results_in_the_report(tmp_path):
+    """How a Dask run takes its tasks' results into a job's report: views a task found
+    written (its own attempt on a worker that died wrote them: every view a task gets
+    was missing when the run began) count as rendered in this run, not as already
+    there (a fresh run had said "389 of 400 views rendered, 11 already there"); a
+    failure that is not a KdrayError (KilledWorker, when a job's workers keep dying)
+    is one line naming the scene, however many of its tasks fail so (each had been a
+    line of its own, "KilledWorker: ..." naming no scene)."""
+    (job,) = _dask_jobs(tmp_path, "out")[:1]
+    report = dataset.JobReport(job, views=7)
+    progress = Progress(7, live=False)
+    seconds = dict.fromkeys(dataset.STEPS, 0.1)
+    dataset._task_done(report, "views", 4, (seconds, 1, 3, [], [("a", 0.1)], False), progress)
+    assert (report.rendered, report.skipped, progress.done) == (4, 0, 4)
+
+    class KilledWorker(Exception):
+        pass
+    for task in range(3):
+        dataset._task_failed(report, "views", 1, KilledWorker(f"task {task}: workers died"),
+                             progress)
+    dataset._task_failed(report, "views", 0, OSError("a bug"), progress)
+    assert report.errors == [f"{job.scene}: KilledWorker: task 0: workers died",
+                             f"{job.scene}: OSError: a bug"]
+    assert progress.done == 7 and not report.ok
+    # a KdrayError as the worker raised it (it names its scene), once
+    for _ in range(2):
+        dataset._task_failed(report, "views", 0, DatasetError(f"{job.scene}: bad"), progress)
+    assert report.errors[-1] == f"{job.scene}: bad" and len(report.errors) == 3
+
+
+def test_run_refuses_bad_arguments_before_anything(tmp_path):
+    """run()'s own arguments are checked as the command line's are, before any folder
+    is made: a chunk that is not an integer >= 1 (-1 had rendered nothing and said all
+    views were there; "2" raised a TypeError), an overwrite that is not True or False
+    ("no" had been taken as true), two jobs that write one folder (the second had
+    reported the first's views as its own)."""
+    from kdray.errors import ParameterError
+    jobs = _dask_jobs(tmp_path, "out")
+    for chunk in (-1, 0, "2", 2.5, True):
+        with pytest.raises(ParameterError, match="chunk must be None or an integer >= 1"):
+            run(jobs, workers=1, chunk=chunk)
+    for overwrite in ("no", 0, None):
+        with pytest.raises(ParameterError, match="overwrite must be True or False"):
+            run(jobs, overwrite=overwrite)
+    same = [jobs[0], Job(scene=jobs[1].scene, cameras=jobs[1].cameras, output=jobs[0].output)]
+    with pytest.raises(DatasetError, match="job 1 and job 2 both write to"):
+        run(same)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("text", ["{}", "not json", '{"address": 5}', "[1, 2]"])
+def test_a_scheduler_file_that_is_not_one(tmp_path, text):
+    """A --scheduler file with no address in it is one line, not Dask's traceback
+    (AssertionError or TypeError from its reader)."""
+    orbit(tmp_path / "cams.json", 1)
+    jobs = write_jobs(tmp_path / "jobs.jsonl", [
+        {"scene": str(real_mesh("teapot.obj")), "cameras": "cams.json", "output": "a"}])
+    (tmp_path / "sched.json").write_text(text)
+    code, _, err = kdray_cli("batch", jobs, "--scheduler", str(tmp_path / "sched.json"))
+    assert code == 1 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("kdray: error: ") and "sched.json" in err
 
 
 def test_dask_worker_errors_are_one_line(tmp_path):
