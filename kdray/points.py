@@ -392,7 +392,7 @@ def winding_number(tracer, points, beta=WINDING_BETA, precision="single"):
     rel, order = _ordered(tracer, _relative(tracer, p))
     entry = _program(tracer, geometry64)
     geometry = (_tris64(tracer),) if geometry64 else ()
-    moments, owned = _winding_data(tracer)
+    moments, owned = _winding_data(tracer, geometry64)
     w = page_aligned_empty((n,), np.float64)
     for start, stop in _steps(tracer, n, [24, 8]):
         part = slice(start, stop)
@@ -536,13 +536,14 @@ _MONOMIALS = [(0, 0, 0), (1, 1, 1), (2, 2, 2), (0, 0, 1), (0, 0, 2), (0, 1, 1), 
 def winding_moments(nodes, tris, tri_ids, depth, parent):
     """(moments (n_nodes, NODE_VALUES) float32, owned (n,) uint8) for winding_points.
 
-    nodes, tris (n, 3, 3) float32, tri_ids : the device's layout (layout.device_triangles);
-    depth, parent : KdTree._topology's. Each input id is owned by its first copy; a
-    node's values are over the triangles its subtree owns, with x the surface point,
-    c the node's centre and n the unit normal (Barill et al. 2018's expansion of
-    w = 1/4pi sum of the integrals of (x - q).n / |x - q|^3):
-        0-2 c, the area-weighted centroid;  3 radius (to the farthest corner of their
-        vertices' box; -1: the node owns nothing);  4-6 N = integral of n;  7 area;
+    nodes, tris (n, 3, 3) float32 (or float64: _winding_data), tri_ids : the device's
+    layout (layout.device_triangles); depth, parent : KdTree._topology's. Each input id
+    is owned by its first copy; a node's values are over the triangles its subtree
+    owns, with x the surface point, c the node's centre and n the unit normal (Barill
+    et al. 2018's expansion of w = 1/4pi sum of the integrals of (x - q).n / |x - q|^3):
+        0-2 c, the area-weighted centroid rounded to float32 (the moments are about it
+        exactly);  3 radius (to the farthest corner of their vertices' box; -1: the
+        node owns nothing);  4-6 N = integral of n;  7 area;
         8 tr C, 9-11 C's diagonal, 12-14 C01 + C10, C02 + C20, C12 + C21, with
         C = integral of (x - c) n^T;  15-17 2 a + b, with T_ijk = integral of
         n_i (x - c)_j (x - c)_k, a_k = T_iik and b_i = T_ijj;  18-27 the coefficients
@@ -565,44 +566,56 @@ def winding_moments(nodes, tris, tri_ids, depth, parent):
     half_n = 0.5 * np.cross(b - a, c - a)              # area times unit normal
     area = np.linalg.norm(half_n, axis=1)
     centroid = (a + b + c) / 3.0
-    # integral of x x^T over a triangle: area / 12 (sum of v v^T + S S^T), S = a + b + c
-    s = a + b + c
-    G = (np.einsum("ki,kj->kij", a, a) + np.einsum("ki,kj->kij", b, b)
-         + np.einsum("ki,kj->kij", c, c) + np.einsum("ki,kj->kij", s, s)) / 12.0
-    # sums about the tree's origin, added up the tree: area, area * centroid, N,
-    # W = sum (area n) centroid^T, U = sum (area n) (x) G
-    k = len(own)
-    sums = np.zeros((n_nodes, 1 + 3 + 3 + 9 + 27))
-    np.add.at(sums, leaf, np.concatenate(
-        [area[:, None], area[:, None] * centroid, half_n,
-         np.einsum("ki,kj->kij", half_n, centroid).reshape(k, 9),
-         np.einsum("ki,kjl->kijl", half_n, G).reshape(k, 27)], axis=1))
+    order = np.argsort(depth, kind="stable")[::-1]
+    levels = np.split(order, np.flatnonzero(np.diff(depth[order])) + 1)
+    # each node's area, area * centroid, N and box, added up the tree
+    sums = np.zeros((n_nodes, 7))
+    np.add.at(sums, leaf, np.concatenate([area[:, None], area[:, None] * centroid, half_n],
+                                         axis=1))
     lo = np.full((n_nodes, 3), np.inf)
     hi = np.full((n_nodes, 3), -np.inf)
     np.minimum.at(lo, leaf, t.min(axis=1))
     np.maximum.at(hi, leaf, t.max(axis=1))
-    order = np.argsort(depth, kind="stable")[::-1]
-    levels = np.split(order, np.flatnonzero(np.diff(depth[order])) + 1)
     for at in levels[:-1]:                              # deepest first; the root last
         up = parent[at]
         np.add.at(sums, up, sums[at])
         np.minimum.at(lo, up, lo[at])
         np.maximum.at(hi, up, hi[at])
     S, N = sums[:, 0], sums[:, 4:7]
-    W = sums[:, 7:16].reshape(-1, 3, 3)
-    U = sums[:, 16:].reshape(-1, 3, 3, 3)
     present = np.isfinite(lo).all(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         centre = np.where((S > 0)[:, None], sums[:, 1:4] / S[:, None], 0.5 * (lo + hi))
-    centre = np.where(present[:, None], centre, 0.0)
+    # the centre the kernel reads (float32), and every moment about it exactly: a
+    # cluster far from the tree's origin is off its float32 centre by a rounding of
+    # that distance (2e-4 at 3000), a fifth of a 1e-3 sphere's radius
+    centre = np.where(present[:, None], centre, 0.0).astype(np.float32).astype(np.float64)
     corner = np.maximum(np.abs(np.where(present[:, None], centre - lo, 0.0)),
                         np.abs(np.where(present[:, None], hi - centre, 0.0)))
     radius = np.where(present, np.linalg.norm(corner, axis=1), -1.0)
-    # about the centre: C_ij = W_ji - c_i N_j;
-    # T_ijk = U_ijk - c_j W_ik - W_ij c_k + c_j c_k N_i
-    C = np.swapaxes(W, 1, 2) - centre[:, :, None] * N[:, None, :]
-    T = (U - np.einsum("nj,nik->nijk", centre, W) - np.einsum("nij,nk->nijk", W, centre)
-         + np.einsum("nj,nk,ni->nijk", centre, centre, N))
+    # C = integral of (x - c) n^T and T_ijk = integral of n_i (x - c)_j (x - c)_k, each
+    # triangle's about its leaf's centre c (vertices relative to it: small where the
+    # leaf is, so nothing cancels), then each node's shifted to its parent's centre
+    # (x - c' = (x - c) + d, d = c - c') and added: C' = C + d N^T,
+    # T'_ijk = T_ijk + C_ji d_k + d_j C_ki + d_j d_k N_i. (Sums about the tree's
+    # origin, shifted to a centre at the end, had cancelled: 1e13 of a 1e-3 cluster's
+    # moments 3000 away.)
+    ar, br, cr = (v - centre[leaf] for v in (a, b, c))
+    sr = ar + br + cr
+    # integral of (x - c)(x - c)^T over a triangle: area / 12 (sum of v v^T + S S^T)
+    G = (np.einsum("ki,kj->kij", ar, ar) + np.einsum("ki,kj->kij", br, br)
+         + np.einsum("ki,kj->kij", cr, cr) + np.einsum("ki,kj->kij", sr, sr)) / 12.0
+    k = len(own)
+    C = np.zeros((n_nodes, 3, 3))
+    T = np.zeros((n_nodes, 3, 3, 3))
+    np.add.at(C, leaf, np.einsum("ki,kj->kij", sr / 3.0, half_n))
+    np.add.at(T, leaf, np.einsum("ki,kjl->kijl", half_n, G).reshape(k, 3, 3, 3))
+    for at in levels[:-1]:
+        up = parent[at]
+        d = centre[at] - centre[up]
+        Na, Ca = N[at], C[at]
+        np.add.at(C, up, Ca + np.einsum("ni,nj->nij", d, Na))
+        np.add.at(T, up, T[at] + np.einsum("nji,nk->nijk", Ca, d)
+                  + np.einsum("nj,nki->nijk", d, Ca) + np.einsum("nj,nk,ni->nijk", d, d, Na))
     va = np.einsum("niik->nk", T)
     vb = np.einsum("nijj->ni", T)
     sym = np.zeros((n_nodes, len(_MONOMIALS)))
@@ -617,11 +630,22 @@ def winding_moments(nodes, tris, tri_ids, depth, parent):
     return np.ascontiguousarray(moments, dtype=np.float32), owned
 
 
-def _winding_data(tracer):
-    """(moments buffer, owned buffer) of the tracer's tree, made once."""
+def _winding_data(tracer, geometry64=False):
+    """(moments buffer, owned buffer) of the tracer's tree, made once: of its float32
+    triangles, or with geometry64 of the input's float64 ones (relative to the tree's
+    origin in its units), whose exact solid angles the near field then sums (a small
+    object far from the tree's origin: its float32 copy is moved by a rounding of that
+    distance, and the expansion of the copy missed the float64 sum by 5e-4)."""
     def make():
         nodes, tris, tri_ids = device_triangles(tracer.tree, tracer.packet)
+        if geometry64:
+            tree = tracer.tree
+            ids = np.asarray(tri_ids)
+            real = ids != MISS                      # a packet run's padding: not owned
+            tris = np.zeros((len(ids), 3, 3))
+            tris[real] = ((np.asarray(tree.triangles64, dtype=np.float64)[ids[real]]
+                           - tracer._origin) / tracer._scale)
         depth, parent, _ = tracer.tree._topology()
         moments, owned = winding_moments(nodes, tris, tri_ids, depth, parent)
         return tracer._tree_buffer(moments.reshape(-1)), tracer._tree_buffer(owned)
-    return _made(tracer, "winding", make)
+    return _made(tracer, "winding64" if geometry64 else "winding", make)

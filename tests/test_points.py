@@ -400,6 +400,28 @@ def test_winding_number_within_1e4_of_the_exact_sum(runtime, spot):
     assert (tracer.occupancy(p)[clear] == (want > 0.5)[clear]).all()
 
 
+def test_winding_number_of_a_small_object_far_from_the_trees_origin(tracers):
+    """A sphere of radius 1e-3 beside a triangle 1.2e4 across, which puts the tree's
+    origin some 3000 away: the expansion's centres and moments are exact about the
+    float32 centres the kernel reads, summed up the tree by shifts (not about the
+    tree's origin: they had cancelled), and with precision="double" they are of the
+    float64 triangles (the float32 copy is moved by 2.4e-4, a quarter of the radius).
+    Within 1e-4 of the exact sum in both precisions (had been 4e-4 and 8e-4)."""
+    v, f = icosphere(2)
+    v = v * 1e-3
+    big = np.array([[-3e3, -3e3, -30.0], [9e3, -3e3, -30.0], [-3e3, 9e3, -30.0]])
+    tree = build(np.vstack([v, big]), np.vstack([f, [[len(v), len(v) + 1, len(v) + 2]]]),
+                 keep_double=True)
+    assert np.abs(tree.origin).max() > 1e3
+    tracer = tracers(tree)
+    p = np.random.default_rng(23).normal(size=(200, 3)) * 3e-3
+    for precision, tri in (("double", np.vstack([v, big])[np.vstack(
+            [f, [[len(v), len(v) + 1, len(v) + 2]]])]), ("single", by_input_id(tree))):
+        want = reference.winding_number(tri, p)
+        got = tracer.winding_number(p, precision=precision)
+        assert np.abs(got - want).max() <= 1e-4, (precision, np.abs(got - want).max())
+
+
 def test_signs_on_closed_meshes(tracers):
     """On a closed mesh parity and winding agree with the exact winding number for
     every point farther from the surface than its rounding (the float32 triangles are
