@@ -240,6 +240,8 @@ def _program(tracer, geometry64, outputs=()):
     if geometry64:
         defines["GEOMETRY64"] = None
         defines["SLACK"] = float(_slack(tracer)).hex()
+        # world squared distances to the tree's units (a power of 4: exact)
+        defines["SCALE_INV2"] = float(1.0 / (tracer._scale * tracer._scale)).hex()
     for name in outputs:
         defines[f"OUT_{name}"] = None
     entry = tracer._built("points.cl", defines, ("closest_points", "winding_points"))
@@ -254,12 +256,21 @@ def _need_fp64(tracer):
 
 
 def _tris64(tracer):
-    """The device buffer of the input's float64 triangles, relative to the tree's origin
-    in its units (9 doubles an input id)."""
+    """The device buffer of the input's float64 triangles in world coordinates, as the
+    exact tests take them with the points as given (9 doubles an input id;
+    kernels/points.cl, GEOMETRY64)."""
     def make():
-        t64 = (np.asarray(tracer.tree.triangles64, dtype=np.float64) - tracer._origin) / tracer._scale
+        t64 = np.ascontiguousarray(tracer.tree.triangles64, dtype=np.float64)
         return tracer._tree_buffer(t64.reshape(-1))
     return _made(tracer, "tris64", make)
+
+
+def _world_points(tracer, p, order, geometry64):
+    """(points64,): the points as given (world), in the order the kernels take them,
+    for GEOMETRY64's exact tests; () without."""
+    if not geometry64:
+        return ()
+    return (np.ascontiguousarray(p if order is None else take_rows(p, order)),)
 
 
 def _slack(tracer):
@@ -317,6 +328,7 @@ def _closest(tracer, points, max_distance, precision, outputs):
     check_host_memory(n * (24 + 8 + sum(widths[k] for k in outputs)),
                       f"the closest points of {n} points", "ask for fewer points at once")
     rel, order = _ordered(tracer, _relative(tracer, p))
+    world = _world_points(tracer, p, order, geometry64)
     entry = _program(tracer, geometry64, outputs)
     geometry = (_tris64(tracer),) if geometry64 else ()
     with np.errstate(over="ignore"):                # 1e308 squared: inf, not OverflowError
@@ -328,15 +340,17 @@ def _closest(tracer, points, max_distance, precision, outputs):
     for start, stop in _steps(tracer, n, [24, 8] + [widths[k] for k in outputs]):
         part = slice(start, stop)
         _launch(tracer, entry, "closest_points", stop - start,
-                (*geometry, tracer._buffer(rel[part]), max_d2, np.uint32(stop - start)),
+                (*geometry, tracer._buffer(rel[part]),
+                 *(tracer._buffer(pts[part]) for pts in world), max_d2, np.uint32(stop - start)),
                 {"d": d[part], "point": None if q is None else q[part],
                  "uv": None if uv is None else uv[part],
                  "prim": None if prim is None else prim[part]})
     _check_fault(d, "closest points")
     d *= tracer._scale
     if q is not None:                               # world coordinates, 0 on a miss
-        q *= tracer._scale
-        q += tracer._origin
+        if not geometry64:                          # (GEOMETRY64's are world already)
+            q *= tracer._scale
+            q += tracer._origin
         q[prim == MISS] = 0.0
     dtype = np.float64 if geometry64 else np.float32
     if not geometry64:
@@ -390,6 +404,7 @@ def winding_number(tracer, points, beta=WINDING_BETA, precision="single"):
     check_host_memory(n * 48, f"the winding numbers of {n} points",
                       "ask for fewer points at once")
     rel, order = _ordered(tracer, _relative(tracer, p))
+    world = _world_points(tracer, p, order, geometry64)
     entry = _program(tracer, geometry64)
     geometry = (_tris64(tracer),) if geometry64 else ()
     moments, owned = _winding_data(tracer, geometry64)
@@ -397,7 +412,8 @@ def winding_number(tracer, points, beta=WINDING_BETA, precision="single"):
     for start, stop in _steps(tracer, n, [24, 8]):
         part = slice(start, stop)
         _launch(tracer, entry, "winding_points", stop - start,
-                (*geometry, tracer._buffer(rel[part]), moments, owned, np.float64(beta * beta),
+                (*geometry, tracer._buffer(rel[part]), *(tracer._buffer(pts[part]) for pts in world),
+                 moments, owned, np.float64(beta * beta),
                  np.uint32(stop - start)), {"w": w[part]})
     _check_fault(w, "winding number")
     return _unordered(w, order).reshape(shape)

@@ -10,8 +10,12 @@
  * double costs what a float costs on a CPU, and the answers then need no second pass.
  * Points are given in double, relative to the tree's origin in its units; the
  * triangles are the device's float copies (layout.h) converted exactly, or with
- * GEOMETRY64 the input's float64 triangles (tris64, by input id, relative to the
- * origin in its units).
+ * GEOMETRY64 the input's float64 triangles (tris64, by input id), which the exact
+ * tests take in world coordinates, with the points as given (points64): relative to
+ * the tree's origin both would carry roundings of their distance from it, a small
+ * object's far from the scene's centre (3e-15 of a distance 1e-10 over a triangle
+ * 3e-4 across, 1400 away). Their squared distances are then scaled to the tree's
+ * units by SCALE_INV2 (the scale's inverse squared: a power of 4, exact).
  *
  * closest_points walks the tree nearest region first (Arya & Mount's incremental
  * distance: a region's lower bound is the squared length of the per-axis offsets
@@ -32,9 +36,9 @@
  *
  * Options (-D): STACK_SIZE (the tree's depth + 1 at least), NEAR_STACK (closest_points'
  * best-first stack, 2 STACK_SIZE unless given), LOCAL_SIZE, RUN (points a work-item
- * takes, consecutive), GEOMETRY64, SLACK (a double literal), PACKET (leaves in runs of
- * a packet, as packet programs lay them out), KD_PLAIN_VECTOR_OPS, OUT_POINT, OUT_UV,
- * OUT_ID (which outputs closest_points writes).
+ * takes, consecutive), GEOMETRY64, SLACK and SCALE_INV2 (double literals), PACKET
+ * (leaves in runs of a packet, as packet programs lay them out), KD_PLAIN_VECTOR_OPS,
+ * OUT_POINT, OUT_UV, OUT_ID (which outputs closest_points writes).
  */
 #pragma OPENCL FP_CONTRACT OFF
 #include "layout.h"
@@ -71,10 +75,12 @@ double3 kd_cross_d(double3 a, double3 b)
 #define KD_GEOMETRY_ARG , __global const double *tris64
 #define KD_VERTEX_D(tri, k) vload3(3u * tri_ids[tri] + (k), tris64)
 #define KD_PASS_GEOMETRY , tris64
+#define KD_POINTS64_ARG , __global const double *points64
 #else
 #define KD_GEOMETRY_ARG
 #define KD_VERTEX_D(tri, k) convert_double3(kd_vertex(tris, tri, k))
 #define KD_PASS_GEOMETRY
+#define KD_POINTS64_ARG
 #endif
 
 /* Whether point a comes before point b: by x, then y, then z */
@@ -260,12 +266,17 @@ typedef struct {
     double bound2;                       /* regions farther than this are skipped */
     double pad;                          /* bound2's widening (kd_nearest_pad) */
     double u, v;
-    double3 q;                           /* the nearest point */
+    double3 q;                           /* the nearest point (GEOMETRY64: world) */
+#ifdef GEOMETRY64
+    double3 p64;                         /* the point, world: the exact tests' */
+#endif
     uint id;                             /* input id, KD_NO_HIT */
     uint tri;                            /* its device copy (layout.h) */
 } KdNearest;
 
-/* Triangle `tri` (device copy) tested exactly against the best so far. */
+/* Triangle `tri` (device copy) tested exactly against the best so far (p: the point
+ * relative to the tree's origin; GEOMETRY64 tests best->p64 against the world
+ * triangle, its squared distance then in the tree's units). */
 KD_INLINE
 void kd_nearest_triangle(__global const float *tris, __global const uint *tri_ids
                          KD_GEOMETRY_ARG, uint tri, double3 p, KdNearest *best)
@@ -273,14 +284,22 @@ void kd_nearest_triangle(__global const float *tris, __global const uint *tri_id
     uint id = tri_ids[tri];
     if (id == KD_NO_HIT)                              /* a packet run's padding */
         return;
+#ifdef GEOMETRY64
+    double3 at = best->p64;
+#else
+    double3 at = p;
+#endif
     double u, v, d2;
-    double3 e = kd_closest_on_triangle(p, KD_VERTEX_D(tri, 0), KD_VERTEX_D(tri, 1),
+    double3 e = kd_closest_on_triangle(at, KD_VERTEX_D(tri, 0), KD_VERTEX_D(tri, 1),
                                        KD_VERTEX_D(tri, 2), &u, &v, &d2);
+#ifdef GEOMETRY64
+    d2 *= SCALE_INV2;
+#endif
     if (d2 < best->d2 || (d2 == best->d2 && id < best->id)) {
         best->d2 = d2;
         best->u = u;
         best->v = v;
-        best->q = p - e;
+        best->q = at - e;
         best->id = id;
         best->tri = tri;
         double r = sqrt(d2) + SLACK + best->pad;
@@ -485,8 +504,9 @@ uint kd_nearest_walk(__global const KdNode *nodes, uint n_nodes, __global const 
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void closest_points(__global const KdNode *nodes, __global const float *tris,
                     __global const uint *tri_ids, __global const float *bounds, uint n_nodes
-                    KD_GEOMETRY_ARG, __global const double *points, double max_d2,
-                    uint n_points, __global double *out_d, __global double *out_point,
+                    KD_GEOMETRY_ARG, __global const double *points KD_POINTS64_ARG,
+                    double max_d2, uint n_points, __global double *out_d,
+                    __global double *out_point,
                     __global float *out_uv, __global uint *out_id)
 {
     /* Points come in spatial order (points.py): the work-item's previous point's
@@ -508,6 +528,9 @@ void closest_points(__global const KdNode *nodes, __global const float *tris,
         best.id = KD_NO_HIT;
         best.tri = KD_NO_HIT;
         best.pad = kd_nearest_pad(p, scene);
+#ifdef GEOMETRY64
+        best.p64 = vload3(k, points64);
+#endif
         uint walk = KD_WALK_DONE;
         if (isfinite(p.x) && isfinite(p.y) && isfinite(p.z)) {
             if (prev_tri != KD_NO_HIT)
@@ -596,7 +619,8 @@ double kd_run_solid_angles(__global const float *tris, __global const uchar *own
 __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void winding_points(__global const KdNode *nodes, __global const float *tris,
                     __global const uint *tri_ids, __global const float *bounds, uint n_nodes
-                    KD_GEOMETRY_ARG, __global const double *points, __global const float *moments,
+                    KD_GEOMETRY_ARG, __global const double *points KD_POINTS64_ARG,
+                    __global const float *moments,
                     __global const uchar *owned, double beta2, uint n_points,
                     __global double *out_w)
 {
@@ -606,6 +630,11 @@ void winding_points(__global const KdNode *nodes, __global const float *tris,
             out_w[k] = 0.0;
             continue;
         }
+#ifdef GEOMETRY64
+        double3 at = vload3(k, points64);        /* world, as tris64: the exact angles' */
+#else
+        double3 at = p;
+#endif
         uint stack[STACK_SIZE];
         uint count = 0;
         uint node = 0;
@@ -657,8 +686,8 @@ void winding_points(__global const KdNode *nodes, __global const float *tris,
                         uint tri = first + i;
                         if (!owned[tri])
                             continue;
-                        w += kd_solid_angle(KD_VERTEX_D(tri, 0) - p, KD_VERTEX_D(tri, 1) - p,
-                                            KD_VERTEX_D(tri, 2) - p);
+                        w += kd_solid_angle(KD_VERTEX_D(tri, 0) - at, KD_VERTEX_D(tri, 1) - at,
+                                            KD_VERTEX_D(tri, 2) - at);
                     }
 #endif
                 } else {

@@ -267,6 +267,28 @@ def test_thin_triangles_are_measured_from_their_face(tracers, width):
         assert np.abs(at - got.point).max() <= 2.0 ** -22
 
 
+def test_double_distances_of_a_small_triangle_far_from_the_trees_origin(tracers):
+    """precision="double" tests the point as given against the world float64 triangle:
+    a triangle 3e-4 across beside one 4e3 across (the tree's origin some 1400 away),
+    points 1e-6 to 1e-10 above it, at the exact distance (rationals) to a few double
+    roundings of the triangle's size, as in a tree of its own (taken relative to the
+    tree's origin, they had been 3.2e-15 off at 1e-10: roundings of 1400)."""
+    tri = np.array([[0.0, 0.0, 0.0], [3e-4, 0.0, 1e-5], [1e-4, 2.5e-4, 2e-5]])
+    big = np.array([[-1e3, -1e3, -10.0], [3e3, -1e3, -10.0], [-1e3, 3e3, -10.0]])
+    tree = build(np.vstack([tri, big]), np.array([[0, 1, 2], [3, 4, 5]]), keep_double=True)
+    assert np.abs(tree.origin).max() > 500
+    tracer = tracers(tree)
+    n = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+    rng = np.random.default_rng(24)
+    w = rng.dirichlet([2, 2, 2], 30)
+    p = w @ tri + np.geomspace(1e-10, 1e-6, 30)[:, None] * n / np.linalg.norm(n)
+    want = np.array([float(exact_d2(q, tri)) for q in p]) ** 0.5
+    got = tracer.closest_points(p, precision="double")
+    assert (got.prim == 0).all()
+    assert np.abs(got.distance - want).max() <= 1e-18
+    assert np.abs(np.linalg.norm(got.point - p, axis=1) - want).max() <= 1e-18
+
+
 def test_a_triangle_given_twice_ties_in_any_vertex_order(tracers):
     """The same triangle given six times, its vertices in each order (either
     orientation), is measured alike, bit for bit: of points nearest it the lowest of
