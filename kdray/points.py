@@ -325,7 +325,8 @@ def _closest(tracer, points, max_distance, precision, outputs):
         raise KdrayError(f"max_distance must be >= 0, got {max_distance!r}")
     n = len(p)
     widths = {"POINT": 24, "UV": 8, "ID": 4}
-    check_host_memory(n * (24 + 8 + sum(widths[k] for k in outputs)),
+    # the relative points, d, the outputs; with geometry64 the world points in order
+    check_host_memory(n * (24 + 8 + sum(widths[k] for k in outputs) + 24 * geometry64),
                       f"the closest points of {n} points", "ask for fewer points at once")
     rel, order = _ordered(tracer, _relative(tracer, p))
     world = _world_points(tracer, p, order, geometry64)
@@ -401,7 +402,7 @@ def winding_number(tracer, points, beta=WINDING_BETA, precision="single"):
                          f"the group's sphere), got {beta!r}")
     p, shape = check_points(points)
     n = len(p)
-    check_host_memory(n * 48, f"the winding numbers of {n} points",
+    check_host_memory(n * (48 + 24 * geometry64), f"the winding numbers of {n} points",
                       "ask for fewer points at once")
     rel, order = _ordered(tracer, _relative(tracer, p))
     world = _world_points(tracer, p, order, geometry64)
