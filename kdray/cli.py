@@ -773,7 +773,7 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
            **kw):
     """The point queries at the points of a file: nearest surface points, distances,
     signed distances, winding numbers or occupancy (docs/interface.md, "kdray points")."""
-    from .points import OpenMeshWarning
+    from .points import INSIDE_ABOVE, OpenMeshWarning
     params = _build_kwargs(kw)
     check_output(output, inputs=(scene, tree_file, points_file), what="-o")
     measures = query in ("closest", "distance", "signed")
@@ -803,7 +803,7 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
             summary = f"{int(np.count_nonzero(d < 0)):,} inside"
         elif query == "winding":
             arrays = {"winding_number": tracer.winding_number(at, precision=precision)}
-            summary = f"{int(np.count_nonzero(arrays['winding_number'] > 0.5)):,} inside"
+            summary = f"{int(np.count_nonzero(arrays['winding_number'] > INSIDE_ABOVE)):,} inside"
         else:
             arrays = {"occupancy": tracer.occupancy(at, sign, precision)}
             summary = f"{int(np.count_nonzero(arrays['occupancy'])):,} inside"

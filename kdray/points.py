@@ -55,6 +55,14 @@ SIGN_BETA = 2.0
 about 30 times faster than WINDING_BETA and within about 4e-3 of the exact sum, far
 inside the 1/2 the sign is decided by."""
 
+INSIDE_ABOVE = 0.5 + 2.0 ** -40
+"""The generalized winding number above which a point is inside (sign="winding"). A
+point on the surface has as its exact winding number the share of its neighbourhood
+that is inside: 1/2 on a face, less at a convex edge or corner, more in a concave one.
+So it is inside where that share is more than 1/2, and 2^-40 more, so that the sums'
+rounding (which differs in the last bits between packet widths and runtimes: 0.5 on
+one, 0.5000000000000001 on another) never decides a point on a face."""
+
 NEAR_SURFACE = 1e-5
 """Points nearer the surface than this share of the scene box's largest side take the
 generalized winding number's sign even on closed meshes (`inside`): a crossing so near
@@ -455,7 +463,7 @@ def inside(tracer, points, sign, precision="single"):
     if sign == "parity" and not (double and closed):
         return contains(tracer, points)
     if not closed:
-        return winding_number(tracer, points, SIGN_BETA, precision) > 0.5
+        return winding_number(tracer, points, SIGN_BETA, precision) > INSIDE_ABOVE
     p, shape = check_points(points)
     if sign == "parity":
         result, raw = contains(tracer, p), np.zeros(len(p), bool)
@@ -469,7 +477,7 @@ def inside(tracer, points, sign, precision="single"):
     near = np.isfinite(distance(tracer, p, NEAR_SURFACE * float(np.max(hi - lo))))
     redo = np.flatnonzero(near | raw)
     if redo.size:
-        result[redo] = winding_number(tracer, p[redo], SIGN_BETA, precision) > 0.5
+        result[redo] = winding_number(tracer, p[redo], SIGN_BETA, precision) > INSIDE_ABOVE
     return result.reshape(shape)
 
 

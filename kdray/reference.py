@@ -345,7 +345,8 @@ def closest_points(triangles, points, chunk=1 << 22):
 
 def winding_number(triangles, points, chunk=1 << 22):
     """(k,) float64 generalized winding numbers: the sum of every triangle's signed solid
-    angle at each point over 4 pi (Van Oosterom & Strackee's formula in float64)."""
+    angle at each point over 4 pi (Van Oosterom & Strackee's formula in float64; 0 for
+    a triangle whose plane holds the point)."""
     tri = np.asarray(triangles, dtype=np.float64)
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     step = max(1, chunk // max(len(tri), 1))
@@ -358,5 +359,7 @@ def winding_number(triangles, points, chunk=1 << 22):
         num = np.einsum("...i,...i", a, np.cross(b, c))
         den = (la * lb * lc + np.einsum("...i,...i", a, b) * lc
                + np.einsum("...i,...i", a, c) * lb + np.einsum("...i,...i", b, c) * la)
-        w[s:s + step] = np.arctan2(num, den).sum(axis=1) / (2 * np.pi)
+        # 0 in a triangle's plane (num exactly 0), where arctan2 would give +-pi by the
+        # sign of the zero: seen edge-on (kernels/points.cl, kd_solid_angle)
+        w[s:s + step] = np.where(num == 0, 0.0, np.arctan2(num, den)).sum(axis=1) / (2 * np.pi)
     return w

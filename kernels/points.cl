@@ -560,14 +560,18 @@ void closest_points(__global const KdNode *nodes, __global const float *tris,
 
 /* The solid angle of triangle (a, b, c) seen from the origin, over 4 pi (a, b, c
  * relative to the point): positive where the triangle's front (counter-clockwise)
- * faces away from the point (Van Oosterom & Strackee 1983). */
+ * faces away from the point (Van Oosterom & Strackee 1983). 0 where the point lies in
+ * the triangle's plane (num exactly 0), also inside it, where atan2 would give +-1/2
+ * by the sign of num's zero: the triangle is seen edge-on, and a point on a closed
+ * surface's face then has winding number 1/2 (the rest of the surface's), not 0 or 1
+ * by a zero's sign (reference.winding_number takes the same rule). */
 KD_INLINE
 double kd_solid_angle(double3 a, double3 b, double3 c)
 {
     double la = sqrt(kd_dot_d(a, a)), lb = sqrt(kd_dot_d(b, b)), lc = sqrt(kd_dot_d(c, c));
     double num = kd_dot_d(a, kd_cross_d(b, c));
     double den = la * lb * lc + kd_dot_d(a, b) * lc + kd_dot_d(a, c) * lb + kd_dot_d(b, c) * la;
-    return atan2(num, den) * (0.5 / M_PI);        /* 2 atan2 / (4 pi) */
+    return num == 0.0 ? 0.0 : atan2(num, den) * (0.5 / M_PI);   /* 2 atan2 / (4 pi) */
 }
 
 #ifdef PACKET
@@ -582,7 +586,8 @@ typedef union { doubleP v; double s[KD_PACKET]; } KdPointD;
 
 /* The solid angles over 4 pi of a run of KD_PACKET triangles (a leaf starts on a
  * multiple of KD_PACKET: one block), each as kd_solid_angle computes it, lane by
- * lane in double, summed over the lanes whose copy is owned (padding never is). */
+ * lane in double (0 in the triangle's plane), summed over the lanes whose copy is
+ * owned (padding never is). */
 KD_INLINE
 double kd_run_solid_angles(__global const float *tris, __global const uchar *owned,
                            uint first, double3 p)
@@ -606,7 +611,9 @@ double kd_run_solid_angles(__global const float *tris, __global const uchar *own
     doubleP bc = (bx * cx + by * cy) + bz * cz;
     doubleP den = ((la * lb * lc + ab * lc) + ac * lb) + bc * la;
     KdPointD angle;
-    angle.v = atan2(num, den) * convert_doubleP(vload_ucharP(0, owned + first));
+    /* 0 in the triangle's plane, as kd_solid_angle */
+    angle.v = select(atan2(num, den), (doubleP)(0.0), num == (doubleP)(0.0))
+              * convert_doubleP(vload_ucharP(0, owned + first));
     double sum = 0.0;
     for (uint j = 0; j < KD_PACKET; j++)
         sum += angle.s[j];

@@ -507,6 +507,29 @@ def test_winding_sign_on_closed_meshes_is_the_crossings_integer(runtime, spot):
     assert tracer.occupancy(centre)[0] and abs(tracer.winding_number(centre)[0] - 34) < 1e-3
 
 
+def test_points_on_a_face_are_outside_on_every_packet_and_runtime(runtime):
+    """A point on a face of a closed mesh has winding number 1/2 exactly; the sums
+    round it apart in the last bits by packet width and runtime (0.5 or
+    0.5000000000000001): sign="winding" takes a point inside only 2^-40 above 1/2
+    (INSIDE_ABOVE), so points on the grid cube's faces, edges and corners are outside
+    (signed distance +0.0) whatever the packets (had been about half of them inside,
+    213 with one packet width and 205 with another)."""
+    v, f = grid_cube(1)
+    tree = build(v, f)
+    rng = np.random.default_rng(25)
+    k = runtime.small(400, 40)
+    p = rng.integers(-8, 9, (k, 3)) / 8.0
+    p[np.arange(k), rng.integers(0, 3, k)] = rng.choice([-1.0, 1.0], k)    # on a face
+    packets = (1,) if runtime.simulator else (1, *PACKETS)
+    for packet in packets:
+        tracer = Tracer(tree, device=runtime.spec, packet=packet)
+        assert not tracer.occupancy(p).any(), packet
+        d = tracer.signed_distance(p)
+        assert (d == 0).all() and not np.signbit(d).any(), packet
+        w = tracer.winding_number(p, beta=2.0)
+        assert np.abs(w[(np.abs(p) == 1).sum(axis=1) == 1] - 0.5).max() <= 1e-12
+
+
 def test_parity_on_an_open_mesh_warns(tracers):
     v, f = grid_cube(1)
     assert kpoints.open_edges(build(v, f)) == 0
