@@ -83,6 +83,8 @@ def load(path):
                 obj = _obj_plain(obj) or obj
                 _obj_zero_index(obj)
                 obj = _obj_absolute(obj) or obj
+            if ext in ("glb", "gltf"):
+                _gltf_structure(_gltf_header(path, zipped, ext), path, ext)
             # an ASCII OFF file is read in file order by kdray (kdray.off)
             scene = _polygons_scene(read_off, path, zipped) if ext == "off" else None
             if scene is None and obj is not None:
@@ -303,6 +305,68 @@ def _gltf_header(path, zipped, ext):
 
 GLTF_FAN = 6
 """glTF's TRIANGLE_FAN primitive mode, which trimesh's reader leaves out."""
+
+
+def _gltf_structure(header, path, ext):
+    """MeshError, before trimesh reads the file, for a glTF whose references do not
+    hold, which trimesh's reader fails on with an IndexError, an AssertionError or a
+    FileNotFoundError that name nothing, or reads in part (a cycle of nodes): a .gltf
+    that is not a JSON object; a scene, a scene's root, a node's child, a primitive's
+    accessor, an accessor's bufferView or a bufferView's buffer that the file does not
+    have; a node that is a child twice or its own ancestor (glTF's nodes are disjoint
+    trees). A .glb whose JSON chunk cannot be read is left to trimesh's read."""
+    if header is None:
+        if ext == "gltf":
+            raise MeshError(f"{path}: is not a glTF file (not a JSON object)")
+        return
+
+    def items(key):
+        value = header.get(key, [])
+        if not isinstance(value, list):
+            raise MeshError(f"{path}: its {key!r} is not a list")
+        return value
+
+    def check(index, key, what):
+        count = len(items(key))
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < count:
+            raise MeshError(f"{path}: {what} refers to {key[:-1]} {index!r}, and the file "
+                            f"has {count}")
+    nodes, scenes = items("nodes"), items("scenes")
+    if "scene" in header:
+        check(header["scene"], "scenes", "its scene")
+    for k, scene in enumerate(scenes):
+        for root in (scene.get("nodes", []) if isinstance(scene, dict) else []):
+            check(root, "nodes", f"scene {k}")
+    parent = {}
+    for k, node in enumerate(nodes):
+        for child in (node.get("children", []) if isinstance(node, dict) else []):
+            check(child, "nodes", f"node {k}")
+            if child in parent or child == k:
+                raise MeshError(f"{path}: node {child} is a child of nodes "
+                                f"{parent.get(child, k)} and {k} (glTF's nodes are trees)")
+            parent[child] = k
+    for k in parent:                            # each node's ancestors: none is itself
+        up, seen = parent.get(k), 0
+        while up is not None and seen <= len(nodes):
+            if up == k:
+                raise MeshError(f"{path}: node {k} is its own ancestor (a cycle of "
+                                f"nodes; glTF's nodes are trees)")
+            up, seen = parent.get(up), seen + 1
+    for k, mesh in enumerate(items("meshes")):
+        for primitive in (mesh.get("primitives", []) if isinstance(mesh, dict) else []):
+            if not isinstance(primitive, dict):
+                continue
+            used = list((primitive.get("attributes") or {}).values())
+            if "indices" in primitive:
+                used.append(primitive["indices"])
+            for index in used:
+                check(index, "accessors", f"a primitive of mesh {k}")
+    for k, accessor in enumerate(items("accessors")):
+        if isinstance(accessor, dict) and "bufferView" in accessor:
+            check(accessor["bufferView"], "bufferViews", f"accessor {k}")
+    for k, view in enumerate(items("bufferViews")):
+        if isinstance(view, dict) and "buffer" in view:
+            check(view["buffer"], "buffers", f"bufferView {k}")
 
 
 def _gltf_check(header, path):

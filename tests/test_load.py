@@ -493,6 +493,57 @@ def test_gltf_node_of_a_mesh_the_file_lacks(tmp_path):
     assert len(load(p).faces) == 2
 
 
+def _triangle_gltf():
+    """A glTF of one triangle in two nodes (JSON, its buffer inline)."""
+    import base64
+    import struct
+    buf = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
+    return {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 2]}],
+            "nodes": [{"name": "A", "mesh": 0, "children": [1]}, {"name": "B", "mesh": 0},
+                      {"name": "C", "mesh": 0, "translation": [3, 0, 0]}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3,
+                           "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}],
+            "bufferViews": [{"buffer": 0, "byteLength": 36}],
+            "buffers": [{"byteLength": 36, "uri": "data:application/octet-stream;base64,"
+                         + base64.b64encode(buf).decode()}]}
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda g: g["nodes"][0]["children"].append(9), "node 0 refers to node 9, and the file has 3"),
+    (lambda g: g.__setitem__("scene", 5), "its scene refers to scene 5, and the file has 1"),
+    (lambda g: g["scenes"][0]["nodes"].append(7), "scene 0 refers to node 7"),
+    (lambda g: g["meshes"][0]["primitives"][0].__setitem__("indices", 77),
+     "a primitive of mesh 0 refers to accessor 77, and the file has 1"),
+    (lambda g: g.pop("buffers"), "bufferView 0 refers to buffer 0, and the file has 0"),
+    (lambda g: g["accessors"][0].__setitem__("bufferView", 4), "accessor 0 refers to bufferView 4"),
+    (lambda g: g["nodes"][1].__setitem__("children", [0]), "its own ancestor"),
+    (lambda g: g["nodes"][2].__setitem__("children", [1]), "node 1 is a child of nodes 0 and 2"),
+    (lambda g: g["nodes"][1].__setitem__("children", [1]), "node 1 is a child of nodes 0 and 1"),
+])
+def test_gltf_references_that_do_not_hold(tmp_path, edit, message):
+    """A glTF whose scene, nodes, accessors or buffers refer to what the file does not
+    have, or whose nodes are not trees, is a MeshError saying which, before trimesh
+    reads it (it had said "a face refers to a vertex that does not exist" for an
+    IndexError, and read a cycle of nodes in part, with a warning)."""
+    import json
+    g = _triangle_gltf()
+    p = tmp_path / "model.gltf"
+    p.write_text(json.dumps(g))
+    assert len(load(p).faces) == 3                  # the file as made: three nodes
+    edit(g)
+    p.write_text(json.dumps(g))
+    with pytest.raises(MeshError, match=message):
+        load(p)
+
+
+def test_gltf_that_is_not_json(tmp_path):
+    p = tmp_path / "model.gltf"
+    p.write_text("solid this is not json")
+    with pytest.raises(MeshError, match="is not a glTF file"):
+        load(p)
+
+
 def test_meshes_compare_by_their_arrays():
     """A Mesh equals its pickled and deep-copied twins (dataclass equality of numpy
     arrays raised ValueError), differs where an array, the name or the object names
