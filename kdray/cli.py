@@ -198,12 +198,15 @@ def _with_double(step, tree, scene, tree_file):
 
 
 def _say_if_builder_compiles():
-    """A warning on stderr when the builder's compiled code is not on disk yet: the first
-    build of an install compiles it (numba), about half a minute that would otherwise
-    pass in silence."""
+    """A warning on stderr when the builder's compiled code is not on disk yet, and then
+    all of it compiled (numba; `builder.compile_all`, as `kdray batch` does): about half
+    a minute that would otherwise pass in silence. All of it: a build alone compiles only
+    the functions it calls, and the warning then came again at every command until a
+    trace of rays that share no path had compiled the wide nodes' BVH."""
     from . import builder
     if not builder.compiled():
         log.warning(builder.COMPILING)
+        builder.compile_all()
 
 
 def _log_left_out(tree, tracer, n_culled, from_file, outputs):

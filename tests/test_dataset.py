@@ -638,7 +638,7 @@ def test_unwritable_output_checked_before_anything(capsys, tmp_path, monkeypatch
     assert not (locked / "views").exists()
 
 
-def test_builder_compiled_state(tmp_path, caplog, monkeypatch):
+def test_builder_compiled_state(tmp_path, caplog, capsys, monkeypatch):
     from kdray import builder
     assert builder.compiled()                      # make install compiled it
     code = ("import kdray.builder as b; print(b.compiled())")
@@ -653,3 +653,9 @@ def test_builder_compiled_state(tmp_path, caplog, monkeypatch):
               output=tmp_path / "o", aovs="depth")
     assert run([job])[0].ok and compiled == [1]
     assert builder.COMPILING in caplog.text
+    # as does every other command: and compiles all of it, so that it says so once (a
+    # build alone compiled only what it calls, and the next command said it again)
+    caplog.clear()
+    code, _, err = run_cli(capsys, "build", real_mesh("teapot.obj"))
+    assert code == 0 and compiled == [1, 1]
+    assert builder.COMPILING in caplog.text + err
