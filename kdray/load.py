@@ -77,6 +77,7 @@ def load(path):
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
         obj = None                  # an OBJ's bytes, read once for both its reads
+        header = None               # a glTF's JSON, read once: checked, then its order
         try:
             if ext == "obj":
                 obj = _text(_read(path, zipped))
@@ -84,7 +85,8 @@ def load(path):
                 _obj_zero_index(obj)
                 obj = _obj_absolute(obj) or obj
             if ext in ("glb", "gltf"):
-                _gltf_structure(_gltf_header(path, zipped, ext), path, ext)
+                header = _gltf_header(path, zipped, ext)
+                _gltf_check(header, path, ext)
             # an ASCII OFF file is read in file order by kdray (kdray.off)
             scene = _polygons_scene(read_off, path, zipped) if ext == "off" else None
             if scene is None and obj is not None:
@@ -119,12 +121,7 @@ def load(path):
                 if scene is None:
                     raise MeshError(f"{path}: its faces are of several sizes, in a PLY "
                                     f"layout kdray cannot read")
-        ranks = None
-        if ext in ("glb", "gltf"):
-            header = _gltf_header(path, zipped, ext)
-            if header is not None:
-                _gltf_check(header, path)
-            ranks = _gltf_node_ranks(header)
+        ranks = _gltf_node_ranks(header) if ext in ("glb", "gltf") else None
         vertices, faces, objects, object_names = _scene_arrays(scene, path, ranks)
     if not faces:
         kinds = sorted({type(g).__name__ for g in scene.geometry.values()})
@@ -307,14 +304,17 @@ GLTF_FAN = 6
 """glTF's TRIANGLE_FAN primitive mode, which trimesh's reader leaves out."""
 
 
-def _gltf_structure(header, path, ext):
-    """MeshError, before trimesh reads the file, for a glTF whose references do not
-    hold, which trimesh's reader fails on with an IndexError, an AssertionError or a
-    FileNotFoundError that name nothing, or reads in part (a cycle of nodes): a .gltf
-    that is not a JSON object; a scene, a scene's root, a node's child, a primitive's
-    accessor, an accessor's bufferView or a bufferView's buffer that the file does not
-    have; a node that is a child twice or its own ancestor (glTF's nodes are disjoint
-    trees). A .glb whose JSON chunk cannot be read is left to trimesh's read."""
+def _gltf_check(header, path, ext):
+    """MeshError, before trimesh reads the file, for a glTF that trimesh's reader fails
+    on with an IndexError, an AssertionError or a FileNotFoundError that name nothing,
+    or reads in part or wrong without a word: a .gltf that is not a JSON object; a
+    scene, a scene's root, a node's child or mesh, a primitive's accessor, an
+    accessor's bufferView or a bufferView's buffer that the file does not have; a node
+    that is a child twice or its own ancestor (glTF's nodes are disjoint trees);
+    TRIANGLE_FAN primitives (left out) and sparse accessors (read without their sparse
+    values) of a triangle primitive's positions or indices. Points and lines (modes
+    0-3) hold no triangles and are left out. A .glb whose JSON chunk cannot be read is
+    left to trimesh's read."""
     if header is None:
         if ext == "gltf":
             raise MeshError(f"{path}: is not a glTF file (not a JSON object)")
@@ -329,7 +329,8 @@ def _gltf_structure(header, path, ext):
     def check(index, key, what):
         count = len(items(key))
         if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < count:
-            raise MeshError(f"{path}: {what} refers to {key[:-1]} {index!r}, and the file "
+            noun = "mesh" if key == "meshes" else key[:-1]
+            raise MeshError(f"{path}: {what} refers to {noun} {index!r}, and the file "
                             f"has {count}")
     nodes, scenes = items("nodes"), items("scenes")
     if "scene" in header:
@@ -339,6 +340,8 @@ def _gltf_structure(header, path, ext):
             check(root, "nodes", f"scene {k}")
     parent = {}
     for k, node in enumerate(nodes):
+        if isinstance(node, dict) and "mesh" in node:
+            check(node["mesh"], "meshes", f"node {k}")
         for child in (node.get("children", []) if isinstance(node, dict) else []):
             check(child, "nodes", f"node {k}")
             if child in parent or child == k:
@@ -367,21 +370,14 @@ def _gltf_structure(header, path, ext):
     for k, view in enumerate(items("bufferViews")):
         if isinstance(view, dict) and "buffer" in view:
             check(view["buffer"], "buffers", f"bufferView {k}")
+    _gltf_unread_primitives(header, path)
 
 
-def _gltf_check(header, path):
-    """MeshError for the parts of a glTF file trimesh's reader gets wrong without a
-    word: a node's mesh that the file does not have (the node left out), TRIANGLE_FAN
-    primitives (left out) and sparse accessors (read without their sparse values) of a
-    triangle primitive's positions or indices. Points and lines
-    (modes 0-3) hold no triangles and are left out."""
+def _gltf_unread_primitives(header, path):
+    """_gltf_check's MeshError for TRIANGLE_FAN primitives and sparse accessors of a
+    triangle primitive (the references already checked)."""
     try:
-        meshes = header.get("meshes", [])
-        for k, node in enumerate(header.get("nodes", [])):
-            if "mesh" in node and not 0 <= node["mesh"] < len(meshes):
-                raise MeshError(f"{path}: node {k} refers to mesh {node['mesh']}, and the "
-                                f"file has {len(meshes)}")
-        for k, mesh in enumerate(meshes):
+        for k, mesh in enumerate(header.get("meshes", [])):
             for primitive in mesh.get("primitives", []):
                 mode = primitive.get("mode", 4)
                 if mode == GLTF_FAN:
