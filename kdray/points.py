@@ -273,12 +273,19 @@ def _tris64(tracer):
     return _made(tracer, "tris64", make)
 
 
-def _world_points(tracer, p, order, geometry64):
+def _world_points(p, order, geometry64):
     """(points64,): the points as given (world), in the order the kernels take them,
     for GEOMETRY64's exact tests; () without."""
     if not geometry64:
         return ()
     return (np.ascontiguousarray(p if order is None else take_rows(p, order)),)
+
+
+def _relative64(tracer, ids):
+    """(k, 3, 3) float64: the input's float64 triangles of input ids `ids`, relative to
+    the tree's origin in its units (as its float32 copies are)."""
+    t64 = np.asarray(tracer.tree.triangles64, dtype=np.float64)[ids]
+    return (t64 - tracer._origin) / tracer._scale
 
 
 def _slack(tracer):
@@ -287,7 +294,7 @@ def _slack(tracer):
     copy, doubled, plus a float rounding of the scene's size."""
     def make():
         tree = tracer.tree
-        t64 = (np.asarray(tree.triangles64, dtype=np.float64)[tree.tri_ids] - tracer._origin) / tracer._scale
+        t64 = _relative64(tracer, tree.tri_ids)
         gap = np.abs(t64 - np.asarray(tree.triangles, dtype=np.float64)).max(initial=0.0)
         size = float(np.abs(np.asarray(tree.bounds, dtype=np.float64)).max())
         return 2.0 * float(np.sqrt(3.0) * gap) + size * 2.0 ** -23
@@ -337,7 +344,7 @@ def _closest(tracer, points, max_distance, precision, outputs):
     check_host_memory(n * (24 + 8 + sum(widths[k] for k in outputs) + 24 * geometry64),
                       f"the closest points of {n} points", "ask for fewer points at once")
     rel, order = _ordered(tracer, _relative(tracer, p))
-    world = _world_points(tracer, p, order, geometry64)
+    world = _world_points(p, order, geometry64)
     entry = _program(tracer, geometry64, outputs)
     geometry = (_tris64(tracer),) if geometry64 else ()
     with np.errstate(over="ignore"):                # 1e308 squared: inf, not OverflowError
@@ -350,7 +357,8 @@ def _closest(tracer, points, max_distance, precision, outputs):
         part = slice(start, stop)
         _launch(tracer, entry, "closest_points", stop - start,
                 (*geometry, tracer._buffer(rel[part]),
-                 *(tracer._buffer(pts[part]) for pts in world), max_d2, np.uint32(stop - start)),
+                 *(tracer._buffer(pts[part]) for pts in world), max_d2,
+                 np.uint32(stop - start)),
                 {"d": d[part], "point": None if q is None else q[part],
                  "uv": None if uv is None else uv[part],
                  "prim": None if prim is None else prim[part]})
@@ -413,7 +421,7 @@ def winding_number(tracer, points, beta=WINDING_BETA, precision="single"):
     check_host_memory(n * (48 + 24 * geometry64), f"the winding numbers of {n} points",
                       "ask for fewer points at once")
     rel, order = _ordered(tracer, _relative(tracer, p))
-    world = _world_points(tracer, p, order, geometry64)
+    world = _world_points(p, order, geometry64)
     entry = _program(tracer, geometry64)
     geometry = (_tris64(tracer),) if geometry64 else ()
     moments, owned = _winding_data(tracer, geometry64)
@@ -421,8 +429,9 @@ def winding_number(tracer, points, beta=WINDING_BETA, precision="single"):
     for start, stop in _steps(tracer, n, [24, 8]):
         part = slice(start, stop)
         _launch(tracer, entry, "winding_points", stop - start,
-                (*geometry, tracer._buffer(rel[part]), *(tracer._buffer(pts[part]) for pts in world),
-                 moments, owned, np.float64(beta * beta),
+                (*geometry, tracer._buffer(rel[part]),
+                 *(tracer._buffer(pts[part]) for pts in world), moments, owned,
+                 np.float64(beta * beta),
                  np.uint32(stop - start)), {"w": w[part]})
     _check_fault(w, "winding number")
     return _unordered(w, order).reshape(shape)
@@ -629,11 +638,10 @@ def winding_moments(nodes, tris, tri_ids, depth, parent):
     # integral of (x - c)(x - c)^T over a triangle: area / 12 (sum of v v^T + S S^T)
     G = (np.einsum("ki,kj->kij", ar, ar) + np.einsum("ki,kj->kij", br, br)
          + np.einsum("ki,kj->kij", cr, cr) + np.einsum("ki,kj->kij", sr, sr)) / 12.0
-    k = len(own)
     C = np.zeros((n_nodes, 3, 3))
     T = np.zeros((n_nodes, 3, 3, 3))
     np.add.at(C, leaf, np.einsum("ki,kj->kij", sr / 3.0, half_n))
-    np.add.at(T, leaf, np.einsum("ki,kjl->kijl", half_n, G).reshape(k, 3, 3, 3))
+    np.add.at(T, leaf, np.einsum("ki,kjl->kijl", half_n, G))
     for at in levels[:-1]:
         up = parent[at]
         d = centre[at] - centre[up]
@@ -664,12 +672,10 @@ def _winding_data(tracer, geometry64=False):
     def make():
         nodes, tris, tri_ids = device_triangles(tracer.tree, tracer.packet)
         if geometry64:
-            tree = tracer.tree
             ids = np.asarray(tri_ids)
             real = ids != MISS                      # a packet run's padding: not owned
             tris = np.zeros((len(ids), 3, 3))
-            tris[real] = ((np.asarray(tree.triangles64, dtype=np.float64)[ids[real]]
-                           - tracer._origin) / tracer._scale)
+            tris[real] = _relative64(tracer, ids[real])
         depth, parent, _ = tracer.tree._topology()
         moments, owned = winding_moments(nodes, tris, tri_ids, depth, parent)
         return tracer._tree_buffer(moments.reshape(-1)), tracer._tree_buffer(owned)
