@@ -666,8 +666,8 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
               help="... and up to here  [default: inf].")
 @click.option("--precision", type=click.Choice(["single", "double"]), default="single",
               show_default=True,
-              help="nearest and all: double gives t, u and v in float64 from the mesh's "
-                   "float64 triangles.")
+              help="double: the hits that count with the mesh's float64 triangles, and "
+                   "(nearest, all) their t, u and v in float64.")
 @tree_option
 @device_option
 @build_options
@@ -679,9 +679,6 @@ def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tre
     check_output(output, inputs=(scene, tree_file, rays_file), what="-o")
     if max_hits is not None and query != "all":
         raise click.UsageError("--max-hits goes with --query all")
-    if precision == "double" and query not in ("nearest", "all"):
-        raise click.UsageError(f"--precision double gives float64 t, u and v: --query "
-                               f"{query} has none")
     rays = _read_rays(rays_file)
     ranges = {}
     for name, value in (("t_min", t_min), ("t_max", t_max)):
@@ -713,10 +710,10 @@ def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tre
                       "normal": hits.normal, "object": hits.object}
             summary = f"{int(np.count_nonzero(hits.hit)):,} hit"
         elif query == "any":
-            arrays = {"occluded": tracer.occluded(o, d, **ranges)}
+            arrays = {"occluded": tracer.occluded(o, d, precision=precision, **ranges)}
             summary = f"{int(np.count_nonzero(arrays['occluded'])):,} hit"
         elif query == "count":
-            arrays = {"count": tracer.count(o, d, **ranges)}
+            arrays = {"count": tracer.count(o, d, precision=precision, **ranges)}
             summary = f"{int(np.count_nonzero(arrays['count'])):,} cross the surface"
         else:
             hits = tracer.intersections(o, d, max_hits=max_hits, precision=precision, **ranges)

@@ -102,11 +102,15 @@ def _t_double_double(tri, o, d):
         return q + rest[0] / den[0]
 
 
-def plane_hits(triangles, origins, directions):
+def plane_hits(triangles, origins, directions, exact=None):
     """(t, u, v), (k,) float64 each: where rays o + t d meet the planes of their
     triangles, P = (1 - u - v) v0 + u v1 + v v2.
 
     triangles : (k, 3, 3) float64 world;  origins, directions : (k, 3) float64.
+    exact : None, or (k,) bool: the hits whose t is computed again in double-double
+    where the plane's products cancel (CANCELLATION); the others keep plain float64's
+    t (hits that will not count: a ray's origin on its triangle's plane cancels
+    completely, and its t is of no use).
     A ray parallel to its triangle's plane gives a non-finite t.
     """
     tri = np.asarray(triangles, dtype=np.float64)
@@ -120,6 +124,8 @@ def plane_hits(triangles, origins, directions):
         ahead = _dot(n, a)
         t = ahead / _dot(n, d)
         lost = np.sqrt(_dot(n, n) * _dot(a, a)) > CANCELLATION * np.abs(ahead)
+    if exact is not None:
+        lost &= exact
     if lost.any():
         t[lost] = _t_double_double(tri[lost], o[lost], d[lost])
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -170,7 +176,8 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, 
     tree's float32 copy, which the kernel hit; or the ray in its plane), t, u, v come
     from that float32 copy's plane, in float64 (else they stay NaN or inf).
     on_plane : also return (N,) bool, the hits whose ray's origin lies on the float64
-    triangle's plane (_on_plane, ON_PLANE), from the same gathered triangles.
+    triangle's plane (_on_plane, ON_PLANE), from the same gathered triangles; their t
+    is plain float64's (plane_hits' `exact`), as they do not count.
     Host memory: 24 bytes a ray for the answers, and CHUNK rays' temporaries.
     """
     from .layout import MISS
@@ -183,9 +190,12 @@ def hits_double(triangles64, prim, origins, directions, rays=None, origin=None, 
         tri = triangles64[prim[hit]]
         if origin is not None:
             tri = tri - origin
-        t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(tri, origins[at], directions[at])
+        # a hit at its ray's origin never counts: its t is not made exact
+        on = _on_plane(tri, origins[at]) if on_plane else None
+        t[hit], uv[hit, 0], uv[hit, 1] = plane_hits(tri, origins[at], directions[at],
+                                                    None if on is None else ~on)
         if on_plane:
-            at_origin[hit] = _on_plane(tri, origins[at])
+            at_origin[hit] = on
     bad = np.flatnonzero((prim != MISS) & ~(np.isfinite(t) & np.isfinite(uv).all(axis=1)))
     if tree is not None and bad.size:
         at = bad if rays is None else rays[bad]

@@ -489,15 +489,46 @@ def _check_fault(faulty, what):
                           f"leaves than nodes; the tree is corrupt (kdray info --check)")
 
 
-def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf):
+def occluded(tracer, origins, directions, t_min=0.0, t_max=np.inf, precision="single"):
     """(N,) bool (the rays' shape): whether each ray hits anything with t_min < t <
     t_max, the same answers as `trace(...).hit`: `trace`'s traversal (render.cl,
     trace_rays with ANY_HIT), each ray over its own range, stopped at the first hit it
-    finds; rays that share no path walk the wide nodes (kernels/wide.cl)."""
+    finds; rays that share no path walk the wide nodes (kernels/wide.cl).
+    precision="double": `trace(..., precision="double").hit`, the hits that count in
+    float64 (`_any_counted64`)."""
+    double = wants_double(precision, tracer.tree)
     o, d, shape = ray_input.flat_rays(origins, directions)
     t_min, t_max = check_t(t_min, "t_min", shape), check_t(t_max, "t_max", shape)
     hits = tracer._trace_rays(o, d, shape, t_min, t_max, (), any_hit=True)
+    if double:
+        return _any_counted64(tracer, hits.prim, origins, directions, t_min,
+                              t_max).reshape(shape)
     return hits.hit.reshape(shape)
+
+
+def _any_counted64(tracer, prim, origins, directions, t_min, t_max):
+    """(N,) bool: `occluded` in double precision, from the any-hit walk's triangles
+    (prim (N,) uint32 input ids, MISS where none): a ray whose triangle counts in
+    float64 (_counted64) is occluded; one whose triangle does not (its float64 t out of
+    range, or its origin on its float64 plane: a ray from a surface point) is occluded
+    where any other of its float32 hits counts, which its nearest that counts
+    (`_counted_lists`) says. Float64 only drops hits, so
+    a ray with no float32 hit stays unoccluded, as `trace`'s double hits do."""
+    from .double import hits_double
+    from .layout import MISS
+    n = len(prim)
+    o, d = flat_rays64(origins, directions)
+    lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
+    t, _, at_origin = hits_double(tracer.tree.triangles64, prim, o, d, tree=tracer.tree,
+                                  on_plane=True)
+    hit = prim != MISS
+    counted = hit & _counted64(t, at_origin, lo, hi)
+    doubt = np.flatnonzero(hit & ~counted)
+    if doubt.size:
+        # each listed with room for two: most such rays start on the triangle found
+        ray = _counted_lists(tracer, o, d, lo, hi, doubt, 2, 1)[0]
+        counted[ray] = True
+    return counted
 
 
 def _count_pass(tracer, rays, crossing):
@@ -545,13 +576,44 @@ def _groups(sizes, most):
         start = stop
 
 
-def count(tracer, origins, directions, t_min=0.0, t_max=np.inf):
+def count(tracer, origins, directions, t_min=0.0, t_max=np.inf, precision="single"):
     """(N,) int32 (the rays' shape): how many times each ray crosses the surface with
     t_min < t < t_max, under the crossing rule (module docstring): a ray through an edge
-    or a vertex shared by consistently oriented triangles crosses there once."""
+    or a vertex shared by consistently oriented triangles crosses there once.
+    precision="double": the crossings that count in float64 (`_crossings64`)."""
+    double = wants_double(precision, tracer.tree)
     rays = _image(tracer, _Rays(tracer, origins, directions, t_min, t_max), origins,
                   directions)
-    return _counts(tracer, rays, True).reshape(rays.shape)
+    counts = _counts(tracer, rays, True)
+    if double:
+        counts = _crossings64(tracer, rays, counts, origins, directions, t_min, t_max)
+    return counts.reshape(rays.shape)
+
+
+def _crossings64(tracer, rays, counts, origins, directions, t_min, t_max):
+    """(N,) int32: `count` in double precision, from its float32 counts ((N,) int32,
+    exact): each ray that crosses anything has its crossings listed (the same rule,
+    `_list`), and those that do not count in float64 (_counted64: float64 t out of
+    range, or the origin on the float64 plane) are dropped, a group of rays of at most
+    COUNT_LIST_BYTES of lists at a time."""
+    from .double import hits_double
+    n = len(counts)
+    o, d = flat_rays64(origins, directions)
+    lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
+    rows = np.flatnonzero(counts > 0)
+    caps = counts[rows].astype(np.int64)
+    have = available_memory()
+    most = COUNT_LIST_BYTES if have is None else min(COUNT_LIST_BYTES, have // 4)
+    out = counts.copy()
+    for group in _groups(caps, most // (HIT_BYTES + 4 + 64)):
+        at = rows[group]
+        listed, _ = _list(tracer, rays.subset(at), caps[group], True)
+        ray = at[listed.ray]
+        t, _, at_origin = hits_double(tracer.tree.triangles64, listed.prim, o, d, rays=ray,
+                                      tree=tracer.tree, on_plane=True)
+        keep = _counted64(t, at_origin, lo[ray], hi[ray])
+        out[at] = np.bincount(listed.ray[keep], minlength=len(at))
+    return out
 
 
 WINDING = 2
@@ -857,8 +919,8 @@ def _in_range(tracer, hits, at_origin, origins, directions, t_min, t_max, max_hi
     less those that do not count (_counted64): the float32 test found them in (t_min,
     t_max), but the float64 triangle, within float32 rounding of the tree's, puts them
     outside or at the origin (a ray from a point on its triangle). A ray whose list
-    was cut at max_hits and lost hits so is listed again with room for as many more
-    (and they dropped alike), so that it keeps its max_hits nearest that count."""
+    was cut at max_hits and has fewer that count is listed again with room for more
+    (`_counted_lists`), so that it keeps its max_hits nearest that count."""
     o, d = flat_rays64(origins, directions)
     n = len(d)
     lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
@@ -866,26 +928,49 @@ def _in_range(tracer, hits, at_origin, origins, directions, t_min, t_max, max_hi
     keep = _counted64(hits.t, at_origin, lo[ray], hi[ray])
     if keep.all():
         return hits
-    lost = np.bincount(ray[~keep], minlength=n)
     parts = [(ray[keep], hits.t[keep], hits.prim[keep], hits.u[keep], hits.v[keep])]
-    # rays cut at max_hits that lost hits (none can have more hits than the tree has
-    # triangles: intersections' bound)
+    # rays cut at max_hits with fewer that count (none can have more hits than the tree
+    # has triangles: intersections' bound)
     again = np.zeros(0, np.int64)
     if max_hits is not None and max_hits < len(tracer.tree.triangles):
-        again = np.flatnonzero((np.diff(hits.offsets) == max_hits) & (lost > 0))
+        counted = np.bincount(ray[keep], minlength=n)
+        again = np.flatnonzero((np.diff(hits.offsets) == max_hits) & (counted < max_hits))
     if again.size:
-        more = intersections(tracer, o[again], d[again], lo[again], hi[again],
-                             max_hits + int(lost[again].max()), "double")
-        take = np.arange(len(more.t)) - more.offsets[more.ray] < max_hits
+        cap = max_hits + int((max_hits - counted[again]).max())
         old = ~np.isin(parts[0][0], again)
         parts = [tuple(a[old] for a in parts[0]),
-                 (again[more.ray[take]], more.t[take], more.prim[take], more.u[take],
-                  more.v[take])]
+                 _counted_lists(tracer, o, d, lo, hi, again, cap, max_hits)]
     ray, t, prim, u, v = (np.concatenate(c) for c in zip(*parts))
     order = np.argsort(ray, kind="stable")             # each ray's hits stay in t order
     offsets = np.concatenate([[0], np.cumsum(np.bincount(ray, minlength=n))])
     return Intersections(offsets, t[order], prim[order], u[order], v[order],
                          object_table=hits.object_table)
+
+
+def _counted_lists(tracer, o, d, lo, hi, rays, cap, max_hits):
+    """(ray, t, prim, u, v) of the max_hits nearest hits that count (_counted64) of each
+    ray of `rays` ((k,) int64 rows of o, d (N, 3) float64 and lo, hi (N,)), in (ray, t)
+    order: each ray's cap nearest float32 hits listed, made float64 (_double), those
+    that do not count dropped; a ray cut at cap with fewer than max_hits that count is
+    listed again with twice the room (never more than the tree's triangles), so that
+    the hits that do not count cost their rays a few lists, not one a hit."""
+    parts = []
+    most = len(tracer.tree.triangles)
+    while rays.size:
+        listed = intersections(tracer, o[rays], d[rays], lo[rays], hi[rays], cap)
+        hits, at_origin = _double(tracer, listed, o[rays], d[rays])
+        ray = hits.ray
+        keep = _counted64(hits.t, at_origin, lo[rays][ray], hi[rays][ray])
+        counted = np.bincount(ray[keep], minlength=len(rays))
+        done = (counted >= max_hits) | (np.diff(hits.offsets) < cap) | (cap >= most)
+        # a done ray's first max_hits that count (a ray's hits are in t order)
+        rank = np.cumsum(keep) - 1
+        rank -= np.concatenate([[0], np.cumsum(counted)])[ray]
+        take = keep & done[ray] & (rank < max_hits)
+        parts.append((rays[ray[take]], hits.t[take], hits.prim[take], hits.u[take],
+                      hits.v[take]))
+        rays, cap = rays[~done], min(most, 2 * cap)
+    return tuple(np.concatenate(c) for c in zip(*parts))
 
 
 def _kernel_normal(tri):
@@ -902,7 +987,7 @@ def _kernel_normal(tri):
 def nearest_in_range(tracer, hits, at_origin, origins, directions, t_min, t_max):
     """Tracer.trace's double-precision `hits` (Hits, float64 t, u, v; at_origin (N,)
     bool, hits_double's) with each hit that does not count (_counted64) replaced by the
-    ray's nearest that does (its list's first, `intersections`), or a miss; that hit's
+    ray's nearest that does (`_counted_lists`), or a miss; that hit's
     normal is its triangle's, computed on the host as the kernel computes it."""
     from .layout import MISS
     n = len(hits.t)
@@ -911,23 +996,22 @@ def nearest_in_range(tracer, hits, at_origin, origins, directions, t_min, t_max)
     out = np.flatnonzero((hits.prim != MISS) & ~_counted64(hits.t, at_origin, lo, hi))
     if out.size == 0:
         return hits
-    listed = intersections(tracer, o[out], d[out], lo[out], hi[out], 1, "double")
-    found = np.diff(listed.offsets) > 0
-    rows, first = out[found], listed.offsets[:-1][found]
+    # each listed with room for two: its nearest (this hit) does not count
+    rows, *found = _counted_lists(tracer, o, d, lo, hi, out, 2, 1)
     t, prim = hits.t.copy(), hits.prim.copy()
     t[out], prim[out] = np.inf, MISS
-    t[rows], prim[rows] = listed.t[first], listed.prim[first]
+    t[rows], prim[rows] = found[0], found[1]
     answers = {"t": t, "prim": prim}
-    for name, value in (("u", listed.u), ("v", listed.v)):
+    for name, value in (("u", found[2]), ("v", found[3])):
         if getattr(hits, name) is not None:
             a = getattr(hits, name).copy()
             a[out] = 0.0
-            a[rows] = value[first]
+            a[rows] = value
             answers[name] = a
     if hits.normal is not None:
         normal = hits.normal.copy()
         normal[out] = 0.0
-        tri = tracer.tree.triangles[tracer.tree.stored_index()[listed.prim[first]]]
+        tri = tracer.tree.triangles[tracer.tree.stored_index()[found[1]]]
         normal[rows] = _kernel_normal(tri)
         answers["normal"] = normal
     return dataclasses.replace(hits, **answers)

@@ -641,13 +641,13 @@ class Tracer:
 
     # -- ray queries beyond the nearest hit (kdray.rays) ---------------------------------
 
-    def occluded(self, origins, directions, t_min=0.0, t_max=np.inf):
+    def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, precision="single"):
         """(N,) bool: any hit with t_min < t < t_max (kdray.rays.occluded)."""
-        return _rays.occluded(self, origins, directions, t_min, t_max)
+        return _rays.occluded(self, origins, directions, t_min, t_max, precision)
 
-    def count(self, origins, directions, t_min=0.0, t_max=np.inf):
+    def count(self, origins, directions, t_min=0.0, t_max=np.inf, precision="single"):
         """(N,) int32: surface crossings with t_min < t < t_max (kdray.rays.count)."""
-        return _rays.count(self, origins, directions, t_min, t_max)
+        return _rays.count(self, origins, directions, t_min, t_max, precision)
 
     def contains(self, points):
         """(N,) bool: points inside a closed mesh (kdray.rays.contains)."""

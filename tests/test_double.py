@@ -120,6 +120,11 @@ def test_double_needs_the_float64_triangles():
     assert "\n" not in str(info.value)
     with pytest.raises(KdrayError, match="precision"):
         tracer.trace(o, d, precision="half")
+    for query in (tracer.occluded, tracer.count, tracer.intersections):
+        with pytest.raises(KdrayError, match="keep_double"):
+            query(o, d, precision="double")
+        with pytest.raises(KdrayError, match="precision must be"):
+            query(o, d, precision="half")
     with_double = tree.with_double(v, f)
     assert with_double.stats()["double_bytes"] == 72 * len(f)
     assert Tracer(with_double).trace(o, d, precision="double").t.dtype == np.float64
@@ -290,9 +295,58 @@ def test_double_hits_at_the_origin_do_not_count():
             assert not (listed.prim == face[listed.ray]).any() and (listed.t > 0).all()
             nearest = tracer.intersections(o, dd, max_hits=1, precision="double")
             assert np.array_equal(nearest.prim, got.prim[hit])
-            two = tracer.intersections(o, dd, max_hits=2, precision="double")
             rank = np.arange(len(listed.t)) - listed.offsets[listed.ray]
-            assert np.array_equal(two.prim, listed.prim[rank < 2])
+            for k in (2, 3, 5):
+                first = tracer.intersections(o, dd, max_hits=k, precision="double")
+                assert np.array_equal(first.prim, listed.prim[rank < k])
+                assert np.array_equal(first.t, listed.t[rank < k])
         inside = o - 0.01 * normal                       # off the surface: no change
         single = tracer.trace(inside, d)
         assert np.array_equal(tracer.trace(inside, d, precision="double").prim, single.prim)
+
+
+def test_double_occluded_and_count_drop_the_hits_that_do_not_count():
+    """occluded and count with precision="double" take the hits that count in float64,
+    as trace does: rays from float64 points on a mesh's faces, given as they are, are
+    not occluded by (and do not cross) their own face, also 1e6 of the mesh's size from
+    the world's origin, where the float32 answers count it in about half the rays.
+    Oracles: occluded is trace(..., precision="double").hit ray for ray; count is the
+    float64 brute force's crossings (kdray.reference.all_hits, the count's rule) less
+    the ray's own face, over a t range a ray too, and the float32 count of the same
+    rays from offset_origins' origins. Points off the surface keep the single answers."""
+    import trimesh
+    import kdray
+    from kdray.reference import all_hits
+    torus = trimesh.creation.torus(1.0, 0.3, major_sections=24, minor_sections=12)
+    far = trimesh.Trimesh(torus.vertices + [1e6, -2e5, 3e5], torus.faces, process=False)
+    rng = np.random.default_rng(7)
+    for mesh in (trimesh.creation.icosphere(2), torus, far):
+        tree = build(mesh.vertices, mesh.faces, keep_double=True)
+        tracer = Tracer(tree)
+        o, face = trimesh.sample.sample_surface(mesh, 600, seed=5)
+        normal = mesh.face_normals[face]
+        d = rng.normal(size=o.shape)
+        t_max = np.where(rng.random(len(o)) < 0.5, np.inf, rng.random(len(o)) * 2.0)
+        lost = 0
+        for dd in (normal, -normal, d, -d):
+            for hi in (np.inf, t_max):
+                occluded = tracer.occluded(o, dd, t_max=hi, precision="double")
+                assert occluded.dtype == bool
+                assert np.array_equal(occluded, tracer.trace(o, dd, t_max=hi,
+                                                             precision="double").hit)
+                count = tracer.count(o, dd, t_max=hi, precision="double")
+                assert count.dtype == np.int32
+                ray, prim, _, _, _ = all_hits(tree.triangles64, o, dd, 0.0, hi, crossing=True)
+                own = prim == face[ray]
+                want = np.bincount(ray[~own], minlength=len(o))
+                np.testing.assert_array_equal(count, want)
+                away = kdray.offset_origins(tree, o, face, dd)
+                np.testing.assert_array_equal(count, tracer.count(away, dd, t_max=hi))
+                np.testing.assert_array_equal(occluded, tracer.occluded(away, dd, t_max=hi))
+                lost += int((tracer.count(o, dd, t_max=hi) != count).sum())
+        assert lost > 0                  # the float32 answers count the own face
+        inside = o - 0.01 * normal
+        np.testing.assert_array_equal(tracer.count(inside, d, precision="double"),
+                                      tracer.count(inside, d))
+        np.testing.assert_array_equal(tracer.occluded(inside, d, precision="double"),
+                                      tracer.occluded(inside, d))

@@ -889,6 +889,11 @@ def test_cast_command(tmp_path, capsys):
     got = cast("r.npz", "nearest", "--precision", "double")
     assert got["t"].dtype == np.float64
     assert np.allclose(got["t"], first, rtol=RTOL_T, equal_nan=False)
+    double = Tracer(build(mesh.vertices, mesh.faces, keep_double=True))
+    assert cast("r.npz", "any", "--precision", "double")["occluded"].tolist() \
+        == double.occluded(o, d, lo, hi, precision="double").tolist()
+    assert cast("r.npz", "count", "--precision", "double")["count"].tolist() \
+        == double.count(o, d, lo, hi, precision="double").tolist()
     got = cast("r.npy", "all", "--max-hits", "1", "--t-max", "2.5")
     want = tracer.intersections(o, d, t_max=2.5, max_hits=1)
     np.testing.assert_array_equal(got["t"], want.t)
@@ -916,7 +921,7 @@ def test_cast_command(tmp_path, capsys):
     assert code == 1 and err == "kdray: error: t_min and t_max must not be NaN\n"
     for argv in (("--rays", tmp_path / "r.npz", "--t-max", "1"),
                  ("--rays", tmp_path / "r.npy", "--max-hits", "2"),
-                 ("--rays", tmp_path / "r.npy", "--query", "count", "--precision", "double")):
+                 ("--rays", tmp_path / "r.npy", "--query", "count", "--precision", "half")):
         code, _, err = run(capsys, "cast", SCENES / "sphere.obj", *argv, "-o", tmp_path / "x.npz")
         assert code == 2 and "Error:" in err, argv
     code, _, err = run(capsys, "cast", SCENES / "sphere.obj", "--rays", tmp_path / "r.npy",
