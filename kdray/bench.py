@@ -27,7 +27,7 @@ in degrees (p99, max; rays naming the same triangle). The reference normal is th
 float64 (v1 - v0) x (v2 - v0) of the reference's triangle; a method that gives no
 normals is given that of the triangle it names.
 
-`offset` moves scene and camera by D along (1, 1, 1): precision far from the origin.
+`offset` moves scene and camera by (D, D, D): precision far from the origin.
 
 Only the package's own dependencies are used.
 """
@@ -274,7 +274,7 @@ def header(size, repeat, sample, offset=0.0):
     width, height = size
     return (f"# {width}x{height} primary rays, median of {repeat} warm runs; errors on "
             f"{min(sample, width * height)} random rays against the float64 reference"
-            + (f"; scene offset {offset:g} along (1,1,1)" if offset else ""))
+            + (f"; scene moved by ({offset:g}, {offset:g}, {offset:g})" if offset else ""))
 
 # -- output -----------------------------------------------------------------------------------
 
@@ -314,6 +314,9 @@ def write_csv(rows, path):
             w = csv.DictWriter(f, fieldnames=COLUMNS)
             w.writeheader()
             for r in rows:
-                w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+                # every digit of a float (numpy's too, which repr would name)
+                w.writerow({k: (repr(float(v)) if isinstance(v, (float, np.floating))
+                                else int(v) if isinstance(v, np.integer) else v)
+                            for k, v in r.items()})
 
     atomic_write(path, write)

@@ -912,7 +912,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
 @click.option("--csv", "csv_file", type=click.Path(), help="Also write the table as CSV.")
 @device_option
 @click.option("--offset", type=float, default=0.0, show_default=True,
-              help="Move scene and camera by D along (1,1,1) (precision far from the origin).")
+              help="Move scene and camera by (D, D, D) (precision far from the origin).")
 def bench(scenes, size, repeat, sample, settings, csv_file, device, offset):
     """Error against run time of kdray's settings on the same rays of each SCENE.
 
@@ -922,14 +922,14 @@ def bench(scenes, size, repeat, sample, settings, csv_file, device, offset):
     from . import bench as _bench
     if not scenes:
         raise click.UsageError("name one or more mesh files to benchmark: kdray bench SCENE...")
-    if csv_file:
+    if csv_file is not None:
         check_output(csv_file, inputs=scenes, what="--csv")
     step = Steps()
     rows = _bench.run(scenes, size=size, repeat=repeat, sample=sample, settings=settings,
                       device=device, offset=offset, step=step)
     click.echo(_bench.header(size, repeat, sample, offset))
     click.echo(_bench.format_table(rows))
-    if csv_file:
+    if csv_file is not None:
         _bench.write_csv(rows, csv_file)
 
 

@@ -450,26 +450,26 @@ PLY_CHUNK = 1 << 18
 bytes a beam) stay within a few tens of MB however large the scan."""
 
 
-def write_points_ply(path, images):
-    """Write the hit points of a scan (`Tracer.scan`'s images) as a binary
+def write_points_ply(path, scan):
+    """Write the hit points of a scan (`Tracer.scan`'s dict) as a binary
     little-endian PLY of one `vertex` element with the properties of PLY_FIELDS,
     atomically (kdray.files). Returns the number of points written. OutputError naming
     `path` on failure. Written a band of rings at a time (PLY_CHUNK beams), so that it
     holds no more than the scan's memory check counts."""
-    count = int(np.count_nonzero(images["id"] != MISS))
+    count = int(np.count_nonzero(scan["id"] != MISS))
     header = ["ply", "format binary_little_endian 1.0", "comment written by kdray scan",
               f"element vertex {count}"]
     header += [f"property {ply} {name}" for name, _, ply in PLY_FIELDS]
     header.append("end_header")
     head = ("\n".join(header) + "\n").encode("ascii")
-    rows, columns = images["id"].shape
+    rows, columns = scan["id"].shape
     band = max(1, PLY_CHUNK // max(columns, 1))
 
     def write(tmp):
         with open(tmp, "wb") as f:
             f.write(head)
             for r in range(0, rows, band):
-                part = points_array({k: images[k][r:r + band] for k in
+                part = points_array({k: scan[k][r:r + band] for k in
                                      ("id", "points", "range", "object")})
                 part["ring"] += r
                 f.write(memoryview(part).cast("B"))

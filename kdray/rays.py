@@ -395,7 +395,7 @@ def _program(tracer, kernel, world=None):
         defines["RAYS_WORLD"] = None
         defines["ORIGIN_T"], defines["DIRECTION_T"] = world
         if tracer._scale != 1.0:
-            # exact: a power of two as a hexadecimal literal (as Tracer.program's)
+            # exact: a power of two as a hexadecimal literal (as Tracer._program's)
             defines["SCALE"] = f"{tracer._scale.hex()}f"
             defines["SCALE_INV"] = (1.0 / tracer._scale).hex()
     if kernel == "count_rays":

@@ -272,7 +272,7 @@ class Tracer:
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
         self._point_queries = {}              # the point queries' data of this tree (points.py)
 
-    def program(self, kernel, outputs, stats=False, rays_world=None, rays="pinhole",
+    def _program(self, kernel, outputs, stats=False, rays_world=None, rays="pinhole",
                 any_hit=False, wide=False):
         """The built program of render.cl's `kernel` ("trace_rays" or "render_camera",
         the only kernel compiled in it: KD_ONLY_*) for a set of outputs ("T", "UV",
@@ -495,11 +495,11 @@ class Tracer:
         slots) writing `host_out` (dict output -> host array, one row per ray or pixel).
         args: the kernel's arguments between the tree and the counter; while_running:
         None or a function to call once the kernel has been submitted, before waiting
-        for it; any_hit, wide: see `program`."""
+        for it; any_hit, wide: see `_program`."""
         cl = _device._cl()
         if n == 0:
             return
-        entry = self.program(kernel_name, outputs, stats, rays_world, rays, any_hit, wide)
+        entry = self._program(kernel_name, outputs, stats, rays_world, rays, any_hit, wide)
         names = list(outputs) + (["STATS"] if stats else [])
         device_out = {}
         for name in names:
@@ -626,7 +626,7 @@ class Tracer:
         """Hits of flat rays (ray_input.flat_rays: their shape `shape`) with t ranges
         (numbers, or (N,) arrays) by trace_rays: image-shaped rays, given so or found
         so, in blocks of pixels on a CPU; any_hit: the first hit each ray's traversal
-        finds (`program`)."""
+        finds (`_program`)."""
         if len(shape) >= 2:
             image_w, search = shape[-1], None
         elif self.packet > 1 and len(directions) >= IMAGE_SEARCH_MIN_RAYS:
@@ -696,7 +696,7 @@ class Tracer:
         image_w: 0, or the rays are rows of an image that wide (N a multiple of it),
         traced in packets of blocks of pixels (render.cl, trace_rays).
         while_running: None or a function called once while the first launch runs.
-        any_hit: each ray's first hit found, not its nearest (`program`)."""
+        any_hit: each ray's first hit found, not its nearest (`_program`)."""
         # any_hit (occluded) stores no t: its hit is the triangle's id alone
         always = {"ID"} if any_hit else {"T", "ID"}
         outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | always)
@@ -846,7 +846,7 @@ class Tracer:
 
     def _render_rows(self, camera_buf, map_buf, w, h, outputs, out, rays):
         """Launch render_camera over h rows of w pixels, its rays made as `rays` says
-        (`program`; map_buf: the ray map of rays="map", else None), writing `out` (dict
+        (`_program`; map_buf: the ray map of rays="map", else None), writing `out` (dict
         output -> (h*w, ...) host array): as many whole rows a launch as fit on the
         device, MAX_RAYS_PER_LAUNCH pixels or one row at most."""
         # packets walk the wide nodes (render.cl, trace_packet), made before a

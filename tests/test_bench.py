@@ -61,6 +61,18 @@ def test_bench_table_csv(capsys, tmp_path, monkeypatch):
     with pytest.raises(OutputError, match="No space left"):
         bench.write_csv([{k: 1.0 for k in bench.COLUMNS}] * 50, csv_path)
     assert csv_path.read_bytes() == before and len(list(tmp_path.iterdir())) == 1
+    monkeypatch.undo()
+    # numpy's numbers are written as numbers (repr would write np.float64(0.25))
+    row = {k: np.float64(0.25) for k in bench.COLUMNS}
+    row.update(scene="s", setting="kdray", tris=np.int64(12), disagree=np.int64(3))
+    bench.write_csv([row], csv_path)
+    with open(csv_path, newline="") as f:
+        (got,) = list(csv.DictReader(f))
+    assert got["trace_s"] == "0.25" and got["tris"] == "12" and got["disagree"] == "3"
+    # an empty --csv is refused as any empty output path is, before any work
+    code, out, err = run(capsys, "bench", SCENES / "sphere.obj", *SMALL, "--csv", "")
+    assert code == 1 and err.startswith("kdray: error: --csv") and err.count("\n") == 1, err
+    assert out == ""
 
 
 def test_bench_offset_far_from_origin():
