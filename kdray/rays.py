@@ -512,8 +512,8 @@ def _any_counted64(tracer, prim, origins, directions, t_min, t_max):
     float64 (_counted64) is occluded; one whose triangle does not (its float64 t out of
     range, or its origin on its float64 plane: a ray from a surface point) is occluded
     where any other of its float32 hits counts, which its nearest that counts
-    (`_counted_lists`) says. Float64 only drops hits, so
-    a ray with no float32 hit stays unoccluded, as `trace`'s double hits do."""
+    (`_counted_lists`) says. Float64 only drops hits, so a ray with no float32 hit
+    stays unoccluded, as `trace`'s double hits do."""
     from .double import hits_double
     from .layout import MISS
     n = len(prim)
