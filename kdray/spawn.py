@@ -24,6 +24,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .layout import MISS
+from .ray_input import numbers
 
 OFFSET_ROUNDINGS = 4.0
 """How many of the origin's worst roundings (its float32 rounding relative to the
@@ -36,17 +37,19 @@ def offset_origins(tree, points, prim, directions):
     its direction leaves on (module docstring).
 
     tree : kdray.KdTree (Tracer.tree) the rays will be traced in.
-    points : (N, 3) float-like world points on (or near) the triangles.
+    points : (N, 3) numbers (integers or floats), world points on (or near) the
+        triangles.
     prim : (N,) integers, each point's input triangle id (Hits.prim, a face index);
         MISS (0xFFFFFFFF) or a triangle the tree dropped (degenerate): the point as
         given.
-    directions : (N, 3) float-like, the rays' directions (any length).
+    directions : (N, 3) numbers, the rays' directions (any length).
     A point or a direction that is not finite, or a zero direction, stays as given
-    (the ray misses). ParameterError for shapes that differ or a prim beyond the
-    input's triangles.
+    (the ray misses). ParameterError for arrays that are not numbers, shapes that
+    differ or a prim beyond the input's triangles.
     """
-    p = np.array(points, dtype=np.float64)
-    d = np.asarray(directions, dtype=np.float64)
+    # numbers only (bools, strings, objects refused, never converted), as every query
+    p = np.array(numbers("points", points, ParameterError), dtype=np.float64)
+    d = np.asarray(numbers("directions", directions, ParameterError), dtype=np.float64)
     prim = np.asarray(prim)
     if p.ndim != 2 or p.shape[1] != 3 or d.shape != p.shape:
         raise ParameterError(f"points and directions must be (N, 3) arrays of one shape, got "

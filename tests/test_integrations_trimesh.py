@@ -531,6 +531,14 @@ def test_rays_of_any_length_and_bad_input():
     assert np.allclose(loc[ray == 1], loc[ray == 0]) and np.allclose(loc[ray == 2], loc[ray == 0])
     # one (3,) ray is one ray
     assert mesh.ray.intersects_first(o[0], d[0]).shape == (1,)
+    # the caller's memory layout changes no number (the rays' lengths summed in C order)
+    rng = np.random.default_rng(3)
+    ro, rd = rng.normal(size=(1000, 3)) * 3, rng.normal(size=(1000, 3))
+    want = mesh.ray.intersects_location(ro, rd)
+    for layout in (np.asfortranarray, lambda a: a.T.copy().T, lambda a: a[::-1].copy()[::-1]):
+        got = mesh.ray.intersects_location(layout(ro), layout(rd))
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b)
     assert (mesh.ray.intersects_id(o, d, max_hits=0)[0].shape == (0,))
     assert not mesh.ray.contains_points([[np.nan, 0, 0], [0, 0, 0]])[0]
     for bad in (lambda: mesh.ray.intersects_id(o, d[:2]),

@@ -86,7 +86,11 @@ def test_bounces_from_hits_and_points_left_as_they_are():
     assert np.array_equal(o[:4], p[:4], equal_nan=True)
     assert o[4, 2] < 0 and np.allclose(o[4, :2], p[4, :2], rtol=1e-15)   # moved along -z
     for bad in (dict(prim=np.array([0, 0])), dict(prim=np.array([2] * 5)),
-                dict(prim=np.zeros(5)), dict(directions=d[:4])):
+                dict(prim=np.zeros(5)), dict(directions=d[:4]),
+                # numbers only, never converted: strings, bools, objects, complex
+                dict(points=p.astype(str)), dict(directions=d.astype(str)),
+                dict(directions=d != 0), dict(points=p.astype(object)),
+                dict(directions=d + 0j), dict(points=[[0.2, 0.2], [0.5, 0, 0]])):
         args = dict(points=p, prim=prim, directions=d) | bad
         with pytest.raises(ParameterError):
             kdray.offset_origins(flat, **args)

@@ -511,8 +511,9 @@ def _rays(ray_origins, ray_directions):
     where a direction is zero or not finite, which kdray takes as a miss.
     ParameterError for shapes that differ or are not (n, 3) (a single (3,) ray is one
     ray)."""
-    o = np.array(ray_origins, dtype=np.float64)
-    d = np.array(ray_directions, dtype=np.float64)
+    # C order: the lengths' sums (einsum) then round alike whatever the caller's layout
+    o = np.array(ray_origins, dtype=np.float64, order="C")
+    d = np.array(ray_directions, dtype=np.float64, order="C")
     if o.shape != d.shape:
         raise ParameterError(f"ray origins {o.shape} and directions {d.shape} must have "
                              f"the same shape")
