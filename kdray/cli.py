@@ -860,6 +860,9 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
     elif occupancy or resolution is not None:
         raise click.UsageError(f"{'--occupancy' if occupancy else '--resolution'} makes a "
                                f"grid; it cannot be combined with --samples")
+    else:
+        uniform, seed = 0.1 if uniform is None else uniform, 0 if seed is None else seed
+        _sdf.check_samples(samples, sigma, uniform, padding, sign, seed)   # before any work
     step = Steps()
     tree = _scene_tree(step, scene, tree_file, params)
     _warn_parity(scene, tree, sign)
@@ -888,9 +891,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
             summary = f"{resolution}^3 grid, {inside:,} points inside"
         else:
             with step(f"signed distances of {samples:,} samples ({sign})"):
-                p, d = _sdf.sdf_samples(tracer, samples, sigma,
-                                        0.1 if uniform is None else uniform, padding, sign,
-                                        0 if seed is None else seed)
+                p, d = _sdf.sdf_samples(tracer, samples, sigma, uniform, padding, sign, seed)
             arrays = {"points": p, "sdf": d, "sign": np.str_(sign)}
             summary = f"{samples:,} samples, {int(np.count_nonzero(d < 0)):,} inside"
 

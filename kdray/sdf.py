@@ -124,14 +124,11 @@ def sdf_grid(tracer, resolution, padding=0.1, sign="winding", occupancy=False,
     return grid
 
 
-def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="winding",
-                seed=0):
-    """(points (count, 3) float64 world, sdf (count,) float32) as DeepSDF samples them:
-    round(count * uniform) points uniform in the scene box padded by `padding` times its
-    largest side on each side (each axis's range widened so), the rest on the surface,
-    uniform by area, moved by Gaussian noise of deviation sigma (world units; None:
-    1/200 of the scene box's diagonal); their signed distances (negative inside,
-    `sign`). The surface's points come first. The same seed gives the same samples."""
+def check_samples(count, sigma=None, uniform=0.1, padding=0.1, sign="winding", seed=0):
+    """(uniform, sigma, padding) as `sdf_samples` takes them (floats; sigma None
+    stays None): KdrayError for a bad one, or samples that would not fit in the host's
+    memory, before any work (the scene's own checks, a padded box beyond float32's
+    range, come with it)."""
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
         raise KdrayError(f"the sample count must be an integer >= 1, got {count!r}")
     if isinstance(uniform, bool) or not isinstance(uniform, (int, float, np.integer, np.floating)):
@@ -141,6 +138,30 @@ def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="windi
         raise KdrayError(f"uniform must be a fraction from 0 to 1, got {uniform!r}")
     _points._check_sign(sign)
     padding = _check_padding(padding)
+    if sigma is not None:
+        if isinstance(sigma, bool) or not isinstance(sigma, (int, float, np.integer,
+                                                             np.floating)):
+            raise KdrayError(f"sigma must be a number, got {sigma!r}")
+        sigma = float(sigma) + 0.0         # -0.0 is 0 (numpy's normal refuses it)
+        if not (np.isfinite(sigma) and 0 <= sigma <= FLOAT32_MAX):
+            raise KdrayError(f"sigma must be a number from 0 to {FLOAT32_MAX:.4g} "
+                             f"(float32's range), got {sigma!r}")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
+                             or seed < 0):
+        raise KdrayError(f"seed must be an integer >= 0 (or None), got {seed!r}")
+    check_host_memory(int(count) * 96, f"{count} samples", "ask for fewer")
+    return uniform, sigma, padding
+
+
+def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="winding",
+                seed=0):
+    """(points (count, 3) float64 world, sdf (count,) float32) as DeepSDF samples them:
+    round(count * uniform) points uniform in the scene box padded by `padding` times its
+    largest side on each side (each axis's range widened so), the rest on the surface,
+    uniform by area, moved by Gaussian noise of deviation sigma (world units; None:
+    1/200 of the scene box's diagonal); their signed distances (negative inside,
+    `sign`). The surface's points come first. The same seed gives the same samples."""
+    uniform, sigma, padding = check_samples(count, sigma, uniform, padding, sign, seed)
     lo, hi = tracer.tree.world_box()
     with np.errstate(over="ignore"):
         reach = padding * float((hi - lo).max())
@@ -150,16 +171,6 @@ def sdf_samples(tracer, count, sigma=None, uniform=0.1, padding=0.1, sign="windi
                          f"distances are float32)")
     if sigma is None:
         sigma = float(np.linalg.norm(hi - lo)) / 200.0
-    if isinstance(sigma, bool) or not isinstance(sigma, (int, float, np.integer, np.floating)):
-        raise KdrayError(f"sigma must be a number, got {sigma!r}")
-    sigma = float(sigma) + 0.0         # -0.0 is 0 (numpy's normal refuses it)
-    if not (np.isfinite(sigma) and 0 <= sigma <= FLOAT32_MAX):
-        raise KdrayError(f"sigma must be a number from 0 to {FLOAT32_MAX:.4g} (float32's "
-                         f"range), got {sigma!r}")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
-                             or seed < 0):
-        raise KdrayError(f"seed must be an integer >= 0 (or None), got {seed!r}")
-    check_host_memory(int(count) * 96, f"{count} samples", "ask for fewer")
     rng = np.random.default_rng(seed)
     n_uniform = int(round(count * uniform))
     n_surface = int(count) - n_uniform

@@ -691,6 +691,12 @@ def test_sdf_command(tmp_path, capsys):
     for name, value in (("--sigma", 0.1), ("--uniform", 0.5), ("--seed", 0)):
         code, _, err = run(capsys, "sdf", mesh, "-o", out, name, value)
         assert code == 2 and f"{name} goes with --samples" in err
+    # the samples' own values are refused before any work: before the scene is read
+    for argv, words in (((0,), "sample count"), ((5, "--sigma", -1), "sigma"),
+                        ((5, "--uniform", 2), "uniform"), ((5, "--seed", -1), "seed")):
+        code, _, err = run(capsys, "sdf", tmp_path / "absent.obj", "-o", out, "--samples",
+                           *argv)
+        assert code == 1 and words in err and err.count("\n") == 1, err
 
 
 
