@@ -20,6 +20,16 @@ from .files import check_output
 log = logging.getLogger("kdray")
 
 
+class FilePath(click.Path):
+    """click.Path that refuses an empty path (a usage error, exit 2): "" names no file,
+    and an option given so must not pass for one not given."""
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and value == "":
+            self.fail("an empty path names no file", param, ctx)
+        return super().convert(value, param, ctx)
+
+
 def _floats(n):
     """A click callback parsing 'a,b,c' into a tuple of n floats."""
     def parse(ctx, param, value):
@@ -51,7 +61,7 @@ device_option = click.option(
 """The --device option every command that traces takes."""
 
 tree_option = click.option(
-    "--tree", "tree_file", type=click.Path(dir_okay=False),
+    "--tree", "tree_file", type=FilePath(dir_okay=False),
     help="Use this dumped tree instead of building one.")
 """The --tree option of the query commands (contains, cast, points, sdf)."""
 
@@ -268,8 +278,8 @@ def cli(verbose, quiet, debug):
 
 
 @cli.command()
-@click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--dump", type=click.Path(), help="Write the tree to this file.")
+@click.argument("scene", type=FilePath(dir_okay=False))
+@click.option("--dump", type=FilePath(), help="Write the tree to this file.")
 @build_options
 def build(scene, dump, **kw):
     """Build the SAH k-d tree of SCENE; print its statistics and the build time."""
@@ -290,7 +300,7 @@ def build(scene, dump, **kw):
 
 
 @cli.command()
-@click.argument("tree_file", metavar="TREE.bin", type=click.Path(dir_okay=False))
+@click.argument("tree_file", metavar="TREE.bin", type=FilePath(dir_okay=False))
 @click.option("--check", is_flag=True, help="Also run the full structural validation.")
 def info(tree_file, check):
     """Print a tree file's header and statistics (the loader always checks the format)."""
@@ -306,7 +316,10 @@ def info(tree_file, check):
     _print_stats(tree.stats())
     _print_objects(tree)
     if check:
-        tree.validate()
+        try:
+            tree.validate()
+        except TreeError as e:          # name the file, as the loader's errors do
+            raise TreeError(f"{tree_file}: {e}") from None
         click.echo("check              ok")
 
 
@@ -323,8 +336,8 @@ def devices():
 
 
 @cli.command()
-@click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(), default=None,
+@click.argument("scene", type=FilePath(dir_okay=False))
+@click.option("-o", "--output", type=FilePath(), default=None,
               help="EXR file to write [default: SCENE's name with .exr, here]; with --cameras "
                    "the folder of the views' files [default: SCENE's name, here].")
 @click.option("--size", default="640x480", show_default=True, callback=_size, help="Image WIDTHxHEIGHT.")
@@ -333,20 +346,20 @@ def devices():
 @click.option("--up", callback=_floats(3), default="0,1,0", show_default=True, help="Up direction X,Y,Z.")
 @click.option("--fov", type=float, default=45.0, show_default=True, help="Vertical field of view, degrees.")
 @click.option("--intrinsics", callback=_floats(4), help="FX,FY,CX,CY in pixels (with --pose).")
-@click.option("--pose", type=click.Path(dir_okay=False),
+@click.option("--pose", type=FilePath(dir_okay=False),
               help="4x4 camera-to-world matrix file (OpenCV axes), with --intrinsics.")
-@click.option("--camera", "camera_file", type=click.Path(dir_okay=False), help="A JSON camera file.")
+@click.option("--camera", "camera_file", type=FilePath(dir_okay=False), help="A JSON camera file.")
 @click.option("--aov", default="depth,normal,bary,id", show_default=True,
               help="Comma-separated outputs: depth, distance, normal, bary, id, position, "
                    "object (or all).")
 @click.option("--preview", type=click.Path(), is_flag=False, flag_value="",
               help="Also write an 8-bit PNG for people (with --cameras, or with no value: "
                    "beside each EXR).")
-@click.option("--cameras", "cameras_file", type=click.Path(),
+@click.option("--cameras", "cameras_file", type=FilePath(),
               help="Render every view of a camera file (nerfstudio transforms.json, a COLMAP "
                    "text model, a JSON list of cameras) to -o DIR/<name>.exr.")
 @dataset_options
-@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
+@click.option("--tree", "tree_file", type=FilePath(dir_okay=False),
               help="Render from this dumped tree instead of building one.")
 @device_option
 @click.option("--cull", is_flag=True,
@@ -458,20 +471,20 @@ def render(scene, output, size, eye, target, up, fov, intrinsics, pose, camera_f
 
 
 @cli.command()
-@click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--lidar", "lidar_file", required=True, type=click.Path(dir_okay=False),
+@click.argument("scene", type=FilePath(dir_okay=False))
+@click.option("--lidar", "lidar_file", required=True, type=FilePath(dir_okay=False),
               help="The lidar's JSON spec: elevations or channels/fov_up/fov_down, columns, "
                    "max_range (docs/sensors.md).")
-@click.option("--pose", required=True, type=click.Path(dir_okay=False),
+@click.option("--pose", required=True, type=FilePath(dir_okay=False),
               help="4x4 sensor-to-world matrix file (text or .npy), sensor axes x forward, "
                    "y left, z up (ROS REP 103).")
-@click.option("-o", "--output", type=click.Path(), default=None,
+@click.option("-o", "--output", type=FilePath(), default=None,
               help="EXR range image to write: range, id, object [default: SCENE's name with "
                    ".exr, here].")
-@click.option("--points", type=click.Path(),
+@click.option("--points", type=FilePath(),
               help="Also write the hit points as a binary PLY (x y z ring column range id "
                    "object).")
-@click.option("--tree", "tree_file", type=click.Path(dir_okay=False),
+@click.option("--tree", "tree_file", type=FilePath(dir_okay=False),
               help="Scan this dumped tree instead of building one.")
 @device_option
 @build_options
@@ -599,10 +612,10 @@ def _read_rays(path):
 
 
 @cli.command()
-@click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--points", "points_file", required=True, type=click.Path(dir_okay=False),
+@click.argument("scene", type=FilePath(dir_okay=False))
+@click.option("--points", "points_file", required=True, type=FilePath(dir_okay=False),
               help="The points: an (N, 3) .npy file, or text, X Y Z a line.")
-@click.option("-o", "--output", required=True, type=click.Path(),
+@click.option("-o", "--output", required=True, type=FilePath(),
               help="The answers to write: an (N,) .npy file, bool (inside) or int32 "
                    "(--count).")
 @click.option("--count", "direction", callback=_floats(3), default=None,
@@ -648,11 +661,11 @@ def contains(scene, points_file, output, direction, tree_file, device, **kw):
 
 
 @cli.command()
-@click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--rays", "rays_file", required=True, type=click.Path(dir_okay=False),
+@click.argument("scene", type=FilePath(dir_okay=False))
+@click.option("--rays", "rays_file", required=True, type=FilePath(dir_okay=False),
               help="The rays: an (N, 6) .npy or text file (origin, direction a row), or a "
                    ".npz file of origins, directions and optionally t_min and t_max.")
-@click.option("-o", "--output", required=True, type=click.Path(),
+@click.option("-o", "--output", required=True, type=FilePath(),
               help="The .npz file to write (its arrays depend on --query).")
 @click.option("--query", type=click.Choice(["nearest", "any", "count", "all"]),
               default="nearest", show_default=True,
@@ -745,10 +758,10 @@ winding_number and occupancy."""
 
 
 @cli.command()
-@click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--points", "points_file", required=True, type=click.Path(dir_okay=False),
+@click.argument("scene", type=FilePath(dir_okay=False))
+@click.option("--points", "points_file", required=True, type=FilePath(dir_okay=False),
               help="The points: an (N, 3) .npy file, or text, X Y Z a line.")
-@click.option("-o", "--output", required=True, type=click.Path(),
+@click.option("-o", "--output", required=True, type=FilePath(),
               help="The .npz file to write (its arrays depend on --query).")
 @click.option("--query", type=click.Choice(POINT_QUERIES), default="signed", show_default=True,
               help="closest: the nearest surface point, its distance, triangle and "
@@ -813,8 +826,8 @@ def points(scene, points_file, output, query, sign, max_distance, precision, tre
 
 
 @cli.command()
-@click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(),
+@click.argument("scene", type=FilePath(dir_okay=False))
+@click.option("-o", "--output", required=True, type=FilePath(),
               help="The .npz file to write: a grid (sdf or occupancy, origin, spacing, "
                    "sign), or with --samples the points and their sdf.")
 @click.option("--resolution", type=int, default=None,
@@ -901,7 +914,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
 
 
 @cli.command()
-@click.argument("scenes", metavar="SCENE...", nargs=-1, type=click.Path(dir_okay=False))
+@click.argument("scenes", metavar="SCENE...", nargs=-1, type=FilePath(dir_okay=False))
 @click.option("--size", default="512x512", show_default=True, callback=_size, help="Rays: WIDTHxHEIGHT pixels.")
 @click.option("--repeat", type=int, default=5, show_default=True, help="Warm runs timed (median).")
 @click.option("--sample", type=int, default=10000, show_default=True,
@@ -910,7 +923,7 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
               help="Comma-separated: kdray[:KEY=VALUE...] (K_T, K_I, empty_bonus, max_depth, "
                    "leaf_size, stack, local, batch, refine=0|1). "
                    "[default: kdray,kdray:refine=0,kdray:K_T=15,kdray:empty_bonus=1,kdray:stack=1]")
-@click.option("--csv", "csv_file", type=click.Path(), help="Also write the table as CSV.")
+@click.option("--csv", "csv_file", type=FilePath(), help="Also write the table as CSV.")
 @device_option
 @click.option("--offset", type=float, default=0.0, show_default=True,
               help="Move scene and camera by (D, D, D) (precision far from the origin).")
@@ -964,7 +977,7 @@ def _run_jobs(jobs, workers, scheduler, device, no_cache, overwrite):
 
 
 @cli.command()
-@click.argument("jobs_file", metavar="JOBS", type=click.Path(dir_okay=False))
+@click.argument("jobs_file", metavar="JOBS", type=FilePath(dir_okay=False))
 @dataset_options
 @device_option
 def batch(jobs_file, workers, scheduler, no_cache, overwrite, device):

@@ -45,6 +45,7 @@ leaves a half-written file and never damages an existing one.
 """
 import json
 import os
+import struct
 
 import numpy as np
 
@@ -345,8 +346,49 @@ def write_exr(path, images, camera=None, object_names=None, lidar=None, sensor_t
                 exr.write(str(tmp))
         except RuntimeError as exc:  # the library's I/O errors
             raise OutputError(f"cannot write {path}: {exc}") from None
+        if not _exr_whole(tmp):
+            raise OutputError(f"cannot write {path}: the file came out incomplete (is the "
+                              f"disk full?).")
 
     atomic_write(path, write)
+
+
+_EXR_CHUNK_LINES = {0: 1, 1: 1, 2: 1, 3: 16, 4: 32, 5: 16, 6: 32, 7: 32, 8: 32, 9: 256}
+"""Scanlines a chunk of an EXR file holds, by its compression (OpenEXR's numbering:
+none, RLE, ZIPS, ZIP, PIZ, PXR24, B44, B44A, DWAA, DWAB)."""
+
+
+def _exr_whole(path):
+    """Whether the single-part scanline EXR file `path` (as write_exr writes them) holds
+    every chunk its offset table names, the last ending at the file's end. The library
+    writes through a buffered stream whose last flush, at close, fails in silence on a
+    full disk (a file of a few kilobytes came out empty, a larger one would lose its
+    end): checked here, before the file replaces anything."""
+    data = open(path, "rb").read()
+    try:
+        if data[:4] != b"\x76\x2f\x31\x01" or data[5:8] != b"\0\0\0":
+            return False
+        at, lines, y0, y1 = 8, None, None, None
+        while data[at] != 0:                       # attributes: name, type, size, value
+            name_end = data.index(b"\0", at)
+            type_end = data.index(b"\0", name_end + 1)
+            (size,) = struct.unpack_from("<i", data, type_end + 1)
+            value = type_end + 5
+            name = data[at:name_end]
+            if name == b"compression":
+                lines = _EXR_CHUNK_LINES.get(data[value])
+            elif name == b"dataWindow":
+                _, y0, _, y1 = struct.unpack_from("<4i", data, value)
+            at = value + size
+        if lines is None or y0 is None:
+            return False
+        chunks = -(-(y1 - y0 + 1) // lines)
+        offsets = struct.unpack_from(f"<{chunks}Q", data, at + 1)
+        last = max(offsets)
+        (size,) = struct.unpack_from("<i", data, last + 4)
+        return last + 8 + size == len(data)
+    except (IndexError, ValueError, struct.error):
+        return False
 
 
 def _object_names_header(images, object_names, path):
@@ -692,6 +734,10 @@ def preview_rgb(images):
     raise OutputError(f"no image to preview; expected some of {', '.join(AOVS)}.")
 
 
+_PNG_END = b"\0\0\0\0IEND\xaeB`\x82"
+"""The last 12 bytes of every PNG file: its empty IEND chunk and that chunk's CRC."""
+
+
 def write_preview(path, images):
     """Write an 8-bit RGB PNG of `images` for people (see `preview_rgb`), atomically.
     OutputError naming `path` for images write_exr would refuse too."""
@@ -713,5 +759,13 @@ def write_preview(path, images):
         ok = out.close() and ok
         if not ok:
             raise OutputError(f"cannot write {path}: {out.geterror() or 'OpenImageIO failed'}.")
+        # a PNG ends with its IEND chunk: a full disk, which the writer's last flush
+        # meets in silence, leaves a file without it
+        with open(tmp, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - len(_PNG_END)))
+            if f.read() != _PNG_END:
+                raise OutputError(f"cannot write {path}: the file came out incomplete (is "
+                                  f"the disk full?).")
 
     atomic_write(path, write)

@@ -60,6 +60,9 @@ def load(path):
         raise MeshError(f"{path}: is a folder, not a mesh file")
     if not os.access(path, os.R_OK):
         raise MeshError(f"{path}: cannot be read (permission denied)")
+    if not os.path.isfile(path):         # a device or a pipe, whose size reads 0
+        raise MeshError(f"{path}: is a device or a pipe, not a mesh file (kdray reads a "
+                        f"mesh from a file, by its name's format)")
     if os.path.getsize(path) == 0:
         raise MeshError(f"{path}: is empty")
     import trimesh

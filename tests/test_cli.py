@@ -17,6 +17,21 @@ def test_build_dump_info_check(capsys, tmp_path):
     assert "check              ok" in out and "origin" in out
 
 
+def test_info_check_names_the_file_it_refuses(capsys, tmp_path, monkeypatch):
+    """A tree file that loads but fails the full validation (a triangle moved within the
+    bounds: only --check sees it) is refused naming the file, as the loader's errors."""
+    from kdray.errors import TreeError
+    tree_path = tmp_path / "t.kdt"
+    assert run(capsys, "build", SCENES / "cornell.obj", "--dump", tree_path)[0] == 0
+
+    def broken(self, *args, **kwargs):
+        raise TreeError("triangle 5 (input id 5) is not listed in a leaf")
+    monkeypatch.setattr(KdTree, "validate", broken)
+    code, _, err = run(capsys, "info", tree_path, "--check")
+    assert code == 1 and err == f"kdray: error: {tree_path}: triangle 5 (input id 5) is not " \
+        f"listed in a leaf\n", err
+
+
 def test_build_options_reach_the_builder(capsys, tmp_path):
     tree_path = tmp_path / "t.kdt"
     code, _, err = run(capsys, "build", real_mesh("teapot.obj"), "--dump", tree_path,

@@ -92,6 +92,28 @@ def test_output_onto_input(capsys, tmp_path):
     assert_one_line_error(code, err, "overwrite the input")
 
 
+@pytest.mark.parametrize("argv, option", [
+    (["build", SCENE, "--dump", ""], "--dump"),
+    (["build", ""], "SCENE"),
+    (["render", SCENE, "--cameras", ""], "--cameras"),
+    (["render", SCENE, "--tree", ""], "--tree"),
+    (["render", SCENE, "--camera", ""], "--camera"),
+    (["render", SCENE, "--pose", "", "--intrinsics", "100,100,8,8"], "--pose"),
+    (["render", SCENE, "-o", ""], "--output"),
+    (["cast", SCENE, "--rays", "", "-o", "x.npz"], "--rays"),
+    (["bench", SCENE, "--csv", ""], "--csv"),
+    (["batch", ""], "JOBS"),
+])
+def test_an_empty_path_is_a_usage_error(capsys, tmp_path, monkeypatch, argv, option):
+    """An empty path names no file: refused as a usage error, never taken for an option
+    not given (--dump "" once printed the statistics and wrote nothing, --cameras ""
+    rendered one framing image)."""
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run(capsys, *argv)
+    assert_one_line_error(code, err, option, "empty path", exit_code=2)
+    assert out == "" and os.listdir(tmp_path) == []
+
+
 def test_missing_and_bad_scene(capsys, tmp_path):
     code, _, err = run(capsys, "render", tmp_path / "none.obj", "-o", tmp_path / "o.exr")
     assert_one_line_error(code, err, "none.obj", "no such file")
@@ -134,6 +156,12 @@ def test_mesh_problems_name_the_file(capsys, tmp_path):
     trimesh.PointCloud(np.random.default_rng(0).random((10, 3))).export(points)
     code, _, err = run(capsys, "render", points, "-o", tmp_path / "o.exr")
     assert_one_line_error(code, err, "points.ply", "no triangles")
+    # a device or a pipe is not a mesh file (their size reads 0: once "is empty")
+    fifo = tmp_path / "mesh.obj"
+    os.mkfifo(fifo)
+    for scene in ("/dev/zero", fifo):
+        code, _, err = run(capsys, "build", scene)
+        assert_one_line_error(code, err, str(scene), "a device or a pipe")
 
 
 def test_no_opencl_platform_says_how_to_get_one(capsys, tmp_path, monkeypatch):

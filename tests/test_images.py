@@ -265,6 +265,96 @@ def test_interrupted_file_write_keeps_the_existing_file(tmp_path, rng, monkeypat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr"]
 
 
+class _ShortOpenEXR:
+    """Stands in for the OpenEXR package: writes the real file, then loses its last
+    `lost` bytes and reports success, as the library's stream does on a full disk
+    (its last flush, at close, fails in silence)."""
+
+    ZIP_COMPRESSION = OpenEXR.ZIP_COMPRESSION
+    scanlineimage = OpenEXR.scanlineimage
+
+    def __init__(self, lost):
+        self.lost = lost
+
+    def File(self, header, channels):
+        lost, real = self.lost, OpenEXR.File(header, channels)
+
+        class File:
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                return False
+
+            def write(self, path):
+                real.write(path)
+                data = open(path, "rb").read()
+                open(path, "wb").write(data[:max(0, len(data) - lost)])
+
+        return File()
+
+
+class _ShortOIIO:
+    """Stands in for OpenImageIO's PNG writer as _ShortOpenEXR for the OpenEXR package:
+    its close() loses the file's last `lost` bytes and reports success."""
+
+    def __init__(self, lost):
+        import OpenImageIO
+        self.real, self.lost = OpenImageIO, lost
+        self.ImageSpec, self.UINT8 = OpenImageIO.ImageSpec, OpenImageIO.UINT8
+
+    def geterror(self):
+        return self.real.geterror()
+
+    @property
+    def ImageOutput(self):
+        outer = self
+
+        class ImageOutput:
+            @staticmethod
+            def create(kind):
+                out = outer.real.ImageOutput.create(kind)
+
+                class Short:
+                    def open(self, path, spec):
+                        self.path = path
+                        return out.open(path, spec)
+
+                    def write_image(self, pixels):
+                        return out.write_image(pixels)
+
+                    def close(self):
+                        ok = out.close()
+                        data = open(self.path, "rb").read()
+                        open(self.path, "wb").write(data[:max(0, len(data) - outer.lost)])
+                        return ok
+
+                    def geterror(self):
+                        return out.geterror()
+                return Short()
+        return ImageOutput
+
+
+@pytest.mark.parametrize("lost", [1, 100, 10 ** 9])
+def test_a_file_the_disk_cut_short_is_refused(tmp_path, rng, monkeypatch, lost):
+    """The EXR and the PNG are checked whole before they replace anything: a file the
+    library wrote short (no error from it) is an OutputError, the old file kept."""
+    for name, write in (("out.exr", write_exr), ("out.png", write_preview)):
+        path = tmp_path / name
+        write(path, all_aovs(rng))
+        before = path.read_bytes()
+        with monkeypatch.context() as m:
+            if name.endswith(".exr"):
+                m.setattr(images, "_openexr", lambda: _ShortOpenEXR(lost))
+            else:
+                m.setattr(images, "_oiio", lambda: _ShortOIIO(lost))
+            with pytest.raises(OutputError, match="incomplete") as info:
+                write(path, all_aovs(rng))
+        assert str(path) in str(info.value)
+        assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr", "out.png"]
+
+
 def test_failed_preview_keeps_the_existing_file(tmp_path, rng, monkeypatch):
     path = tmp_path / "out.png"
     aovs = all_aovs(rng)
