@@ -40,6 +40,7 @@ import numbers
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from .errors import DatasetError, KdrayError, MeshError, OutputError, ParameterError
@@ -247,7 +248,7 @@ def check_outputs(jobs, make=True):
     a file, or it or the folder it would be made in cannot be written, or making one
     fails, named by the job's source where it has one (a jobs file's "JOBS, line N").
     Nothing is created when any fails: the folders made before a failure are
-    removed."""
+    removed. Returns {job index: the folders made for it, deepest first} (made)."""
     def error(i, message):
         named = jobs[i].source
         return OutputError(f"{named}: {message}" if named else message)
@@ -266,8 +267,8 @@ def check_outputs(jobs, make=True):
         if not os.access(existing, os.W_OK | os.X_OK):
             raise error(i, f"{out}: {'the folder' if existing == out else existing} is not writable")
     if not make:
-        return
-    made = []                                   # the folders made, deepest last
+        return {}
+    made, made_by = [], {}                      # the folders made, deepest last
     for i, job in enumerate(jobs):
         missing = [f for f in (job.output, *job.output.parents) if not f.exists()]
         try:
@@ -278,6 +279,22 @@ def check_outputs(jobs, make=True):
                     folder.rmdir()
             raise error(i, f"{job.output}: cannot be made ({e.strerror or e})") from None
         made.extend(reversed(missing))
+        made_by[i] = missing
+    return made_by
+
+
+def _remove_made_if_empty(reports, made_by):
+    """The folders check_outputs made (made_by) for jobs that failed before rendering
+    a view, removed where they are still empty, deepest first: a failed job leaves no
+    folder it made (a parent another job made or filled stays)."""
+    for i, report in enumerate(reports):
+        if report.ok or report.rendered:
+            continue
+        for folder in made_by.get(i, ()):
+            try:
+                folder.rmdir()
+            except OSError:                     # not empty: it and its parents stay
+                break
 
 
 # -- what a run did ------------------------------------------------------------------------
@@ -646,7 +663,7 @@ def run(jobs, workers=None, scheduler=None, device=None, cache=None, overwrite=F
     overwrite = check_bool(overwrite, "overwrite", ParameterError)
     chunk = whole_or_none(chunk, "chunk", ParameterError)
     check_distinct_outputs(jobs)
-    check_outputs(jobs)
+    made_by = check_outputs(jobs)
     planned = plan(jobs, overwrite)
     total = sum(len(todo) for _, todo in planned)
     progress = progress or Progress(total, live=False)
@@ -662,7 +679,9 @@ def run(jobs, workers=None, scheduler=None, device=None, cache=None, overwrite=F
         progress.close()
     for report, todo in planned:
         remove_stale_temporaries(report.job, [v.name for v in todo])
-    return [report for report, _ in planned]
+    reports = [report for report, _ in planned]
+    _remove_made_if_empty(reports, made_by)
+    return reports
 
 
 def _compile_builder(needed):
@@ -765,7 +784,12 @@ def local_cluster(workers, quiet=False):
     which the caller reports in one line, is an ERROR there with its traceback)."""
     import dask
     distributed = _dask()
-    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+    # the scheduler's HTTP server (health checks; no dashboard is asked for) takes
+    # another port where another cluster holds 8787, and says so in a warning of four
+    # lines on the command's stderr: two runs at once are fine
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
+            warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Port [0-9]+ is already in use")
         return distributed.LocalCluster(n_workers=int(workers), threads_per_worker=1,
                                         processes=True, dashboard_address=None,
                                         silence_logs=logging.CRITICAL if quiet
