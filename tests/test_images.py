@@ -202,17 +202,18 @@ def test_read_errors(tmp_path):
 # Atomic writes ---------------------------------------------------------------------------
 
 
-class _FailingOpenEXR:
-    """Stands in for the OpenEXR package: writes half a file, then fails like it."""
+class _FakeOpenEXR:
+    """Stands in for the OpenEXR package: its File(header, channels).write(path) calls
+    write(path, header, channels)."""
 
     ZIP_COMPRESSION = OpenEXR.ZIP_COMPRESSION
     scanlineimage = OpenEXR.scanlineimage
 
-    def __init__(self, error):
-        self.error = error
+    def __init__(self, write):
+        self.write = write
 
     def File(self, header, channels):
-        error = self.error
+        write = self.write
 
         class File:
             def __enter__(self):
@@ -222,11 +223,18 @@ class _FailingOpenEXR:
                 return False
 
             def write(self, path):
-                with open(path, "wb") as f:
-                    f.write(b"v/1\x01 half a file")
-                raise error
+                write(path, header, channels)
 
         return File()
+
+
+def _FailingOpenEXR(error):
+    """The OpenEXR package writing half a file, then failing like it."""
+    def write(path, header, channels):
+        with open(path, "wb") as f:
+            f.write(b"v/1\x01 half a file")
+        raise error
+    return _FakeOpenEXR(write)
 
 
 @pytest.mark.parametrize("error", [RuntimeError("disk on fire"), KeyboardInterrupt()])
@@ -265,33 +273,16 @@ def test_interrupted_file_write_keeps_the_existing_file(tmp_path, rng, monkeypat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr"]
 
 
-class _ShortOpenEXR:
-    """Stands in for the OpenEXR package: writes the real file, then loses its last
-    `lost` bytes and reports success, as the library's stream does on a full disk
-    (its last flush, at close, fails in silence)."""
-
-    ZIP_COMPRESSION = OpenEXR.ZIP_COMPRESSION
-    scanlineimage = OpenEXR.scanlineimage
-
-    def __init__(self, lost):
-        self.lost = lost
-
-    def File(self, header, channels):
-        lost, real = self.lost, OpenEXR.File(header, channels)
-
-        class File:
-            def __enter__(self):
-                return self
-
-            def __exit__(self, *exc):
-                return False
-
-            def write(self, path):
-                real.write(path)
-                data = open(path, "rb").read()
-                open(path, "wb").write(data[:max(0, len(data) - lost)])
-
-        return File()
+def _ShortOpenEXR(lost):
+    """The OpenEXR package writing the real file, then losing its last `lost` bytes and
+    reporting success, as the library's stream does on a full disk (its last flush, at
+    close, fails in silence)."""
+    def write(path, header, channels):
+        with OpenEXR.File(header, channels) as real:
+            real.write(path)
+        data = open(path, "rb").read()
+        open(path, "wb").write(data[:max(0, len(data) - lost)])
+    return _FakeOpenEXR(write)
 
 
 class _ShortOIIO:
