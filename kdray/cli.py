@@ -72,8 +72,8 @@ def build_options(f):
     d = BuildParams()
     opts = [
         click.option("--k-t", "K_T", type=float, default=d.K_T, show_default=True,
-                     help="K_T: SAH cost of one traversal step; 0 = 400, or 600 from a "
-                          "million triangles (kdray.tree.auto_K_T)."),
+                     help="K_T: SAH cost of one traversal step; 0 = 400, rising to 600 "
+                          "from 2^20 triangles (kdray.tree.auto_K_T)."),
         click.option("--k-i", "K_I", type=float, default=d.K_I, show_default=True,
                      help="K_I: SAH cost of one ray/triangle test."),
         click.option("--empty-bonus", type=float, default=d.empty_bonus, show_default=True,

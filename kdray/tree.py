@@ -45,7 +45,7 @@ class BuildParams:
 
     K_T: float = 0.0
     """Cost of one traversal step, relative to K_I; 0 = automatic (`auto_K_T`: 400,
-    and 600 from a million triangles). W&H's Table 1 has 15 (for 20); on kdray's
+    and 600 from 2^20 triangles). W&H's Table 1 has 15 (for 20); on kdray's
     packet kernels a node visit costs more than that, mostly in cache misses, while a
     triangle test of a packet's 8 or 16 lanes is one vector pass. The values are the
     ones that build fastest, with the fewest nodes, among those that trace as fast as
