@@ -666,14 +666,30 @@ def crossing_windings(tracer, points):
     kd_facing): on a closed, consistently oriented mesh the exact winding number of the
     point (points.closed_cycle). WINDING_RAW for a ray whose count was lost (more than
     32 crossings far out of their order in a k-d walk, kernels/queries.cl)."""
-    rays, order = _contains_rays(tracer, points)
-    out = page_aligned_empty((rays.n,), np.uint32)
-    for start, stop in _launches(tracer, rays, [4]):
-        _launch(tracer, "count_rays", rays, start, stop, (np.uint32(WINDING),),
-                {"out": out[start:stop]})
-    _check_fault(out == WALK_FAULT, "winding")
-    w = np.where(out == WINDING_RAW, WINDING_RAW, out.view(np.int32)).astype(np.int64)
-    return _unsorted(w, order)
+    def windings(p):
+        rays, order = _contains_rays(tracer, p)
+        out = page_aligned_empty((rays.n,), np.uint32)
+        for start, stop in _launches(tracer, rays, [4]):
+            _launch(tracer, "count_rays", rays, start, stop, (np.uint32(WINDING),),
+                    {"out": out[start:stop]})
+        _check_fault(out == WALK_FAULT, "winding")
+        w = np.where(out == WINDING_RAW, WINDING_RAW, out.view(np.int32)).astype(np.int64)
+        return _unsorted(w, order)
+    return _in_point_chunks(points, windings)
+
+
+POINT_CHUNK = 1 << 30
+"""Points `contains` and `crossing_windings` order and answer at a time: their order
+and counts are uint32 (kdray.point_order), so more points than 2^32 are taken in
+parts (the answers do not depend on it)."""
+
+
+def _in_point_chunks(p, answer):
+    """answer(p) ((N,) array for points p (N, 3)) for POINT_CHUNK points at a time, the
+    parts' answers concatenated (one part: answer(p) itself)."""
+    if len(p) <= POINT_CHUNK:
+        return answer(p)
+    return np.concatenate([answer(p[a:a + POINT_CHUNK]) for a in range(0, len(p), POINT_CHUNK)])
 
 
 def contains(tracer, points):
@@ -691,12 +707,14 @@ def contains(tracer, points):
     p, shape = check_points(points)
     if len(p) == 0:
         return np.zeros(shape, dtype=bool)
-    rays, order = _contains_rays(tracer, p)
-    # the parity from each count's low byte (a cast, one byte a point from there on):
-    # half the time of `% 2 == 1` and a copy before the scatter
-    parity = _counts(tracer, rays, True).astype(np.uint8)
-    parity &= 1
-    return _unsorted(parity.view(bool), order).reshape(shape)
+    def inside(p):
+        rays, order = _contains_rays(tracer, p)
+        # the parity from each count's low byte (a cast, one byte a point from there
+        # on): half the time of `% 2 == 1` and a copy before the scatter
+        parity = _counts(tracer, rays, True).astype(np.uint8)
+        parity &= 1
+        return _unsorted(parity.view(bool), order)
+    return _in_point_chunks(p, inside).reshape(shape)
 
 
 def _list(tracer, rays, caps, crossing=False, nearest_k=False):

@@ -149,6 +149,12 @@ class Tracer:
         if self.batch_size % per_round or self.groups < 1:
             raise KdrayError(f"batch_size ({self.batch_size}) must be a multiple of local_size "
                              f"x packet ({per_round}) and groups ({self.groups}) at least 1")
+        # the kernels take batches from a 32-bit counter, which passes a launch's rays
+        # by up to a batch a group: beyond 2^30 it would wrap (2^32 added nothing: a
+        # kernel that never ended)
+        if self.batch_size * self.groups > 1 << 30:
+            raise KdrayError(f"batch_size x groups ({self.batch_size} x {self.groups}) must "
+                             f"be at most 2^30")
         self._programs = {}
         # Threads may share a Tracer (and the Tracers of with_tree, which share its
         # queue and kernels): a kernel's arguments are set on the one pyopencl Kernel

@@ -977,3 +977,23 @@ def test_a_forked_child_builds_on_threads():
     with multiprocessing.get_context("fork").Pool(1) as child:
         got = child.apply_async(build, (v, f), {"threads": 2}).get(timeout=120)
     assert got == want
+
+
+def test_a_tree_larger_than_its_format_holds_is_refused(monkeypatch):
+    """The builder stores child indices in 30 bits and leaf offsets in 32: a build that
+    makes more nodes or leaf references (K_T=15 on about 2*10^8 triangles) is refused
+    with a ParameterError, not returned with indices that wrapped. Shown with the
+    bounds made small."""
+    import kdray.builder
+    from helpers import icosphere
+    v, f = icosphere(3)
+    tree = kdray.builder.build(v, f)
+    n_nodes, n_refs = len(tree.nodes), len(tree.leaf_tris)
+    monkeypatch.setattr(kdray.builder, "MAX_NODES", n_nodes)
+    with pytest.raises(ParameterError, match="more than the tree format holds"):
+        kdray.builder.build(v, f)
+    monkeypatch.setattr(kdray.builder, "MAX_NODES", n_nodes + 1)
+    assert len(kdray.builder.build(v, f).nodes) == n_nodes
+    monkeypatch.setattr(kdray.builder, "MAX_LEAF_REFS", n_refs)
+    with pytest.raises(ParameterError, match="2\\^32 references"):
+        kdray.builder.build(v, f)

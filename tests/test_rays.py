@@ -419,6 +419,20 @@ def test_contains_through_more_shells_than_the_kernel_keeps(runtime):
     assert (tracer.contains(p) == (around % 2 == 1)).all()
 
 
+def test_contains_and_windings_of_more_points_than_a_part(monkeypatch):
+    """More points than POINT_CHUNK (2^30: the point order's uint32) are answered a part
+    at a time, each part in its own spatial order: the same answers as at once."""
+    mesh = load(SCENES / "sphere.obj")
+    tracer = Tracer(build(mesh.vertices, mesh.faces))
+    p = np.random.default_rng(4).uniform(-1.5, 1.5, (3 * krays.SORT_FROM + 17, 3))
+    inside, windings = tracer.contains(p), krays.crossing_windings(tracer, p)
+    assert 0 < inside.sum() < len(p)
+    monkeypatch.setattr(krays, "POINT_CHUNK", krays.SORT_FROM + 5)
+    np.testing.assert_array_equal(tracer.contains(p), inside)
+    np.testing.assert_array_equal(krays.crossing_windings(tracer, p), windings)
+    assert tracer.contains(p.reshape(1, -1, 3)).shape == (1, len(p))
+
+
 def test_contains_on_grids_through_vertices(runtime):
     """Points on a grid through every vertex of the grid cube and of a sphere, against
     the exact half-space test of a convex mesh; points on the cube's surface answer as

@@ -743,6 +743,12 @@ def test_trace_outputs_leave_out_what_is_not_asked(tracers):
             tracer.trace(o, d, outputs=outputs)
     with pytest.raises(KdrayError, match="refine must be True or False"):
         Tracer(tracer.tree, refine="no")
+    # the kernels' 32-bit batch counter: 2^32 rays a batch added nothing (an endless
+    # kernel), more than 2^30 in all could wrap
+    step = tracer.local_size * tracer.packet
+    for batch, groups in ((2 ** 32 // step * step, 1), ((2 ** 20 // step + 1) * step, 1024)):
+        with pytest.raises(KdrayError, match=r"at most 2\^30"):
+            Tracer(tracer.tree, batch_size=batch, groups=groups)
     from kdray.builder import build
     tracer64 = tracers(build(*mesh("teapot.obj"), keep_double=True))
     full = tracer64.trace(o, d, precision="double")

@@ -27,6 +27,7 @@ import os
 
 import numpy as np
 
+from .. import layout
 from ..errors import MeshError, ParameterError
 from ..tree import MAX_COORDINATE, BuildParams, KdTree
 from ..validate import check_bool
@@ -132,6 +133,26 @@ MAX_THREADS = 1024
 """Most threads a build may be asked for (`threads`): each is a thread of the process."""
 
 
+MAX_NODES = layout.MAX_NODES
+"""Nodes a tree may hold: an interior node's child index is 30 bits (layout.py)."""
+
+MAX_LEAF_REFS = 1 << 32
+"""Leaf references a tree may hold: a leaf's offset into them is 32 bits (layout.py)."""
+
+
+def check_size(n_nodes, n_refs, n_tris):
+    """ParameterError where a finished build has more nodes than the tree format's
+    child indices hold (MAX_NODES, 30 bits) or more leaf references than its
+    leaf offsets (MAX_LEAF_REFS): the builder stores them in those bits, so such a tree
+    would point at the wrong nodes and leaves (parameters that split far more than the
+    defaults, K_T=15 or K_T=1 on meshes of about 10^8 triangles)."""
+    if n_nodes >= MAX_NODES or n_refs >= MAX_LEAF_REFS:
+        raise ParameterError(
+            f"the tree of {n_tris:,} triangles came out with {n_nodes:,} nodes and "
+            f"{n_refs:,} leaf references, more than the tree format holds (2^30 nodes, "
+            f"2^32 references): build it with a larger K_T or K_I, or a smaller max_depth")
+
+
 def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
           empty_bonus=BuildParams.empty_bonus, max_depth=BuildParams.max_depth,
           leaf_size=BuildParams.leaf_size, origin=None, threads=None, scale=None,
@@ -199,6 +220,7 @@ def build(vertices, faces, *, K_T=BuildParams.K_T, K_I=BuildParams.K_I,
         threads=threads, pool=pool, reuse=True)
     log.debug("built %d nodes, %d leaf references over %d triangles (%d input)",
               len(nodes), len(leaf_tris), len(mesh.triangles), mesh.n_input_tris)
+    check_size(len(nodes), len(leaf_tris), len(mesh.triangles))
     tree = KdTree(nodes=nodes, leaf_tris=leaf_tris, triangles=mesh.triangles,
                   tri_ids=mesh.tri_ids, origin=mesh.origin, bounds=mesh.bounds,
                   n_input_tris=mesh.n_input_tris, depth=int(depth), params=params,
