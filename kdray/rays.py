@@ -675,21 +675,40 @@ def crossing_windings(tracer, points):
         _check_fault(out == WALK_FAULT, "winding")
         w = np.where(out == WINDING_RAW, WINDING_RAW, out.view(np.int32)).astype(np.int64)
         return _unsorted(w, order)
-    return _in_point_chunks(points, windings)
+    return _in_point_chunks(tracer, points, windings)
 
 
 POINT_CHUNK = 1 << 30
-"""Points `contains` and `crossing_windings` order and answer at a time: their order
-and counts are uint32 (kdray.point_order), so more points than 2^32 are taken in
+"""Points `contains` and `crossing_windings` order and answer at a time at most: their
+order and counts are uint32 (kdray.point_order), so more points than 2^32 are taken in
 parts (the answers do not depend on it)."""
 
+POINT_DEVICE_BYTES = (24, 80)
+"""(largest buffer, all buffers) device bytes a point of `contains` takes in
+kdray.point_order: the float64 point itself, then with its keys, order, sides and
+float32 rays (67 bytes, and room)."""
 
-def _in_point_chunks(p, answer):
-    """answer(p) ((N,) array for points p (N, 3)) for POINT_CHUNK points at a time, the
-    parts' answers concatenated (one part: answer(p) itself)."""
-    if len(p) <= POINT_CHUNK:
+
+def point_chunk(tracer):
+    """Points `contains` answers at a time on the tracer's device: POINT_CHUNK, or fewer
+    where the whole set's float64 points would pass the device's largest buffer, or
+    (a device with memory of its own: a GPU) their buffers together a quarter of its
+    memory; a CPU device's buffers are the host's arrays, whose memory is checked
+    before (check_points)."""
+    device = tracer.device
+    most = int(device.max_mem_alloc_size) // POINT_DEVICE_BYTES[0]
+    if not tracer._zero_copy:
+        most = min(most, int(device.global_mem_size) // (4 * POINT_DEVICE_BYTES[1]))
+    return max(1, min(POINT_CHUNK, most))
+
+
+def _in_point_chunks(tracer, p, answer):
+    """answer(p) ((N,) array for points p (N, 3)) for `point_chunk` points at a time,
+    the parts' answers concatenated (one part: answer(p) itself)."""
+    chunk = point_chunk(tracer)
+    if len(p) <= chunk:
         return answer(p)
-    return np.concatenate([answer(p[a:a + POINT_CHUNK]) for a in range(0, len(p), POINT_CHUNK)])
+    return np.concatenate([answer(p[a:a + chunk]) for a in range(0, len(p), chunk)])
 
 
 def contains(tracer, points):
@@ -714,7 +733,7 @@ def contains(tracer, points):
         parity = _counts(tracer, rays, True).astype(np.uint8)
         parity &= 1
         return _unsorted(parity.view(bool), order)
-    return _in_point_chunks(p, inside).reshape(shape)
+    return _in_point_chunks(tracer, p, inside).reshape(shape)
 
 
 def _list(tracer, rays, caps, crossing=False, nearest_k=False):

@@ -428,9 +428,18 @@ def test_contains_and_windings_of_more_points_than_a_part(monkeypatch):
     inside, windings = tracer.contains(p), krays.crossing_windings(tracer, p)
     assert 0 < inside.sum() < len(p)
     monkeypatch.setattr(krays, "POINT_CHUNK", krays.SORT_FROM + 5)
+    assert krays.point_chunk(tracer) == krays.SORT_FROM + 5
     np.testing.assert_array_equal(tracer.contains(p), inside)
     np.testing.assert_array_equal(krays.crossing_windings(tracer, p), windings)
     assert tracer.contains(p.reshape(1, -1, 3)).shape == (1, len(p))
+    # a device whose largest buffer or memory holds fewer points takes fewer a part
+    from types import SimpleNamespace
+    monkeypatch.setattr(krays, "POINT_CHUNK", 1 << 30)
+    for alloc, memory, zero_copy, want in (
+            (24 * 1000, 1 << 40, False, 1000), (1 << 40, 320 * 1000, False, 1000),
+            (1 << 40, 320 * 1000, True, 1 << 30), (1 << 44, 1 << 46, False, 1 << 30)):
+        device = SimpleNamespace(max_mem_alloc_size=alloc, global_mem_size=memory)
+        assert krays.point_chunk(SimpleNamespace(device=device, _zero_copy=zero_copy)) == want
 
 
 def test_contains_on_grids_through_vertices(runtime):
