@@ -144,11 +144,11 @@ stay within some 100 MB however many hits there are."""
 ON_PLANE = 2.0 ** -50
 """A double-precision hit does not count where its ray's origin lies on the hit
 triangle's float64 plane within this share of the larger of the largest coordinate of
-the origin's offset to the triangle's vertices and the origin's largest world coordinate (8 float64 roundings of
-either: a point sampled on the triangle, a + u (b - a) + v (c - a), is off its plane
-by the rounding of its world coordinates, which exceed the triangle's size where the
-mesh lies far from the world's origin), as the float32 test's t must pass its own
-rounding error (`hits_double(..., on_plane=True)`; kdray.rays.nearest_in_range)."""
+the origin's offset to the triangle's vertices and the origin's largest world
+coordinate (8 float64 roundings of either: a point sampled on the triangle, a + u
+(b - a) + v (c - a), is off its plane by the rounding of its world coordinates, which
+exceed the triangle's size where the mesh lies far from the world's origin), as the
+float32 test's t must pass its own rounding error (`hits_double(..., on_plane=True)`; kdray.rays.nearest_in_range)."""
 
 
 def _on_plane(tri, o):

@@ -364,7 +364,8 @@ def _exr_whole(path):
     writes through a buffered stream whose last flush, at close, fails in silence on a
     full disk (a file of a few kilobytes came out empty, a larger one would lose its
     end): checked here, before the file replaces anything."""
-    data = open(path, "rb").read()
+    with open(path, "rb") as f:
+        data = f.read()
     try:
         if data[:4] != b"\x76\x2f\x31\x01" or data[5:8] != b"\0\0\0":
             return False

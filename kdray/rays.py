@@ -514,15 +514,12 @@ def _any_counted64(tracer, prim, origins, directions, t_min, t_max):
     where any other of its float32 hits counts, which its nearest that counts
     (`_counted_lists`) says. Float64 only drops hits, so a ray with no float32 hit
     stays unoccluded, as `trace`'s double hits do."""
-    from .double import hits_double
     from .layout import MISS
     n = len(prim)
     o, d = flat_rays64(origins, directions)
     lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
-    t, _, at_origin = hits_double(tracer.tree.triangles64, prim, o, d, tree=tracer.tree,
-                                  on_plane=True)
     hit = prim != MISS
-    counted = hit & _counted64(t, at_origin, lo, hi)
+    counted = hit & _hits_counted64(tracer, prim, o, d, lo, hi)
     doubt = np.flatnonzero(hit & ~counted)
     if doubt.size:
         # each listed with room for two: most such rays start on the triangle found
@@ -596,7 +593,6 @@ def _crossings64(tracer, rays, counts, origins, directions, t_min, t_max):
     `_list`), and those that do not count in float64 (_counted64: float64 t out of
     range, or the origin on the float64 plane) are dropped, a group of rays of at most
     COUNT_LIST_BYTES of lists at a time."""
-    from .double import hits_double
     n = len(counts)
     o, d = flat_rays64(origins, directions)
     lo, hi = _flat_t(t_min, n), _flat_t(t_max, n)
@@ -605,13 +601,12 @@ def _crossings64(tracer, rays, counts, origins, directions, t_min, t_max):
     have = available_memory()
     most = COUNT_LIST_BYTES if have is None else min(COUNT_LIST_BYTES, have // 4)
     out = counts.copy()
+    # a listed crossing: its slot and count (HIT_BYTES + 4), then its ray, float64 t,
+    # uv and tests on the host (about 64)
     for group in _groups(caps, most // (HIT_BYTES + 4 + 64)):
         at = rows[group]
         listed, _ = _list(tracer, rays.subset(at), caps[group], True)
-        ray = at[listed.ray]
-        t, _, at_origin = hits_double(tracer.tree.triangles64, listed.prim, o, d, rays=ray,
-                                      tree=tracer.tree, on_plane=True)
-        keep = _counted64(t, at_origin, lo[ray], hi[ray])
+        keep = _hits_counted64(tracer, listed.prim, o, d, lo, hi, rays=at[listed.ray])
         out[at] = np.bincount(listed.ray[keep], minlength=len(at))
     return out
 
@@ -942,6 +937,17 @@ def _flat_t(t, n):
     """(n,) float64 view of a t range's end: a number, or an array of the rays' shape."""
     t = np.asarray(t, dtype=np.float64)
     return np.broadcast_to(t.reshape(-1) if t.ndim else t, (n,))
+
+
+def _hits_counted64(tracer, prim, o, d, lo, hi, rays=None):
+    """(h,) bool: whether each hit the kernels found (prim (h,) input ids, MISS: none)
+    counts in float64 (_counted64) for its ray, row `rays[i]` (or i) of o, d (N, 3)
+    float64 and lo, hi (N,)."""
+    from .double import hits_double
+    t, _, at_origin = hits_double(tracer.tree.triangles64, prim, o, d, rays=rays,
+                                  tree=tracer.tree, on_plane=True)
+    at = slice(None) if rays is None else rays
+    return _counted64(t, at_origin, lo[at], hi[at])
 
 
 def _counted64(t, at_origin, lo, hi):

@@ -279,7 +279,7 @@ class Tracer:
         self._point_queries = {}              # the point queries' data of this tree (points.py)
 
     def _program(self, kernel, outputs, stats=False, rays_world=None, rays="pinhole",
-                any_hit=False, wide=False):
+                 any_hit=False, wide=False):
         """The built program of render.cl's `kernel` ("trace_rays" or "render_camera",
         the only kernel compiled in it: KD_ONLY_*) for a set of outputs ("T", "UV",
         "NORMAL", "ID"), cached with it: {"program": Program, kernel: Kernel} (and the
