@@ -43,7 +43,7 @@ from meshes import mesh as bench_mesh  # noqa: E402
 import kdray  # noqa: E402
 import kdray.ray_order as ray_order  # noqa: E402
 from kdray.host import page_aligned_empty  # noqa: E402
-import kdray.rays as krays  # noqa: E402
+import kdray.query_rays as kquery  # noqa: E402
 import kdray.trace as ktrace  # noqa: E402
 
 
@@ -112,7 +112,7 @@ def main():
                 got = {}
                 for _ in range(args.rounds):
                     for way, fn, oo, dd in ways:
-                        ktrace.ray_order = krays.ray_order = fn
+                        ktrace.ray_order = kquery.ray_order = fn
                         got[way] = answer(tracer, call, oo, dd)      # warm, and kept
                         start = time.perf_counter()
                         answer(tracer, call, oo, dd)
@@ -125,7 +125,7 @@ def main():
                 print(f"{name:<11} {tracer.device_bytes / 2**20:6.1f} MB {kind:<13} {call:<13} "
                       f"{a:8.1f} / {b:8.1f} = {a / b:.2f}  {'same' if same else 'DIFFERENT'}"
                       + pre, flush=True)
-        ktrace.ray_order = krays.ray_order = ordered
+        ktrace.ray_order = kquery.ray_order = ordered
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@
     tracer = kdray.Tracer(tree)                     # owns its OpenCL context
     hits = tracer.trace(origins, directions)        # t, prim, u, v, normal
     tracer.occluded(origins, directions)            # any hit; also count, contains,
-    tracer.intersections(origins, directions)       # every hit (kdray.rays)
+    tracer.intersections(origins, directions)       # every hit (kdray.hit_lists)
     origins = kdray.offset_origins(tree, points, prim, directions)   # rays leaving a surface
     camera = kdray.Camera.look_at(eye, target)
     images = tracer.render(camera, aovs=("depth", "id"))
@@ -30,7 +30,7 @@ from .errors import (CameraError, DatasetError, DeviceError, KdrayError, KernelB
                      MeshError, OutputError, ParameterError, TreeError, TreeFileError)
 from .load import load
 from .mesh import Mesh
-from .rays import Intersections
+from .hit_lists import Intersections
 from .points import ClosestPoints
 from .spawn import offset_origins
 from .hits import Hits

@@ -703,7 +703,7 @@ def cast(scene, rays_file, output, query, max_hits, t_min, t_max, precision, tre
     o, d = rays["origins"], rays["directions"]
     n = len(d)
     if "t_min" in rays or "t_max" in rays:
-        from .rays import check_ranges
+        from .query_rays import check_ranges
         try:
             check_ranges(ranges.get("t_min", 0.0), ranges.get("t_max", np.inf), n)
         except KdrayError as e:         # the file's values: say which file

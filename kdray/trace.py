@@ -29,6 +29,7 @@ import numpy as np
 
 from . import device as _device
 from . import ray_input
+from . import hit_lists, query_rays
 from . import rays as _rays
 from . import points as _points
 from . import render as _render
@@ -618,12 +619,13 @@ class Tracer:
         double = wants_double(precision, self.tree)
         kernel = kernel_outputs(outputs, double)
         origins, directions, shape = ray_input.flat_rays(origins, directions)
-        t_min, t_max = _rays.check_t(t_min, "t_min", shape), _rays.check_t(t_max, "t_max", shape)
+        t_min = query_rays.check_t(t_min, "t_min", shape)
+        t_max = query_rays.check_t(t_max, "t_max", shape)
         hits = self._trace_rays(origins, directions, shape, t_min, t_max, kernel)
         if double:
             hits, at_origin = double_hits(self.tree, hits, origins, directions, on_plane=True)
-            hits = _rays.nearest_in_range(self, hits, at_origin, origins, directions, t_min,
-                                          t_max)
+            hits = hit_lists.nearest_in_range(self, hits, at_origin, origins, directions,
+                                              t_min, t_max)
             if "uv" not in outputs:
                 hits = dataclasses.replace(hits, u=None, v=None)
         return hits if len(shape) == 1 else hits._reshaped(shape)
@@ -661,10 +663,10 @@ class Tracer:
 
     def intersections(self, origins, directions, t_min=0.0, t_max=np.inf, max_hits=None,
                       precision="single"):
-        """Every hit of each ray, sorted by t: kdray.rays.Intersections
-        (kdray.rays.intersections)."""
-        return _rays.intersections(self, origins, directions, t_min, t_max, max_hits,
-                                   precision)
+        """Every hit of each ray, sorted by t: kdray.hit_lists.Intersections
+        (kdray.hit_lists.intersections)."""
+        return hit_lists.intersections(self, origins, directions, t_min, t_max, max_hits,
+                                       precision)
 
     # -- point queries (kdray.points) ---------------------------------------------------
 
@@ -708,7 +710,7 @@ class Tracer:
         outputs = tuple(k for k in KERNEL_OUTPUTS if k in set(outputs) | always)
         o, d, o_step, rays_world = self._rays(origins, directions)
         n = len(d)
-        t_ranges, t_step = _rays.range_pairs(t_min, t_max, n, self._scale)
+        t_ranges, t_step = query_rays.range_pairs(t_min, t_max, n, self._scale)
         out = {name: page_aligned_empty((n, width) if width > 1 else (n,), dtype)
                for name, (width, dtype) in OUTPUT_WIDTH.items()
                if name in outputs or (stats and name == "STATS")}

@@ -335,7 +335,7 @@ def edge_midpoints(v, f):
 
 
 def force_ray_order(monkeypatch, module):
-    """Make `module` (kdray.trace or kdray.rays) take rays in no order of their own in
+    """Make `module` (kdray.trace or kdray.query_rays) take rays in no order of their own in
     one (kdray.ray_order) however few they are and however small the tree: returns the
     list of the orders it took (None where the rays were judged in order already)."""
     import kdray.ray_order as ray_order

@@ -598,22 +598,22 @@ def test_lidar_far_from_a_tiny_scene_is_refused_by_the_scan():
 
 def test_intersections_too_many_to_list_are_refused_early(monkeypatch):
     """Rays whose lists cannot fit are refused once the hits counted so far do not
-    fit (rays.COUNT_FIRST, then twice as many at a time), not after counting every
+    fit (hit_lists.COUNT_FIRST, then twice as many at a time), not after counting every
     ray: here after 4 + 8 + ... + 128 = 252 of 1,000 rays (40 hits each; room for the
     first pass, which lists 8 a ray, and for the lists of 10,000 hits); it counted all
     1,000 first."""
-    from kdray import rays as krays
+    from kdray import hit_lists
     tracer = _stacked_planes(40)
     n = 1000
     rng = np.random.default_rng(5)
     o = np.column_stack([0.05 + 0.9 * rng.random((n, 2)), np.full(n, -0.5)])
     d = np.tile([0.0, 0.0, 1.0], (n, 1))
     counted = []
-    count_pass = krays._count_pass
-    monkeypatch.setattr(krays, "_count_pass", lambda tracer, rays, crossing: (
+    count_pass = hit_lists.count_pass
+    monkeypatch.setattr(hit_lists, "count_pass", lambda tracer, rays, crossing: (
         counted.append(rays.n), count_pass(tracer, rays, crossing))[1])
-    monkeypatch.setattr(krays, "COUNT_FIRST", 4, raising=False)
-    # 20 bytes a hit listed, 12 a ray (rays._list's check)
+    monkeypatch.setattr(hit_lists, "COUNT_FIRST", 4)
+    # 20 bytes a hit listed, 12 a ray (hit_lists.list_hits' check)
     monkeypatch.setattr("kdray.host.available_memory", lambda: 10000 * 20 + n * 12)
     with pytest.raises(KdrayError, match="10,080 hits of 252 rays counted so far needs about"):
         tracer.intersections(o, d)

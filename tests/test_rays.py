@@ -10,6 +10,7 @@ from helpers import (RTOL_T, SCENES, camera_for, edge_distance, edge_midpoints,
                      force_ray_order, graze_tolerance, grid_cube, icosphere, random_rays,
                      real_mesh_arrays, split_plane_rays)
 from kdray import ray_order as kray_order
+from kdray import hit_lists, query_rays
 from kdray import rays as krays
 from kdray.builder import build
 from kdray.errors import KdrayError
@@ -148,7 +149,7 @@ def test_image_rays_read_as_given_answer_as_float32_copies(runtime, where, monke
     lens = eye + 1e-3 * (hi_box - lo_box) * np.random.default_rng(6).random(image.shape)
     for o_given, d_given in ((eye, image), (lens, image),
                              (lens.astype(np.float32), image.astype(np.float32))):
-        rays = krays._image(tracer, krays._Rays(tracer, o_given, d_given, 0.0, np.inf),
+        rays = query_rays.as_image(tracer, query_rays.QueryRays(tracer, o_given, d_given, 0.0, np.inf),
                             o_given, d_given)
         assert rays.world and rays.image_w == 40
         d_flat = d_given.reshape(-1, 3)
@@ -180,7 +181,7 @@ def test_image_rays_read_as_given_answer_as_float32_copies(runtime, where, monke
     want = tracer.count(np.broadcast_to(eye, image.shape).reshape(-1, 3)[back],
                         image.reshape(-1, 3)[back])[back]
     monkeypatch.setattr(tracer, "_launch_size", lambda widths, *a, **k: 120)
-    taken = force_ray_order(monkeypatch, krays)
+    taken = force_ray_order(monkeypatch, query_rays)
     monkeypatch.setattr(kray_order, "unordered", lambda *a, **k: True)
     assert np.array_equal(tracer.count(eye, image).reshape(-1), want)
     assert any(t is not None for t in taken)
@@ -202,14 +203,14 @@ def test_hit_rows_on_the_device_are_numpys(runtime, teapot_tree):
     counts[-3:] = 5
     slots = (rng.random(n_slots).astype(np.float32), rng.random((n_slots, 2)).astype(np.float32),
              rng.integers(0, 1 << 30, n_slots).astype(np.uint32))
-    offsets = krays._offsets(counts)
+    offsets = hit_lists._offsets(counts)
     wide = np.concatenate([[7], first.astype(np.int64)])
     for f in (first, wide[1:]):
-        got = krays._rows_on_device(tracer, counts, offsets, f, slots)
-        want = krays._rows_on_host(tracer, counts, offsets, f, slots)
+        got = hit_lists._rows_on_device(tracer, counts, offsets, f, slots)
+        want = hit_lists._rows_on_host(tracer, counts, offsets, f, slots)
         assert all(np.array_equal(a, b) for a, b in zip(got, want))
     none = np.zeros(n, np.int64)
-    assert [len(a) for a in krays._rows_on_device(tracer, none, krays._offsets(none), first,
+    assert [len(a) for a in hit_lists._rows_on_device(tracer, none, hit_lists._offsets(none), first,
                                                   slots)] == [0, 0, 0]
 
 
@@ -270,8 +271,8 @@ def test_intersections_match_brute_force(runtime, teapot_tree, monkeypatch):
     # own counter, list_first) change nothing
     assert (hits.counts > 1).any()
     for guess, chunk, launch in ((1, 1 << 20, None), (2, 97, None), (4, 1 << 20, 37)):
-        monkeypatch.setattr(krays, "GUESS_HITS", guess)
-        monkeypatch.setattr(krays, "GUESS_CHUNK", chunk)       # in parts of 97 rays
+        monkeypatch.setattr(hit_lists, "GUESS_HITS", guess)
+        monkeypatch.setattr(hit_lists, "GUESS_CHUNK", chunk)       # in parts of 97 rays
         if launch:
             monkeypatch.setattr(tracer, "_launch_size", lambda widths, *a, **k: launch)
         again = tracer.intersections(o, d)
@@ -305,7 +306,7 @@ def test_nearest_hits_end_their_walks_and_keep_the_whole_lists_first(runtime, te
             whole = tracer.intersections(o, d)
             assert (whole.counts > 3).any()
             for k, guess in ((1, 4), (3, 4), (3, 1), (6, 2)):
-                monkeypatch.setattr(krays, "GUESS_HITS", guess)
+                monkeypatch.setattr(hit_lists, "GUESS_HITS", guess)
                 few = tracer.intersections(o, d, max_hits=k)
                 counts = np.minimum(whole.counts, k)
                 rank = np.arange(len(whole.t)) - np.repeat(whole.offsets[:-1], whole.counts)
@@ -503,7 +504,7 @@ def test_queries_do_not_depend_on_work_sizes_or_packets(runtime, teapot_tree, mo
         options += [dict(packet=p, run=r) for p in PACKETS for r in (3, 21)]
         options.append(dict(packet=PACKETS[0], plain_vector_ops=True, run=21))
     for opts in options:
-        monkeypatch.setattr(krays, "RUN_CPU", opts.pop("run"))
+        monkeypatch.setattr(query_rays, "RUN_CPU", opts.pop("run"))
         plain = opts.pop("plain_vector_ops", False)
         other = Tracer(tree, device=runtime.spec, **opts)
         other._plain_vector_ops = plain or other._plain_vector_ops
@@ -514,7 +515,7 @@ def test_queries_do_not_depend_on_work_sizes_or_packets(runtime, teapot_tree, mo
     import kdray.ray_order as ray_order
     monkeypatch.setattr(ray_order, "ORDER_FROM", 1)
     monkeypatch.setattr(ray_order, "ORDER_TREE_BYTES", 0)
-    monkeypatch.setattr(krays, "RUN_CPU", 21)
+    monkeypatch.setattr(query_rays, "RUN_CPU", 21)
     assert ray_order.unordered(o, d, *teapot_tree.world_box())
     for packet in [1] + ([] if runtime.simulator else list(PACKETS)):
         other = Tracer(tree, device=runtime.spec, packet=packet)
@@ -576,7 +577,7 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
     # (N, 3) rays that are an image, from IMAGE_SEARCH_MIN_RAYS on, are found to be one
     tracer = Tracer(tree, device=runtime.spec)
     o, d = tracer.camera_rays(camera_for(tree, 512, 256))
-    assert krays._image(tracer, krays._Rays(tracer, o, d, 0.0, np.inf), o, d).image_w == 512
+    assert query_rays.as_image(tracer, query_rays.QueryRays(tracer, o, d, 0.0, np.inf), o, d).image_w == 512
     one = Tracer(tree, device=runtime.spec, packet=1)
     assert np.array_equal(tracer.count(o, d), one.count(o, d))
 
@@ -702,15 +703,15 @@ def test_more_crossings_than_kept_ids_count_by_the_crossing_rule(tracers, packet
     assert np.all(np.diff(hits.offsets)[:3] > 40)    # every triangle hit: more
     # the listing that mends such counts lists crossings, whatever room it is given
     # (the count's first pass may find a triangle once a leaf that holds a copy)
-    rays = krays._Rays(tracer, o, d, 0.0, np.inf)
+    rays = query_rays.QueryRays(tracer, o, d, 0.0, np.inf)
     for caps in (60, 200):
-        crossed, _ = krays._list(tracer, rays, caps, crossing=True)
+        crossed, _ = hit_lists.list_hits(tracer, rays, caps, crossing=True)
         assert np.diff(crossed.offsets).tolist() == [40, 40, 40, 20]
         assert np.all(np.isin(crossed.prim, hits.prim))
     # a first pass's few private slots (list_first) keep the nearest crossings, and
     # mark every ray as having more
-    few, more = krays._list(tracer, rays, krays.LIST_SLOTS, crossing=True)
-    k = krays.LIST_SLOTS
+    few, more = hit_lists.list_hits(tracer, rays, query_rays.LIST_SLOTS, crossing=True)
+    k = query_rays.LIST_SLOTS
     assert np.diff(few.offsets).tolist() == [k] * 4 and more.all()
     for i in range(4):
         t, prim = crossed.of(i)
@@ -1103,7 +1104,7 @@ def test_long_lists_through_copies_are_each_triangle_once(runtime, walk):
     along[1::4] = False
     assert (hits.counts[along] >= k).all()          # every quad, each once
     # counts find their copies too (kd_count_hit), of every hit and of crossings
-    rays = krays._Rays(tracer, o, d, 0.0, np.inf)
+    rays = query_rays.QueryRays(tracer, o, d, 0.0, np.inf)
     assert np.array_equal(krays._counts(tracer, rays, False), hits.counts)
     crossed = all_hits(v[f], o, d, crossing=True)[0]
     assert np.array_equal(tracer.count(o, d), np.bincount(crossed, minlength=n))
@@ -1166,14 +1167,14 @@ def test_counts_of_hits_out_of_order_are_mended(runtime, walk):
         kw = {"packet": 1} if walk == "one ray" else {}
         tracer = Tracer(tree, device=runtime.spec, **kw)
         tracer._alone_spread = 1e30 if walk == "packets" else None   # k-d packets
-        rays = krays._Rays(tracer, o, d, 0.0, np.inf)
-        counts, raw = krays._count_pass(tracer, rays, True)
+        rays = query_rays.QueryRays(tracer, o, d, 0.0, np.inf)
+        counts, raw = query_rays.count_pass(tracer, rays, True)
         assert len(raw) == (n if outer_first else 0)
         if walk == "packets" and tracer.packet > 1:
             # the same rays alone (Tracer._packet_rules reach the queries' programs):
             # the wide walk meets each triangle once and keeps no hits
             tracer._alone_spread = -1.0
-            assert len(krays._count_pass(tracer, rays, True)[1]) == 0
+            assert len(query_rays.count_pass(tracer, rays, True)[1]) == 0
             tracer._alone_spread = 1e30
         if not outer_first:
             assert (counts == 40).all()
@@ -1207,7 +1208,7 @@ def test_a_copy_met_after_its_twin_was_dropped_is_not_counted_twice(runtime):
     tree.validate()
     tracer = Tracer(tree, device=runtime.spec, packet=1)
     o, d = np.array([[-2.0, 0.1, 0.2]]), np.array([[1.0, 0.0, 0.0]])
-    counts, raw = krays._count_pass(tracer, krays._Rays(tracer, o, d, 0.0, np.inf), False)
+    counts, raw = query_rays.count_pass(tracer, query_rays.QueryRays(tracer, o, d, 0.0, np.inf), False)
     assert raw.tolist() == [0]
     assert tracer.count(o, d).tolist() == [m]
     assert tracer.intersections(o, d).prim.tolist() == list(range(m))
