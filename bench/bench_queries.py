@@ -192,8 +192,8 @@ def convex_inside(v, f, p, chunk=1 << 16):
 
 
 def wrong_answers(args):
-    print(f"wrong inside answers against the exact half-space test (points within 1e-9 "
-          f"of a face left out)")
+    print("wrong inside answers against the exact half-space test (points within 1e-9 "
+          "of a face left out)")
     rng = np.random.default_rng(2)
     for label, (v, f), g, about in (
             ("grid cube [-2, 2]^3", grid_cube(2), np.arange(-3, 3.25, 0.25), "the vertices"),

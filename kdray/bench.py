@@ -40,7 +40,7 @@ import time
 
 import numpy as np
 
-from .errors import MeshError, OutputError, ParameterError
+from .errors import MeshError, ParameterError
 
 BUILD_KEYS = {"K_T": float, "K_I": float, "empty_bonus": float, "max_depth": int, "leaf_size": int}
 KERNEL_KEYS = {"stack": int, "local": int, "batch": int, "refine": int}

@@ -885,7 +885,6 @@ def sdf(scene, output, resolution, padding, sign, occupancy, samples, sigma, uni
         warnings.simplefilter("ignore", OpenMeshWarning)     # _warn_parity's
         if samples is None:
             what = "occupancy" if occupancy else "signed distances"
-            total = resolution ** 3
             shown = [0]
 
             def progress(done, total):

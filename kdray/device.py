@@ -602,13 +602,13 @@ def device_table():
     the default device: a DeviceTable. Raises DeviceError only when there is no platform."""
     platforms = _platforms()
     rows, everything = [], []
-    for i, platform in enumerate(platforms):
+    for i, cl_platform in enumerate(platforms):
         entries = []
-        for j, device in enumerate(_devices(platform)):
+        for j, device in enumerate(_devices(cl_platform)):
             entries.append(DeviceEntry(f"{i}:{j}", device, implementation(device),
                                        device_kind(device), describe(device), probe(device)))
         everything += entries
-        rows.append((i, platform.name.strip(), platform.version.strip(), tuple(entries)))
+        rows.append((i, cl_platform.name.strip(), cl_platform.version.strip(), tuple(entries)))
     default, error = None, ""
     try:
         chosen = choose_device(None)
