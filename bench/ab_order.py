@@ -1,18 +1,21 @@
 """Rays taken in kdray.ray_order's order against the same rays as they come, in turns:
 what the order gains or costs, mesh by mesh and ray kind by ray kind, and where its
-thresholds (ORDER_TREE_BYTES, ORDER_FROM, DIRECTION_ORDER_FROM) lie.
+thresholds (ORDER_TREE_BYTES, ORDER_FROM, DIRECTION_ORDER_FROM, FOLLOW_ORDER_FROM) lie.
 
 usage: python bench/ab_order.py [--meshes bunny,bunny-x4,bunny-1.6M]
-                                [--kinds uniform,centre,ao,aimed] [--rays 1048576]
+                                [--kinds uniform,centre,ao,aimed,light,sun]
+                                [--rays 1048576]
                                 [--calls trace] [--rounds 3] [--keys auto]
-                                [--presorted]
+                                [--presorted] [--against-entry]
 
-Rays: bench_embree.py's `uniform`, `centre` (one (3,) origin) and `ao`, and
+Rays: bench_embree.py's `uniform`, `centre` (one (3,) origin), `ao`, `light` and `sun`
+(shadow rays from points on the mesh toward a point light, along the sun's direction), and
 bench_queries.py's `aimed` (from a sphere around the mesh to points on its surface),
 and `spread=S`: random directions from origins uniform in a cube of side S times the
 box's longest side about its centre, in (N, 3) rows (where ray_order.CONCENTRATED
-lies); float64. --keys: `auto` (ray_order's choice), or `direction` or `entry` for
-every kind (ray_order.concentrated answering so). Calls: `trace` (t and prim), and any
+lies); float64. --keys: `auto` (ray_order's choice), or `direction`, `cell` or `entry`
+for every kind (ray_order.concentrated and ray_order.follow answering so). Calls:
+`trace` (t and prim), and any
 of `occluded`, `count`, `intersections`.
 Each round times each call once ordered (the order forced for every tree size and
 ray count: the keys on the device and their sort included) and once as the rays come
@@ -24,7 +27,10 @@ reads out of memory order cost nothing (ms, and / as they come); then where the
 difference goes: `order given`, the rays as they come with their order made
 beforehand (no keys, no sort), and `identity`, the presorted rays through the order
 0, 1, 2, ... (the kernel's way with an order: each lane read and written by itself,
-in memory order).
+in memory order). With --against-entry, also the rays in the entry keys' order (octant,
+then the 16^3 cell where a ray enters the box; ray_order.concentrated and follow
+answering False), in the same turns: what the keys ray_order chose gain over those
+(ms, and / as they come).
 """
 import argparse
 import os
@@ -65,14 +71,25 @@ def main():
     ap.add_argument("--rays", type=int, default=1 << 20)
     ap.add_argument("--calls", default="trace")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--keys", default="auto", choices=("auto", "direction", "entry"))
+    ap.add_argument("--keys", default="auto", choices=("auto", "direction", "cell", "entry"))
     ap.add_argument("--presorted", action="store_true")
+    ap.add_argument("--against-entry", action="store_true")
     args = ap.parse_args()
     if args.keys != "auto":
         ray_order.concentrated = lambda *a, **k: args.keys == "direction"
+        ray_order.follow = lambda *a, **k: args.keys == "cell"
     ordered, as_they_come = ray_order.ray_order, (lambda *a: None)
+
+    def entry_order(*a):
+        """ray_order with the entry keys whatever the rays."""
+        chosen = ray_order.concentrated, ray_order.follow
+        ray_order.concentrated = ray_order.follow = lambda *x, **k: False
+        try:
+            return ordered(*a)
+        finally:
+            ray_order.concentrated, ray_order.follow = chosen
     ray_order.ORDER_TREE_BYTES, ray_order.ORDER_FROM = 0, 1     # forced: a ray_order per call
-    ray_order.DIRECTION_ORDER_FROM = 1
+    ray_order.DIRECTION_ORDER_FROM = ray_order.FOLLOW_ORDER_FROM = 1
     print(f"# {args.rays} rays, best of {args.rounds} rounds in turns; ms ordered / as they come")
     for name in args.meshes.split(","):
         m = bench_mesh(name)
@@ -96,6 +113,8 @@ def main():
                 if kind == "centre":
                     o = o[0]
             ways = [("ordered", ordered, o, d), ("as they come", as_they_come, o, d)]
+            if args.against_entry:
+                ways.append(("entry keys", entry_order, o, d))
             if args.presorted:
                 lo, hi = tracer.tree.world_box()
                 order = ordered(tracer, o.reshape(-1, 3), d, lo, hi, int(o.ndim == 2))
@@ -121,7 +140,8 @@ def main():
                            for a, b in zip(got["ordered"], got["as they come"]))
                 a, b = best["ordered"] * 1e3, best["as they come"] * 1e3
                 pre = "".join(f"  {way} {best[way] * 1e3:8.1f} = {best[way] * 1e3 / b:.2f}"
-                              for way in ("presorted", "order given", "identity") if way in best)
+                              for way in ("entry keys", "presorted", "order given", "identity")
+                              if way in best)
                 print(f"{name:<11} {tracer.device_bytes / 2**20:6.1f} MB {kind:<13} {call:<13} "
                       f"{a:8.1f} / {b:8.1f} = {a / b:.2f}  {'same' if same else 'DIFFERENT'}"
                       + pre, flush=True)

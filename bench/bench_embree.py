@@ -15,6 +15,10 @@ Ray kinds (seeded, float64, world coordinates):
             and Mitsuba taking no t_min
   aimed     (not in the default kinds) rays that mostly hit, from a sphere around the
             mesh to random points on its surface (bench_queries.py's)
+  light     (not in the default kinds) shadow rays: points on triangles (as ao's)
+            toward a point light one box diagonal from the box's centre (LIGHT), the
+            directions the light's offset, origins moved as ao's
+  sun       (not in the default kinds) the same points along one direction (LIGHT's)
   camera    the framing camera's size x size rays (kdray.Camera.frame)
 Methods, timed in turns (timing.round_robin, every call 0.1 s after the one before),
 each up to its caster's own outputs (t, and prim or the id image, as numpy arrays; in
@@ -91,9 +95,26 @@ def ao_rays(mesh, n, rng, offset):
     return o + offset * d, d
 
 
+LIGHT = np.array([0.3, 1.0, 0.6]) / np.linalg.norm([0.3, 1.0, 0.6])
+"""Where `light`'s point light lies from the box's centre (times its diagonal), and
+`sun`'s direction."""
+
+
+def shadow_rays(mesh, n, rng, lo, hi, sun=False):
+    """Rays from points on triangles (uniform by area, as `ao_rays`') toward a point
+    light (LIGHT times the box's diagonal from its centre), or along LIGHT (sun), the
+    points moved AO_OFFSET of the diagonal along each ray: (o, d) (n, 3) float64."""
+    p, _ = ao_rays(mesh, n, rng, 0.0)
+    diag = float(np.linalg.norm(hi - lo))
+    d = np.tile(LIGHT, (n, 1)) if sun else 0.5 * (lo + hi) + diag * LIGHT - p
+    return p + AO_OFFSET * diag * d / np.linalg.norm(d, axis=1)[:, None], d
+
+
 def rays_of(kind, mesh, tree, args, rng):
     """(o, d, camera or None) for a kind."""
     lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
+    if kind in ("light", "sun"):
+        return (*shadow_rays(mesh, args.rays, rng, lo, hi, sun=kind == "sun"), None)
     if kind == "uniform":
         return lo + (hi - lo) * rng.random((args.rays, 3)), unit(rng, args.rays), None
     if kind == "centre":

@@ -18,6 +18,14 @@ them walks the tree as one (kernels/packet.cl, kd_alone), at any size of tree: 2
 rays from the bunny's centre in random directions, taken so, trace in 0.59x the time,
 from a 1.6M-triangle scan's in 0.46x (BENCHMARKS.md, "Incoherent rays").
 
+Rays from points spread over the scene whose directions follow their points (toward
+a point light or along the sun's direction from points on a mesh, along the surface's
+normals: a shadow, visibility or thickness test) head alike wherever their origins lie
+close, but octants and 16^3 cells leave too many of them apart. Where neighbouring
+rays of a sample, taken by where they enter the box, head alike (`follow`), they are
+taken in Morton order of the cell of a 32^3 grid where they enter the box
+(`cell_keys`), at any size of tree, and packets of them walk as one.
+
 `ray_order` decides from a sample whether the rays are in no such order already (a
 camera's rows, a lidar's sweep, rays from one point in turn are), and gives the order
 or None. The kernels read slot j's ray through order[j] and write its outputs at its
@@ -50,8 +58,23 @@ share too few nodes (`kd_alone` lets them walk as one), and direction keys then 
 more than they save (BENCHMARKS.md, "Incoherent rays")."""
 
 ORIGIN_BITS = 4
-"""A side of the entry points' grid: 2^ORIGIN_BITS cells (kernels/ray_order.cl has 16),
-so the key (octant and cell) fits in 15 bits, which numpy sorts by radix."""
+"""A side of the entry points' grid: 2^ORIGIN_BITS cells, so the key (octant and cell)
+fits in 15 bits, which numpy sorts by radix."""
+
+CELL_BITS = 5
+"""A side of `cell_keys`' grid: 2^CELL_BITS cells, a key of 15 bits, with no octant:
+rays that head alike mostly share one."""
+
+FOLLOW_COS = 0.9
+"""Rays follow their origins (`follow`) where the median cosine between the directions
+of neighbouring rays of the sample, taken in `cell_keys` order, is at least this (about
+25 degrees): 1.000 for rays toward a point light or along the sun's direction from
+points on the bunny, 0.52 for ambient-occlusion rays (cosine-weighted about each
+point's normal), about 0 for random directions."""
+
+FOLLOW_ORDER_FROM = 1 << 16
+"""Rays that follow their origins (`follow`) from which a trace considers ordering them
+(BENCHMARKS.md, "Incoherent rays")."""
 
 ORDER_TREE_BYTES = 16 << 20
 """Trees on the device from which rays in no order are ordered (nodes, triangles and
@@ -72,6 +95,22 @@ neighbouring rays fall in key (`ray_keys`): about half of them in random rays, a
 in a camera's rows or a lidar's sweep, none in rays already in order."""
 
 
+def _entry_cells(origins, directions, lo, hi, o_step, side):
+    """(N, 3) int64 cells (0 .. side - 1 on each axis) of a side^3 grid over the box lo ..
+    hi where rays origins (M, 3), directions (N, 3) (o_step 0: one origin for all, M =
+    1) enter it, the origin for a ray that starts inside, in float64 (kernels/
+    ray_order.cl's kd_entry in float); NaN and points beyond the box clamped."""
+    lo = np.asarray(lo, dtype=np.float64)
+    size = np.asarray(hi, dtype=np.float64) - lo
+    d = np.asarray(directions, dtype=np.float64)
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)[:len(d) if o_step else 1] - lo
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        near = (np.where(d < 0, size, 0.0) - o) / d
+        t = np.fmax(np.fmax.reduce(near, axis=1), 0.0)        # fmax drops NaN
+        cells = (o + t[:, None] * d) * (side / size)
+    return np.where(cells >= side - 1, side - 1, np.where(cells > 0, cells, 0)).astype(np.int64)
+
+
 def ray_keys(origins, directions, lo, hi, o_step=1):
     """(N,) uint16, in numpy (float64): kernels/ray_order.cl's keys (`device_keys`) of
     rays origins (M, 3), directions (N, 3) (o_step 0: one origin for all, M = 1) over
@@ -80,16 +119,8 @@ def ray_keys(origins, directions, lo, hi, o_step=1):
     box where the ray enters it (the origin, for a ray that starts inside). The kernel
     computes in float: a key may differ where the entry lies within rounding of a
     cell's side."""
-    lo = np.asarray(lo, dtype=np.float64)
-    size = np.asarray(hi, dtype=np.float64) - lo
     d = np.asarray(directions, dtype=np.float64)
-    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)[:len(d) if o_step else 1] - lo
-    side = float(1 << ORIGIN_BITS)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        near = (np.where(d < 0, size, 0.0) - o) / d
-        t = np.fmax(np.fmax.reduce(near, axis=1), 0.0)        # fmax drops NaN
-        cells = (o + t[:, None] * d) * (side / size)
-    cell = np.where(cells >= side - 1, side - 1, np.where(cells > 0, cells, 0)).astype(np.uint16)
+    cell = _entry_cells(origins, d, lo, hi, o_step, float(1 << ORIGIN_BITS))
     key = np.zeros(len(d), dtype=np.uint16)
     for k in range(3):
         key |= MORTON_SPREAD[cell[:, k]] << np.uint16(k)
@@ -97,9 +128,22 @@ def ray_keys(origins, directions, lo, hi, o_step=1):
     return key
 
 
+def cell_keys(origins, directions, lo, hi, o_step=1):
+    """(N,) uint16, in numpy (float64): kernels/ray_order.cl's cell keys (`device_keys`
+    with keys="cell") of rays as `ray_keys` takes them: the Morton code of the cell of a
+    32^3 grid over the box where each ray enters it (bit 3 b + k: bit b of the cell's
+    index on axis k), with no octant. The kernel computes in float: a key may differ
+    where the entry lies within rounding of a cell's side."""
+    cell = _entry_cells(origins, directions, lo, hi, o_step, float(1 << CELL_BITS))
+    key = np.zeros(len(cell), dtype=np.uint16)
+    for k in range(3):
+        key |= MORTON_SPREAD[cell[:, k]] << np.uint16(k)
+    return key
+
+
 def direction_keys(directions):
     """(N,) uint16, in numpy (float64): kernels/ray_order.cl's direction keys
-    (`device_keys` with by_direction) of directions (N, 3): the Morton code of each
+    (`device_keys` with keys="direction") of directions (N, 3): the Morton code of each
     one's cell in a 256 x 256 grid over the octahedral map of directions (bit 2 b: bit b
     of the cell's column u, bit 2 b + 1: of its row v). The kernel computes in float: a
     key may differ where the direction lies within rounding of a cell's side."""
@@ -142,49 +186,74 @@ def concentrated(origins, directions, lo, hi, o_step=1):
     return len(o) > 0 and float(np.ptp(o, axis=0).max()) <= CONCENTRATED * side
 
 
-def unordered(origins, directions, lo, hi, o_step=1, by_direction=False):
-    """Whether the rays (as `ray_keys` takes them) are in no order of their own: in more
-    than UNORDERED_SHARE of the sample's neighbouring rays, the key (by_direction:
-    `direction_keys`, else `ray_keys`) falls."""
+def follow(origins, directions, lo, hi, o_step=1):
+    """Whether the rays (as `ray_keys` takes them, from spread origins) head alike where
+    they enter the box close together: the sample's rays with a finite, nonzero
+    direction, taken in `cell_keys` order, have a median cosine of FOLLOW_COS or more
+    between neighbours' directions (rays toward a point light or along the sun's
+    direction from points on a mesh; not rays in random directions)."""
     n = len(directions)
-    if n < max(DIRECTION_ORDER_FROM if by_direction else ORDER_FROM, SAMPLE_RUN):
+    if not o_step or n < SAMPLE_RUN:
         return False
     rows = _sample_rows(n)
-    if by_direction:
-        keys = direction_keys(directions[rows])
+    o = np.asarray(origins[rows], dtype=np.float64)
+    d = np.asarray(directions[rows], dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        length = np.linalg.norm(d, axis=1)
+        ok = np.isfinite(o).all(axis=1) & np.isfinite(length) & (length > 0)
+    if np.count_nonzero(ok) < 2:
+        return False
+    o, d = o[ok], d[ok] / length[ok, None]
+    d = d[np.argsort(cell_keys(o, d, lo, hi), kind="stable")]
+    return float(np.median(np.sum(d[1:] * d[:-1], axis=1))) >= FOLLOW_COS
+
+
+def unordered(origins, directions, lo, hi, o_step=1, keys="entry"):
+    """Whether the rays (as `ray_keys` takes them) are in no order of their own: in more
+    than UNORDERED_SHARE of the sample's neighbouring rays, the key (keys: "entry",
+    `ray_keys`; "direction", `direction_keys`; "cell", `cell_keys`) falls."""
+    n = len(directions)
+    least = {"entry": ORDER_FROM, "direction": DIRECTION_ORDER_FROM, "cell": FOLLOW_ORDER_FROM}
+    if n < max(least[keys], SAMPLE_RUN):
+        return False
+    rows = _sample_rows(n)
+    if keys == "direction":
+        key = direction_keys(directions[rows])
     else:
-        keys = ray_keys(origins[rows] if o_step else origins, directions[rows], lo, hi, o_step)
-    keys = keys.reshape(SAMPLE_RUNS, SAMPLE_RUN)
-    return float(np.mean(keys[:, 1:] < keys[:, :-1])) > UNORDERED_SHARE
+        of = ray_keys if keys == "entry" else cell_keys
+        key = of(origins[rows] if o_step else origins, directions[rows], lo, hi, o_step)
+    key = key.reshape(SAMPLE_RUNS, SAMPLE_RUN)
+    return float(np.mean(key[:, 1:] < key[:, :-1])) > UNORDERED_SHARE
 
 
-def device_keys(tracer, origins, directions, lo, hi, o_step=1, buffers=None,
-                by_direction=False):
-    """(N,) uint16: `ray_keys` of the rays (by_direction: `direction_keys` of their
-    directions), computed on the tracer's device (kernels/ray_order.cl): origins (M, 3)
-    and directions (N, 3), float32 or float64 arrays as the kernels read them, read in
-    place on a CPU. buffers: None, or the device buffers the caller already holds them
-    in, ((o_buf, o_offset), (d_buf, d_offset)) in elements, so that a GPU is not sent
-    them twice."""
+def device_keys(tracer, origins, directions, lo, hi, o_step=1, buffers=None, keys="entry"):
+    """(N,) uint16: the rays' keys (keys: "entry", `ray_keys`; "direction",
+    `direction_keys` of their directions; "cell", `cell_keys`), computed on the
+    tracer's device (kernels/ray_order.cl): origins (M, 3) and directions (N, 3),
+    float32 or float64 arrays as the kernels read them, read in place on a CPU.
+    buffers: None, or the device buffers the caller already holds them in, ((o_buf,
+    o_offset), (d_buf, d_offset)) in elements, so that a GPU is not sent them twice."""
     n = len(directions)
     types = {"ORIGIN_T": C_TYPES[np.dtype(origins.dtype)],
              "DIRECTION_T": C_TYPES[np.dtype(directions.dtype)]}
     entry = tracer._built("ray_order.cl", types, ("ray_keys", "direction_keys"))
-    keys = page_aligned_empty((n,), np.uint16)
+    out = page_aligned_empty((n,), np.uint16)
     if buffers is None:
         buffers = (tracer._input_buffer(np.ascontiguousarray(origins)),
                    tracer._input_buffer(np.ascontiguousarray(directions)))
     (o_buf, o_at), (d_buf, d_at) = buffers
-    if by_direction:
+    if keys == "direction":
         name, args = "direction_keys", (d_buf, np.uint32(d_at), np.uint32(n))
     else:
         lo = np.asarray(lo, dtype=np.float64)
         size = np.asarray(hi, dtype=np.float64) - lo
+        # a side of the grid, and whether the octant is in the key
+        grid = (1 << ORIGIN_BITS, 1) if keys == "entry" else (1 << CELL_BITS, 0)
         name, args = "ray_keys", (o_buf, d_buf, np.uint32(o_at), np.uint32(d_at),
                                   np.uint32(o_step), np.uint32(n), *lo.astype(np.float32),
-                                  *size.astype(np.float32))
-    tracer._run_items(entry, name, n, args, {"keys": keys}, local=KEYS_LOCAL)
-    return keys
+                                  *size.astype(np.float32), *map(np.uint32, grid))
+    tracer._run_items(entry, name, n, args, {"keys": out}, local=KEYS_LOCAL)
+    return out
 
 
 KEYS_LOCAL = 64
@@ -195,16 +264,23 @@ def ray_order(tracer, origins, directions, lo, hi, o_step=1, buffers=None):
     """None, or the (N,) uint32 order in which to trace rays (origins (M, 3),
     directions (N, 3), as the kernels read them, in the frame of the box lo .. hi)
     that are in no order of their own (`unordered`): rays from about one point
-    (`concentrated`) by their directions through any tree, others by where they enter
-    the box through a tree that takes ORDER_TREE_BYTES or more on the device
-    (`Tracer.device_bytes`); by their keys (`device_keys`, buffers as it takes them),
-    stable (numpy's radix sort of 16-bit keys)."""
-    by_direction = concentrated(origins, directions, lo, hi, o_step)
-    if not by_direction and tracer.device_bytes < ORDER_TREE_BYTES:
+    (`concentrated`) by their directions and rays that `follow` their origins by the
+    32^3 cell where they enter the box, through any tree; others by their octant and
+    where they enter the box through a tree that takes ORDER_TREE_BYTES or more on the
+    device (`Tracer.device_bytes`); by their keys (`device_keys`, buffers as it takes
+    them), stable (numpy's radix sort of 16-bit keys)."""
+    n = len(directions)
+    if concentrated(origins, directions, lo, hi, o_step):
+        keys = "direction"
+    elif n >= FOLLOW_ORDER_FROM and follow(origins, directions, lo, hi, o_step):
+        keys = "cell"
+    elif tracer.device_bytes >= ORDER_TREE_BYTES:
+        keys = "entry"
+    else:
         return None
-    if not unordered(origins, directions, lo, hi, o_step, by_direction):
+    if not unordered(origins, directions, lo, hi, o_step, keys):
         return None
-    key = device_keys(tracer, origins, directions, lo, hi, o_step, buffers, by_direction)
+    key = device_keys(tracer, origins, directions, lo, hi, o_step, buffers, keys)
     order = page_aligned_empty((len(key),), np.uint32)    # read in place (trace.py)
     order[:] = np.argsort(key, kind="stable")
     return order

@@ -4,7 +4,10 @@
  *   ray_keys        each ray's 15-bit key: the octant of its direction (bit 12 + k:
  *                   component k negative) over the Morton code of the cell of a 16^3
  *                   grid over the scene's box where the ray enters it (bit 3 b + k: bit
- *                   b of the cell's index on axis k)
+ *                   b of the cell's index on axis k); or, for rays whose directions
+ *                   follow their origins (toward a point light, along the sun's
+ *                   direction, along a surface's normals: kdray/ray_order.py's cell
+ *                   keys), the Morton code of that cell in a 32^3 grid, with no octant
  *   direction_keys  for rays from one point (or a few close together): each ray's
  *                   16-bit key, the Morton code of its direction's cell in a 256 x 256
  *                   grid over the octahedral map of directions (bit 2 b: bit b of the
@@ -29,35 +32,39 @@
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
 
-/* bits 0..3 of c spread to bits 0, 3, 6, 9 */
+/* bits 0..4 of c spread to bits 0, 3, 6, 9, 12 */
 KD_INLINE
-uint kd_spread4(uint c)
+uint kd_spread5(uint c)
 {
-    return (c & 1u) | ((c & 2u) << 2) | ((c & 4u) << 4) | ((c & 8u) << 6);
+    return (c & 1u) | ((c & 2u) << 2) | ((c & 4u) << 4) | ((c & 8u) << 6) | ((c & 16u) << 8);
 }
 
-/* The cell (0..15) of offset x along an axis whose 16 cells are 1 / cells_per apart:
+/* The cell (0 .. last) of offset x along an axis whose cells are 1 / cells_per apart:
  * NaN and anything beyond the box go to the nearest end. */
 KD_INLINE
-uint kd_cell16(float x, float cells_per)
+uint kd_cell(float x, float cells_per, float last)
 {
     float c = x * cells_per;
-    return c >= 15.0f ? 15u : (c > 0.0f ? (uint)c : 0u);
+    return c >= last ? (uint)last : (c > 0.0f ? (uint)c : 0u);
 }
 
 /* keys[k] for rays k = 0 .. n - 1: origin k * o_step (o_step 0: one origin for all) and
  * direction k, from element o_offset and d_offset of their buffers (kdray/trace.py,
- * _input_buffer). lo: the box's low corner; size: its extent along each axis. One
- * ray a work-item (a loop over rays in each took 2.5x as long on Intel's runtime). */
+ * _input_buffer): the Morton code of the cell of a side^3 grid where the ray enters
+ * the box, o + t d at the largest of 0 and the near slab planes' t (the origin for a
+ * ray inside it), with octant 1 over the octant of its direction (kdray/ray_order.py:
+ * side 16 with the octant, its ray_keys; 32 without, its cell_keys). lo: the box's low corner; size: its extent along each axis. One ray a
+ * work-item (a loop over rays in each took 2.5x as long on Intel's runtime). */
 __kernel void ray_keys(__global const ORIGIN_T *origins, __global const DIRECTION_T *directions,
                        uint o_offset, uint d_offset, uint o_step, uint n,
                        float lo_x, float lo_y, float lo_z, float size_x, float size_y,
-                       float size_z, __global ushort *keys)
+                       float size_z, uint side, uint octant, __global ushort *keys)
 {
     origins += o_offset;
     directions += d_offset;
     float size[3] = {size_x, size_y, size_z};
-    float cells_per[3] = {16.0f / size_x, 16.0f / size_y, 16.0f / size_z};
+    float cells = (float)side, last = (float)(side - 1u);
+    float cells_per[3] = {cells / size_x, cells / size_y, cells / size_z};
     uint k = (uint)get_global_id(0);
     if (k < n) {
         size_t at = 3 * (size_t)k * o_step;
@@ -73,8 +80,9 @@ __kernel void ray_keys(__global const ORIGIN_T *origins, __global const DIRECTIO
             t = fmax(t, ((d[a] < 0.0f ? size[a] : 0.0f) - o[a]) / d[a]);
         uint key = 0u;
         for (uint a = 0; a < 3u; a++) {
-            key |= kd_spread4(kd_cell16(o[a] + t * d[a], cells_per[a])) << a;
-            key |= (d[a] < 0.0f ? 1u : 0u) << (12u + a);
+            key |= kd_spread5(kd_cell(o[a] + t * d[a], cells_per[a], last)) << a;
+            if (octant)
+                key |= (d[a] < 0.0f ? 1u : 0u) << (12u + a);
         }
         keys[k] = (ushort)key;
     }

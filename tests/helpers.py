@@ -347,6 +347,7 @@ def force_ray_order(monkeypatch, module):
 
     monkeypatch.setattr(ray_order, "ORDER_FROM", 1)
     monkeypatch.setattr(ray_order, "DIRECTION_ORDER_FROM", 1)
+    monkeypatch.setattr(ray_order, "FOLLOW_ORDER_FROM", 1)
     monkeypatch.setattr(ray_order, "ORDER_TREE_BYTES", 0)
     monkeypatch.setattr(module, "ray_order", spy)
     return taken

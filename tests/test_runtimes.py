@@ -608,6 +608,19 @@ def test_rays_taken_in_an_order_give_the_same_hits(runtime, monkeypatch, packet)
     # its keys (kernels/ray_order.cl) are numpy's but where float rounds otherwise
     keys = ray_order.device_keys(tr, o, d, lo, hi)
     assert np.mean(keys == ray_order.ray_keys(o, d, lo, hi)) > 0.99
-    keys = ray_order.device_keys(tr, centre[None], one_d, lo, hi, 0, by_direction=True)
+    keys = ray_order.device_keys(tr, centre[None], one_d, lo, hi, 0, keys="direction")
     assert np.mean(keys == ray_order.direction_keys(one_d)) > 0.99
     assert np.array_equal(taken[1], np.argsort(keys, kind="stable"))
+    # rays that follow their origins (toward a point beyond the box), by their cells
+    light = hi + (hi - lo)
+    to_light = light - o
+    assert ray_order.follow(o, to_light, lo, hi)
+    keys = ray_order.device_keys(tr, o, to_light, lo, hi, keys="cell")
+    assert np.mean(keys == ray_order.cell_keys(o, to_light, lo, hi)) > 0.99
+    ordered = tr.trace(o, to_light)
+    assert len(taken) == 3 and taken[2] is not None
+    assert np.array_equal(np.sort(taken[2]), np.arange(len(o)))
+    by_key = keys[taken[2]].astype(np.int64)      # (taken from the rays in the tree's frame)
+    assert np.mean(by_key[1:] >= by_key[:-1]) > 0.99
+    monkeypatch.setattr(trace, "ray_order", lambda *args: None)
+    same_hits(ordered, tr.trace(o, to_light))

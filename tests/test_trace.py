@@ -496,7 +496,7 @@ def test_rays_from_one_point_are_put_in_order_of_direction(tracers):
     assert list(key[:4]) == [0xC000, 0xFFFF, 0xD555, 0x4000]
     # on the device, from float64 and float32 arrays
     for a in (d, d.astype(np.float32)):
-        got = ro.device_keys(tr, lo[None], a, lo, hi, 0, by_direction=True)
+        got = ro.device_keys(tr, lo[None], a, lo, hi, 0, keys="direction")
         assert got.dtype == np.uint16 and np.mean(got == key) > 0.999
     # one origin, or origins within a cell: ordered by direction, though the tree is small
     centre = 0.5 * (lo + hi)
@@ -506,7 +506,7 @@ def test_rays_from_one_point_are_put_in_order_of_direction(tracers):
         assert ro.concentrated(o, d, lo, hi, step)
         order = ro.ray_order(tr, o, d, lo, hi, step)
         assert order is not None and np.array_equal(np.sort(order), np.arange(n))
-        got = ro.device_keys(tr, o, d, lo, hi, step, by_direction=True)
+        got = ro.device_keys(tr, o, d, lo, hi, step, keys="direction")
         assert np.all(np.diff(got[order].astype(np.int64)) >= 0)
         assert ro.ray_order(tr, o[:1] if step == 0 else o[:n - 100], d[:n - 100], lo, hi,
                             step) is None                     # too few
@@ -518,6 +518,109 @@ def test_rays_from_one_point_are_put_in_order_of_direction(tracers):
     sweep = np.stack([np.cos(angle), np.sin(angle), 0.1 * np.ones(n)], axis=1)
     assert ro.ray_order(tr, centre[None], sweep, lo, hi, 0) is None
 
+
+def _surface_points(v, f, n, rng):
+    """(points (n, 3), unit normals (n, 3)) uniform by area on the triangles v[f] of
+    nonzero area."""
+    tri = v[f]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(normal, axis=1)
+    pick = rng.choice(len(f), size=n, p=area / area.sum())
+    r = rng.random((n, 2))
+    r[r.sum(axis=1) > 1] = 1 - r[r.sum(axis=1) > 1]
+    a, b, c = tri[pick, 0], tri[pick, 1], tri[pick, 2]
+    return a + r[:, :1] * (b - a) + r[:, 1:] * (c - a), normal[pick] / area[pick, None]
+
+
+def test_rays_that_follow_their_origins_are_put_in_order_of_cell(tracers, monkeypatch):
+    """kdray.ray_order: rays from points spread over a mesh whose directions follow their
+    points (toward a point light, along the sun's direction, into the surface along its
+    normals) are sorted by the 32^3 cell where they enter the box (`cell_keys`) at any
+    size of tree, from FOLLOW_ORDER_FROM rays; rays from the same points in random
+    directions, or in random directions about each normal (ambient occlusion), are
+    not (`follow`). A key is the Morton code of the entry's cell; the device's keys are
+    numpy's but where an entry lies within float rounding of a cell's side; rays
+    already in that order are left as they come; and trace, occluded, count and
+    intersections answer exactly as they do with the rays as they come."""
+    import kdray.query_rays as kquery
+    import kdray.ray_order as ro
+    tree = mesh_tree("teapot.obj", "sah")
+    tr = tracers(tree)
+    v, f = mesh("teapot.obj")
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in tree.world_box())
+    rng = np.random.default_rng(53)
+    n = ro.FOLLOW_ORDER_FROM + 77
+    p, normal = _surface_points(v, f, n, rng)
+    light = 0.5 * (lo + hi) + 2 * (hi - lo) * np.array([0.3, 1.0, 0.6])
+    random_d = rng.normal(size=(n, 3))
+    ao = normal + random_d / np.linalg.norm(random_d, axis=1)[:, None]
+    follow = {"point light": light - p, "sun": np.tile([0.3, 1.0, 0.6], (n, 1)),
+              "normals": -normal}
+    for name, d in {**follow, "random": random_d, "ambient occlusion": ao}.items():
+        assert ro.follow(p, d, lo, hi) == (name in follow), name
+    d = follow["point light"]
+    o = p + 1e-6 * d
+    key = ro.cell_keys(o, d, lo, hi)
+    assert key.dtype == np.uint16 and key.max() < 1 << 15
+    x = (o - lo) / (hi - lo) * 32                # every origin lies in the box
+    cell = np.clip(np.floor(x), 0, 31).astype(np.int64)
+    clear = np.all((np.abs(x - np.rint(x)) > 1e-6) | (np.rint(x) <= 0) | (np.rint(x) >= 32), axis=1)
+    for k in range(3):                           # bit b of axis k's cell at bit 3 b + k
+        for b in range(5):
+            assert np.array_equal(((key >> (3 * b + k)) & 1)[clear], ((cell[:, k] >> b) & 1)[clear])
+    # from outside the box: the cell where the ray enters it
+    out_o = o + 3 * np.linalg.norm(hi - lo) * d / np.linalg.norm(d, axis=1)[:, None]
+    with np.errstate(all="ignore"):
+        t = np.max(np.where(-d < 0, hi - out_o, lo - out_o) / -d, axis=1, initial=0.0)
+    entry = out_o - t[:, None] * d
+    assert np.mean(ro.cell_keys(out_o, -d, lo, hi) == ro.cell_keys(entry, -d, lo, hi)) > 0.99
+    for a, b, step in ((o, d, 1), (o.astype(np.float32), d.astype(np.float32), 1),
+                       (o[:1], d, 0)):
+        want = ro.cell_keys(a, b, lo, hi, step)
+        got = ro.device_keys(tr, a, b, lo, hi, step, keys="cell")
+        assert got.dtype == np.uint16 and np.mean(got == want) > 0.999
+    assert tr.device_bytes < ro.ORDER_TREE_BYTES
+    for name, d in follow.items():
+        order = ro.ray_order(tr, p, d, lo, hi)
+        assert order is not None and np.array_equal(np.sort(order), np.arange(n)), name
+        got = ro.device_keys(tr, p, d, lo, hi, keys="cell")
+        assert np.all(np.diff(got[order].astype(np.int64)) >= 0)
+        same = got[order][1:] == got[order][:-1]
+        assert np.all(np.diff(order.astype(np.int64))[same] > 0)       # stable
+        assert ro.ray_order(tr, p[order], d[order], lo, hi) is None     # in order already
+        assert ro.ray_order(tr, p[:n - 100], d[:n - 100], lo, hi) is None  # too few
+    assert ro.ray_order(tr, p, random_d, lo, hi) is None     # small tree: as they come
+    # the answers, ordered and as they come
+    d = follow["point light"]
+    t_max = np.full(n, 1.0)
+    t_max[::7] = 0.5
+    taken = []
+
+    def answers():
+        hits = tr.trace(o, d, 0.0, t_max)
+        listed = tr.intersections(o, d, 0.0, t_max)
+        return (hits.t, hits.prim, hits.u, hits.v, hits.normal,
+                tr.occluded(o, d, 0.0, t_max), tr.count(o, d, 0.0, t_max),
+                listed.offsets, listed.t, listed.prim, listed.u, listed.v)
+
+    def spy(*args):
+        taken.append(ro.ray_order(*args))
+        return taken[-1]
+
+    tr._poison_outputs = True
+    try:
+        monkeypatch.setattr(ktrace, "ray_order", spy)
+        monkeypatch.setattr(kquery, "ray_order", spy)
+        ordered = answers()
+        assert taken and all(t is not None for t in taken)
+        monkeypatch.setattr(ktrace, "ray_order", lambda *args: None)
+        monkeypatch.setattr(kquery, "ray_order", lambda *args: None)
+        as_they_come = answers()
+    finally:
+        tr._poison_outputs = False
+    for a, b in zip(ordered, as_they_come):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert 0.2 * n < np.count_nonzero(ordered[5]) < 0.9 * n
 
 def reversed_leaves(tree):
     """The same tree with every leaf's triangle list reversed (a valid tree, the same
