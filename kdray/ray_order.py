@@ -19,8 +19,8 @@ rays from the bunny's centre in random directions, taken so, trace in 0.59x the 
 from a 1.6M-triangle scan's in 0.46x (BENCHMARKS.md, "Incoherent rays").
 
 Rays from points spread over the scene whose directions follow their points (toward
-a point light or along the sun's direction from points on a mesh, along the surface's
-normals: a shadow, visibility or thickness test) head alike wherever their origins lie
+a point light or along the sun's direction from points on a mesh: a shadow or
+visibility test; along a smooth surface's normals) head alike wherever their origins lie
 close, but octants and 16^3 cells leave too many of them apart. Where neighbouring
 rays of a sample, taken by where they enter the box, head alike (`follow`), they are
 taken in Morton order of the cell of a 32^3 grid where they enter the box
@@ -69,8 +69,10 @@ FOLLOW_COS = 0.9
 """Rays follow their origins (`follow`) where the median cosine between the directions
 of neighbouring rays of the sample, taken in `cell_keys` order, is at least this (about
 25 degrees): 1.000 for rays toward a point light or along the sun's direction from
-points on the bunny, 0.52 for ambient-occlusion rays (cosine-weighted about each
-point's normal), about 0 for random directions."""
+points on the bunny, 0.97 for rays along the teapot's normals but 0.88-0.91 along the
+bunny's, 0.46-0.52 for ambient-occlusion rays (cosine-weighted about each point's
+normal), 0.67-0.81 for rays from a few dozen cameras to points on the bunny, about 0
+for random directions."""
 
 FOLLOW_ORDER_FROM = 1 << 16
 """Rays that follow their origins (`follow`) from which a trace considers ordering them
@@ -118,7 +120,8 @@ def ray_keys(origins, directions, lo, hi, o_step=1):
     component k is negative) over the Morton code of the cell of a 16^3 grid over the
     box where the ray enters it (the origin, for a ray that starts inside). The kernel
     computes in float: a key may differ where the entry lies within rounding of a
-    cell's side."""
+    cell's side (and, for float32 origins, the box's corner is float32 too: far from 0,
+    a grid shifted by its rounding)."""
     d = np.asarray(directions, dtype=np.float64)
     cell = _entry_cells(origins, d, lo, hi, o_step, float(1 << ORIGIN_BITS))
     key = np.zeros(len(d), dtype=np.uint16)
@@ -132,8 +135,7 @@ def cell_keys(origins, directions, lo, hi, o_step=1):
     """(N,) uint16, in numpy (float64): kernels/ray_order.cl's cell keys (`device_keys`
     with keys="cell") of rays as `ray_keys` takes them: the Morton code of the cell of a
     32^3 grid over the box where each ray enters it (bit 3 b + k: bit b of the cell's
-    index on axis k), with no octant. The kernel computes in float: a key may differ
-    where the entry lies within rounding of a cell's side."""
+    index on axis k), with no octant. The kernel computes as `ray_keys`' does."""
     cell = _entry_cells(origins, directions, lo, hi, o_step, float(1 << CELL_BITS))
     key = np.zeros(len(cell), dtype=np.uint16)
     for k in range(3):
@@ -250,7 +252,7 @@ def device_keys(tracer, origins, directions, lo, hi, o_step=1, buffers=None, key
         # a side of the grid, and whether the octant is in the key
         grid = (1 << ORIGIN_BITS, 1) if keys == "entry" else (1 << CELL_BITS, 0)
         name, args = "ray_keys", (o_buf, d_buf, np.uint32(o_at), np.uint32(d_at),
-                                  np.uint32(o_step), np.uint32(n), *lo.astype(np.float32),
+                                  np.uint32(o_step), np.uint32(n), *lo.astype(origins.dtype),
                                   *size.astype(np.float32), *map(np.uint32, grid))
     tracer._run_items(entry, name, n, args, {"keys": out}, local=KEYS_LOCAL)
     return out

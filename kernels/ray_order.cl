@@ -53,12 +53,15 @@ uint kd_cell(float x, float cells_per, float last)
  * _input_buffer): the Morton code of the cell of a side^3 grid where the ray enters
  * the box, o + t d at the largest of 0 and the near slab planes' t (the origin for a
  * ray inside it), with octant 1 over the octant of its direction (kdray/ray_order.py:
- * side 16 with the octant, its ray_keys; 32 without, its cell_keys). lo: the box's low corner; size: its extent along each axis. One ray a
- * work-item (a loop over rays in each took 2.5x as long on Intel's runtime). */
+ * side 16 with the octant, its ray_keys; 32 without, its cell_keys). lo: the box's low
+ * corner, in the origins' type (a float32 corner of a scene 1e6 from 0 is off by
+ * several of its cells); size: its extent along each axis. One ray a work-item (a
+ * loop over rays in each took 2.5x as long on Intel's runtime). */
 __kernel void ray_keys(__global const ORIGIN_T *origins, __global const DIRECTION_T *directions,
                        uint o_offset, uint d_offset, uint o_step, uint n,
-                       float lo_x, float lo_y, float lo_z, float size_x, float size_y,
-                       float size_z, uint side, uint octant, __global ushort *keys)
+                       ORIGIN_T lo_x, ORIGIN_T lo_y, ORIGIN_T lo_z, float size_x,
+                       float size_y, float size_z, uint side, uint octant,
+                       __global ushort *keys)
 {
     origins += o_offset;
     directions += d_offset;
@@ -68,9 +71,8 @@ __kernel void ray_keys(__global const ORIGIN_T *origins, __global const DIRECTIO
     uint k = (uint)get_global_id(0);
     if (k < n) {
         size_t at = 3 * (size_t)k * o_step;
-        float o[3] = {(float)(origins[at] - (ORIGIN_T)lo_x),
-                      (float)(origins[at + 1] - (ORIGIN_T)lo_y),
-                      (float)(origins[at + 2] - (ORIGIN_T)lo_z)};
+        float o[3] = {(float)(origins[at] - lo_x), (float)(origins[at + 1] - lo_y),
+                      (float)(origins[at + 2] - lo_z)};
         float d[3] = {(float)directions[3 * (size_t)k], (float)directions[3 * (size_t)k + 1],
                       (float)directions[3 * (size_t)k + 2]};
         /* the entry: t past every near slab plane (the low one where d >= 0, else
