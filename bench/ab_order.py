@@ -13,7 +13,10 @@ Rays: bench_embree.py's `uniform`, `centre` (one (3,) origin), `ao`, `light` and
 bench_queries.py's `aimed` (from a sphere around the mesh to points on its surface),
 and `spread=S`: random directions from origins uniform in a cube of side S times the
 box's longest side about its centre, in (N, 3) rows (where ray_order.CONCENTRATED
-lies); float64. --keys: `auto` (ray_order's choice), or `direction`, `cell` or `entry`
+lies); `normals`: from points on the mesh (as ao's) into it along their triangle's
+normal; `views=K`: from K eyes 1.5 box diagonals from its centre (random directions)
+to points on the mesh, the eyes in random turns (where ray_order.FOLLOW_COS lies);
+float64. --keys: `auto` (ray_order's choice), or `direction`, `cell` or `entry`
 for every kind (ray_order.concentrated and ray_order.follow answering so). Calls:
 `trace` (t and prim), and any
 of `occluded`, `count`, `intersections`.
@@ -64,6 +67,30 @@ def answer(tracer, call, o, d):
     return (getattr(tracer, call)(o, d),)
 
 
+def surface_rays(mesh, tree, kind, n, rng):
+    """(o, d) (n, 3) float64: `normals` (from points on the triangles, uniform by area,
+    into the mesh along each triangle's normal) or `views=K` (from K eyes around the
+    box to such points, each ray's eye at random), origins moved 1e-5 of the box's
+    diagonal along the ray."""
+    lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
+    diag = float(np.linalg.norm(hi - lo))
+    tri = mesh.triangles
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(normal, axis=1)
+    pick = rng.choice(len(tri), size=n, p=area / area.sum())
+    r = rng.random((n, 2))
+    r[r.sum(axis=1) > 1] = 1 - r[r.sum(axis=1) > 1]
+    p = tri[pick, 0] + r[:, :1] * (tri[pick, 1] - tri[pick, 0]) + r[:, 1:] * (tri[pick, 2] - tri[pick, 0])
+    if kind == "normals":
+        o, d = p, -normal[pick] / area[pick, None]
+    else:
+        eyes = rng.normal(size=(int(kind.split("=")[1]), 3))
+        eyes = 0.5 * (lo + hi) + 1.5 * diag * eyes / np.linalg.norm(eyes, axis=1)[:, None]
+        o = eyes[rng.integers(0, len(eyes), n)]
+        d = p - o
+    return o + 1e-5 * diag * d / np.linalg.norm(d, axis=1)[:, None], d
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--meshes", default="bunny,bunny-x4,bunny-1.6M")
@@ -103,6 +130,8 @@ def main():
         for kind in args.kinds.split(","):
             if kind == "aimed":
                 o, d = aimed(m, tree, args.rays)
+            elif kind == "normals" or kind.startswith("views="):
+                o, d = surface_rays(m, tree, kind, args.rays, rng)
             elif kind.startswith("spread="):
                 lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
                 side = float(kind.split("=")[1]) * np.max(hi - lo)

@@ -72,7 +72,8 @@ of neighbouring rays of the sample, taken in `cell_keys` order, is at least this
 points on the bunny, 0.97 for rays along the teapot's normals but 0.88-0.91 along the
 bunny's, 0.46-0.52 for ambient-occlusion rays (cosine-weighted about each point's
 normal), 0.67-0.81 for rays from a few dozen cameras to points on the bunny, about 0
-for random directions."""
+for random directions. Those below it gain nothing from the cell order (BENCHMARKS.md,
+"Rays that follow their origins")."""
 
 FOLLOW_ORDER_FROM = 1 << 16
 """Rays that follow their origins (`follow`) from which a trace considers ordering them
