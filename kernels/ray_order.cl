@@ -5,9 +5,9 @@
  *                   component k negative) over the Morton code of the cell of a 16^3
  *                   grid over the scene's box where the ray enters it (bit 3 b + k: bit
  *                   b of the cell's index on axis k); or, for rays whose directions
- *                   follow their origins (toward a point light, along the sun's
- *                   direction, along a surface's normals: kdray/ray_order.py's cell
- *                   keys), the Morton code of that cell in a 32^3 grid, with no octant
+ *                   follow their origins (toward a point light or along the sun's
+ *                   direction from points on a mesh: kdray/ray_order.py's cell keys),
+ *                   the Morton code of that cell in a 32^3 grid, with no octant
  *   direction_keys  for rays from one point (or a few close together): each ray's
  *                   16-bit key, the Morton code of its direction's cell in a 256 x 256
  *                   grid over the octahedral map of directions (bit 2 b: bit b of the
