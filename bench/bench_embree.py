@@ -3,7 +3,8 @@ Mitsuba 3, on the same rays in turns: incoherent rays and camera rays.
 
 usage: python bench/bench_embree.py [--meshes bunny,bunny-1.6M] [--rays 1048576]
                                     [--size 1024] [--repeat 5] [--sample 20000]
-                                    [--kinds uniform,centre,ao,camera] [--device SPEC]
+                                    [--kinds uniform,centre,ao,light,sun,camera]
+                                    [--device SPEC]
                                     [--occluded]
 
 Ray kinds (seeded, float64, world coordinates):
@@ -15,10 +16,10 @@ Ray kinds (seeded, float64, world coordinates):
             and Mitsuba taking no t_min
   aimed     (not in the default kinds) rays that mostly hit, from a sphere around the
             mesh to random points on its surface (bench_queries.py's)
-  light     (not in the default kinds) shadow rays: points on triangles (as ao's)
+  light     shadow rays: points on triangles (as ao's)
             toward a point light one box diagonal from the box's centre (LIGHT), the
             directions the light's offset, origins moved as ao's
-  sun       (not in the default kinds) the same points along one direction (LIGHT's)
+  sun       the same points along one direction (LIGHT's)
   camera    the framing camera's size x size rays (kdray.Camera.frame)
 Methods, timed in turns (timing.round_robin, every call 0.1 s after the one before),
 each up to its caster's own outputs (t, and prim or the id image, as numpy arrays; in
@@ -59,7 +60,7 @@ from timing import median_ratio, round_robin  # noqa: E402
 import kdray  # noqa: E402
 from kdray import reference  # noqa: E402
 
-KINDS = ("uniform", "centre", "ao", "camera")
+KINDS = ("uniform", "centre", "ao", "light", "sun", "camera")
 
 
 def unit(rng, n):
