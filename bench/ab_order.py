@@ -80,7 +80,8 @@ def surface_rays(mesh, tree, kind, n, rng):
     pick = rng.choice(len(tri), size=n, p=area / area.sum())
     r = rng.random((n, 2))
     r[r.sum(axis=1) > 1] = 1 - r[r.sum(axis=1) > 1]
-    p = tri[pick, 0] + r[:, :1] * (tri[pick, 1] - tri[pick, 0]) + r[:, 1:] * (tri[pick, 2] - tri[pick, 0])
+    a, b, c = tri[pick, 0], tri[pick, 1], tri[pick, 2]
+    p = a + r[:, :1] * (b - a) + r[:, 1:] * (c - a)
     if kind == "normals":
         o, d = p, -normal[pick] / area[pick, None]
     else:

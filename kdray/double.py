@@ -148,7 +148,8 @@ the origin's offset to the triangle's vertices and the origin's largest world
 coordinate (8 float64 roundings of either: a point sampled on the triangle, a + u
 (b - a) + v (c - a), is off its plane by the rounding of its world coordinates, which
 exceed the triangle's size where the mesh lies far from the world's origin), as the
-float32 test's t must pass its own rounding error (`hits_double(..., on_plane=True)`; kdray.hit_lists.nearest_in_range)."""
+float32 test's t must pass its own rounding error (`hits_double(..., on_plane=True)`;
+kdray.hit_lists.nearest_in_range)."""
 
 
 def _on_plane(tri, o):

@@ -44,6 +44,7 @@ that is renamed over the destination only once complete, so a failure or Ctrl-C 
 leaves a half-written file and never damages an existing one.
 """
 import json
+import mmap
 import os
 import struct
 
@@ -363,33 +364,45 @@ def _exr_whole(path):
     every chunk its offset table names, the last ending at the file's end. The library
     writes through a buffered stream whose last flush, at close, fails in silence on a
     full disk (a file of a few kilobytes came out empty, a larger one would lose its
-    end): checked here, before the file replaces anything."""
+    end): checked here, before the file replaces anything. The file is mapped, not
+    read: only its header, offset table and last chunk's head are touched."""
     with open(path, "rb") as f:
-        data = f.read()
-    try:
-        if data[:4] != b"\x76\x2f\x31\x01" or data[5:8] != b"\0\0\0":
+        try:
+            data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except ValueError:                         # an empty file
             return False
-        at, lines, y0, y1 = 8, None, None, None
-        while data[at] != 0:                       # attributes: name, type, size, value
-            name_end = data.index(b"\0", at)
-            type_end = data.index(b"\0", name_end + 1)
-            (size,) = struct.unpack_from("<i", data, type_end + 1)
-            value = type_end + 5
-            name = data[at:name_end]
-            if name == b"compression":
-                lines = _EXR_CHUNK_LINES.get(data[value])
-            elif name == b"dataWindow":
-                _, y0, _, y1 = struct.unpack_from("<4i", data, value)
-            at = value + size
-        if lines is None or y0 is None:
+    with data:
+        try:
+            return _exr_chunks_end(data) == len(data)
+        except (IndexError, ValueError, struct.error):
             return False
-        chunks = -(-(y1 - y0 + 1) // lines)
-        offsets = struct.unpack_from(f"<{chunks}Q", data, at + 1)
-        last = max(offsets)
-        (size,) = struct.unpack_from("<i", data, last + 4)
-        return last + 8 + size == len(data)
-    except (IndexError, ValueError, struct.error):
-        return False
+
+
+def _exr_chunks_end(data):
+    """Where the last chunk of the EXR file `data` (bytes-like) ends by its offset table,
+    or -1 where its header is not one write_exr writes."""
+    if data[:4] != b"\x76\x2f\x31\x01" or data[5:8] != b"\0\0\0":
+        return -1
+    at, lines, y0, y1 = 8, None, None, None
+    while data[at] != 0:                           # attributes: name, type, size, value
+        name_end = data.find(b"\0", at)
+        type_end = data.find(b"\0", name_end + 1)
+        if name_end < 0 or type_end < 0:
+            return -1
+        (size,) = struct.unpack_from("<i", data, type_end + 1)
+        value = type_end + 5
+        name = data[at:name_end]
+        if name == b"compression":
+            lines = _EXR_CHUNK_LINES.get(data[value])
+        elif name == b"dataWindow":
+            _, y0, _, y1 = struct.unpack_from("<4i", data, value)
+        at = value + size
+    if lines is None or y0 is None:
+        return -1
+    chunks = -(-(y1 - y0 + 1) // lines)
+    last = max(struct.unpack_from(f"<{chunks}Q", data, at + 1))
+    (size,) = struct.unpack_from("<i", data, last + 4)
+    return last + 8 + size
 
 
 def _object_names_header(images, object_names, path):

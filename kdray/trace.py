@@ -603,8 +603,8 @@ class Tracer:
             with the same hits bit for bit. (N, 3) rays that are an image in
             row-major or column-major order (a camera's rays flattened, as
             Camera.rays gives them) are found to be one (kdray.ray_grid) and traced
-            in blocks too, from
-            IMAGE_SEARCH_MIN_RAYS rays on (below, the search costs more than it saves).
+            in blocks too, from IMAGE_SEARCH_MIN_RAYS rays on (below, the search
+            costs more than it saves).
         t_min : >= 0 (default 0: hits behind the origin or at it never count)
         t_min, t_max : numbers, or (N,) arrays, a range a ray (each lane of a packet
             over its own): the same hits, t, u, v and normals as each ray would get

@@ -149,8 +149,8 @@ def test_image_rays_read_as_given_answer_as_float32_copies(runtime, where, monke
     lens = eye + 1e-3 * (hi_box - lo_box) * np.random.default_rng(6).random(image.shape)
     for o_given, d_given in ((eye, image), (lens, image),
                              (lens.astype(np.float32), image.astype(np.float32))):
-        rays = query_rays.as_image(tracer, query_rays.QueryRays(tracer, o_given, d_given, 0.0, np.inf),
-                            o_given, d_given)
+        given = query_rays.QueryRays(tracer, o_given, d_given, 0.0, np.inf)
+        rays = query_rays.as_image(tracer, given, o_given, d_given)
         assert rays.world and rays.image_w == 40
         d_flat = d_given.reshape(-1, 3)
         o_flat = np.broadcast_to(o_given, d_given.shape).reshape(-1, 3)
@@ -577,7 +577,8 @@ def test_packets_that_share_paths_walk_as_their_rays_alone(runtime, teapot_tree)
     # (N, 3) rays that are an image, from IMAGE_SEARCH_MIN_RAYS on, are found to be one
     tracer = Tracer(tree, device=runtime.spec)
     o, d = tracer.camera_rays(camera_for(tree, 512, 256))
-    assert query_rays.as_image(tracer, query_rays.QueryRays(tracer, o, d, 0.0, np.inf), o, d).image_w == 512
+    rays = query_rays.QueryRays(tracer, o, d, 0.0, np.inf)
+    assert query_rays.as_image(tracer, rays, o, d).image_w == 512
     one = Tracer(tree, device=runtime.spec, packet=1)
     assert np.array_equal(tracer.count(o, d), one.count(o, d))
 
@@ -1208,7 +1209,8 @@ def test_a_copy_met_after_its_twin_was_dropped_is_not_counted_twice(runtime):
     tree.validate()
     tracer = Tracer(tree, device=runtime.spec, packet=1)
     o, d = np.array([[-2.0, 0.1, 0.2]]), np.array([[1.0, 0.0, 0.0]])
-    counts, raw = query_rays.count_pass(tracer, query_rays.QueryRays(tracer, o, d, 0.0, np.inf), False)
+    rays = query_rays.QueryRays(tracer, o, d, 0.0, np.inf)
+    counts, raw = query_rays.count_pass(tracer, rays, False)
     assert raw.tolist() == [0]
     assert tracer.count(o, d).tolist() == [m]
     assert tracer.intersections(o, d).prim.tolist() == list(range(m))
