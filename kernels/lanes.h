@@ -3,7 +3,7 @@
  *
  * A packet's width is its rays' lanes in one vector register: 8 floats in an AVX2
  * register, 16 in an AVX-512 one. The Tracer picks the width from the device's native
- * float vector width (kdray/trace.py, default_packet); the kernels are the same code
+ * float vector width (kdray/work_sizes.py, default_packet); the kernels are the same code
  * either way, so every lane makes the same decisions at either width.
  *
  * floatP, intP, uintP: KD_PACKET lanes of float, int (masks: each lane all ones or all

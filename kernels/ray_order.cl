@@ -49,7 +49,7 @@ uint kd_cell(float x, float cells_per, float last)
 }
 
 /* keys[k] for rays k = 0 .. n - 1: origin k * o_step (o_step 0: one origin for all) and
- * direction k, from element o_offset and d_offset of their buffers (kdray/trace.py,
+ * direction k, from element o_offset and d_offset of their buffers (kdray/device_tree.py,
  * _input_buffer): the Morton code of the cell of a side^3 grid where the ray enters
  * the box, o + t d at the largest of 0 and the near slab planes' t (the origin for a
  * ray inside it), with octant 1 over the octant of its direction (kdray/ray_order.py:

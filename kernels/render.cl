@@ -561,7 +561,7 @@ void kd_load_packet(__global const KD_ORIGIN_T *origins,
 /* Nearest hits of n_rays rays: origin k * o_step (o_step 1, or 0 for one origin shared
  * by all rays) and direction k of each ray k.
  * o_offset, d_offset: where the rays start in their buffers, in elements (a buffer
- * over the host's array from the page it starts in: kdray/trace.py, _input_buffer).
+ * over the host's array from the page it starts in: kdray/device_tree.py, _input_buffer).
  * image_w: 0, or the rays are the rows of an image image_w rays wide (n_rays a
  * multiple of it) and, with PACKET, a packet is a block of 4 x KD_PACKET / 4 of them,
  * as render_camera's (closer together than a row of KD_PACKET); its lanes past the

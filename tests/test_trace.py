@@ -906,7 +906,7 @@ def test_default_stack_size(tracers):
 def test_rays_per_launch():
     """Launches are sized to the device's memory left beside the tree, each buffer to
     its largest allocation, at most MAX_RAYS_PER_LAUNCH rays; 0 when not one ray fits."""
-    from kdray.trace import MAX_RAYS_PER_LAUNCH, rays_per_launch
+    from kdray.device_tree import MAX_RAYS_PER_LAUNCH, rays_per_launch
     MiB = 2**20
     widths = [12, 12, 4, 8, 12, 4]                      # float o, d; T, UV, NORMAL, ID
     assert rays_per_launch(64 * 2**30, 16 * 2**30, 100 * MiB, widths) == MAX_RAYS_PER_LAUNCH
@@ -1035,7 +1035,7 @@ def test_image_shaped_rays(monkeypatch, packet, tracers):
     `make test-long` (those of 16 share their programs with the other tests on an
     AVX-512 CPU); in `make test` test_runtimes.py's work sizes trace an image 13 wide
     in packets of 8 on every CPU runtime."""
-    import kdray.trace
+    import kdray.device_tree
     tree = mesh_tree("spot.obj", "sah")
     tr = tracers(tree, packet=packet)
     tr._poison_outputs = True
@@ -1043,7 +1043,7 @@ def test_image_shaped_rays(monkeypatch, packet, tracers):
     for (w, h), max_rays in [((1, 1), None), ((7, 3), None), ((65, 9), None),
                              ((13, 11), 120), ((13, 11), 50)]:
         if max_rays:
-            monkeypatch.setattr(kdray.trace, "MAX_RAYS_PER_LAUNCH", max_rays)
+            monkeypatch.setattr(kdray.device_tree, "MAX_RAYS_PER_LAUNCH", max_rays)
         cam = camera_for(tree, w, h)
         eye, d = tr.camera_rays(cam)
         o = eye + rng.normal(scale=1e-3, size=d.shape)        # an origin a ray
@@ -1205,14 +1205,14 @@ def test_render_tiles_cover_every_pixel(monkeypatch, packet, tracers):
     """render takes pixels in 64 x 8 tiles: sizes that no tile, packet or launch fits
     (1 x 1, a width of 65, rows split over several launches, one row per launch) give
     every pixel exactly its own ray: outputs poisoned first, equal to trace(camera_rays)."""
-    import kdray.trace
+    import kdray.device_tree
     tree = mesh_tree("spot.obj", "sah")
     tr = tracers(tree, packet=packet)
     tr._poison_outputs = True
     for (w, h), max_rays in [((1, 1), None), ((7, 3), None), ((65, 9), None),
                              ((130, 17), 600), ((97, 23), 50)]:
         if max_rays:
-            monkeypatch.setattr(kdray.trace, "MAX_RAYS_PER_LAUNCH", max_rays)
+            monkeypatch.setattr(kdray.device_tree, "MAX_RAYS_PER_LAUNCH", max_rays)
         cam = camera_for(tree, w, h)
         images = tr.render(cam, aovs=("depth", "id", "bary"))
         hits = tr.trace(*tr.camera_rays(cam))
