@@ -94,10 +94,10 @@ bench: bench-deps
 # The rest of BENCHMARKS.md's tables that a script makes whole: the above, the stiff
 # cases beside Open3D and embreex, build scaling to 6M triangles, what leaving out
 # saves, the cold start, datasets (views per second beside Open3D, per-scene overhead,
-# Dask workers), calls after an idle moment, the point queries beside Open3D, Warp
-# and trimesh, and rays with thousands of hits beside Open3D. The others (lidar,
-# camera models, first calls, SAH costs, wide nodes, A/B runs in turns) have their own
-# commands there.
+# Dask workers), calls after an idle moment, small calls, the point queries beside
+# Open3D, Warp and trimesh, and rays with thousands of hits beside Open3D. The others
+# (lidar, camera models, first calls, SAH costs, wide nodes, A/B runs in turns) have
+# their own commands there.
 bench-all: bench
 	$(BIN)/python bench/bench_points.py
 	$(BIN)/python bench/bench_stiff.py
@@ -106,6 +106,7 @@ bench-all: bench
 	$(BIN)/python bench/bench_cold.py
 	$(BIN)/python bench/bench_dataset.py
 	$(BIN)/python bench/bench_idle.py
+	$(BIN)/python bench/bench_small_calls.py
 	$(BIN)/python bench/bench_long_lists.py
 
 # Regenerate the golden images on purpose (review the diff before committing).

@@ -5,8 +5,10 @@
     check_host_memory(nbytes, "a 4096x4096 render of depth")   # KdrayError if too much
 """
 import concurrent.futures
+import math
 import mmap
 import os
+import time
 
 import numpy as np
 
@@ -22,7 +24,7 @@ def page_aligned_empty(shape, dtype):
     """An uninitialised C-contiguous array of `shape` and `dtype` whose data starts at a
     multiple of PAGE bytes."""
     dtype = np.dtype(dtype)
-    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    nbytes = math.prod(int(n) for n in shape) * dtype.itemsize
     raw = np.empty(nbytes + PAGE, dtype=np.uint8)
     start = -raw.ctypes.data % PAGE
     return raw[start:start + nbytes].view(dtype).reshape(shape)
@@ -123,7 +125,30 @@ def available_memory():
     return min(found) if found else None
 
 
+MEMINFO_SECONDS = 0.05
+"""How long a reading of the system's available memory stands (`_system_available`):
+reading /proc/meminfo takes about 17 us, as long as the rest of a one-ray trace's
+checks, and every call checks its memory; what the system gives or takes in 50 ms
+moves a check that only turns an allocation the host cannot hold into an error no
+more than the other processes' allocations after it do."""
+
+_MEMINFO = (-float("inf"), None)          # (time.monotonic() read at, bytes or None)
+
+
 def _system_available():
+    """The system's available memory in bytes (Linux MemAvailable, else the free
+    physical pages), or None: read at most every MEMINFO_SECONDS."""
+    global _MEMINFO
+    read_at, have = _MEMINFO
+    now = time.monotonic()
+    if now - read_at < MEMINFO_SECONDS:
+        return have
+    have = _read_available()
+    _MEMINFO = (now, have)
+    return have
+
+
+def _read_available():
     try:
         with open("/proc/meminfo") as f:
             for line in f:

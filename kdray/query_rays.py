@@ -63,6 +63,16 @@ def check_ranges(t_min, t_max, n):
             raise KdrayError(f"{name} must be a number or an array of one value a ray "
                              f"({n}, or shaped as the rays less their last axis), got "
                              f"shape {a.shape}")
+    if lo.ndim == 0 and hi.ndim == 0:
+        # two numbers (most calls): the same checks in Python floats, a few us sooner
+        a, b = float(lo), float(hi)
+        if a != a or b != b:
+            raise KdrayError("t_min and t_max must not be NaN")
+        if not a >= 0:
+            raise KdrayError("t_min must be >= 0 (hits behind a ray's origin never count)")
+        if a > b:
+            raise KdrayError(f"need t_min <= t_max, got t_min={a} > t_max={b} (ray 0)")
+        return lo, hi, 0
     if np.isnan(lo).any() or np.isnan(hi).any():
         raise KdrayError("t_min and t_max must not be NaN")
     if not (lo >= 0).all():

@@ -46,3 +46,22 @@ def test_row_abs_max():
     rows = np.arange(1001) != 7                  # row 7 is all NaN: NaN
     assert np.array_equal(got[rows], np.nanmax(np.abs(a[rows]), axis=1))
     assert np.isnan(got[7]) and got[5] == max(abs(a[5, 0]), abs(a[5, 2]))
+
+
+def test_available_memory_is_read_at_most_every_meminfo_seconds(monkeypatch):
+    """Every call checks its memory (check_host_memory); the system's reading is taken
+    again only once MEMINFO_SECONDS have passed, so a small call does not pay for
+    /proc/meminfo each time (it took half a one-ray trace's time)."""
+    reads, now = [], [100.0]
+    monkeypatch.setattr(host, "_read_available", lambda: reads.append(now[0]) or 1000 + len(reads))
+    monkeypatch.setattr(host.time, "monotonic", lambda: now[0])
+    monkeypatch.setattr(host, "_MEMINFO", (-float("inf"), None))
+    assert host._system_available() == 1001
+    now[0] += 0.5 * host.MEMINFO_SECONDS
+    assert host._system_available() == 1001 and reads == [100.0]
+    now[0] += host.MEMINFO_SECONDS
+    assert host._system_available() == 1002 and len(reads) == 2
+    # the real reading: a positive number of bytes, or None where the system has none
+    monkeypatch.undo()
+    have = host._system_available()
+    assert have is None or have > 0

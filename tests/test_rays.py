@@ -777,6 +777,27 @@ def test_double_precision_and_scale(tracers):
         assert (step >= 0).all()
 
 
+def test_number_ranges_are_checked_as_arrays_are():
+    """check_ranges takes two numbers by a path of its own (most calls give numbers):
+    the same answers and the same errors as the same values given a ray each."""
+    from kdray.query_rays import check_ranges
+    n = 4
+    cases = [(0.0, np.inf), (-0.0, 0.0), (2.0, 2.0), (np.inf, np.inf), (1, 2), (np.float32(0.5), 3),
+             (-1.0, 2.0), (2.0, 1.0), (np.nan, 1.0), (0.0, np.nan), (-np.inf, 0.0)]
+    for a, b in cases:
+        try:
+            lo, hi, step = check_ranges(a, b, n)
+            got = (float(lo), float(hi), step)
+        except KdrayError as e:
+            got = str(e)
+        try:
+            lo, hi, step = check_ranges(np.full(n, a, np.float64), np.full(n, b, np.float64), n)
+            want = (float(lo[0]), float(hi[0]), 0)
+        except KdrayError as e:
+            want = str(e)
+        assert got == want, (a, b)
+
+
 def test_bad_input_is_refused(tracers, teapot_tree):
     tracer = tracers(teapot_tree)
     o, d = np.zeros((4, 3)), np.ones((4, 3))
