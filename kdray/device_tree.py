@@ -136,9 +136,12 @@ class DeviceTree:
         # trace_rays: each work-item takes a run of its group's batch (render.cl,
         # item_runs) on CPUs, where a group's work-items run one after another; on
         # GPUs every local_size-th packet, for coalesced reads. Tests set both.
-        self._item_runs = _device.is_cpu(self.device)
+        # whether the device is a CPU (`device.is_cpu`), asked once: each ask is an
+        # OpenCL call or two, and a small query's launches ask again and again
+        self._cpu = _device.is_cpu(self.device)
+        self._item_runs = self._cpu
         # A CPU device works on host memory: buffers over numpy arrays need no copies
-        self._zero_copy = _device.is_cpu(self.device)
+        self._zero_copy = self._cpu
         # ... in place only when the array starts on a page, on Intel's CPU runtime (PAGE)
         self._page_inputs = self._zero_copy and _device.implementation(self.device) == "intel"
         # PoCL calls vload and shuffle2 out of line: its packets avoid them (render.cl,

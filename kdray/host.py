@@ -69,7 +69,9 @@ def take_rows(a, index, out=None, mode="wrap"):
     index = np.asarray(index)
     if out is None:
         out = np.empty((len(index),) + a.shape[1:], dtype=a.dtype)
-    parts = min(os.cpu_count() or 1, len(index) // TAKE_CHUNK)
+    parts = len(index) // TAKE_CHUNK
+    if parts >= 2:                       # (os.cpu_count reads the system: asked only here)
+        parts = min(os.cpu_count() or 1, parts)
     if parts < 2:
         return np.take(a, index, axis=0, out=out, mode=mode)
     bounds = np.linspace(0, len(index), parts + 1).astype(np.int64)

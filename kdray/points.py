@@ -236,7 +236,7 @@ def _made(tracer, key, make):
 def _program(tracer, geometry64, outputs=()):
     """points.cl built for the tracer's device and tree: {"program", "closest_points",
     "winding_points", "run", "local"}."""
-    cpu = _device.is_cpu(tracer.device)
+    cpu = tracer._cpu
     run = RUN_CPU if cpu else 1
     local = tracer.local_size if cpu else min(64, int(tracer.device.max_work_group_size))
     defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local, "RUN": run}

@@ -240,7 +240,7 @@ def as_image(tracer, rays, origins, directions):
 
 def _run(tracer):
     """Rays a work-item of queries.cl takes on the tracer's device (its RUN)."""
-    return RUN_CPU if _device.is_cpu(tracer.device) else 1
+    return RUN_CPU if tracer._cpu else 1
 
 
 def _program(tracer, kernel, world=None):
@@ -252,7 +252,7 @@ def _program(tracer, kernel, world=None):
     of rays read as given (RAYS_WORLD, `QueryRays.world`)."""
     first = kernel == "list_first"
     run = _run(tracer)
-    local = tracer.local_size if _device.is_cpu(tracer.device) else min(
+    local = tracer.local_size if tracer._cpu else min(
         64, int(tracer.device.max_work_group_size))
     defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local, "RUN": run}
     if tracer.refine:

@@ -777,6 +777,25 @@ def test_double_precision_and_scale(tracers):
         assert (step >= 0).all()
 
 
+def test_lists_are_the_same_whoever_gathers_their_rows(monkeypatch, tracers, teapot_tree):
+    """A list's rows are gathered by numpy below DEVICE_ROWS_FROM hits and by
+    hit_rows.cl from there (on a CPU): the same Intersections either way."""
+    tracer = tracers(teapot_tree)
+    rng = np.random.default_rng(8)
+    lo, hi = teapot_tree.world_box()
+    n = 3001
+    o = lo + (hi - lo) * rng.random((n, 3))
+    d = rng.normal(size=(n, 3))
+    runs = []
+    for least in (hit_lists.DEVICE_ROWS_FROM, 0, 1 << 62):
+        monkeypatch.setattr(hit_lists, "DEVICE_ROWS_FROM", least)
+        runs.append(tracer.intersections(o, d))
+    assert runs[0].offsets[-1] > 0
+    for other in runs[1:]:
+        for name in ("offsets", "t", "prim", "u", "v"):
+            assert np.array_equal(getattr(runs[0], name), getattr(other, name)), name
+
+
 def test_number_ranges_are_checked_as_arrays_are():
     """check_ranges takes two numbers by a path of its own (most calls give numbers):
     the same answers and the same errors as the same values given a ray each."""
