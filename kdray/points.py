@@ -42,7 +42,8 @@ from .layout import MISS, device_triangles, is_leaf, leaf_offset, n_prims
 from .validate import FLOAT32_MAX, real_number
 
 RUN_CPU = 32
-"""Consecutive points a work-item takes on a CPU device (one a work-item on a GPU)."""
+"""Consecutive points a work-item takes on a CPU device (one a work-item on a GPU), at
+most: fewer in a launch too small to give every core work (`_run`)."""
 
 WINDING_BETA = 5.0
 """winding_number's beta: a node's far-field expansion (to the third order) stands for
@@ -235,11 +236,11 @@ def _made(tracer, key, make):
 
 def _program(tracer, geometry64, outputs=()):
     """points.cl built for the tracer's device and tree: {"program", "closest_points",
-    "winding_points", "run", "local"}."""
+    "winding_points", "run": points a work-item takes at most, "local"}."""
     cpu = tracer._cpu
     run = RUN_CPU if cpu else 1
     local = tracer.local_size if cpu else min(64, int(tracer.device.max_work_group_size))
-    defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local, "RUN": run}
+    defines = {"STACK_SIZE": tracer.packet_stack_size, "LOCAL_SIZE": local}
     if tracer.packet > 1:
         # leaves in runs of a packet: a run's boxes tested at once (points.cl)
         defines["PACKET"] = tracer.packet
@@ -308,12 +309,23 @@ def _launch(tracer, entry, kernel_name, n, args, outputs):
         return
     device_out = {name: None if a is None else tracer._output_buffer(a)
                   for name, a in outputs.items()}
-    items = -(-n // entry["run"])
     local = entry["local"]
+    run = _run(tracer, entry, n)
+    items = -(-n // run)
     tracer._enqueue(entry, kernel_name, -(-items // local) * local, local,
                     (tracer._nodes, tracer._tris, tracer._tri_ids, tracer._bounds,
-                     np.uint32(tracer._n_nodes), *args, *device_out.values()))
+                     np.uint32(tracer._n_nodes), *args, np.uint32(run),
+                     *device_out.values()))
     tracer._read_outputs({k: v for k, v in device_out.items() if v is not None}, outputs)
+
+
+def _run(tracer, entry, n):
+    """Points a work-item takes of a launch of n: entry["run"] (RUN_CPU on a CPU), or
+    fewer, down to 1, where n points in runs of that many would fill fewer work-groups
+    than the tracer's traces launch (`Tracer.groups`, enough to fill the device): a
+    group's work-items run one after another on one core, and 100 points in runs of 32
+    were one core's."""
+    return max(1, min(entry["run"], -(-n // (tracer.groups * entry["local"]))))
 
 
 def _steps(tracer, n, widths):

@@ -35,8 +35,8 @@
  * hold: each input triangle is owned by one leaf copy, so copies count once).
  *
  * Options (-D): STACK_SIZE (the tree's depth + 1 at least), NEAR_STACK (closest_points'
- * best-first stack, 2 STACK_SIZE unless given), LOCAL_SIZE, RUN (points a work-item
- * takes, consecutive), GEOMETRY64, SLACK and SCALE_INV2 (double literals), PACKET
+ * best-first stack, 2 STACK_SIZE unless given), LOCAL_SIZE, GEOMETRY64, SLACK and
+ * SCALE_INV2 (double literals), PACKET
  * (leaves in runs of a packet, as packet programs lay them out), KD_PLAIN_VECTOR_OPS,
  * OUT_POINT, OUT_UV, OUT_ID (which outputs closest_points writes).
  */
@@ -46,9 +46,6 @@
 
 #ifndef LOCAL_SIZE
 #define LOCAL_SIZE 8
-#endif
-#ifndef RUN
-#define RUN 1
 #endif
 #ifndef SLACK
 #define SLACK 0.0
@@ -492,9 +489,11 @@ uint kd_nearest_walk(__global const KdNode *nodes, uint n_nodes, __global const 
     }
 }
 
+/* A work-item's points: `run` consecutive ones (a kernel argument: small launches take
+ * fewer a work-item, so that every compute unit gets some; points.py, _run) */
 #define KD_FOR_ITEM_POINTS(k)                                                              \
-    uint first_point = (uint)get_global_id(0) * RUN;                                       \
-    uint end_point = min(first_point + (uint)RUN, n_points);                               \
+    uint first_point = (uint)get_global_id(0) * run;                                       \
+    uint end_point = min(first_point + run, n_points);                                     \
     for (uint k = first_point; k < end_point; k++)
 
 /* Point k's nearest surface point within sqrt(max_d2): out_d its distance (+inf when
@@ -505,7 +504,7 @@ __kernel __attribute__((reqd_work_group_size(LOCAL_SIZE, 1, 1))) KD_NO_LANES
 void closest_points(__global const KdNode *nodes, __global const float *tris,
                     __global const uint *tri_ids, __global const float *bounds, uint n_nodes
                     KD_GEOMETRY_ARG, __global const double *points KD_POINTS64_ARG,
-                    double max_d2, uint n_points, __global double *out_d,
+                    double max_d2, uint n_points, uint run, __global double *out_d,
                     __global double *out_point,
                     __global float *out_uv, __global uint *out_id)
 {
@@ -628,7 +627,7 @@ void winding_points(__global const KdNode *nodes, __global const float *tris,
                     __global const uint *tri_ids, __global const float *bounds, uint n_nodes
                     KD_GEOMETRY_ARG, __global const double *points KD_POINTS64_ARG,
                     __global const float *moments,
-                    __global const uchar *owned, double beta2, uint n_points,
+                    __global const uchar *owned, double beta2, uint n_points, uint run,
                     __global double *out_w)
 {
     KD_FOR_ITEM_POINTS(k) {

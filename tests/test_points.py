@@ -138,6 +138,35 @@ def test_ties_do_not_depend_on_the_points_before(tracers):
     assert all(tracer.closest_points(p[i:i + 1]).prim[0] == lowest[i] for i in range(0, 300, 37))
 
 
+def test_answers_do_not_depend_on_the_points_a_work_item_takes(tracers, spot):
+    """A launch of few points gives each work-item fewer of them (points._run), so that
+    every core gets some: the same answers, bit for bit, as in runs of RUN_CPU (the
+    points in one call), in calls of a few points each, and in runs of one."""
+    tracer = tracers(spot[2])
+    tracer._poison_outputs = True
+    rng = np.random.default_rng(12)
+    lo, hi = spot[2].world_box()
+    p = lo - 0.2 + (hi - lo + 0.4) * rng.random((1500, 3))
+    whole = tracer.closest_points(p)
+    w = tracer.winding_number(p)
+    parts = [tracer.closest_points(p[i:i + 37]) for i in range(0, len(p), 37)]
+    for name in ("distance", "point", "prim", "u", "v"):
+        want = getattr(whole, name)
+        assert np.array_equal(np.concatenate([getattr(a, name) for a in parts]), want), name
+    assert np.array_equal(np.concatenate([tracer.winding_number(p[i:i + 37])
+                                          for i in range(0, len(p), 37)]), w)
+    groups = tracer.groups
+    try:
+        tracer.groups = len(p)                   # runs of one point a work-item
+        assert kpoints._run(tracer, {"run": kpoints.RUN_CPU, "local": 8}, len(p)) == 1
+        ones = tracer.closest_points(p)
+        assert all(np.array_equal(getattr(ones, n), getattr(whole, n))
+                   for n in ("distance", "point", "prim", "u", "v"))
+        assert np.array_equal(tracer.winding_number(p), w)
+    finally:
+        tracer.groups = groups
+
+
 def test_ties_at_shared_edges_go_to_the_lowest_input_id(tracers):
     """A point on an edge two triangles share, or beyond it (off the surface along the
     bisector of their normals), is exactly as near to both wherever the edge lies (an
