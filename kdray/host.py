@@ -128,11 +128,11 @@ def available_memory():
 
 
 MEMINFO_SECONDS = 0.05
-"""How long a reading of the system's available memory stands (`_system_available`):
-reading /proc/meminfo takes about 17 us, as long as the rest of a one-ray trace's
-checks, and every call checks its memory; what the system gives or takes in 50 ms
-moves a check that only turns an allocation the host cannot hold into an error no
-more than the other processes' allocations after it do."""
+"""How long a reading of the system's available memory is reused
+(`_system_available`). Every call checks its memory, some several times, and reading
+/proc/meminfo each time took half of a one-ray trace's time. A reading 50 ms old
+guides as well as a fresh one: the check only turns an allocation the host cannot
+hold into an error, and another process may allocate right after any check."""
 
 _MEMINFO = (-float("inf"), None)          # (time.monotonic() read at, bytes or None)
 

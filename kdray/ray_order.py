@@ -274,7 +274,7 @@ def ray_order(tracer, origins, directions, lo, hi, o_step=1, buffers=None):
     them), stable (numpy's radix sort of 16-bit keys)."""
     n = len(directions)
     if n < min(DIRECTION_ORDER_FROM, FOLLOW_ORDER_FROM, ORDER_FROM):
-        return None                     # (`unordered` would say so, after its sample)
+        return None                     # fewer than any order takes: no sample
     if concentrated(origins, directions, lo, hi, o_step):
         keys = "direction"
     elif n >= FOLLOW_ORDER_FROM and follow(origins, directions, lo, hi, o_step):
