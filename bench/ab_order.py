@@ -45,7 +45,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
-from bench_embree import rays_of  # noqa: E402
+from bench_embree import rays_of, surface_points  # noqa: E402
 from bench_queries import aimed  # noqa: E402
 from meshes import mesh as bench_mesh  # noqa: E402
 
@@ -74,16 +74,9 @@ def surface_rays(mesh, tree, kind, n, rng):
     diagonal along the ray."""
     lo, hi = (np.asarray(x, dtype=np.float64) for x in tree.world_box())
     diag = float(np.linalg.norm(hi - lo))
-    tri = mesh.triangles
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area = np.linalg.norm(normal, axis=1)
-    pick = rng.choice(len(tri), size=n, p=area / area.sum())
-    r = rng.random((n, 2))
-    r[r.sum(axis=1) > 1] = 1 - r[r.sum(axis=1) > 1]
-    a, b, c = tri[pick, 0], tri[pick, 1], tri[pick, 2]
-    p = a + r[:, :1] * (b - a) + r[:, 1:] * (c - a)
+    p, normal = surface_points(mesh, n, rng)
     if kind == "normals":
-        o, d = p, -normal[pick] / area[pick, None]
+        o, d = p, -normal
     else:
         eyes = rng.normal(size=(int(kind.split("=")[1]), 3))
         eyes = 0.5 * (lo + hi) + 1.5 * diag * eyes / np.linalg.norm(eyes, axis=1)[:, None]

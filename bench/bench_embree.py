@@ -75,18 +75,24 @@ of it (about 6e-8 of its distance from the tree's origin), and half of such rays
 hit their own triangle at t > 0 in every caster."""
 
 
-def ao_rays(mesh, n, rng, offset):
-    """Points on triangles (uniform by area), cosine-weighted directions about each
-    triangle's normal, the points moved `offset` along the ray: (o, d) (n, 3) float64."""
+def surface_points(mesh, n, rng):
+    """(points, normals) (n, 3) float64: points on the mesh's triangles, uniform by area,
+    and their triangles' unit normals."""
     tri = mesh.triangles
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area = np.linalg.norm(normal, axis=1)
     pick = rng.choice(len(tri), size=n, p=area / area.sum())
     r1, r2 = rng.random(n), rng.random(n)
     s = np.sqrt(r1)
-    o = ((1 - s)[:, None] * tri[pick, 0] + (s * (1 - r2))[:, None] * tri[pick, 1]
+    p = ((1 - s)[:, None] * tri[pick, 0] + (s * (1 - r2))[:, None] * tri[pick, 1]
          + (s * r2)[:, None] * tri[pick, 2])
-    z = normal[pick] / area[pick][:, None]
+    return p, normal[pick] / area[pick][:, None]
+
+
+def ao_rays(mesh, n, rng, offset):
+    """Points on triangles (`surface_points`), cosine-weighted directions about each
+    triangle's normal, the points moved `offset` along the ray: (o, d) (n, 3) float64."""
+    o, z = surface_points(mesh, n, rng)
     x = np.cross(z, np.where(np.abs(z[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
     x /= np.linalg.norm(x, axis=1)[:, None]
     y = np.cross(z, x)

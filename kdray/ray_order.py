@@ -114,6 +114,15 @@ def _entry_cells(origins, directions, lo, hi, o_step, side):
     return np.where(cells >= side - 1, side - 1, np.where(cells > 0, cells, 0)).astype(np.int64)
 
 
+def _morton(cell):
+    """(N,) uint16: the Morton code of cells (N, 3) (each 0 .. 31; bit 3 b + k: bit b
+    of the cell's index on axis k)."""
+    key = np.zeros(len(cell), dtype=np.uint16)
+    for k in range(3):
+        key |= MORTON_SPREAD[cell[:, k]] << np.uint16(k)
+    return key
+
+
 def ray_keys(origins, directions, lo, hi, o_step=1):
     """(N,) uint16, in numpy (float64): kernels/ray_order.cl's keys (`device_keys`) of
     rays origins (M, 3), directions (N, 3) (o_step 0: one origin for all, M = 1) over
@@ -124,10 +133,8 @@ def ray_keys(origins, directions, lo, hi, o_step=1):
     cell's side (and, for float32 origins, the box's corner is float32 too: far from 0,
     a grid shifted by its rounding)."""
     d = np.asarray(directions, dtype=np.float64)
-    cell = _entry_cells(origins, d, lo, hi, o_step, float(1 << ORIGIN_BITS))
-    key = np.zeros(len(d), dtype=np.uint16)
+    key = _morton(_entry_cells(origins, d, lo, hi, o_step, float(1 << ORIGIN_BITS)))
     for k in range(3):
-        key |= MORTON_SPREAD[cell[:, k]] << np.uint16(k)
         key |= (d[:, k] < 0).astype(np.uint16) << np.uint16(12 + k)
     return key
 
@@ -137,11 +144,7 @@ def cell_keys(origins, directions, lo, hi, o_step=1):
     with keys="cell") of rays as `ray_keys` takes them: the Morton code of the cell of a
     32^3 grid over the box where each ray enters it (bit 3 b + k: bit b of the cell's
     index on axis k), with no octant. The kernel computes as `ray_keys`' does."""
-    cell = _entry_cells(origins, directions, lo, hi, o_step, float(1 << CELL_BITS))
-    key = np.zeros(len(cell), dtype=np.uint16)
-    for k in range(3):
-        key |= MORTON_SPREAD[cell[:, k]] << np.uint16(k)
-    return key
+    return _morton(_entry_cells(origins, directions, lo, hi, o_step, float(1 << CELL_BITS)))
 
 
 def direction_keys(directions):
