@@ -2,12 +2,15 @@
 robot's or a game's few rays a step, picking under a cursor), beside Open3D's.
 
 usage: python bench/bench_small_calls.py [--mesh bunny] [--sizes 1,100,10000]
-                                         [--calls 200] [--rounds 3] [--device SPEC]
+                                         [--calls 200] [--rounds 3] [--pause 0]
+                                         [--device SPEC]
 
 Rays from random points in the mesh's box in random directions (seeded, float64),
 points the same origins. Each round times --calls calls of each method back to back
-(the methods in turns, a round after another), and the script prints each one's
-median over all calls of all rounds, in microseconds a call, numpy in and numpy out:
+(the methods in turns, a round after another; with --pause S each call S seconds
+after the one before: a robot's or a game's loop, whose calls find the machine idle),
+and the script prints each one's median over all calls of all rounds, in microseconds
+a call, numpy in and numpy out:
 
   kdray trace          Tracer.trace(o, d, outputs=()): t and prim
   kdray occluded       Tracer.occluded(o, d)
@@ -66,6 +69,7 @@ def main():
     ap.add_argument("--sizes", default="1,100,10000")
     ap.add_argument("--calls", type=int, default=200)
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--pause", type=float, default=0.0)
     ap.add_argument("--device", default=None)
     args = ap.parse_args()
     m = bench_mesh(args.mesh)
@@ -78,7 +82,8 @@ def main():
     for note in notes:
         if note.startswith("# open3d"):
             print(note)
-    print(f"# {args.mesh}, {args.calls} calls back to back x {args.rounds} rounds in turns; "
+    spacing = f"{args.pause} s apart" if args.pause else "back to back"
+    print(f"# {args.mesh}, {args.calls} calls {spacing} x {args.rounds} rounds in turns; "
           f"median microseconds a call")
     rng = np.random.default_rng(0)
     lo, hi = m.vertices.min(axis=0), m.vertices.max(axis=0)
@@ -97,6 +102,8 @@ def main():
         for _ in range(args.rounds):
             for name, f in calls.items():
                 for _ in range(args.calls):
+                    if args.pause:
+                        time.sleep(args.pause)
                     t0 = time.perf_counter()
                     f()
                     times[name].append(time.perf_counter() - t0)
