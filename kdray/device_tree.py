@@ -45,6 +45,15 @@ a launch's buffers (at most 92 bytes a ray) near 400 MB. Smaller devices take fe
 rays a launch (`rays_per_launch`)."""
 
 
+COPY_BELOW = PAGE
+"""Bytes below which a host array is copied to and from a CPU device rather than used in
+place. A buffer over the host's memory must be mapped to be read back and, on Intel's
+runtime, start on a page (an array passed from its page's start, or copied to pages);
+a copy of less than a page costs less than that, so calls of a few hundred rays or
+fewer are cheaper this way, but buffers of the runtime's own from a page or two on
+cost much more to make and read than a map (BENCHMARKS.md, "Small calls")."""
+
+
 _POISON = np.uint32(0x7FBADBAD)
 """Fill pattern for output buffers when `_poison_outputs` is set (a float NaN, a uint32
 larger than any triangle id): a test can then see any element the kernel missed."""
@@ -363,8 +372,8 @@ class DeviceTree:
         """kernels/<source> built with `defines` (dict name -> value or None), once per
         Tracer and option set (a program build takes seconds on some runtimes), with
         its kernels: {"program": Program, name: Kernel for each of `kernels`}."""
-        # the key: (name, value) pairs of the defines and the source, in name order
-        key = tuple(sorted({**defines, "source": source}.items(), key=lambda kv: kv[0]))
+        # the key: the (name, value) pairs of the defines and the source, in any order
+        key = frozenset({**defines, "source": source}.items())
         entry = self._programs.get(key)
         if entry is None:
             cl = _device._cl()
@@ -385,7 +394,7 @@ class DeviceTree:
         scalars' types, pyopencl packs them itself: its untyped set_arg takes about
         20 us a scalar, half the time of a launch of a few rays."""
         kernel = entry[kernel_name]
-        types = tuple(a.dtype if isinstance(a, np.generic) else None for a in args)
+        types = tuple([a.dtype if isinstance(a, np.generic) else None for a in args])
         if entry.get(("arg_types", kernel_name)) != types:
             kernel.set_arg_types(types)
             entry[("arg_types", kernel_name)] = types
@@ -405,8 +414,8 @@ class DeviceTree:
 
     def _whole_input(self, array):
         """A read-only device buffer of a contiguous host array for a kernel that takes
-        no element offset: `_input_buffer`'s, in place where it starts on a page (or the
-        device copies anyway), else a copy of it."""
+        no element offset: `_input_buffer`'s (in place from COPY_BELOW bytes on where it
+        starts on a page, or where the runtime takes any address), else a copy of it."""
         if self._page_inputs and array.ctypes.data % PAGE:
             return self._buffer(array)
         return self._input_buffer(array)[0]
@@ -447,22 +456,24 @@ class DeviceTree:
 
     def _read_outputs(self, device_out, host_out):
         """Bring the kernel's outputs (dict name -> buffer from `_output_buffer`) into
-        their host arrays (host_out, by the same names) and wait for it."""
+        their host arrays (host_out, by the same names; an array may be a buffer's
+        first part) and wait for it: a map where the buffer is the array itself, else
+        a copy."""
         cl = _device._cl()
         for name, buf in device_out.items():
-            if self._zero_copy:
+            if buf.hostbuf is not None:
                 # the buffer is the host array: a map makes the kernel's writes visible
                 mapped, _ = cl.enqueue_map_buffer(self.queue, buf, cl.map_flags.READ, 0,
                                                   host_out[name].shape, host_out[name].dtype)
                 mapped.base.release(self.queue)
             else:
-                cl.enqueue_copy(self.queue, host_out[name], buf)
+                cl.enqueue_copy(self.queue, host_out[name], buf, is_blocking=False)
         self.queue.finish()
 
     def _input_buffer(self, array):
         """(buffer, offset): a read-only device buffer holding a contiguous host array
         from element `offset` on. On a CPU device the buffer is the host's memory
-        (USE_HOST_PTR, no copy), else a copy with offset 0.
+        (USE_HOST_PTR, no copy) from COPY_BELOW bytes on, else a copy with offset 0.
 
         Intel's CPU runtime works in place only on memory that starts on a page, and
         copies anything else itself, slowly. So an array that does not start on a page
@@ -470,6 +481,9 @@ class DeviceTree:
         and the kernel only read from it, and the page is mapped (the array is in it).
         The caller keeps `array` alive until the launch has finished."""
         cl = _device._cl()
+        if not self._in_place(array):
+            return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                             hostbuf=array), 0
         offset = 0
         lead = array.ctypes.data % PAGE
         if self._page_inputs and lead:
@@ -482,20 +496,26 @@ class DeviceTree:
                 aligned = page_aligned_empty(array.shape, array.dtype)
                 np.copyto(aligned, array)
                 array = aligned
-        flag = cl.mem_flags.USE_HOST_PTR if self._zero_copy else cl.mem_flags.COPY_HOST_PTR
-        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | flag, hostbuf=array), offset
+        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR,
+                         hostbuf=array), offset
+
+    def _in_place(self, array):
+        """Whether a launch's buffer over host `array` is the array itself: on a CPU
+        device, from COPY_BELOW bytes on (smaller arrays are copied)."""
+        return self._zero_copy and array.nbytes >= COPY_BELOW
 
     def _output_buffer(self, array, read=False):
         """A write-only device buffer for a contiguous host array (read: the kernel
-        reads it too): on a CPU device the array itself, so nothing is copied back.
-        Poisoned first when asked."""
+        reads it too): on a CPU device the array itself from COPY_BELOW bytes on, so
+        nothing is copied back (`_read_outputs` maps it), else the device's own memory,
+        copied back. Poisoned first when asked."""
         cl = _device._cl()
         access = cl.mem_flags.READ_WRITE if read else cl.mem_flags.WRITE_ONLY
         # 4-byte elements get _POISON, bytes (occluded's) 0xAD
         poison = _POISON if array.itemsize % 4 == 0 else np.uint8(0xAD)
         if self._poison_outputs:
             array.reshape(-1).view(poison.dtype)[:] = poison
-        if self._zero_copy:
+        if self._in_place(array):
             return cl.Buffer(self.context, access | cl.mem_flags.USE_HOST_PTR, hostbuf=array)
         buf = cl.Buffer(self.context, access, array.nbytes)
         if self._poison_outputs:

@@ -98,6 +98,9 @@ def _ranges(t_min, t_max, n, scale):
                 step)
 
 
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
 def range_pairs(t_min, t_max, n, scale):
     """(t_ranges, t_step) as trace_rays takes them (render.cl): a page-aligned
     float32 array of (t_min, t_max) pairs in the tree's units, (n, 2) (t_step 1) or
@@ -105,6 +108,11 @@ def range_pairs(t_min, t_max, n, scale):
     (`check_ranges`; beyond float32: inf, the same range)."""
     lo, hi, step = check_ranges(t_min, t_max, n)
     pairs = page_aligned_empty((n if step else 1, 2), np.float32)
+    if not step:
+        a, b = float(lo) / scale, float(hi) / scale
+        if a <= _FLOAT32_MAX and (b <= _FLOAT32_MAX or b == np.inf):
+            pairs[0] = (a, b)                    # no rounding past float32 (most calls)
+            return pairs, step
     with np.errstate(over="ignore"):
         pairs[:, 0] = lo / scale
         pairs[:, 1] = hi / scale

@@ -804,10 +804,13 @@ def test_rays_anywhere_in_memory(dtype, tracers):
     arrays (origins and directions at different element offsets within a page) and
     arrays not even aligned to their element size. (On Intel's runtime the first are
     read in place from the start of their page, the others copied: _input_buffer.)
-    An origin broadcast to every ray gives the hits of the (3,) origin."""
+    An origin broadcast to every ray gives the hits of the (3,) origin. (Arrays from
+    device_tree.COPY_BELOW bytes on are used in place.)"""
+    from kdray.device_tree import COPY_BELOW
     from kdray.host import page_aligned_empty
     tree = mesh_tree("teapot.obj", "sah")
     o, d = random_rays(tree, 1001, seed=3)
+    assert o.astype(dtype).nbytes >= COPY_BELOW
     tracer = tracers(tree)
 
     def placed(a, shift):
@@ -835,6 +838,48 @@ def test_rays_anywhere_in_memory(dtype, tracers):
     for hits in shared[1:]:
         for field in ("t", "prim", "u", "v", "normal"):
             assert np.array_equal(getattr(hits, field), getattr(shared[0], field), equal_nan=True), field
+
+
+def test_small_arrays_copied_large_in_place_same_answers(tracers, monkeypatch):
+    """On a CPU device a launch uses host arrays from device_tree.COPY_BELOW bytes on in
+    place (the buffer is the array) and copies smaller ones; every query gives the same
+    answers bit for bit with all of them in place and all of them copied, outputs
+    poisoned first (3001 rays: no multiple of a work size)."""
+    import kdray.device_tree as kdevice
+    tree = mesh_tree("teapot.obj", "sah")
+    tracer = tracers(tree)
+    if not tracer._zero_copy:
+        pytest.skip("a GPU copies every array")
+    small, large = np.zeros(kdevice.COPY_BELOW // 8 - 1), np.zeros(kdevice.COPY_BELOW // 8)
+    assert tracer._input_buffer(small)[0].hostbuf is None
+    assert tracer._output_buffer(small).hostbuf is None
+    assert tracer._input_buffer(large)[0].hostbuf is not None
+    assert tracer._output_buffer(large).hostbuf is not None
+    o, d = random_rays(tree, 3001, seed=5)
+    t_max = np.linspace(0.5, 4.0, len(d))
+    lo, hi = tree.world_box()
+    points = np.random.default_rng(5).uniform(lo, hi, (3001, 3))
+
+    def answers():
+        hits = tracer.trace(o, d, outputs=("uv", "normal"))
+        lists = tracer.intersections(o, d, t_max=t_max)
+        near = tracer.closest_points(points)
+        return [hits.t, hits.prim, hits.u, hits.v, hits.normal,
+                tracer.occluded(o, d, t_max=t_max), tracer.count(o, d),
+                lists.offsets, lists.t, lists.prim, lists.u, lists.v,
+                tracer.contains(points), near.distance, near.point, near.prim]
+
+    tracer._poison_outputs = True
+    try:
+        monkeypatch.setattr(kdevice, "COPY_BELOW", 0)
+        in_place = answers()
+        monkeypatch.setattr(kdevice, "COPY_BELOW", 1 << 62)
+        copied = answers()
+    finally:
+        tracer._poison_outputs = False
+    assert np.count_nonzero(in_place[1] != MISS) > 0.2 * len(d)
+    for k, (a, b) in enumerate(zip(in_place, copied)):
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), k
 
 
 def test_trace_outputs_leave_out_what_is_not_asked(tracers):
