@@ -27,7 +27,7 @@ from . import device as _device
 from . import ray_input
 from . import render as _render
 from .errors import DeviceError, KdrayError
-from .host import PAGE, huge_page_copy, huge_page_empty, page_aligned_empty
+from .host import COPY_BELOW, PAGE, huge_page_copy, huge_page_empty, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BLOCK,
                      device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
                      triangle_copies)
@@ -43,15 +43,6 @@ MAX_RAYS_PER_LAUNCH = 1 << 22
 """Rays per kernel launch at most: keeps the 32-bit batch counter far from overflow and
 a launch's buffers (at most 92 bytes a ray) near 400 MB. Smaller devices take fewer
 rays a launch (`rays_per_launch`)."""
-
-
-COPY_BELOW = PAGE
-"""Bytes below which a host array is copied to and from a CPU device rather than used in
-place. A buffer over the host's memory must be mapped to be read back and, on Intel's
-runtime, start on a page (an array passed from its page's start, or copied to pages);
-a copy of less than a page costs less than that, so calls of a few hundred rays or
-fewer are cheaper this way, but buffers of the runtime's own from a page or two on
-cost much more to make and read than a map (BENCHMARKS.md, "Small calls")."""
 
 
 _POISON = np.uint32(0x7FBADBAD)
@@ -247,6 +238,11 @@ class DeviceTree:
         self._wide_nodes = None               # (buffer, stack), made when needed (`_wide`)
         self._wide_unfit = False              # they did not fit (`_wide_fits`)
         self._origin = np.asarray(tree.origin, dtype=np.float64)
+        # (lo, hi) (3,) float64, the scene box in world coordinates: every call asks for
+        # it, so it is made once, read-only
+        self._world_box = tree.world_box()
+        for bound in self._world_box:
+            bound.flags.writeable = False
         self._scale = float(tree.scale)       # a power of two: dividing by it is exact
         self._point_queries = {}              # the point queries' data of this tree (points.py)
 

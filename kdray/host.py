@@ -1,6 +1,6 @@
 """Host memory: page-aligned arrays for CPU devices, and how much memory is free.
 
-    a = page_aligned_empty((n, 3), np.float32)     # data starts on a PAGE boundary
+    a = page_aligned_empty((n, 3), np.float32)     # from a PAGE boundary (COPY_BELOW bytes on)
     t = huge_page_copy(tris)                       # a copy in huge pages where it can be
     check_host_memory(nbytes, "a 4096x4096 render of depth")   # KdrayError if too much
 """
@@ -20,9 +20,28 @@ CL_MEM_USE_HOST_PTR array in place only when it starts on a page, and copies it 
 every launch otherwise, which costs more than a copy to pages first."""
 
 
+COPY_BELOW = PAGE
+"""Bytes below which a host array is copied to and from a CPU device rather than used in
+place (kdray.device_tree). A buffer over the host's memory must be mapped to be read
+back and, on Intel's runtime, start on a page (an array passed from its page's start,
+or copied to pages); a copy of less than a page costs less than that, so calls of a few
+hundred rays or fewer are cheaper this way, but buffers of the runtime's own from a
+page or two on cost much more to make and read than a map (BENCHMARKS.md, "Small
+calls")."""
+
+
 def page_aligned_empty(shape, dtype):
-    """An uninitialised C-contiguous array of `shape` and `dtype` whose data starts at a
-    multiple of PAGE bytes."""
+    """An uninitialised C-contiguous array of `shape` and `dtype` for a launch to use:
+    its data starting at a multiple of PAGE bytes from COPY_BELOW bytes on, a smaller
+    one (copied to a device, never used in place) wherever numpy puts it."""
+    dtype = np.dtype(dtype)
+    if math.prod(int(n) for n in shape) * dtype.itemsize < COPY_BELOW:
+        return np.empty(shape, dtype)
+    return _on_page(shape, dtype)
+
+
+def _on_page(shape, dtype):
+    """An uninitialised C-contiguous array whose data starts at a multiple of PAGE."""
     dtype = np.dtype(dtype)
     nbytes = math.prod(int(n) for n in shape) * dtype.itemsize
     raw = np.empty(nbytes + PAGE, dtype=np.uint8)
@@ -101,12 +120,12 @@ def huge_page_empty(shape, dtype):
     its whole huge pages advised to the kernel as such (madvise MADV_HUGEPAGE: Linux
     backs them with huge pages where transparent huge pages are enabled, "always" or
     "madvise"); the tail, smaller arrays and other systems in pages of PAGE bytes
-    (page_aligned_empty). Its memory is freed with the array."""
+    (from a page's start). Its memory is freed with the array."""
     dtype = np.dtype(dtype)
     nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
     advice = getattr(mmap, "MADV_HUGEPAGE", None)
     if advice is None or nbytes < HUGE_PAGE:
-        return page_aligned_empty(shape, dtype)
+        return _on_page(shape, dtype)
     # private anonymous memory (a shared mapping follows shmem's huge page setting)
     region = mmap.mmap(-1, nbytes + HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
     raw = np.frombuffer(region, dtype=np.uint8)

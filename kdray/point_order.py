@@ -66,7 +66,7 @@ def contains_rays(tracer, points, centre, directions):
     n = len(points)
     rel = page_aligned_empty((n, 3), np.float32)
     sides = page_aligned_empty((n,), np.uint8)
-    order = spatial_order(tracer, points, *tracer.tree.world_box(), centre, rel, sides)
+    order = spatial_order(tracer, points, *tracer._world_box, centre, rel, sides)
     o = page_aligned_empty((n, 3), np.float32)
     d = page_aligned_empty((n, 3), np.float32)
     if n:

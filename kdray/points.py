@@ -494,7 +494,7 @@ def inside(tracer, points, sign, precision="single"):
     # the generalized winding number where the crossings cannot tell: rays with more
     # crossings than the kernel keeps, and points so near the surface that a crossing
     # may be lost to the rounding of its t or of the float32 copy of the mesh
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
+    lo, hi = tracer._world_box
     near = np.isfinite(distance(tracer, p, NEAR_SURFACE * float(np.max(hi - lo))))
     redo = np.flatnonzero(near | raw)
     if redo.size:

@@ -338,7 +338,7 @@ def launch(tracer, kernel_name, rays, start, stop, extra, outputs, exact=False, 
     image_w = rays.image_w if (start, stop) == (0, rays.n) else 0
     keep.extend((o, d))
     (o_buf, o_at), (d_buf, d_at) = tracer._input_buffer(o), tracer._input_buffer(d)
-    box = tracer.tree.world_box() if rays.world else tracer.tree.bounds
+    box = tracer._world_box if rays.world else tracer.tree.bounds
     order = None if image_w else ray_order(tracer, o, d, *box, rays.o_step,
                                            ((o_buf, o_at), (d_buf, d_at)))
     wide = (tracer._wide()[0],) if tracer.packet > 1 else ()

@@ -63,7 +63,7 @@ def _sides(tracer, points):
 def _middle(tracer):
     """(3,) float64: the middle of the tree's box in world coordinates, whose sides
     `_sides` tells."""
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in tracer.tree.world_box())
+    lo, hi = tracer._world_box
     return 0.5 * (lo + hi)
 
 
@@ -205,7 +205,7 @@ def _contains_rays(tracer, p):
                                                     _OCTANT_DIRECTIONS)
         return QueryRays.relative(tracer, o32, d32, lambda: (take_rows(p, order), d32)), order
     sides = _sides(tracer, p)
-    order = spatial_order(p, *tracer.tree.world_box(), sides)
+    order = spatial_order(p, *tracer._world_box, sides)
     d = np.repeat(_OCTANT_DIRECTIONS, np.bincount(sides, minlength=8), axis=0)
     # the points made float32 and relative to the tree first, then put in order: half
     # the bytes of float64 rows to gather (the same numbers either way)

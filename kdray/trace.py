@@ -278,7 +278,7 @@ class Tracer(DeviceTree):
             per_launch -= per_launch % (image_w * band_rows)
         else:
             image_w = 0
-        box = self.tree.world_box() if rays_world else self.tree.bounds
+        box = self._world_box if rays_world else self.tree.bounds
         for start in range(0, n, per_launch):
             stop = min(n, start + per_launch)
             slots = stop - start

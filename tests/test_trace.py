@@ -805,8 +805,8 @@ def test_rays_anywhere_in_memory(dtype, tracers):
     arrays not even aligned to their element size. (On Intel's runtime the first are
     read in place from the start of their page, the others copied: _input_buffer.)
     An origin broadcast to every ray gives the hits of the (3,) origin. (Arrays from
-    device_tree.COPY_BELOW bytes on are used in place.)"""
-    from kdray.device_tree import COPY_BELOW
+    host.COPY_BELOW bytes on are used in place.)"""
+    from kdray.host import COPY_BELOW
     from kdray.host import page_aligned_empty
     tree = mesh_tree("teapot.obj", "sah")
     o, d = random_rays(tree, 1001, seed=3)
@@ -841,10 +841,11 @@ def test_rays_anywhere_in_memory(dtype, tracers):
 
 
 def test_small_arrays_copied_large_in_place_same_answers(tracers, monkeypatch):
-    """On a CPU device a launch uses host arrays from device_tree.COPY_BELOW bytes on in
-    place (the buffer is the array) and copies smaller ones; every query gives the same
-    answers bit for bit with all of them in place and all of them copied, outputs
-    poisoned first (3001 rays: no multiple of a work size)."""
+    """On a CPU device a launch uses host arrays from host.COPY_BELOW bytes on in place
+    (the buffer is the array) and copies smaller ones; every query gives the same
+    answers bit for bit with all of them in place and all of them copied (the rule
+    device_tree reads patched), outputs poisoned first (3001 rays: no multiple of a
+    work size)."""
     import kdray.device_tree as kdevice
     tree = mesh_tree("teapot.obj", "sah")
     tracer = tracers(tree)
