@@ -146,12 +146,14 @@ def available_memory():
     return min(found) if found else None
 
 
-MEMINFO_SECONDS = 0.05
+MEMINFO_SECONDS = 1.0
 """How long a reading of the system's available memory is reused
 (`_system_available`). Every call checks its memory, some several times, and reading
-/proc/meminfo each time took half of a one-ray trace's time. A reading 50 ms old
-guides as well as a fresh one: the check only turns an allocation the host cannot
-hold into an error, and another process may allocate right after any check."""
+/proc/meminfo each time took half of a one-ray trace's time; a loop that calls a few
+times a second (a robot's, a game's) finds the machine idle at each call, where the
+read costs most. A reading a second old guides as well as a fresh one: the check only
+turns an allocation the host cannot hold into an error, and another process may
+allocate right after any check."""
 
 _MEMINFO = (-float("inf"), None)          # (time.monotonic() read at, bytes or None)
 
