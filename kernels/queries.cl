@@ -561,7 +561,8 @@ void kd_wide_query_step(uint query, KdWideRay *r, KdQuery *q, __global const uin
             r->top = 0u;
         return;
     }
-    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, far);
+    /* a count visits every child its range meets: no order needed */
+    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, far, query != KD_COUNT);
 }
 
 /* Start ray k's wide walk into r (its stack st), or leave r->top 0 where the ray has

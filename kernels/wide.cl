@@ -176,11 +176,16 @@ uint kd_bits8(uint8 b)
     return c.x | c.y;
 }
 
+/* The order of slots 0 .. 7 as they lie (a record's order word's form) */
+#define KD_WIDE_AS_THEY_LIE 0xFAC688u
+
 /* Push the children of wide node w (its record) that the ray meets over [t_min, far],
  * each with where the ray enters its box, as a group taken in the octant's order
- * (KdWideStack). */
+ * (KdWideStack), or with `in_order` false as they lie: a walk that visits every
+ * child it meets whatever it finds (a count's) needs no order, and saves the
+ * mask's permutation. */
 KD_INLINE
-void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
+void kd_wide_push(KdWideRay *r, __global const uint *w, float far, bool in_order)
 {
     __global const float *rows = (__global const float *)w;
     /* the slabs' entries and exits as selects with the slab's value first: a NaN
@@ -198,9 +203,12 @@ void kd_wide_push(KdWideRay *r, __global const uint *w, float far)
     if (met == 0u)
         return;
     /* bit k of the mask: whether the k-th slot in the octant's order is met */
-    uint order = w[KD_WIDE_ORDER + r->planes.octant];
-    uint8 slot = ((uint8)(order) >> ((uint8)(3u) * lane)) & (uint8)(7u);
-    uint mask = kd_bits8((((uint8)(met) >> slot) & (uint8)(1u)) << lane);
+    uint order = KD_WIDE_AS_THEY_LIE, mask = met;
+    if (in_order) {
+        order = w[KD_WIDE_ORDER + r->planes.octant];
+        uint8 slot = ((uint8)(order) >> ((uint8)(3u) * lane)) & (uint8)(7u);
+        mask = kd_bits8((((uint8)(met) >> slot) & (uint8)(1u)) << lane);
+    }
     KdWideStack *st = r->stack;
     uint g = r->top;
     st->mask[g] = r->mask;                /* the group below's (at 0: the 0 of none) */
@@ -261,7 +269,7 @@ void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float 
 #endif
         return;
     }
-    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, r->hit.t);
+    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, r->hit.t, true);
 }
 
 /* The scene's largest |coordinate| (box bmin, bmax): a wide walk's reach */
