@@ -181,9 +181,10 @@ uint kd_bits8(uint8 b)
 
 /* Push the children of wide node w (its record) that the ray meets over [t_min, far],
  * each with where the ray enters its box, as a group taken in the octant's order
- * (KdWideStack), or with `in_order` false as they lie: a walk that visits every
- * child it meets whatever it finds (a count's) needs no order, and saves the
- * mask's permutation. */
+ * (KdWideStack), or with `in_order` false as they lie, which saves the mask's
+ * permutation: a walk that visits every child it meets whatever it finds (a count's)
+ * needs no order, and one that ends at any hit (ANY_HIT) ran faster without it:
+ * whichever child holds a hit ends it. */
 KD_INLINE
 void kd_wide_push(KdWideRay *r, __global const uint *w, float far, bool in_order)
 {
@@ -269,7 +270,11 @@ void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float 
 #endif
         return;
     }
+#ifdef ANY_HIT
+    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, r->hit.t, false);  /* any hit */
+#else
     kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, r->hit.t, true);
+#endif
 }
 
 /* The scene's largest |coordinate| (box bmin, bmax): a wide walk's reach */
