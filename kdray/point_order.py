@@ -61,8 +61,8 @@ def contains_rays(tracer, points, centre, directions):
     its middle centre ((3,) float64): order (n,) uint32, and slot j's ray from point
     order[j], its origin o[j] relative to the tracer's origin in its units
     (ray_input.rays32's numbers) and its direction d[j] = directions[s] ((8, 3) float32)
-    for its sides s of the middle (kdray.rays._sides' bits); o and d (n, 3) float32,
-    page-aligned."""
+    for its sides s of the middle (kdray.rays._sides' bits); o and d (n, 3) float32
+    (host.page_aligned_empty's)."""
     n = len(points)
     rel = page_aligned_empty((n, 3), np.float32)
     sides = page_aligned_empty((n,), np.uint8)

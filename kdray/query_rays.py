@@ -102,9 +102,9 @@ _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def range_pairs(t_min, t_max, n, scale):
-    """(t_ranges, t_step) as trace_rays takes them (render.cl): a page-aligned
-    float32 array of (t_min, t_max) pairs in the tree's units, (n, 2) (t_step 1) or
-    (1, 2) (t_step 0: one range for all), from numbers or (n,) arrays
+    """(t_ranges, t_step) as trace_rays takes them (render.cl): a float32 array
+    (host.page_aligned_empty's) of (t_min, t_max) pairs in the tree's units, (n, 2)
+    (t_step 1) or (1, 2) (t_step 0: one range for all), from numbers or (n,) arrays
     (`check_ranges`; beyond float32: inf, the same range)."""
     lo, hi, step = check_ranges(t_min, t_max, n)
     pairs = page_aligned_empty((n if step else 1, 2), np.float32)
@@ -142,9 +142,9 @@ class QueryRays:
     @classmethod
     def relative(cls, tracer, o32, d32, given):
         """QueryRays of rays already as queries.cl reads them (o32, d32: (N, 3) float32,
-        page-aligned, relative to the tree's origin in its units), each over (0, inf);
-        given: a function returning (o, d) as the caller gave them, called only where
-        they are needed (`exact`, `subset`)."""
+        host.page_aligned_empty's, relative to the tree's origin in its units), each over
+        (0, inf); given: a function returning (o, d) as the caller gave them, called
+        only where they are needed (`exact`, `subset`)."""
         rays = object.__new__(cls)
         rays.n = len(d32)
         rays.shape, rays.image_w, rays.o_step, rays.world = (rays.n,), 0, 1, None

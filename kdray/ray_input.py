@@ -3,7 +3,7 @@ kernel does not shift them itself, made relative to the tree's origin and rounde
 
     o, d, shape = flat_rays(origins, directions)        # (N, 3) or (3,), (N, 3), shape
     o, d, o_step = origin_rows(o, d)                    # (M, 3): M = N, or 1 (o_step 0)
-    o32, d32 = rays32(o, d, o_step, origin, scale)      # float32, page-aligned
+    o32, d32 = rays32(o, d, o_step, origin, scale)      # float32 (page_aligned_empty's)
     o, d, o_step, rays_world = kernel_rays(origins, directions, origin, scale, in_kernel)
 
 Precision: an origin is taken relative to the tree's float64 `origin`, in units of its
@@ -84,9 +84,9 @@ def origin_rows(origins, directions):
 
 
 def rays32(o, d, o_step, origin, scale):
-    """(o32 (M, 3), d32 (N, 3)) float32, page-aligned: origins o ((M, 3), as
-    `origin_rows` gives them) made relative to `origin` ((3,) float64) in units of
-    `scale` in float64 and only then rounded, directions d rounded."""
+    """(o32 (M, 3), d32 (N, 3)) float32 (host.page_aligned_empty's): origins o ((M,
+    3), as `origin_rows` gives them) made relative to `origin` ((3,) float64) in units
+    of `scale` in float64 and only then rounded, directions d rounded."""
     o = o.astype(np.float64, copy=False)
     # o - origin in float64, rounded to float32 on the way out (buffered: no float64
     # temporary of the whole array); large arrays in chunks on threads (numpy releases
