@@ -3,7 +3,7 @@ launches; the device step of kdray's flow, under kdray.Tracer and the query modu
 
     dt = DeviceTree(tree, device=None)             # context, queue, the tree's buffers
     entry = dt._built("points.cl", defines, ("closest_points",))   # built once, kept
-    buf, offset = dt._input_buffer(array)          # host memory in place on a CPU
+    buf, offset = dt._input_buffer(array)          # on a CPU host memory in place (a page on)
     dt._enqueue(entry, "closest_points", global_size, local_size, args)
 
 `kdray.Tracer` is a DeviceTree with the queries' faces (kdray.trace); the query modules
@@ -24,10 +24,11 @@ import time
 import numpy as np
 
 from . import device as _device
+from . import host as _host
 from . import ray_input
 from . import render as _render
 from .errors import DeviceError, KdrayError
-from .host import COPY_BELOW, PAGE, huge_page_copy, huge_page_empty, page_aligned_empty
+from .host import PAGE, huge_page_copy, huge_page_empty, page_aligned_empty
 from .layout import (KERNEL_OUTPUTS, MAX_DEPTH_LIMIT, MISS, OUTPUT_WIDTH, TRI_BLOCK,
                      device_sizes, device_triangles, n_triangle_blocks, triangle_blocks,
                      triangle_copies)
@@ -410,7 +411,7 @@ class DeviceTree:
 
     def _whole_input(self, array):
         """A read-only device buffer of a contiguous host array for a kernel that takes
-        no element offset: `_input_buffer`'s (in place from COPY_BELOW bytes on where it
+        no element offset: `_input_buffer`'s (in place from host.COPY_BELOW bytes on where it
         starts on a page, or where the runtime takes any address), else a copy of it."""
         if self._page_inputs and array.ctypes.data % PAGE:
             return self._buffer(array)
@@ -469,7 +470,7 @@ class DeviceTree:
     def _input_buffer(self, array):
         """(buffer, offset): a read-only device buffer holding a contiguous host array
         from element `offset` on. On a CPU device the buffer is the host's memory
-        (USE_HOST_PTR, no copy) from COPY_BELOW bytes on, else a copy with offset 0.
+        (USE_HOST_PTR, no copy) from host.COPY_BELOW bytes on, else a copy with offset 0.
 
         Intel's CPU runtime works in place only on memory that starts on a page, and
         copies anything else itself, slowly. So an array that does not start on a page
@@ -497,12 +498,13 @@ class DeviceTree:
 
     def _in_place(self, array):
         """Whether a launch's buffer over host `array` is the array itself: on a CPU
-        device, from COPY_BELOW bytes on (smaller arrays are copied)."""
-        return self._zero_copy and array.nbytes >= COPY_BELOW
+        device, from host.COPY_BELOW bytes on (smaller arrays are copied; the rule
+        host.page_aligned_empty follows, read at each call)."""
+        return self._zero_copy and array.nbytes >= _host.COPY_BELOW
 
     def _output_buffer(self, array, read=False):
         """A write-only device buffer for a contiguous host array (read: the kernel
-        reads it too): on a CPU device the array itself from COPY_BELOW bytes on, so
+        reads it too): on a CPU device the array itself from host.COPY_BELOW bytes on, so
         nothing is copied back (`_read_outputs` maps it), else the device's own memory,
         copied back. Poisoned first when asked."""
         cl = _device._cl()

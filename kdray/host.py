@@ -22,7 +22,8 @@ every launch otherwise, which costs more than a copy to pages first."""
 
 COPY_BELOW = PAGE
 """Bytes below which a host array is copied to and from a CPU device rather than used in
-place (kdray.device_tree). A buffer over the host's memory must be mapped to be read
+place (kdray.device_tree reads it at each launch), and `page_aligned_empty` puts it
+anywhere. A buffer over the host's memory must be mapped to be read
 back and, on Intel's runtime, start on a page (an array passed from its page's start,
 or copied to pages); a copy of less than a page costs less than that, so calls of a few
 hundred rays or fewer are cheaper this way, but buffers of the runtime's own from a

@@ -50,7 +50,7 @@ def spatial_order(tracer, points, lo, hi, centre=None, rel=None, sides=None):
                            *np.asarray(tracer._origin, dtype=np.float64),
                            np.float64(tracer._scale)),
                           {"keys": keys, "rel": rel, "sides": sides})
-    order = page_aligned_empty((n,), np.uint32)    # read in place by contains_rays
+    order = page_aligned_empty((n,), np.uint32)    # read by contains_rays (in place from a page)
     order[:] = np.argsort(keys, kind="stable")
     return order
 

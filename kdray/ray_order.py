@@ -289,6 +289,6 @@ def ray_order(tracer, origins, directions, lo, hi, o_step=1, buffers=None):
     if not unordered(origins, directions, lo, hi, o_step, keys):
         return None
     key = device_keys(tracer, origins, directions, lo, hi, o_step, buffers, keys)
-    order = page_aligned_empty((len(key),), np.uint32)    # read in place (device_tree.py)
+    order = page_aligned_empty((len(key),), np.uint32)    # in place from a page (device_tree.py)
     order[:] = np.argsort(key, kind="stable")
     return order

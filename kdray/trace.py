@@ -292,7 +292,8 @@ class Tracer(DeviceTree):
             order = None if image_w else ray_order(
                 self, o_part, d[start:stop], *box, o_step,
                 ((o_buf, o_offset), (d_buf, d_offset)))
-            order_buf = None if order is None else self._input_buffer(order)[0]
+            # (trace_rays takes no offset for the order: a buffer from its start)
+            order_buf = None if order is None else self._whole_input(order)
             t_buf, t_offset = self._input_buffer(t_ranges[start:stop] if t_step else t_ranges)
             # with world rays the kernel takes the tree's origin and shifts them itself
             origin = tuple(np.float64(x) for x in self._origin) if rays_world else ()

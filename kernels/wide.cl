@@ -66,7 +66,8 @@
  * most one a level, WIDE_STACK levels), group g the node's 8 slots copied as they lie
  * (the child word and where the ray enters the slot's box, t) at 8 g .. 8 g + 7, with
  * its mask (bit k: the slot k-th in the ray's octant's order is still to take) and that
- * order (the node's word for the octant). The top group's mask and order are in the
+ * order (the node's word for the octant; for walks that need none, slot k's place k and
+ * the mask the slots met: kd_wide_push). The top group's mask and order are in the
  * ray (KdWideRay); a group below keeps them at mask[g + 1], order[g + 1] (written by
  * the push above it), and mask[0] is 0 for the pop that ends the walk. A push is two
  * vector copies and a mask, not a store a child. */

@@ -843,15 +843,18 @@ def test_rays_anywhere_in_memory(dtype, tracers):
 def test_small_arrays_copied_large_in_place_same_answers(tracers, monkeypatch):
     """On a CPU device a launch uses host arrays from host.COPY_BELOW bytes on in place
     (the buffer is the array) and copies smaller ones; every query gives the same
-    answers bit for bit with all of them in place and all of them copied (the rule
-    device_tree reads patched), outputs poisoned first (3001 rays: no multiple of a
-    work size)."""
-    import kdray.device_tree as kdevice
+    answers bit for bit with all of them in place (and on pages) and all of them copied
+    (and anywhere in memory), outputs poisoned first: 3001 rays (no multiple of a work
+    size), and 100 (whose ray order, taken here however few they are, is small too)."""
+    import math
+    import kdray.host as khost
+    import kdray.query_rays as kquery
+    import kdray.ray_order as kray_order
     tree = mesh_tree("teapot.obj", "sah")
     tracer = tracers(tree)
     if not tracer._zero_copy:
         pytest.skip("a GPU copies every array")
-    small, large = np.zeros(kdevice.COPY_BELOW // 8 - 1), np.zeros(kdevice.COPY_BELOW // 8)
+    small, large = np.zeros(khost.COPY_BELOW // 8 - 1), np.zeros(khost.COPY_BELOW // 8)
     assert tracer._input_buffer(small)[0].hostbuf is None
     assert tracer._output_buffer(small).hostbuf is None
     assert tracer._input_buffer(large)[0].hostbuf is not None
@@ -860,27 +863,45 @@ def test_small_arrays_copied_large_in_place_same_answers(tracers, monkeypatch):
     t_max = np.linspace(0.5, 4.0, len(d))
     lo, hi = tree.world_box()
     points = np.random.default_rng(5).uniform(lo, hi, (3001, 3))
+    taken = [force_ray_order(monkeypatch, ktrace), force_ray_order(monkeypatch, kquery)]
 
     def answers():
-        hits = tracer.trace(o, d, outputs=("uv", "normal"))
-        lists = tracer.intersections(o, d, t_max=t_max)
-        near = tracer.closest_points(points)
-        return [hits.t, hits.prim, hits.u, hits.v, hits.normal,
-                tracer.occluded(o, d, t_max=t_max), tracer.count(o, d),
-                lists.offsets, lists.t, lists.prim, lists.u, lists.v,
-                tracer.contains(points), near.distance, near.point, near.prim]
+        out = []
+        for n in (len(d), 100):
+            hits = tracer.trace(o[:n], d[:n], outputs=("uv", "normal"))
+            lists = tracer.intersections(o[:n], d[:n], t_max=t_max[:n])
+            near = tracer.closest_points(points[:n])
+            out += [hits.t, hits.prim, hits.u, hits.v, hits.normal,
+                    tracer.occluded(o[:n], d[:n], t_max=t_max[:n]), tracer.count(o[:n], d[:n]),
+                    lists.offsets, lists.t, lists.prim, lists.u, lists.v,
+                    tracer.contains(points[:n]), near.distance, near.point, near.prim]
+        return out
+
+    def off_page(shape, dtype):
+        """an array used in place that starts 4 bytes past a page (a caller's might)"""
+        raw = khost.page_aligned_empty((math.prod(shape) * np.dtype(dtype).itemsize + 4,),
+                                       np.uint8)
+        return np.ndarray(shape, dtype, buffer=raw, offset=4)
 
     tracer._poison_outputs = True
     try:
-        monkeypatch.setattr(kdevice, "COPY_BELOW", 0)
+        monkeypatch.setattr(khost, "COPY_BELOW", 0)
         in_place = answers()
-        monkeypatch.setattr(kdevice, "COPY_BELOW", 1 << 62)
+        # the orders' arrays off their page, in place: read from their start
+        with monkeypatch.context() as m:
+            m.setattr(kray_order, "page_aligned_empty", off_page)
+            off = answers()
+        monkeypatch.setattr(khost, "COPY_BELOW", 1 << 62)
         copied = answers()
     finally:
         tracer._poison_outputs = False
+    for orders in taken:                          # trace's and the queries' orders
+        assert any(order is not None and len(order) == 100 for order in orders)
+        assert any(order is not None and order.ctypes.data % khost.PAGE for order in orders)
     assert np.count_nonzero(in_place[1] != MISS) > 0.2 * len(d)
-    for k, (a, b) in enumerate(zip(in_place, copied)):
+    for k, (a, b, c) in enumerate(zip(in_place, copied, off)):
         assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), k
+        assert np.array_equal(a, c, equal_nan=True), k
 
 
 def test_trace_outputs_leave_out_what_is_not_asked(tracers):
