@@ -23,12 +23,11 @@ every launch otherwise, which costs more than a copy to pages first."""
 COPY_BELOW = PAGE
 """Bytes below which a host array is copied to and from a CPU device rather than used in
 place (kdray.device_tree reads it at each launch), and `page_aligned_empty` puts it
-anywhere. A buffer over the host's memory must be mapped to be read
-back and, on Intel's runtime, start on a page (an array passed from its page's start,
-or copied to pages); a copy of less than a page costs less than that, so calls of a few
-hundred rays or fewer are cheaper this way, but buffers of the runtime's own from a
-page or two on cost much more to make and read than a map (BENCHMARKS.md, "Small
-calls")."""
+anywhere. A buffer over the host's memory must be mapped to be read back and, on
+Intel's runtime, start on a page (an array passed from its page's start, or copied to
+pages); a copy of less than a page costs less than that, so small calls are cheaper
+this way, but buffers of the runtime's own from a page or two on cost much more to
+make and read than a map (BENCHMARKS.md, "Small calls")."""
 
 
 def page_aligned_empty(shape, dtype):
@@ -36,15 +35,15 @@ def page_aligned_empty(shape, dtype):
     its data starting at a multiple of PAGE bytes from COPY_BELOW bytes on, a smaller
     one (copied to a device, never used in place) wherever numpy puts it."""
     dtype = np.dtype(dtype)
-    if math.prod(int(n) for n in shape) * dtype.itemsize < COPY_BELOW:
-        return np.empty(shape, dtype)
-    return _on_page(shape, dtype)
-
-
-def _on_page(shape, dtype):
-    """An uninitialised C-contiguous array whose data starts at a multiple of PAGE."""
-    dtype = np.dtype(dtype)
     nbytes = math.prod(int(n) for n in shape) * dtype.itemsize
+    if nbytes < COPY_BELOW:
+        return np.empty(shape, dtype)
+    return _on_page(shape, dtype, nbytes)
+
+
+def _on_page(shape, dtype, nbytes):
+    """An uninitialised C-contiguous array of `shape` and `dtype` (a np.dtype; nbytes
+    its size) whose data starts at a multiple of PAGE."""
     raw = np.empty(nbytes + PAGE, dtype=np.uint8)
     start = -raw.ctypes.data % PAGE
     return raw[start:start + nbytes].view(dtype).reshape(shape)
@@ -126,7 +125,7 @@ def huge_page_empty(shape, dtype):
     nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
     advice = getattr(mmap, "MADV_HUGEPAGE", None)
     if advice is None or nbytes < HUGE_PAGE:
-        return _on_page(shape, dtype)
+        return _on_page(shape, dtype, nbytes)
     # private anonymous memory (a shared mapping follows shmem's huge page setting)
     region = mmap.mmap(-1, nbytes + HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
     raw = np.frombuffer(region, dtype=np.uint8)

@@ -253,6 +253,14 @@ KdNode kd_wide_leaf(uint child)
     return leaf;
 }
 
+/* Whether a ray's walk takes a node's children in order (kd_wide_push): the nearest
+ * hit's does, any hit's not */
+#ifdef ANY_HIT
+#define KD_WIDE_IN_ORDER false
+#else
+#define KD_WIDE_IN_ORDER true
+#endif
+
 /* One entry off the ray's stack: a leaf tested, or a wide node's children that the
  * ray meets before its best hit pushed. */
 KD_INLINE
@@ -271,11 +279,7 @@ void kd_wide_step(KdWideRay *r, __global const uint *wide, __global const float 
 #endif
         return;
     }
-#ifdef ANY_HIT
-    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, r->hit.t, false);  /* any hit */
-#else
-    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, r->hit.t, true);
-#endif
+    kd_wide_push(r, wide + (size_t)child * KD_WIDE_WORDS, r->hit.t, KD_WIDE_IN_ORDER);
 }
 
 /* The scene's largest |coordinate| (box bmin, bmax): a wide walk's reach */
